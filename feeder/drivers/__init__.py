@@ -1,0 +1,1 @@
+"""Amplifier and sensor drivers.  They move bytes and frames, and know no physics."""

@@ -1,0 +1,119 @@
+"""The one interface every amplifier link implements (serial console, CANopen).
+
+Modelled on python-can's ``BusABC``: one abstract class, transports as
+implementations.  Units are SI; voltages are the amplifier's output in volts
+peak-to-peak of the sawtooth.  A driver drives one axis.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from types import TracebackType
+
+
+class AmplifierError(RuntimeError):
+    """The amplifier answered with an error, or refused a value."""
+
+
+class AmplifierLinkLost(AmplifierError):
+    """No answer within the link's timeout: cable, process or node gone."""
+
+
+FLYBACK_SHAPES = ("linear", "half-cosine", "current-limited")
+
+
+@dataclass(frozen=True)
+class DriveSettings:
+    """What the amplifier needs to produce a stepping sawtooth.
+
+    frequency_hz: sawtooth frequency (one step per period).
+    amplitude_v: peak-to-peak amplitude in volts.
+    flyback_shape: one of :data:`FLYBACK_SHAPES`.
+    flyback_s: flyback duration for ``linear``/``half-cosine``; ``None`` lets the
+        amplifier's current limit set it (``current-limited``).
+    """
+
+    frequency_hz: float
+    amplitude_v: float
+    flyback_shape: str = "current-limited"
+    flyback_s: float | None = None
+
+
+@dataclass(frozen=True)
+class AmplifierStatus:
+    """A snapshot of one axis.
+
+    mode: ``gnd`` (output grounded), ``stp`` (stepping allowed), ``off`` ...
+    step_counter: signed count of steps executed since power-up (+ forward).
+    moving: a step burst or continuous stepping is in progress.
+    fault_word: bit field, 0 = healthy; ``faults`` names the bits that are set.
+    """
+
+    mode: str
+    frequency_hz: float
+    amplitude_v: float
+    step_counter: int
+    moving: bool
+    fault_word: int = 0
+    faults: tuple[str, ...] = field(default_factory=tuple)
+
+
+class Amplifier(ABC):
+    """One axis of a stick-slip amplifier.
+
+    Every method may raise :class:`AmplifierLinkLost` (no answer within the
+    timeout) or :class:`AmplifierError` (the device refused).  Implementations
+    are thread-safe: one lock per link.
+    """
+
+    @abstractmethod
+    def apply(self, settings: DriveSettings) -> None:
+        """Configure frequency, amplitude and flyback for the next steps."""
+
+    @abstractmethod
+    def step(self, count: int) -> None:
+        """Start a burst of ``abs(count)`` steps, forward (+) or backward (−).
+
+        Returns at once; use :meth:`wait` or :meth:`status` to follow it.
+        ``count == 0`` is refused (on a real ANC300 ``stepu 0`` runs forever).
+        """
+
+    @abstractmethod
+    def run_continuous(self, forward: bool) -> None:
+        """Step until :meth:`stop`."""
+
+    @abstractmethod
+    def stop(self) -> None:
+        """Stop stepping at once (the output stays in step mode)."""
+
+    @abstractmethod
+    def wait(self, timeout_s: float) -> bool:
+        """Block until the burst is done; False when ``timeout_s`` ran out first."""
+
+    @abstractmethod
+    def ground(self) -> None:
+        """Ground the output (the safe state)."""
+
+    @abstractmethod
+    def enable(self) -> None:
+        """Leave ground: put the axis in step mode."""
+
+    @abstractmethod
+    def status(self) -> AmplifierStatus:
+        """Read the axis' state."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the link (does not change the output)."""
+
+    def __enter__(self) -> Amplifier:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

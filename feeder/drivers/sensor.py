@@ -1,0 +1,48 @@
+"""Position sensor interface (camera, interferometer, ...)."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from types import TracebackType
+
+
+class SensorLost(RuntimeError):
+    """No sample within the timeout, or the sensor's link closed."""
+
+
+@dataclass(frozen=True)
+class PositionSample:
+    """One measurement.
+
+    time_s: the sensor's timestamp of the exposure (its own clock, seconds).
+    position_m: part position along the feed axis, metres.
+    sequence: frame number, increasing by one per frame (gaps = dropped frames).
+    """
+
+    time_s: float
+    position_m: float
+    sequence: int
+
+
+class PositionSensor(ABC):
+    """Reads the part's position."""
+
+    @abstractmethod
+    def read(self, timeout_s: float = 1.0) -> PositionSample:
+        """The newest sample not yet returned; raises :class:`SensorLost`."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the link."""
+
+    def __enter__(self) -> PositionSensor:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

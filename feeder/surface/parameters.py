@@ -1,0 +1,148 @@
+"""Parameters of the equivalent rough surface (paper eqs. 1–3) and their TOML file.
+
+File format (also written by ``feeder surface --out``)::
+
+    [surface]
+    sigma_m = 0.482e-9
+    summit_radius_m = 55.0e-9
+    summit_density_per_m2 = 124.1e12
+    mean_summit_height_m = 32.227e-9
+    # z_max_m = ...   (optional; default mean + 10 sigma)
+    [material]          # applies to both bodies
+    youngs_modulus_pa = 169e9
+    poisson_ratio = 0.28
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from feeder.errors import InputError
+
+Z_MAX_SIGMAS = 10.0
+
+
+@dataclass(frozen=True)
+class SurfaceParameters:
+    """Equivalent rough surface against a smooth plane (SI units).
+
+    sigma_m: std of summit heights σ (eq. 3); summit_radius_m: R (eq. 1);
+    summit_density_per_m2: η; mean_summit_height_m: μ; z_max_m: highest summit
+    (default μ + 10σ); youngs_modulus_pa, poisson_ratio: both bodies.
+    """
+
+    sigma_m: float
+    summit_radius_m: float
+    summit_density_per_m2: float
+    mean_summit_height_m: float
+    youngs_modulus_pa: float = 169e9
+    poisson_ratio: float = 0.28
+    z_max_m: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("sigma_m", "summit_radius_m", "summit_density_per_m2", "youngs_modulus_pa"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise InputError(name, f"must be a positive number, got {value!r}")
+        if not math.isfinite(self.mean_summit_height_m):
+            raise InputError("mean_summit_height_m", "must be a finite number")
+        if not (-1.0 < self.poisson_ratio < 0.5):
+            raise InputError("poisson_ratio", f"must lie in (-1, 0.5), got {self.poisson_ratio!r}")
+        if self.z_max_m is not None and not (
+            math.isfinite(self.z_max_m) and self.z_max_m > self.mean_summit_height_m
+        ):
+            raise InputError("z_max_m", "must be a finite height above mean_summit_height_m")
+
+    @property
+    def z_max(self) -> float:
+        """Highest summit height (m)."""
+        if self.z_max_m is not None:
+            return self.z_max_m
+        return self.mean_summit_height_m + Z_MAX_SIGMAS * self.sigma_m
+
+    @property
+    def effective_modulus_pa(self) -> float:
+        """E* for two bodies of the same material: E / (2(1 − ν²))."""
+        return self.youngs_modulus_pa / (2.0 * (1.0 - self.poisson_ratio**2))
+
+    def with_density(self, summit_density_per_m2: float) -> SurfaceParameters:
+        return replace(self, summit_density_per_m2=summit_density_per_m2)
+
+    def to_toml(self) -> str:
+        lines = [
+            "[surface]",
+            f"sigma_m = {self.sigma_m!r}",
+            f"summit_radius_m = {self.summit_radius_m!r}",
+            f"summit_density_per_m2 = {self.summit_density_per_m2!r}",
+            f"mean_summit_height_m = {self.mean_summit_height_m!r}",
+        ]
+        if self.z_max_m is not None:
+            lines.append(f"z_max_m = {self.z_max_m!r}")
+        lines += [
+            "",
+            "[material]",
+            f"youngs_modulus_pa = {self.youngs_modulus_pa!r}",
+            f"poisson_ratio = {self.poisson_ratio!r}",
+            "",
+        ]
+        return "\n".join(lines)
+
+    def write_toml(self, path: Path) -> None:
+        """Write atomically (temporary file, then rename): nothing half-written."""
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(self.to_toml(), encoding="utf-8")
+        tmp.replace(path)
+
+
+DEFAULT_SURFACE = SurfaceParameters(
+    sigma_m=0.482e-9,
+    summit_radius_m=55.0e-9,
+    summit_density_per_m2=124.1e12,
+    mean_summit_height_m=32.227e-9,
+)
+"""Embedded default (DESIGN §2): reproduces the paper's flat-support Table III."""
+
+_SURFACE_KEYS = {
+    "sigma_m",
+    "summit_radius_m",
+    "summit_density_per_m2",
+    "mean_summit_height_m",
+    "z_max_m",
+}
+_MATERIAL_KEYS = {"youngs_modulus_pa", "poisson_ratio"}
+
+
+def load_surface(path: Path) -> SurfaceParameters:
+    """Read a surface TOML file; every problem is an :class:`InputError` naming file and field."""
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(str(path), "no such file") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(str(path), f"cannot read: {err}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise InputError(str(path), f"not valid TOML: {err}") from None
+    surface = data.get("surface")
+    if not isinstance(surface, dict):
+        raise InputError(str(path), "missing [surface] table")
+    material = data.get("material", {})
+    if not isinstance(material, dict):
+        raise InputError(str(path), "[material] must be a table")
+    values: dict[str, float] = {}
+    for table, allowed, name in ((surface, _SURFACE_KEYS, "surface"), (material, _MATERIAL_KEYS, "material")):
+        for key, value in table.items():
+            if key not in allowed:
+                raise InputError(f"{path}: [{name}].{key}", "unknown field")
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise InputError(f"{path}: [{name}].{key}", f"must be a number, got {value!r}")
+            values[key] = float(value)
+    for key in _SURFACE_KEYS - {"z_max_m"}:
+        if key not in values:
+            raise InputError(f"{path}: [surface].{key}", "missing")
+    try:
+        return SurfaceParameters(**values)
+    except InputError as err:
+        raise InputError(f"{path}: {err.field}", err.message) from None
