@@ -1,0 +1,129 @@
+"""``feeder contact``: separation, real area and breakaway force of a part (paper §III)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+from feeder.cli.output import print_json
+from feeder.contact.breakaway import (
+    DEFAULT_TAU_BAND_PA,
+    DEFAULT_TAU_PA,
+    MIN_CONTACTS,
+    ContactResult,
+    contact,
+)
+from feeder.errors import InputError
+from feeder.paper import PAPER_ROWS
+from feeder.parts import Part, Support
+from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters, load_surface
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a positive finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return value
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("contact", help="real contact area and breakaway force of a part")
+    p.add_argument("--part", help="LxWxT in µm, e.g. 300x300x50")
+    p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
+    p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
+    p.add_argument("--tau", type=positive_float, default=DEFAULT_TAU_PA,
+                   help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})")
+    p.add_argument("--tau-band", type=float, default=DEFAULT_TAU_BAND_PA,
+                   help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})")
+    p.add_argument("--density", type=positive_float, default=2330.0,
+                   help="part density in kg/m³ (default silicon, 2330)")
+    p.add_argument("--table", action="store_true",
+                   help="paper-style table: four parts × two supports, model vs paper")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
+    support = Support.parse(args.support)
+    if args.table:
+        return _table(surface, args.tau, args.tau_band, args.json)
+    if not args.part:
+        raise InputError("--part", "required (LxWxT in µm, e.g. 300x300x50), or use --table")
+    part = Part.parse(args.part, density_kg_m3=args.density)
+    result = contact(part, support, surface, args.tau, args.tau_band)
+    if args.json:
+        print_json(result.to_json())
+    else:
+        _print_result(result)
+    return 0
+
+
+def _print_result(r: ContactResult) -> None:
+    lo, hi = r.breakaway_force_band_n
+    alo, ahi = r.breakaway_accel_band_m_s2
+    print(f"part {r.part} µm on {r.support} support")
+    print(f"  mass              {r.mass_kg:.5g} kg, weight {r.weight_n:.5g} N")
+    print(f"  nominal area      {r.nominal_area_m2:.5g} m²")
+    print(f"  separation d      {r.separation_m * 1e9:.4f} nm")
+    print(f"  real area A_r     {r.real_area_m2:.5g} m²  ({r.contacts:.3g} asperities in contact)")
+    print(f"  τ                 {r.tau_pa / 1e9:.2f} ± {r.tau_band_pa / 1e9:.2f} GPa")
+    print(f"  breakaway force   {r.breakaway_force_n * 1e6:.4g} µN  [{lo * 1e6:.4g}, {hi * 1e6:.4g}]")
+    print(f"  breakaway accel   {r.breakaway_accel_m_s2:.4g} m/s²  [{alo:.4g}, {ahi:.4g}]"
+          f"  ({r.breakaway_accel_m_s2 / 9.81:.3g} g)")
+    for w in r.warnings:
+        print(f"  warning: {w}")
+
+
+def _table(surface: SurfaceParameters, tau: float, tau_band: float, as_json: bool) -> int:
+    rows: list[dict[str, Any]] = []
+    warnings: list[str] = []
+    for label, paper in PAPER_ROWS.items():
+        part = Part.parse(label)
+        for kind in ("flat", "grooved"):
+            r = contact(part, Support(kind), surface, tau, tau_band)
+            paper_area = paper.real_area_flat_m2 if kind == "flat" else paper.real_area_grooved_m2
+            rows.append({
+                "part": label,
+                "support": kind,
+                "weight_N": r.weight_n,
+                "paper_weight_N": paper.weight_n,
+                "separation_m": r.separation_m,
+                "real_area_m2": r.real_area_m2,
+                "paper_real_area_m2": paper_area,
+                "real_area_deviation": r.real_area_m2 / paper_area - 1.0,
+                "contacts": r.contacts,
+                "breakaway_force_N": r.breakaway_force_n,
+                "breakaway_accel_m_s2": r.breakaway_accel_m_s2,
+            })
+            warnings += [w for w in r.warnings if w not in warnings and "asperities" not in w]
+    few = [f"{row['part']} {row['support']} ({row['contacts']:.2g})" for row in rows
+           if row["contacts"] < MIN_CONTACTS]
+    if few:
+        warnings.insert(0, f"fewer than {MIN_CONTACTS:g} asperities in contact, Greenwood–Williamson "
+                           f"statistics unreliable: {', '.join(few)}")
+    if as_json:
+        print_json({"rows": rows, "tau_pa": tau, "tau_band_pa": tau_band, "warnings": warnings})
+        return 0
+    print("Greenwood–Williamson + Hertz contact, model vs paper (Table I, Table III); "
+          f"τ = {tau / 1e9:.2f} GPa")
+    header = (f"{'part µm':<12}{'support':<9}{'weight N':>11}{'d nm':>9}{'A_r 1e-17m²':>13}"
+              f"{'paper':>9}{'dev %':>8}{'contacts':>10}{'F_break µN':>12}{'a_break m/s²':>14}")
+    print(header)
+    print("-" * len(header))
+    for row in rows:
+        print(f"{row['part']:<12}{row['support']:<9}{row['weight_N']:>11.5g}"
+              f"{row['separation_m'] * 1e9:>9.3f}{row['real_area_m2'] * 1e17:>13.5g}"
+              f"{row['paper_real_area_m2'] * 1e17:>9.5g}{row['real_area_deviation'] * 100:>8.2f}"
+              f"{row['contacts']:>10.3g}{row['breakaway_force_N'] * 1e6:>12.4g}"
+              f"{row['breakaway_accel_m_s2']:>14.4g}")
+    print()
+    for w in warnings:
+        print(f"warning: {w}")
+    return 0

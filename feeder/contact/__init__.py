@@ -1,0 +1,1 @@
+"""Contact model: Greenwood–Williamson + Hertz real contact area and breakaway force (paper §III)."""

@@ -1,0 +1,134 @@
+"""Breakaway force F = τ·A_r and acceleration a = F/m of a part on its support (paper eq. 7).
+
+The separation d is found from the part's weight (eq. 10), A_r from eq. 11.
+τ carries its uncertainty band (paper: 22.18 ± 3.15 GPa) into bands on F and a.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from feeder.contact.greenwood_williamson import GreenwoodWilliamson
+from feeder.errors import InputError
+from feeder.paper import GROOVED_AREA_RATIO, GROOVED_FRICTION_RATIO, TAU_MEAN_PA, TAU_SPREAD_PA
+from feeder.parts import FLAT, Part, Support
+from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters
+
+DEFAULT_TAU_PA = TAU_MEAN_PA
+DEFAULT_TAU_BAND_PA = TAU_SPREAD_PA
+IDEAL_SHEAR_STRENGTH_PA = 9.6e9
+"""Silicon's ideal shear strength, G{111}/2π ≈ 9.6 GPa (range quoted 6–10 GPa)."""
+MIN_CONTACTS = 10.0
+"""Below this many contacting asperities GW's statistical averaging is unreliable."""
+
+
+@dataclass(frozen=True)
+class ContactResult:
+    """Contact state and breakaway figures of one part on one support (SI units)."""
+
+    part: str
+    support: str
+    mass_kg: float
+    weight_n: float
+    nominal_area_m2: float
+    separation_m: float
+    real_area_m2: float
+    contacts: float
+    tau_pa: float
+    tau_band_pa: float
+    breakaway_force_n: float
+    breakaway_force_band_n: tuple[float, float]
+    breakaway_accel_m_s2: float
+    breakaway_accel_band_m_s2: tuple[float, float]
+    warnings: tuple[str, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``feeder contact --json`` object (unit in every key)."""
+        return {
+            "part": self.part,
+            "support": self.support,
+            "mass_kg": self.mass_kg,
+            "weight_N": self.weight_n,
+            "nominal_area_m2": self.nominal_area_m2,
+            "separation_m": self.separation_m,
+            "real_area_m2": self.real_area_m2,
+            "contacts": self.contacts,
+            "tau_pa": self.tau_pa,
+            "tau_band_pa": self.tau_band_pa,
+            "breakaway_force_N": self.breakaway_force_n,
+            "breakaway_force_band_N": list(self.breakaway_force_band_n),
+            "breakaway_accel_m_s2": self.breakaway_accel_m_s2,
+            "breakaway_accel_band_m_s2": list(self.breakaway_accel_band_m_s2),
+            "warnings": list(self.warnings),
+        }
+
+
+def _warnings(
+    part: Part, support: Support, surface: SurfaceParameters, contacts: float, tau_pa: float,
+    real_area_m2: float,
+) -> list[str]:
+    out = []
+    if contacts < MIN_CONTACTS:
+        out.append(
+            f"only {contacts:.2g} asperities in contact (< {MIN_CONTACTS:g}): Greenwood–Williamson "
+            "statistics are unreliable at this size"
+        )
+    if tau_pa > IDEAL_SHEAR_STRENGTH_PA:
+        out.append(
+            f"τ = {tau_pa / 1e9:.2f} GPa exceeds silicon's ideal shear strength (≈ 6–10 GPa, "
+            "G{111}/2π ≈ 9.6 GPa): the model neglects adhesion, so A_r is underestimated and τ "
+            "absorbs the difference"
+        )
+    if support.kind == "grooved":
+        flat = GreenwoodWilliamson(surface, FLAT.nominal_area_m2(part))
+        ratio = real_area_m2 / float(flat.real_area_m2(flat.separation_m(part.weight_n)))
+        out.append(
+            f"grooved/flat real-area ratio is {ratio:.3f} in this model, not the paper's "
+            f"{GROOVED_AREA_RATIO}: halving the summits at the same load barely changes A_r in "
+            "GW/Hertz; the measured friction ratio "
+            f"{GROOVED_FRICTION_RATIO} needs adhesion (DMT), whose load scales with nominal area"
+        )
+    return out
+
+
+def contact(
+    part: Part,
+    support: Support = FLAT,
+    surface: SurfaceParameters = DEFAULT_SURFACE,
+    tau_pa: float = DEFAULT_TAU_PA,
+    tau_band_pa: float = DEFAULT_TAU_BAND_PA,
+) -> ContactResult:
+    """Separation, real area and breakaway force/acceleration of ``part`` resting on ``support``."""
+    if not (math.isfinite(tau_pa) and tau_pa > 0):
+        raise InputError("--tau", f"must be a positive number of pascals, got {tau_pa!r}")
+    if not (math.isfinite(tau_band_pa) and 0 <= tau_band_pa < tau_pa):
+        raise InputError("--tau-band", f"must be ≥ 0 and below τ, got {tau_band_pa!r}")
+    gw = GreenwoodWilliamson(surface, support.nominal_area_m2(part))
+    try:
+        separation = float(gw.separation_m(part.weight_n))
+    except InputError as err:
+        raise InputError("--part", f"the surface cannot carry this part: {err.message}") from None
+    area = float(gw.real_area_m2(separation))
+    contacts = float(gw.contacts(separation))
+    force = tau_pa * area
+    band = ((tau_pa - tau_band_pa) * area, (tau_pa + tau_band_pa) * area)
+    mass = part.mass_kg
+    return ContactResult(
+        part=part.label,
+        support=support.kind,
+        mass_kg=mass,
+        weight_n=part.weight_n,
+        nominal_area_m2=gw.nominal_area_m2,
+        separation_m=separation,
+        real_area_m2=area,
+        contacts=contacts,
+        tau_pa=tau_pa,
+        tau_band_pa=tau_band_pa,
+        breakaway_force_n=force,
+        breakaway_force_band_n=band,
+        breakaway_accel_m_s2=force / mass,
+        breakaway_accel_band_m_s2=(band[0] / mass, band[1] / mass),
+        warnings=tuple(_warnings(part, support, surface, contacts, tau_pa, area)),
+    )

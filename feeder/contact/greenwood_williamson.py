@@ -1,0 +1,113 @@
+"""Greenwood–Williamson multi-asperity contact with Hertzian asperities (paper eqs. 4–11).
+
+An equivalent rough surface (summit heights Gaussian, mean μ, std σ, radius R,
+density η) against a smooth plane at separation d.  With h = (d − μ)/σ and the
+highest summit H = (z_max − μ)/σ:
+
+    n(d)   = N F_0(h, H)                              (eq. 4)
+    A_r(d) = π N R σ F_1(h, H)                        (eqs. 5, 9, 11)
+    P_r(d) = 4/3 N E* R^½ σ^{3/2} F_{3/2}(h, H)       (eqs. 6, 8, 10)
+
+N = η A_n.  All of it vectorised over d (or over loads for the inverse).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from feeder.contact.gaussian_integrals import H_MIN, gaussian_integral, gaussian_integrals
+from feeder.errors import InputError
+from feeder.surface.parameters import SurfaceParameters
+
+_TABLE_POINTS = 4001
+_MAX_NEWTON = 40
+
+
+class GreenwoodWilliamson:
+    """GW + Hertz contact of ``surface`` over the nominal area ``nominal_area_m2`` (m²)."""
+
+    def __init__(self, surface: SurfaceParameters, nominal_area_m2: float) -> None:
+        if not (math.isfinite(nominal_area_m2) and nominal_area_m2 > 0):
+            raise InputError("nominal_area_m2", f"must be positive, got {nominal_area_m2!r}")
+        self.surface = surface
+        self.nominal_area_m2 = nominal_area_m2
+        self.summits = surface.summit_density_per_m2 * nominal_area_m2
+        """N = η A_n, the number of summits under the nominal area."""
+        s = surface
+        self._h_max = (s.z_max - s.mean_summit_height_m) / s.sigma_m
+        self._load_scale = (
+            4.0 / 3.0 * self.summits * s.effective_modulus_pa
+            * math.sqrt(s.summit_radius_m) * s.sigma_m**1.5
+        )
+        self._area_scale = math.pi * self.summits * s.summit_radius_m * s.sigma_m
+        self._table: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+
+    def _h(self, separation_m: ArrayLike) -> NDArray[np.float64]:
+        d = np.asarray(separation_m, dtype=np.float64)
+        return (d - self.surface.mean_summit_height_m) / self.surface.sigma_m
+
+    def contacts(self, separation_m: ArrayLike) -> NDArray[np.float64]:
+        """Expected number of asperities in contact, n(d) (eq. 4)."""
+        return self.summits * gaussian_integral(0.0, self._h(separation_m), self._h_max)
+
+    def real_area_m2(self, separation_m: ArrayLike) -> NDArray[np.float64]:
+        """Real contact area A_r(d) in m² (eq. 11)."""
+        return self._area_scale * gaussian_integral(1.0, self._h(separation_m), self._h_max)
+
+    def load_n(self, separation_m: ArrayLike) -> NDArray[np.float64]:
+        """Load P_r(d) in newtons the asperities carry at separation d (eq. 10); 0 above z_max."""
+        return self._load_scale * gaussian_integral(1.5, self._h(separation_m), self._h_max)
+
+    @property
+    def max_load_n(self) -> float:
+        """Largest load the model is valid for (separation μ − 8σ)."""
+        return float(self._load_scale * gaussian_integral(1.5, H_MIN, self._h_max))
+
+    def _initial_h(self, log_target: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Interpolated inverse of log F_{3/2} on a fixed grid (start for Newton)."""
+        if self._table is None:
+            grid = np.linspace(H_MIN, self._h_max, _TABLE_POINTS)[:-1]
+            with np.errstate(divide="ignore"):
+                logs = np.log(gaussian_integral(1.5, grid, self._h_max))
+            self._table = (logs[::-1], grid[::-1])
+        logs, grid = self._table
+        return np.interp(log_target, logs, grid)
+
+    def separation_m(self, load_n: ArrayLike) -> NDArray[np.float64]:
+        """Separation d (m) at which the asperities carry ``load_n`` (N); vectorised.
+
+        Solves P_r(d) = load by Newton on log F_{3/2}(h) (dF_n/dh = −n F_{n−1}),
+        started from an interpolated inverse and kept inside its bracket.
+        Raises :class:`InputError` for loads ≤ 0 or above :attr:`max_load_n`.
+        """
+        load = np.asarray(load_n, dtype=np.float64)
+        if np.any(~np.isfinite(load)) or np.any(load <= 0):
+            raise InputError("load", "must be positive and finite")
+        if np.any(load > self.max_load_n):
+            raise InputError(
+                "load",
+                f"{float(np.max(load)):.4g} N exceeds what this surface carries within the model "
+                f"({self.max_load_n:.4g} N, separation μ − 8σ)",
+            )
+        log_target = np.log(load / self._load_scale)
+        h = self._initial_h(log_target)
+        lo = np.full_like(h, H_MIN)
+        hi = np.full_like(h, self._h_max)
+        for _ in range(_MAX_NEWTON):
+            f32, f12 = gaussian_integrals((1.5, 0.5), h, self._h_max)
+            residual = np.log(f32) - log_target  # decreasing in h
+            lo = np.where(residual > 0, h, lo)
+            hi = np.where(residual < 0, h, hi)
+            step = residual * f32 / (1.5 * f12)  # Newton: Δh = −g/g', g' = −1.5 F½/F3/2
+            new_h = h + step
+            new_h = np.where((new_h < lo) | (new_h > hi), 0.5 * (lo + hi), new_h)
+            converged = np.abs(new_h - h) <= 1e-13 * np.maximum(1.0, np.abs(h))
+            h = new_h
+            if np.all(converged):
+                break
+        else:
+            raise ArithmeticError("separation: Newton iteration did not converge")
+        return np.asarray(self.surface.mean_summit_height_m + self.surface.sigma_m * h)
