@@ -1,0 +1,599 @@
+"""The amplifier's firmware: tick loop, DDS, DAC buffer, output limits, safety.
+
+Embedded style (DESIGN §6).  A fixed-period tick (default 1 kHz) tops up a
+circular DAC buffer (two halves, default 2 × 10 ms) so that it always holds
+``dac_buffer_s`` of samples ahead of the DAC's read pointer.  Each axis has a
+DDS: a 32-bit phase accumulator advanced by ``round(f·2³²/f_s)`` per sample
+whose top 8 bits index the axis' 256-point pattern (ANC300 ``setpu``/``setpd``
+tables, values 0–255) with linear interpolation between entries.  A period of
+the pattern is one step: the step counter changes when the accumulator wraps.
+
+Output chain per sample:  pattern × amplitude (± offset, by mode) → clamp to
+the rail [0, rail_v] → 16-bit DAC code → slew limit in DAC codes, the step
+per sample bounded by ``min(slew, I_max/C)/f_s`` (current into the stack
+capacitance, I = C·dV/dt).  The limits are enforced on the integer code
+stream, so they hold exactly on what the DAC plays.
+
+Safety state machine per axis: a latched ``fault_word`` (see :class:`Fault`);
+any fault grounds the axis and stops it; stepping modes are refused until
+:meth:`Axis.clear_faults`.  Faults: ``WATCHDOG`` (the tick loop stalled longer
+than ``watchdog_s``), ``HOST_WATCHDOG`` (no host command for
+``host_watchdog_s`` while an axis moves; off by default), ``OVERTEMP``
+(injected by the host, for tests).  A DAC underrun (the tick came too late and
+the DAC ran dry) makes the DAC hold its last sample for the gap, as DMA
+hardware in circular mode would; it is counted, not a fault.
+
+Thread safety: one lock per :class:`Firmware`; every :class:`Axis` method and
+the tick take it, so any number of front ends (console, CANopen) may call
+the API from their own threads.  Refused values raise :class:`LimitError`,
+other refusals :class:`FirmwareError`; their ``str()`` is the console's
+error line.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import threading
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from firmware_sim.clock import Clock
+
+MODES = ("gnd", "inp", "cap", "stp", "off", "stp+", "stp-")
+STEPPING_MODES = ("stp", "stp+", "stp-")
+FLYBACK_SHAPES = ("linear", "half-cosine", "current-limited")
+PATTERN_POINTS = 256
+PATTERN_MAX = 255
+DAC_BITS = 16
+DAC_MAX_CODE = (1 << DAC_BITS) - 1
+PHASE_BITS = 32
+MAX_STEPS = (1 << 31) - 1
+CAPACITANCE_MEASURE_S = 0.1
+
+
+class FirmwareError(Exception):
+    """A command the firmware refuses; ``str()`` is the console's error line."""
+
+
+class LimitError(FirmwareError):
+    """A value outside its allowed range ``[lo, hi]``."""
+
+    def __init__(self, field: str, value: float, lo: float, hi: float) -> None:
+        super().__init__(f"Value out of range: {field} = {value:g} not in [{lo:g}, {hi:g}]")
+        self.field = field
+        self.value = value
+        self.lo = lo
+        self.hi = hi
+
+
+class Fault(enum.IntFlag):
+    """Bits of an axis' latched fault word (0 = healthy)."""
+
+    WATCHDOG = 0x01
+    HOST_WATCHDOG = 0x02
+    OVERTEMP = 0x04
+
+
+def fault_names(word: int) -> tuple[str, ...]:
+    """Names of the bits set in a fault word, lowest bit first."""
+    return tuple(f.name.lower() for f in Fault if f.name is not None and word & f)
+
+
+@dataclass(frozen=True)
+class OutputLimits:
+    """The amplifier's output stage as the firmware enforces it.
+
+    rail_v: output range is [0, rail_v] volts (the amplifier's rating, e.g. 200 Vpp).
+    slew_v_per_s: largest |dV/dt| of the output stage, V/s.
+    current_a: output current limit, A.
+    load_capacitance_f: capacitance of the stack the axis drives, F; with
+        ``current_a`` it bounds |dV/dt| ≤ I/C.
+    """
+
+    rail_v: float = 200.0
+    slew_v_per_s: float = 2.0e6
+    current_a: float = 0.5
+    load_capacitance_f: float = 0.5e-6
+
+    @property
+    def max_dv_dt(self) -> float:
+        """The binding slope limit, V/s: min(slew, I/C)."""
+        return min(self.slew_v_per_s, self.current_a / self.load_capacitance_f)
+
+
+@dataclass(frozen=True)
+class FirmwareConfig:
+    """Build-time settings of the firmware.
+
+    axes: configured axes, numbered 1..axes; slots above (up to ``slots``) are empty.
+    tick_hz: tick rate; sample_rate_hz: DAC rate (samples per tick = ratio, integer).
+    dac_buffer_s: how far ahead of the DAC the tick keeps the buffer filled.
+    watchdog_s: a tick later than this grounds every axis (WATCHDOG).
+    host_watchdog_s: no host command for this long while moving → HOST_WATCHDOG; 0 = off.
+    """
+
+    axes: int = 3
+    slots: int = 7
+    tick_hz: float = 1000.0
+    sample_rate_hz: float = 100_000.0
+    dac_buffer_s: float = 0.020
+    watchdog_s: float = 0.25
+    host_watchdog_s: float = 0.0
+    limits: OutputLimits = field(default_factory=OutputLimits)
+    serial_number: str = "FS-0001"
+
+    @property
+    def samples_per_tick(self) -> int:
+        return round(self.sample_rate_hz / self.tick_hz)
+
+
+@dataclass(frozen=True)
+class AxisStatus:
+    """Snapshot of one axis (what ``status()`` and the console's ``getst`` report)."""
+
+    axis: int
+    mode: str
+    frequency_hz: float
+    amplitude_v: float
+    offset_v: float
+    flyback_shape: str
+    flyback_s: float
+    step_counter: int
+    moving: bool
+    fault_word: int
+    output_v: float
+
+    @property
+    def faults(self) -> tuple[str, ...]:
+        return fault_names(self.fault_word)
+
+
+@dataclass
+class TickStats:
+    """Timing of the tick loop; jitter = wake time − deadline, seconds."""
+
+    ticks: int = 0
+    late_ticks: int = 0
+    missed_deadlines: int = 0
+    underruns: int = 0
+    underrun_samples: int = 0
+    jitter_s: deque[float] = field(default_factory=lambda: deque(maxlen=100_000))
+
+    def summary(self) -> dict[str, float | int]:
+        """Counts and jitter p50/p99/max in seconds."""
+        jitter = np.asarray(self.jitter_s, dtype=float)
+        p50, p99, top = (
+            (float(np.percentile(jitter, 50)), float(np.percentile(jitter, 99)),
+             float(jitter.max())) if jitter.size else (0.0, 0.0, 0.0))
+        return {"ticks": self.ticks, "late_ticks": self.late_ticks,
+                "missed_deadlines": self.missed_deadlines, "underruns": self.underruns,
+                "underrun_samples": self.underrun_samples,
+                "jitter_p50_s": p50, "jitter_p99_s": p99, "jitter_max_s": top}
+
+
+DacSink = Callable[[int, int, np.ndarray], None]
+"""Called with (axis, index of the first sample, output volts per sample) for
+every block of samples the DAC will play, in order."""
+
+
+def sawtooth_pattern(shape: str, flyback_fraction: float, up: bool) -> list[int]:
+    """256-point ANC300 pattern (0–255) of one sawtooth step.
+
+    ``up``: slow rise over (1 − flyback_fraction) of the period, then the flyback
+    (``linear`` or ``half-cosine``) over ``flyback_fraction``; ``current-limited``
+    drops in one entry and lets the current limit set the flyback time.  The down
+    pattern is the up pattern reversed in time.
+    """
+    x = np.arange(PATTERN_POINTS) / PATTERN_POINTS
+    rise = 1.0 - (1.0 / PATTERN_POINTS if shape == "current-limited" else flyback_fraction)
+    fall = np.clip((x - rise) / (1.0 - rise), 0.0, 1.0)
+    falling = 1.0 - fall if shape != "half-cosine" else 0.5 * (1.0 + np.cos(np.pi * fall))
+    values = np.where(x <= rise, x / rise, falling)
+    table = np.rint(values * PATTERN_MAX).astype(int)
+    if not up:
+        table = np.roll(table[::-1], 1)
+    return [int(v) for v in table]
+
+
+class Axis:
+    """One output channel: DDS, pattern tables, mode, step counter, faults.
+
+    Obtain with :meth:`Firmware.axis`; all methods are thread-safe.
+    """
+
+    def __init__(self, firmware: Firmware, number: int) -> None:
+        self._fw = firmware
+        self.number = number
+        self._mode = "gnd"
+        self._frequency_hz = 100.0
+        self._amplitude_v = 0.0
+        self._offset_v = 0.0
+        self._flyback_shape = "current-limited"
+        self._flyback_s = 0.0
+        self._patterns: dict[bool, list[int]] = {
+            up: sawtooth_pattern("current-limited", 0.0, up) for up in (True, False)}
+        self._phase = 0
+        self._up = True
+        self._remaining = 0          # steps left in the burst; -1 = continuous
+        self._step_counter = 0
+        self._fault_word = 0
+        self._code = 0               # last DAC code played
+        self._cap_done_sample = 0    # capacitance measurement ends at this sample
+        self._capacitance_f = firmware.config.limits.load_capacitance_f
+
+    # -- settings -------------------------------------------------------------
+
+    def set_mode(self, mode: str) -> None:
+        """Select ``gnd``, ``inp``, ``cap``, ``stp``, ``off``, ``stp+`` or ``stp-``.
+
+        Leaving a stepping mode stops any motion; ``cap`` measures the load
+        capacitance for 0.1 s and then returns to ``gnd``.
+        """
+        with self._fw.lock:
+            if mode not in MODES:
+                raise FirmwareError(f"Unknown mode {mode!r}")
+            if mode != "gnd" and self._fault_word:
+                raise FirmwareError("Axis in fault state")
+            if mode not in STEPPING_MODES:
+                self._remaining = 0
+            if mode == "cap":
+                self._cap_done_sample = (self._fw.samples_written
+                                         + round(CAPACITANCE_MEASURE_S * self._fw.sample_rate))
+            self._mode = mode
+
+    def set_frequency(self, hz: float) -> None:
+        """Step (sawtooth) frequency, 1–10000 Hz; the flyback pattern follows it."""
+        with self._fw.lock:
+            _check("frequency", hz, 1.0, 10_000.0)
+            if self._flyback_shape != "custom":
+                _check("flyback", self._flyback_s, 0.0, 0.5 / hz)
+            self._frequency_hz = float(hz)
+            self._update_patterns()
+
+    def set_amplitude(self, volts: float) -> None:
+        """Peak-to-peak step amplitude, 0..rail volts."""
+        with self._fw.lock:
+            _check("voltage", volts, 0.0, self._fw.config.limits.rail_v)
+            self._amplitude_v = float(volts)
+
+    def set_offset(self, volts: float) -> None:
+        """DC offset used in ``inp``, ``stp+`` and ``stp-``, 0..rail volts."""
+        with self._fw.lock:
+            _check("offset", volts, 0.0, self._fw.config.limits.rail_v)
+            self._offset_v = float(volts)
+
+    def set_flyback(self, shape: str, seconds: float) -> None:
+        """Flyback shape (``linear``, ``half-cosine``, ``current-limited``) and time.
+
+        ``seconds`` is the flyback duration for ``linear``/``half-cosine`` (more
+        than one DAC sample and at most half a period); it is ignored for
+        ``current-limited``, where the current limit into the stack sets it.
+        Rebuilds both patterns.
+        """
+        with self._fw.lock:
+            if shape not in FLYBACK_SHAPES:
+                raise FirmwareError(f"Unknown flyback shape {shape!r}")
+            if shape == "current-limited":
+                seconds = 0.0
+            else:
+                _check("flyback", seconds, 1.0 / self._fw.sample_rate,
+                       0.5 / self._frequency_hz)
+            self._flyback_shape = shape
+            self._flyback_s = float(seconds)
+            self._update_patterns()
+
+    def set_pattern(self, up: bool, values: Sequence[int]) -> None:
+        """Load a 256-point pattern (0–255) for up (``setpu``) or down (``setpd``) steps."""
+        with self._fw.lock:
+            if len(values) != PATTERN_POINTS:
+                raise FirmwareError(f"Pattern needs {PATTERN_POINTS} values, got {len(values)}")
+            for v in values:
+                _check("pattern", v, 0, PATTERN_MAX)
+            self._patterns[up] = [int(v) for v in values]
+            self._flyback_shape = "custom"
+            self._flyback_s = 0.0
+
+    def pattern(self, up: bool) -> list[int]:
+        """The 256-point pattern for up (True) or down steps."""
+        with self._fw.lock:
+            return list(self._patterns[up])
+
+    # -- motion ---------------------------------------------------------------
+
+    def step(self, count: int) -> None:
+        """Start a burst of ``|count|`` steps, up (+) or down (−); returns at once."""
+        with self._fw.lock:
+            if count == 0:
+                raise FirmwareError("Step count must not be 0")
+            _check("steps", abs(count), 1, MAX_STEPS)
+            self._start(up=count > 0, remaining=abs(int(count)))
+
+    def run_continuous(self, up: bool) -> None:
+        """Step up (True) or down until :meth:`stop`."""
+        with self._fw.lock:
+            self._start(up=up, remaining=-1)
+
+    def stop(self) -> None:
+        """Stop stepping at once; the DDS phase (and output) is frozen where it is."""
+        with self._fw.lock:
+            self._remaining = 0
+            self._fw.lock.notify_all()
+
+    def ground(self) -> None:
+        """Stop and ground the output (the safe state)."""
+        with self._fw.lock:
+            self._remaining = 0
+            self._mode = "gnd"
+            self._fw.lock.notify_all()
+
+    def wait_idle(self, timeout_s: float | None = None) -> bool:
+        """Block until no burst runs and no capacitance measurement; False on timeout."""
+        with self._fw.lock:
+            return self._fw.lock.wait_for(
+                lambda: (self._remaining == 0 and self._mode != "cap")
+                or self._fw.stopped, timeout_s)
+
+    # -- faults ---------------------------------------------------------------
+
+    def inject_fault(self, bit: Fault) -> None:
+        """Latch ``bit`` (host test hook): the axis grounds and stops."""
+        with self._fw.lock:
+            self._latch(bit)
+
+    def clear_faults(self) -> None:
+        """Clear the fault word; the axis stays grounded until the host selects a mode."""
+        with self._fw.lock:
+            self._fault_word = 0
+
+    # -- readback -------------------------------------------------------------
+
+    @property
+    def capacitance_f(self) -> float:
+        """Last measured load capacitance, F."""
+        with self._fw.lock:
+            return self._capacitance_f
+
+    def status(self) -> AxisStatus:
+        with self._fw.lock:
+            return AxisStatus(
+                axis=self.number, mode=self._mode, frequency_hz=self._frequency_hz,
+                amplitude_v=self._amplitude_v, offset_v=self._offset_v,
+                flyback_shape=self._flyback_shape, flyback_s=self._flyback_s,
+                step_counter=self._step_counter, moving=self._remaining != 0,
+                fault_word=self._fault_word, output_v=self._code * self._fw.lsb_v)
+
+    # -- internals (called with the lock held) --------------------------------
+
+    def _start(self, up: bool, remaining: int) -> None:
+        if self._mode not in STEPPING_MODES:
+            raise FirmwareError("Axis in wrong mode")
+        if self._fault_word:
+            raise FirmwareError("Axis in fault state")
+        self._up = up
+        self._remaining = remaining
+
+    def _latch(self, bit: Fault) -> None:
+        self._fault_word |= int(bit)
+        self._remaining = 0
+        self._mode = "gnd"
+        self._fw.lock.notify_all()
+
+    def _update_patterns(self) -> None:
+        if self._flyback_shape == "custom":
+            return
+        fraction = self._flyback_s * self._frequency_hz
+        self._patterns = {up: sawtooth_pattern(self._flyback_shape, fraction, up)
+                          for up in (True, False)}
+
+    def _generate(self, first_sample: int, n: int) -> np.ndarray:
+        """The next ``n`` DAC codes (uint16 values as int64), advancing DDS and counters."""
+        fw = self._fw
+        limits = fw.config.limits
+        if self._mode == "cap" and first_sample >= self._cap_done_sample:
+            self._mode = "gnd"
+            fw.lock.notify_all()
+        if self._mode in STEPPING_MODES:
+            wave = self._dds(n)
+            if self._mode == "stp":
+                volts = self._amplitude_v * wave
+            elif self._mode == "stp+":
+                volts = self._offset_v + self._amplitude_v * wave
+            else:
+                volts = self._offset_v - self._amplitude_v * wave
+        elif self._mode == "inp":
+            volts = np.full(n, self._offset_v)
+        else:  # gnd, off, cap
+            volts = np.zeros(n)
+        target = np.rint(np.clip(volts, 0.0, limits.rail_v) / fw.lsb_v).astype(np.int64)
+        codes = _slew_limit(target, self._code, fw.max_codes_per_sample)
+        self._code = int(codes[-1])
+        return codes
+
+    def _dds(self, n: int) -> np.ndarray:
+        """Pattern value (0..1) for the next ``n`` samples; counts completed steps."""
+        table = np.asarray(self._patterns[self._up], dtype=float) / PATTERN_MAX
+        if self._remaining == 0:
+            return np.full(n, _lookup(table, np.array([self._phase], dtype=np.uint64))[0])
+        increment = round(self._frequency_hz * (1 << PHASE_BITS) / self._fw.sample_rate)
+        phases = self._phase + increment * np.arange(n, dtype=np.uint64)
+        wraps = (phases >> np.uint64(PHASE_BITS)).astype(np.int64)
+        end_wraps = (self._phase + increment * n) >> PHASE_BITS
+        if self._remaining > 0 and end_wraps >= self._remaining:
+            # The burst ends on the remaining-th wrap: hold the pattern's start from there.
+            done = wraps >= self._remaining
+            phases = np.where(done, np.uint64(0), phases)
+            steps = self._remaining
+            self._phase = 0
+            self._remaining = 0
+            self._fw.lock.notify_all()
+        else:
+            steps = end_wraps
+            self._phase = (self._phase + increment * n) & ((1 << PHASE_BITS) - 1)
+            if self._remaining > 0:
+                self._remaining -= steps
+        self._step_counter += steps if self._up else -steps
+        return _lookup(table, phases & np.uint64((1 << PHASE_BITS) - 1))
+
+
+def _lookup(table: np.ndarray, phases: np.ndarray) -> np.ndarray:
+    """Linear interpolation of a 256-point cyclic table at 32-bit phases."""
+    index = (phases >> np.uint64(PHASE_BITS - 8)).astype(np.int64)
+    frac = (phases & np.uint64((1 << (PHASE_BITS - 8)) - 1)).astype(float) / (1 << (PHASE_BITS - 8))
+    here = table[index]
+    return here + (table[(index + 1) % PATTERN_POINTS] - here) * frac
+
+
+def _slew_limit(target: np.ndarray, start: int, max_step: int) -> np.ndarray:
+    """Codes that follow ``target`` from ``start`` moving at most ``max_step`` per sample."""
+    steps = np.diff(target, prepend=start)
+    if np.all(np.abs(steps) <= max_step):
+        return target
+    out = np.empty_like(target)
+    code = start
+    for i, want in enumerate(target.tolist()):
+        code += max(-max_step, min(max_step, want - code))
+        out[i] = code
+    return out
+
+
+def _check(name: str, value: float, lo: float, hi: float) -> None:
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise LimitError(name, value, lo, hi)
+
+
+class Firmware:
+    """The whole amplifier: axes 1..N, the tick loop and its statistics.
+
+    ``Firmware(config)`` then ``axis(n)`` for the command API, ``add_sink`` to
+    receive the DAC stream (the world, tests), and ``run(clock, stop_event)``
+    in a thread (or ``run(VirtualClock(), max_ticks=k)`` inline) to tick.
+    """
+
+    def __init__(self, config: FirmwareConfig | None = None) -> None:
+        self.config = config or FirmwareConfig()
+        cfg = self.config
+        if not 1 <= cfg.axes <= cfg.slots:
+            raise ValueError(f"axes must be in 1..{cfg.slots}")
+        if abs(cfg.sample_rate_hz / cfg.tick_hz - cfg.samples_per_tick) > 1e-9:
+            raise ValueError("sample_rate_hz must be an integer multiple of tick_hz")
+        self.lock = threading.Condition(threading.RLock())
+        self.sample_rate = cfg.sample_rate_hz
+        self.lsb_v = cfg.limits.rail_v / DAC_MAX_CODE
+        self.max_codes_per_sample = max(
+            1, math.floor(cfg.limits.max_dv_dt / cfg.sample_rate_hz / self.lsb_v))
+        self.buffer_samples = max(cfg.samples_per_tick,
+                                  round(cfg.dac_buffer_s * cfg.sample_rate_hz))
+        self.samples_written = 0
+        self.stats = TickStats()
+        self.stopped = False
+        self._axes = {n: Axis(self, n) for n in range(1, cfg.axes + 1)}
+        self._sinks: list[DacSink] = []
+        self._last_host_s = 0.0
+        self._now_s = 0.0
+        self._tick_index = 0
+
+    def axis(self, number: int) -> Axis:
+        """Axis ``number`` (1-based); empty or non-existent slots raise FirmwareError."""
+        if number in self._axes:
+            return self._axes[number]
+        if 1 <= number <= self.config.slots:
+            raise FirmwareError(f"No axis in slot {number}")
+        raise FirmwareError(f"Axis number out of range: {number}")
+
+    @property
+    def axis_numbers(self) -> tuple[int, ...]:
+        return tuple(self._axes)
+
+    def add_sink(self, sink: DacSink) -> None:
+        """Receive every block of DAC output (called from the tick, lock held)."""
+        with self.lock:
+            self._sinks.append(sink)
+
+    def host_activity(self) -> None:
+        """A front end received a command from the host (kicks the host watchdog)."""
+        with self.lock:
+            self._last_host_s = self._now_s
+
+    def ground_all(self) -> None:
+        """Stop and ground every axis."""
+        with self.lock:
+            for axis in self._axes.values():
+                axis.ground()
+
+    def tick(self, now_s: float) -> None:
+        """One tick at time ``now_s``: refill the DAC buffer up to ``dac_buffer_s`` ahead."""
+        with self.lock:
+            self._now_s = now_s
+            cfg = self.config
+            played = int(now_s * self.sample_rate + 1e-6)
+            if played > self.samples_written:  # the DAC ran dry: it held its last sample
+                gap = played - self.samples_written
+                self.stats.underruns += 1
+                self.stats.underrun_samples += gap
+                for number, axis in self._axes.items():
+                    self._emit(number, np.full(gap, axis._code, dtype=np.int64))
+                self.samples_written = played
+            if cfg.host_watchdog_s > 0 and now_s - self._last_host_s > cfg.host_watchdog_s:
+                for axis in self._axes.values():
+                    if axis._remaining != 0:
+                        axis._latch(Fault.HOST_WATCHDOG)
+            n = played + self.buffer_samples - self.samples_written
+            if n > 0:
+                first = self.samples_written
+                for number, axis in self._axes.items():
+                    self._emit(number, axis._generate(first, n))
+                self.samples_written += n
+
+    def _emit(self, number: int, codes: np.ndarray) -> None:
+        first = self.samples_written
+        volts = codes * self.lsb_v
+        for sink in self._sinks:
+            sink(number, first, volts)
+
+    def run(self, clock: Clock, stop: threading.Event | None = None,
+            max_ticks: int | None = None) -> None:
+        """Tick at ``tick_hz`` on ``clock`` until ``stop`` is set or ``max_ticks`` ran.
+
+        Call again with the same clock to continue.  Jitter (wake − deadline) is
+        recorded per tick; a tick more than one period late is a late tick, and
+        deadlines it slept through are skipped (the DAC buffer covers them).  A
+        wake later than ``watchdog_s`` latches WATCHDOG on every axis.
+        """
+        period = 1.0 / self.config.tick_hz
+        done = 0
+        while not (stop is not None and stop.is_set()) and (max_ticks is None or done < max_ticks):
+            deadline = self._tick_index * period
+            now = clock.sleep_until(deadline)
+            late = now - deadline
+            with self.lock:
+                self.stats.ticks += 1
+                self.stats.jitter_s.append(late)
+                if late > period:
+                    self.stats.late_ticks += 1
+                if late > self.config.watchdog_s:
+                    for axis in self._axes.values():
+                        axis._latch(Fault.WATCHDOG)
+                self.tick(now)
+                self._tick_index += 1
+                if clock.realtime and now >= self._tick_index * period:
+                    skipped = math.floor(now / period) + 1 - self._tick_index
+                    self.stats.missed_deadlines += skipped
+                    self._tick_index += skipped
+            done += 1
+
+    def tick_summary(self) -> dict[str, float | int]:
+        """The tick loop's statistics (see :class:`TickStats`)."""
+        with self.lock:
+            return self.stats.summary()
+
+    def shutdown(self) -> None:
+        """Ground every axis and wake anyone waiting for an axis."""
+        with self.lock:
+            for axis in self._axes.values():
+                axis.ground()
+            self.stopped = True
+            self.lock.notify_all()
