@@ -1,0 +1,533 @@
+"""The closed loop: a fixed-rate tick that reads the sensor and steps the part to its target.
+
+A move alternates two phases.  *Measure*: after a burst, wait ``settle_s``
+(stack ringing, sensor latency), average ``average_samples`` fresh samples,
+feed the burst's displacement to the direction's :class:`StepEstimator`, then
+decide.  *Burst*: command ``n`` whole steps and wait until the amplifier
+reports the burst done.  Far from the target the *coarse* waveform aims one
+coarse step short (never past the target); the last stretch uses the *fine*
+waveform, whose step is at most twice the tolerance, so the final error is
+at most half a fine step plus scatter: no overshoot, no hunting.
+
+The loop stops a move on request, on stall (bursts that move the part by less
+than ``stall_fraction`` of what the estimate predicts), on travel limits
+(target outside, or the part seen outside), on too many direction reversals,
+on a lost sensor and on a lost amplifier link.  Tick jitter (wake-up time −
+deadline) and overruns (work that ran past the next deadline) are counted.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from feeder.daemon.step_estimator import BACKWARD, DIRECTIONS, FORWARD, StepEstimate, StepEstimator
+from feeder.drivers.amplifier import Amplifier, AmplifierError, AmplifierLinkLost, DriveSettings
+from feeder.drivers.sensor import PositionSample, PositionSensor, SensorLost
+
+COARSE = "coarse"
+FINE = "fine"
+
+
+@dataclass(frozen=True)
+class StepMode:
+    """A waveform the loop steps with and the planner's predicted step for it (m)."""
+
+    name: str
+    settings: DriveSettings
+    predicted_step_m: float
+    predicted_band_m: tuple[float, float]
+
+    @property
+    def seed(self) -> StepEstimate:
+        """Estimator seed: prediction, variance = (half-width of the band)²."""
+        half = 0.5 * (self.predicted_band_m[1] - self.predicted_band_m[0])
+        return StepEstimate(self.predicted_step_m, max(half, 0.05 * self.predicted_step_m) ** 2)
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    """Tuning of the loop; lengths in m, times in s."""
+
+    rate_hz: float = 100.0
+    tolerance_m: float = 1e-6
+    min_position_m: float = -10e-3
+    max_position_m: float = 10e-3
+    settle_s: float = 0.05
+    average_samples: int = 3
+    max_burst_steps: int = 400
+    stall_fraction: float = 0.3
+    stall_bursts: int = 2
+    max_reversals: int = 4
+    max_bursts: int = 60
+    burst_grace_s: float = 1.0
+    sensor_noise_m: float = 0.1e-6
+    step_scatter_fraction: float = 0.05
+    forgetting: float = 0.98
+
+
+@dataclass(frozen=True)
+class Burst:
+    """One burst of a job: ``steps`` > 0 in ``direction`` with waveform ``mode``."""
+
+    mode: str
+    direction: str
+    steps: int
+
+
+@dataclass
+class JobResult:
+    """How a move (or calibration) ended.
+
+    status: ``done``, ``stopped``, ``stalled``, ``limit``, ``oscillating``,
+    ``unreachable``, ``fault``.  Positions in m; ``trace`` is (loop time s, m).
+    """
+
+    kind: str
+    status: str
+    reason: str
+    target_m: float | None
+    start_m: float | None
+    reached_m: float | None
+    steps: int
+    bursts: int
+    duration_s: float
+    estimates: dict[str, dict[str, float]]
+    trace: list[tuple[float, float]] = field(default_factory=list)
+
+    @property
+    def error_m(self) -> float | None:
+        if self.target_m is None or self.reached_m is None:
+            return None
+        return self.reached_m - self.target_m
+
+    def as_dict(self, with_trace: bool = False) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "kind": self.kind, "status": self.status, "reason": self.reason,
+            "target_m": self.target_m, "start_m": self.start_m, "reached_m": self.reached_m,
+            "error_m": self.error_m, "steps": self.steps, "bursts": self.bursts,
+            "duration_s": self.duration_s, "estimates": self.estimates,
+        }
+        if with_trace:
+            out["trace"] = [[t, x] for t, x in self.trace]
+        return out
+
+
+class Job:
+    """A move to ``target_m`` or a calibration sequence of fixed bursts; ``done`` is set at the end."""
+
+    def __init__(
+        self,
+        kind: str,
+        target_m: float | None = None,
+        bursts: tuple[Burst, ...] = (),
+        on_done: Callable[[JobResult], None] | None = None,
+    ) -> None:
+        self.kind = kind
+        self.target_m = target_m
+        self.planned = collections.deque(bursts)
+        self.on_done = on_done
+        self.done = threading.Event()
+        self.result: JobResult | None = None
+        # progress
+        self.started_s = 0.0
+        self.start_m: float | None = None
+        self.steps = 0
+        self.bursts = 0
+        self.stalls = 0
+        self.reversals = 0
+        self.last_direction: str | None = None
+        self.trace: list[tuple[float, float]] = []
+        self.burst: Burst | None = None
+        self.measured_burst: Burst | None = None
+        self.burst_from_m = 0.0
+        self.burst_end_s = 0.0
+        self.settle_until_s = 0.0
+        self.samples: list[float] = []
+
+
+class SensorFeed:
+    """Reads the sensor in its own thread so a slow frame never stalls the tick."""
+
+    def __init__(self, sensor: PositionSensor, timeout_s: float, clock: Callable[[], float]) -> None:
+        self.sensor = sensor
+        self.timeout_s = timeout_s
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._pending: list[tuple[float, PositionSample]] = []
+        self.lost: str | None = None
+        self._closing = False
+        self._thread = threading.Thread(target=self._run, name="sensor-feed", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._closing:
+            try:
+                sample = self.sensor.read(self.timeout_s)
+            except (SensorLost, OSError) as err:
+                if not self._closing:
+                    self.lost = str(err) or type(err).__name__
+                return
+            with self._lock:
+                self._pending.append((self._clock(), sample))
+
+    def take(self) -> list[tuple[float, PositionSample]]:
+        """Samples that arrived since the last call: (arrival loop time s, sample)."""
+        with self._lock:
+            out, self._pending = self._pending, []
+        return out
+
+    def close(self) -> None:
+        self._closing = True
+        self._thread.join(timeout=self.timeout_s + 1.0)
+
+
+class ControlLoop:
+    """Fixed-rate closed loop over one amplifier axis and one position sensor.
+
+    ``modes`` maps ``"coarse"``/``"fine"`` to their :class:`StepMode`;
+    ``estimates`` optionally restores learned steps keyed ``"mode/direction"``.
+    ``on_position`` is called with each settled position (m), ``on_fault`` with
+    ``("amplifier"|"sensor", message)`` when a link is lost.
+    """
+
+    def __init__(
+        self,
+        amplifier: Amplifier,
+        sensor: PositionSensor,
+        modes: dict[str, StepMode],
+        settings: LoopSettings = LoopSettings(),
+        *,
+        estimates: dict[str, StepEstimate] | None = None,
+        on_position: Callable[[float], None] | None = None,
+        on_fault: Callable[[str, str], None] | None = None,
+        sensor_timeout_s: float = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if set(modes) != {COARSE, FINE}:
+            raise ValueError("modes must be exactly 'coarse' and 'fine'")
+        self.settings = settings
+        self.modes = modes
+        self.amplifier = amplifier
+        self._clock = clock
+        self._sensor_timeout_s = sensor_timeout_s
+        self._feed = SensorFeed(sensor, sensor_timeout_s, clock)
+        self.estimators: dict[str, StepEstimator] = {}
+        restored = estimates or {}
+        for name, mode in modes.items():
+            for direction in DIRECTIONS:
+                key = f"{name}/{direction}"
+                self.estimators[key] = StepEstimator(
+                    restored.get(key, mode.seed),
+                    sensor_noise_m=settings.sensor_noise_m,
+                    step_scatter_m=settings.step_scatter_fraction * mode.predicted_step_m,
+                    forgetting=settings.forgetting,
+                )
+        self.on_position = on_position
+        self.on_fault = on_fault
+        self._lock = threading.Lock()
+        self._job: Job | None = None
+        self._stop_requested = False
+        self._stop_reason = ""
+        self._shutdown = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._applied: str | None = None
+        self.position_m: float | None = None
+        self.position_time_s: float | None = None
+        self.fault: str | None = None
+        self.sensor_lost: str | None = None
+        self.last_result: JobResult | None = None
+        self._jitter = collections.deque[float](maxlen=100_000)
+        self.ticks = 0
+        self.overruns = 0
+
+    # -- public API (any thread) -----------------------------------------
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="control-loop", daemon=True)
+        self._thread.start()
+
+    def shutdown(self) -> None:
+        """Stop the loop (an active job ends ``stopped``) and close the sensor feed."""
+        self.request_stop("daemon shutting down")
+        self._shutdown.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        self._feed.close()
+
+    def busy(self) -> bool:
+        with self._lock:
+            return self._job is not None
+
+    def submit(self, job: Job) -> str | None:
+        """Start ``job``; the reason it is refused, or None when accepted."""
+        with self._lock:
+            if self.fault is not None:
+                return f"in fault state: {self.fault}"
+            if self.sensor_lost is not None:
+                return f"sensor lost: {self.sensor_lost}"
+            if self._job is not None:
+                return f"a {self._job.kind} is in progress"
+            if job.target_m is not None:
+                s = self.settings
+                if not (s.min_position_m <= job.target_m <= s.max_position_m):
+                    return (f"target {job.target_m:.6g} m is outside the travel limits "
+                            f"[{s.min_position_m:.6g}, {s.max_position_m:.6g}] m")
+            self._stop_requested = False
+            job.started_s = self._clock()
+            self._job = job
+            return None
+
+    def request_stop(self, reason: str = "stop requested") -> bool:
+        """Ask the active job to stop; False when there is none."""
+        with self._lock:
+            if self._job is None:
+                return False
+            self._stop_requested = True
+            self._stop_reason = reason
+            return True
+
+    def replace_amplifier(self, amplifier: Amplifier) -> None:
+        """After a reconnect: use the new link and leave the fault state (no move resumes)."""
+        with self._lock:
+            self.amplifier = amplifier
+            self._applied = None
+            self.fault = None
+
+    def replace_sensor(self, sensor: PositionSensor) -> None:
+        """After a reconnect: read the new sensor; the position is uncertain until it reports."""
+        self._feed.close()
+        with self._lock:
+            self._feed = SensorFeed(sensor, self._sensor_timeout_s, self._clock)
+            self.sensor_lost = None
+            self.position_m = None
+            self.position_time_s = None
+
+    def estimates(self) -> dict[str, StepEstimate]:
+        return {k: e.estimate for k, e in self.estimators.items()}
+
+    def timing(self) -> dict[str, float | int]:
+        """Tick jitter p50/p99/max (s), ticks and overruns."""
+        jitter = np.array(self._jitter, dtype=float)
+        if jitter.size == 0:
+            return {"rate_hz": self.settings.rate_hz, "ticks": 0, "overruns": 0,
+                    "jitter_p50_s": 0.0, "jitter_p99_s": 0.0, "jitter_max_s": 0.0}
+        return {
+            "rate_hz": self.settings.rate_hz,
+            "ticks": self.ticks,
+            "overruns": self.overruns,
+            "jitter_p50_s": float(np.percentile(jitter, 50)),
+            "jitter_p99_s": float(np.percentile(jitter, 99)),
+            "jitter_max_s": float(jitter.max()),
+        }
+
+    # -- the loop ----------------------------------------------------------
+    def _run(self) -> None:
+        period = 1.0 / self.settings.rate_hz
+        deadline = self._clock() + period
+        while not self._shutdown.is_set():
+            delay = deadline - self._clock()
+            if delay > 0:
+                time.sleep(delay)
+            woke = self._clock()
+            self._jitter.append(woke - deadline)
+            self.ticks += 1
+            self.tick(woke)
+            deadline += period
+            if self._clock() > deadline:
+                self.overruns += 1
+                missed = math.floor((self._clock() - deadline) / period) + 1
+                deadline += missed * period
+        self._finish_on_shutdown()
+
+    def _finish_on_shutdown(self) -> None:
+        job = self._job
+        if job is not None:
+            self._safe_stop()
+            self._finish(job, "stopped", "daemon shutting down")
+
+    def tick(self, now: float) -> None:
+        """One period of work: sensor, faults, stop requests, the active job's phase."""
+        for arrival, sample in self._feed.take():
+            self.position_m = sample.position_m
+            self.position_time_s = arrival
+            job = self._job
+            if job is not None:
+                job.trace.append((arrival, sample.position_m))
+                if job.burst is None and arrival >= job.settle_until_s:
+                    job.samples.append(sample.position_m)
+        if self._feed.lost is not None and self.sensor_lost is None:
+            self.sensor_lost = self._feed.lost
+            self.position_m = None
+            if self._job is not None:
+                self._safe_stop()
+                self._finish(self._job, "fault", f"sensor lost: {self.sensor_lost}")
+            if self.on_fault is not None:
+                self.on_fault("sensor", self.sensor_lost)
+            return
+        job = self._job
+        if job is None:
+            return
+        try:
+            if self._stop_requested:
+                self._safe_stop()
+                self._finish(job, "stopped", self._stop_reason)
+            elif job.burst is not None:
+                self._follow_burst(job, now)
+            else:
+                self._measure(job, now)
+        except AmplifierLinkLost as err:
+            self._link_lost(job, str(err))
+        except AmplifierError as err:
+            self._safe_stop()
+            self._finish(job, "fault", f"amplifier refused: {err}")
+
+    def _link_lost(self, job: Job, message: str) -> None:
+        with self._lock:
+            self.fault = f"amplifier link lost: {message}"
+        self._finish(job, "fault", self.fault)
+        if self.on_fault is not None:
+            self.on_fault("amplifier", message)
+
+    def _safe_stop(self) -> None:
+        try:
+            self.amplifier.stop()
+        except AmplifierLinkLost as err:
+            with self._lock:
+                self.fault = f"amplifier link lost: {err}"
+            if self.on_fault is not None:
+                self.on_fault("amplifier", str(err))
+        except AmplifierError:
+            pass
+
+    def _follow_burst(self, job: Job, now: float) -> None:
+        burst = job.burst
+        assert burst is not None
+        s = self.settings
+        if self.position_m is not None and not (s.min_position_m <= self.position_m
+                                                <= s.max_position_m):
+            self._safe_stop()
+            self._finish(job, "limit", f"part seen at {self.position_m:.6g} m, outside the travel"
+                         " limits; stopped")
+            return
+        if now < job.burst_end_s:
+            return
+        if self.amplifier.status().moving:
+            if now > job.burst_end_s + s.burst_grace_s:
+                self._safe_stop()
+                self._finish(job, "fault", "the amplifier did not finish the burst in time")
+            return
+        job.burst_end_s = now
+        job.settle_until_s = now + s.settle_s
+        job.samples = []
+        job.burst = None
+        job.measured_burst = burst
+
+    def _measure(self, job: Job, now: float) -> None:
+        s = self.settings
+        if now < job.settle_until_s or len(job.samples) < s.average_samples:
+            return
+        x = float(np.mean(job.samples[-s.average_samples:]))
+        job.samples = []
+        if self.on_position is not None:
+            self.on_position(x)
+        if job.start_m is None:
+            job.start_m = x
+        if job.measured_burst is not None:
+            self._learn(job, job.measured_burst, x)
+            job.measured_burst = None
+        if not (s.min_position_m <= x <= s.max_position_m):
+            self._finish(job, "limit", f"part at {x:.6g} m is outside the travel limits", x)
+            return
+        if job.stalls >= s.stall_bursts:
+            self._finish(job, "stalled", f"{job.stalls} bursts in a row barely moved the part", x)
+            return
+        nxt = self._next_burst(job, x)
+        if isinstance(nxt, tuple):
+            self._finish(job, nxt[0], nxt[1], x)
+            return
+        self._start_burst(job, nxt, x, now)
+
+    def _learn(self, job: Job, burst: Burst, x: float) -> None:
+        sign = 1.0 if burst.direction == FORWARD else -1.0
+        moved = sign * (x - job.burst_from_m)
+        est = self.estimators[f"{burst.mode}/{burst.direction}"]
+        expected = burst.steps * est.step_m
+        if moved < self.settings.stall_fraction * expected:
+            job.stalls += 1
+            return
+        job.stalls = 0
+        est.update(burst.steps, moved)
+
+    def _next_burst(self, job: Job, x: float) -> Burst | tuple[str, str]:
+        """The next burst, or (status, reason) when the job is over."""
+        s = self.settings
+        if job.target_m is None:
+            if not job.planned:
+                return ("done", "calibration complete")
+            return job.planned.popleft()
+        if job.bursts >= s.max_bursts:
+            return ("unreachable", f"no convergence after {job.bursts} bursts")
+        error = job.target_m - x
+        if abs(error) <= s.tolerance_m:
+            return ("done", "within tolerance")
+        direction = FORWARD if error > 0 else BACKWARD
+        distance = abs(error)
+        coarse = self.estimators[f"{COARSE}/{direction}"].estimate
+        fine = self.estimators[f"{FINE}/{direction}"].usable_step_m()
+        # aim one step short with a pessimistic (mean + 2σ) step: never past the target
+        coarse_high = coarse.step_m + 2 * coarse.std_m
+        coarse_steps = math.floor(distance / coarse_high) - 1
+        if coarse_steps >= 1 and coarse.step_m > fine:
+            burst = Burst(COARSE, direction, min(coarse_steps, s.max_burst_steps))
+        else:
+            steps = round(distance / fine)
+            if steps == 0:
+                return ("unreachable", f"fine step {fine:.3g} m is more than twice the tolerance "
+                        f"{s.tolerance_m:.3g} m; error {error:.3g} m")
+            burst = Burst(FINE, direction, min(steps, s.max_burst_steps))
+        if job.last_direction is not None and direction != job.last_direction:
+            job.reversals += 1
+            if job.reversals > s.max_reversals:
+                return ("oscillating", f"{job.reversals} direction reversals without reaching "
+                        "the tolerance")
+        return burst
+
+    def _start_burst(self, job: Job, burst: Burst, x: float, now: float) -> None:
+        mode = self.modes[burst.mode]
+        if self._applied != burst.mode:
+            self.amplifier.apply(mode.settings)
+            self._applied = burst.mode
+        self.amplifier.step(burst.steps if burst.direction == FORWARD else -burst.steps)
+        job.burst = burst
+        job.burst_from_m = x
+        job.burst_end_s = now + burst.steps / mode.settings.frequency_hz
+        job.steps += burst.steps
+        job.bursts += 1
+        job.last_direction = burst.direction
+
+    def _finish(self, job: Job, status: str, reason: str, reached_m: float | None = None) -> None:
+        now = self._clock()
+        result = JobResult(
+            kind=job.kind, status=status, reason=reason, target_m=job.target_m,
+            start_m=job.start_m, reached_m=reached_m if reached_m is not None else self.position_m,
+            steps=job.steps, bursts=job.bursts,
+            duration_s=now - job.started_s,
+            estimates={k: {"step_m": e.estimate.step_m, "std_m": e.estimate.std_m,
+                           "steps": e.estimate.steps} for k, e in self.estimators.items()},
+            trace=job.trace,
+        )
+        with self._lock:
+            self._job = None
+            self._stop_requested = False
+            self.last_result = result
+        job.result = result
+        if job.on_done is not None:
+            job.on_done(result)
+        job.done.set()

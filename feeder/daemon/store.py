@@ -1,0 +1,226 @@
+"""The daemon's persistent state in SQLite: calibration, move history, last known position.
+
+WAL journal, ``synchronous=FULL``, every change in one transaction: a process
+killed with SIGKILL (or a power cut) leaves the database at its last committed
+transaction.  One connection guarded by a lock, so the control loop and the
+socket threads can share a :class:`Store`.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+SCHEMA_VERSION = 1
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (
+    key TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS calibration (
+    key TEXT PRIMARY KEY,
+    step_m REAL NOT NULL,
+    variance_m2 REAL NOT NULL,
+    steps INTEGER NOT NULL,
+    updated_s REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS moves (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    started_s REAL NOT NULL,
+    finished_s REAL,
+    start_m REAL,
+    target_m REAL NOT NULL,
+    reached_m REAL,
+    error_m REAL,
+    steps INTEGER NOT NULL DEFAULT 0,
+    bursts INTEGER NOT NULL DEFAULT 0,
+    status TEXT NOT NULL,
+    reason TEXT NOT NULL DEFAULT '',
+    step_forward_m REAL,
+    step_backward_m REAL
+);
+CREATE TABLE IF NOT EXISTS position (
+    id INTEGER PRIMARY KEY CHECK (id = 1),
+    position_m REAL NOT NULL,
+    updated_s REAL NOT NULL
+);
+"""
+
+MOVE_COLUMNS = (
+    "id", "started_s", "finished_s", "start_m", "target_m", "reached_m", "error_m",
+    "steps", "bursts", "status", "reason", "step_forward_m", "step_backward_m",
+)
+
+
+class StoreError(RuntimeError):
+    """The state database is unusable (corrupt, newer schema, not a database)."""
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """One learned step size: mean (m) and variance (m²) after ``steps`` observed steps."""
+
+    key: str
+    step_m: float
+    variance_m2: float
+    steps: int
+    updated_s: float
+
+
+@dataclass(frozen=True)
+class KnownPosition:
+    """The last position the sensor confirmed (m) and when (Unix time, s)."""
+
+    position_m: float
+    updated_s: float
+
+
+class Store:
+    """The state database at ``path`` (created with its parent directory, mode 0700)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        self._lock = threading.Lock()
+        try:
+            self._conn = sqlite3.connect(
+                str(self.path), timeout=10.0, isolation_level=None, check_same_thread=False
+            )
+            self._conn.execute("PRAGMA journal_mode=WAL")
+            self._conn.execute("PRAGMA synchronous=FULL")
+            ok = self._conn.execute("PRAGMA quick_check").fetchone()[0]
+            if ok != "ok":
+                raise StoreError(f"{self.path}: integrity check failed: {ok}")
+            self._conn.executescript("BEGIN IMMEDIATE;" + _SCHEMA + "COMMIT;")
+            version = self._meta("schema_version")
+            if version is None:
+                self._set_meta("schema_version", str(SCHEMA_VERSION))
+            elif int(version) > SCHEMA_VERSION:
+                raise StoreError(f"{self.path}: schema version {version} is newer than this feeder")
+        except sqlite3.DatabaseError as err:
+            raise StoreError(f"{self.path}: {err}") from err
+        self.path.chmod(0o600)
+
+    # -- plumbing ---------------------------------------------------------
+    def _write(self, sql: str, params: tuple[Any, ...] = ()) -> sqlite3.Cursor:
+        """One statement in its own IMMEDIATE transaction."""
+        with self._lock:
+            self._conn.execute("BEGIN IMMEDIATE")
+            try:
+                cur = self._conn.execute(sql, params)
+            except BaseException:
+                self._conn.execute("ROLLBACK")
+                raise
+            self._conn.execute("COMMIT")
+            return cur
+
+    def _read(self, sql: str, params: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
+        with self._lock:
+            return self._conn.execute(sql, params).fetchall()
+
+    def _meta(self, key: str) -> str | None:
+        rows = self._read("SELECT value FROM meta WHERE key = ?", (key,))
+        return str(rows[0][0]) if rows else None
+
+    def _set_meta(self, key: str, value: str) -> None:
+        self._write("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, value))
+
+    def close(self) -> None:
+        with self._lock:
+            self._conn.close()
+
+    def integrity_ok(self) -> bool:
+        """Full ``PRAGMA integrity_check``."""
+        return self._read("PRAGMA integrity_check")[0][0] == "ok"
+
+    # -- calibration ------------------------------------------------------
+    def save_calibration(self, cal: Calibration) -> None:
+        self._write(
+            "INSERT OR REPLACE INTO calibration (key, step_m, variance_m2, steps, updated_s)"
+            " VALUES (?, ?, ?, ?, ?)",
+            (cal.key, cal.step_m, cal.variance_m2, cal.steps, cal.updated_s),
+        )
+
+    def calibration(self, key: str) -> Calibration | None:
+        rows = self._read(
+            "SELECT key, step_m, variance_m2, steps, updated_s FROM calibration WHERE key = ?",
+            (key,),
+        )
+        return Calibration(*rows[0]) if rows else None
+
+    def calibrations(self) -> list[Calibration]:
+        rows = self._read(
+            "SELECT key, step_m, variance_m2, steps, updated_s FROM calibration ORDER BY key"
+        )
+        return [Calibration(*row) for row in rows]
+
+    # -- moves ------------------------------------------------------------
+    def begin_move(self, target_m: float, start_m: float | None) -> int:
+        """Record a move as ``running``; returns its id."""
+        cur = self._write(
+            "INSERT INTO moves (started_s, start_m, target_m, status) VALUES (?, ?, ?, 'running')",
+            (time.time(), start_m, target_m),
+        )
+        return int(cur.lastrowid or 0)
+
+    def finish_move(
+        self,
+        move_id: int,
+        *,
+        status: str,
+        reason: str,
+        reached_m: float | None,
+        steps: int,
+        bursts: int,
+        step_forward_m: float | None,
+        step_backward_m: float | None,
+    ) -> None:
+        """Close a move: status ``done``/``stopped``/``stalled``/``limit``/``fault``."""
+        rows = self._read("SELECT target_m FROM moves WHERE id = ?", (move_id,))
+        error = None if reached_m is None or not rows else reached_m - float(rows[0][0])
+        self._write(
+            "UPDATE moves SET finished_s = ?, reached_m = ?, error_m = ?, steps = ?, bursts = ?,"
+            " status = ?, reason = ?, step_forward_m = ?, step_backward_m = ? WHERE id = ?",
+            (time.time(), reached_m, error, steps, bursts, status, reason,
+             step_forward_m, step_backward_m, move_id),
+        )
+
+    def interrupt_running_moves(self) -> list[int]:
+        """Mark moves left ``running`` by a killed daemon as ``interrupted``; their ids."""
+        with self._lock:
+            self._conn.execute("BEGIN IMMEDIATE")
+            ids = [int(r[0]) for r in self._conn.execute(
+                "SELECT id FROM moves WHERE status = 'running' ORDER BY id")]
+            self._conn.execute(
+                "UPDATE moves SET status = 'interrupted',"
+                " reason = 'daemon stopped during the move (crash or kill)' WHERE status = 'running'"
+            )
+            self._conn.execute("COMMIT")
+        return ids
+
+    def moves(self, limit: int = 100) -> list[dict[str, Any]]:
+        """The newest ``limit`` moves, oldest first."""
+        rows = self._read(
+            f"SELECT {', '.join(MOVE_COLUMNS)} FROM moves ORDER BY id DESC LIMIT ?", (limit,)
+        )
+        return [dict(zip(MOVE_COLUMNS, row, strict=True)) for row in reversed(rows)]
+
+    def move(self, move_id: int) -> dict[str, Any] | None:
+        rows = self._read(f"SELECT {', '.join(MOVE_COLUMNS)} FROM moves WHERE id = ?", (move_id,))
+        return dict(zip(MOVE_COLUMNS, rows[0], strict=True)) if rows else None
+
+    # -- position ---------------------------------------------------------
+    def save_position(self, position_m: float) -> None:
+        self._write(
+            "INSERT OR REPLACE INTO position (id, position_m, updated_s) VALUES (1, ?, ?)",
+            (position_m, time.time()),
+        )
+
+    def position(self) -> KnownPosition | None:
+        rows = self._read("SELECT position_m, updated_s FROM position WHERE id = 1")
+        return KnownPosition(*rows[0]) if rows else None

@@ -1,0 +1,217 @@
+"""The closed loop against the in-process fake world (a part that moves N × its true step)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import pytest
+from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
+
+from feeder.daemon.control_loop import (
+    COARSE,
+    FINE,
+    Burst,
+    ControlLoop,
+    Job,
+    JobResult,
+    LoopSettings,
+    StepMode,
+)
+from feeder.drivers.amplifier import DriveSettings
+
+COARSE_V, FINE_V = 100.0, 40.0
+TRUE = {(COARSE_V, 1): 3.0e-6, (COARSE_V, -1): 2.6e-6, (FINE_V, 1): 0.7e-6, (FINE_V, -1): 0.6e-6}
+# the host's prediction is 15 % high, as when the plant's τ is off the nominal value
+MODES = {
+    COARSE: StepMode(COARSE, DriveSettings(1000.0, COARSE_V), 3.45e-6, (2.8e-6, 4.1e-6)),
+    FINE: StepMode(FINE, DriveSettings(1000.0, FINE_V), 0.8e-6, (0.5e-6, 1.1e-6)),
+}
+SETTINGS = LoopSettings(rate_hz=100.0, tolerance_m=1e-6, min_position_m=-1e-3,
+                        max_position_m=1e-3, settle_s=0.02, average_samples=3,
+                        sensor_noise_m=0.05e-6)
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def make_loop(world: FakeWorld, **kwargs: Any) -> tuple[ControlLoop, FakeAmplifier, FakeSensor]:
+    amp = FakeAmplifier(world)
+    sensor = FakeSensor(world)
+    loop = ControlLoop(amp, sensor, MODES, kwargs.pop("settings", SETTINGS), **kwargs)
+    loop.start()
+    return loop, amp, sensor
+
+
+def run_job(loop: ControlLoop, job: Job, timeout: float = 30.0) -> JobResult:
+    assert loop.submit(job) is None
+    assert job.done.wait(timeout)
+    assert job.result is not None
+    return job.result
+
+
+@pytest.fixture
+def world() -> FakeWorld:
+    return FakeWorld(TRUE, scatter=0.03, noise_m=0.05e-6, seed=7)
+
+
+@pytest.mark.parametrize("target", [400e-6, -250e-6, 37e-6])
+def test_move_reaches_tolerance_without_overshoot(world: FakeWorld, target: float) -> None:
+    loop, _, _ = make_loop(world)
+    try:
+        result = run_job(loop, Job("move", target_m=target))
+    finally:
+        loop.shutdown()
+    assert result.status == "done", result.reason
+    true_final = world.position(time.monotonic())
+    assert abs(true_final - target) <= 1e-6 + 3 * 0.05e-6
+    positions = [x for _, x in result.trace]
+    sign = 1 if target > 0 else -1
+    # approach from one side: never past the target by more than the tolerance + sensor noise
+    assert max(sign * (x - target) for x in positions) <= 1e-6 + 4 * 0.05e-6
+
+
+def test_learns_the_true_step_after_20_steps_per_direction(world: FakeWorld) -> None:
+    loop, _, _ = make_loop(world)
+    try:
+        run_job(loop, Job("move", target_m=70e-6))       # ≥ 20 coarse steps forward
+        run_job(loop, Job("move", target_m=0.0))          # ≥ 20 coarse steps backward
+        est = loop.estimates()
+    finally:
+        loop.shutdown()
+    assert est["coarse/forward"].steps >= 20 and est["coarse/backward"].steps >= 20
+    assert est["coarse/forward"].step_m == pytest.approx(3.0e-6, rel=0.05)
+    assert est["coarse/backward"].step_m == pytest.approx(2.6e-6, rel=0.05)
+
+
+def test_calibration_job_runs_its_bursts_and_returns(world: FakeWorld) -> None:
+    loop, _, _ = make_loop(world)
+    bursts = (Burst(COARSE, "forward", 20), Burst(COARSE, "backward", 20))
+    try:
+        result = run_job(loop, Job("calibrate", bursts=bursts))
+    finally:
+        loop.shutdown()
+    assert result.status == "done" and result.steps == 40 and result.bursts == 2
+    assert result.estimates["coarse/forward"]["step_m"] == pytest.approx(3.0e-6, rel=0.05)
+    assert result.estimates["coarse/backward"]["step_m"] == pytest.approx(2.6e-6, rel=0.05)
+    assert world.position(time.monotonic()) == pytest.approx(20 * (3.0e-6 - 2.6e-6), abs=3e-6)
+
+
+def test_target_outside_travel_limits_is_refused(world: FakeWorld) -> None:
+    loop, amp, _ = make_loop(world)
+    try:
+        reason = loop.submit(Job("move", target_m=2e-3))
+    finally:
+        loop.shutdown()
+    assert reason is not None and "travel limits" in reason
+    assert "step" not in amp.calls
+
+
+def test_second_job_is_refused_while_one_runs(world: FakeWorld) -> None:
+    loop, _, _ = make_loop(world)
+    try:
+        first = Job("move", target_m=300e-6)
+        assert loop.submit(first) is None
+        reason = loop.submit(Job("move", target_m=0.0))
+        assert first.done.wait(30)
+    finally:
+        loop.shutdown()
+    assert reason is not None and "in progress" in reason
+
+
+def test_stall_stops_the_move_and_does_not_teach_a_zero_step(world: FakeWorld) -> None:
+    world.stuck = True
+    loop, _, _ = make_loop(world)
+    try:
+        result = run_job(loop, Job("move", target_m=200e-6))
+    finally:
+        loop.shutdown()
+    assert result.status == "stalled"
+    assert result.bursts == SETTINGS.stall_bursts
+    assert result.estimates["coarse/forward"]["step_m"] == pytest.approx(3.45e-6, rel=1e-12)
+
+
+def test_stop_request_halts_the_part(world: FakeWorld) -> None:
+    loop, amp, _ = make_loop(world)
+    try:
+        job = Job("move", target_m=900e-6)
+        assert loop.submit(job) is None
+        while world.position(time.monotonic()) < 50e-6:
+            time.sleep(0.005)
+        assert loop.request_stop()
+        assert job.done.wait(10)
+        stopped_at = world.position(time.monotonic())
+        time.sleep(0.2)
+    finally:
+        loop.shutdown()
+    assert job.result is not None and job.result.status == "stopped"
+    assert "stop" in amp.calls
+    assert world.position(time.monotonic()) == stopped_at < 900e-6
+
+
+def test_part_seen_outside_limits_stops_the_burst(world: FakeWorld) -> None:
+    world.true_steps = {**TRUE, (COARSE_V, 1): 12e-6}   # 4× the prediction: overshoots
+    settings = LoopSettings(**{**SETTINGS.__dict__, "max_position_m": 500e-6})
+    loop, _, _ = make_loop(world, settings=settings)
+    try:
+        result = run_job(loop, Job("move", target_m=480e-6))
+    finally:
+        loop.shutdown()
+    assert result.status == "limit"
+    assert world.position(time.monotonic()) < 500e-6 + 30 * 12e-6 * 0.02 * 1000
+
+
+def test_sensor_lost_stops_and_reports(world: FakeWorld) -> None:
+    faults: list[tuple[str, str]] = []
+    loop, amp, sensor = make_loop(world, on_fault=lambda k, m: faults.append((k, m)))
+    try:
+        job = Job("move", target_m=900e-6)
+        assert loop.submit(job) is None
+        time.sleep(0.1)
+        sensor.lost = True
+        assert job.done.wait(10)
+        refused = loop.submit(Job("move", target_m=0.0))
+    finally:
+        loop.shutdown()
+    assert job.result is not None and job.result.status == "fault"
+    assert "sensor lost" in job.result.reason
+    assert faults and faults[0][0] == "sensor"
+    assert "stop" in amp.calls and not world.moving(time.monotonic())
+    assert refused is not None and "sensor" in refused
+
+
+def test_link_lost_faults_and_a_new_link_does_not_resume(world: FakeWorld) -> None:
+    faults: list[tuple[str, str]] = []
+    event = threading.Event()
+
+    def on_fault(kind: str, message: str) -> None:
+        faults.append((kind, message))
+        event.set()
+
+    loop, amp, _ = make_loop(world, on_fault=on_fault)
+    try:
+        job = Job("move", target_m=900e-6)
+        assert loop.submit(job) is None
+        time.sleep(0.1)
+        amp.link_up = False
+        assert job.done.wait(10) and event.wait(10)
+        assert loop.submit(Job("move", target_m=0.0)) is not None
+        fresh = FakeAmplifier(world)
+        loop.replace_amplifier(fresh)
+        time.sleep(0.1)
+        assert "step" not in fresh.calls          # nothing resumed by itself
+        ok = run_job(loop, Job("move", target_m=world.position(time.monotonic()) + 20e-6))
+    finally:
+        loop.shutdown()
+    assert job.result is not None and job.result.status == "fault"
+    assert faults[0][0] == "amplifier"
+    assert ok.status == "done"
+
+
+def test_timing_reports_jitter_and_overruns(world: FakeWorld) -> None:
+    loop, _, _ = make_loop(world)
+    time.sleep(0.3)
+    loop.shutdown()
+    timing = loop.timing()
+    assert timing["ticks"] >= 10
+    assert 0 <= timing["jitter_p50_s"] <= timing["jitter_p99_s"] <= timing["jitter_max_s"]

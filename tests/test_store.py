@@ -1,0 +1,116 @@
+"""The state database: round trips, crash recovery (SIGKILL mid-write), refusal of bad files."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from feeder.daemon.store import Calibration, Store, StoreError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_round_trip(tmp_path: Path) -> None:
+    store = Store(tmp_path / "state" / "feeder.sqlite")
+    store.save_calibration(Calibration("a/coarse/forward", 3.1e-6, 1e-14, 20, 1.0))
+    store.save_calibration(Calibration("a/coarse/forward", 3.2e-6, 4e-15, 40, 2.0))
+    move = store.begin_move(100e-6, 0.0)
+    store.finish_move(move, status="done", reason="within tolerance", reached_m=100.4e-6,
+                      steps=33, bursts=4, step_forward_m=3.2e-6, step_backward_m=None)
+    store.save_position(100.4e-6)
+    store.close()
+
+    again = Store(tmp_path / "state" / "feeder.sqlite")
+    assert again.calibration("a/coarse/forward") == Calibration(
+        "a/coarse/forward", 3.2e-6, 4e-15, 40, 2.0)
+    (row,) = again.moves()
+    assert row["status"] == "done" and row["steps"] == 33
+    assert row["error_m"] == pytest.approx(0.4e-6, rel=1e-9)
+    pos = again.position()
+    assert pos is not None and pos.position_m == 100.4e-6
+    assert oct((tmp_path / "state").stat().st_mode & 0o777) == "0o700"
+    assert oct((tmp_path / "state" / "feeder.sqlite").stat().st_mode & 0o777) == "0o600"
+    mode = sqlite3.connect(tmp_path / "state" / "feeder.sqlite").execute(
+        "PRAGMA journal_mode").fetchone()[0]
+    assert mode == "wal"
+
+
+def test_running_moves_become_interrupted(tmp_path: Path) -> None:
+    store = Store(tmp_path / "s.sqlite")
+    first = store.begin_move(1e-3, 0.0)
+    store.finish_move(first, status="done", reason="", reached_m=1e-3, steps=1, bursts=1,
+                      step_forward_m=None, step_backward_m=None)
+    second = store.begin_move(2e-3, 1e-3)
+    assert store.interrupt_running_moves() == [second]
+    statuses = [m["status"] for m in store.moves()]
+    assert statuses == ["done", "interrupted"]
+    assert store.interrupt_running_moves() == []
+
+
+WRITER = """
+import sys, time
+from pathlib import Path
+from feeder.daemon.store import Calibration, Store
+store = Store(Path(sys.argv[1]))
+print("ready", flush=True)
+i = 0
+while True:
+    i += 1
+    move = store.begin_move(i * 1e-6, 0.0)
+    store.save_calibration(Calibration("k", i * 1e-9, 1e-18, i, time.time()))
+    store.finish_move(move, status="done", reason="", reached_m=i * 1e-6, steps=i, bursts=1,
+                      step_forward_m=i * 1e-9, step_backward_m=None)
+    store.save_position(i * 1e-6)
+"""
+
+
+@pytest.mark.timeout(60)
+def test_sigkill_mid_write_leaves_a_consistent_database(tmp_path: Path) -> None:
+    path = tmp_path / "crash.sqlite"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    for round_ in range(3):
+        proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], env=env,
+                                stdout=subprocess.PIPE, text=True)
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "ready"
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        store = Store(path)
+        assert store.integrity_ok()
+        moves = store.moves(limit=1_000_000)
+        assert moves, "the writer committed nothing"
+        # every move but possibly the last is complete; transactions are never half applied
+        assert all(m["status"] in ("done", "interrupted") for m in moves[:-1])
+        assert sum(m["status"] == "interrupted" for m in moves) <= round_
+        assert moves[-1]["status"] in ("done", "running")
+        done = [m for m in moves if m["status"] == "done"]
+        cal = store.calibration("k")
+        assert cal is not None and cal.steps >= done[-1]["steps"]  # saved before finish
+        store.interrupt_running_moves()
+        store.close()
+
+
+def test_refuses_a_file_that_is_not_a_database(tmp_path: Path) -> None:
+    path = tmp_path / "junk.sqlite"
+    path.write_bytes(b"this is not sqlite" * 100)
+    with pytest.raises(StoreError):
+        Store(path)
+    assert path.read_bytes() == b"this is not sqlite" * 100
+
+
+def test_refuses_a_newer_schema(tmp_path: Path) -> None:
+    path = tmp_path / "new.sqlite"
+    Store(path).close()
+    conn = sqlite3.connect(path)
+    conn.execute("UPDATE meta SET value = '99' WHERE key = 'schema_version'")
+    conn.commit()
+    conn.close()
+    with pytest.raises(StoreError, match="newer"):
+        Store(path)
