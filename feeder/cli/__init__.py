@@ -17,7 +17,7 @@ from typing import NoReturn
 
 from feeder.errors import InputError
 
-SUBCOMMANDS: tuple[str, ...] = ("contact",)
+SUBCOMMANDS: tuple[str, ...] = ("contact", "surface")
 
 
 class OneLineParser(argparse.ArgumentParser):

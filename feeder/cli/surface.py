@@ -1,0 +1,161 @@
+"""``feeder surface``: summit statistics of one or two AFM scans → the GW surface TOML (paper §IV.C)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from feeder.cli.contact import positive_float
+from feeder.cli.output import print_json
+from feeder.errors import InputError
+from feeder.surface.parameters import SurfaceParameters
+from feeder.surface.reading import HeightMap, read_height_map
+from feeder.surface.statistics import (
+    SurfaceStatistics,
+    equivalent_surface,
+    find_summits,
+    remove_plane,
+    surface_statistics,
+)
+
+NOTES = (
+    "heights are measured from the least-squares mean plane of each scan",
+    "sigma_m written to the TOML is Sq (paper eq. 14), not the summit-height std",
+    "z_max is not written (default mu + 10 sigma): the highest summit of a small scan "
+    "underestimates the highest summit under a part",
+)
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("surface", help="summit statistics of AFM scans, GW surface TOML")
+    p.add_argument("scans", nargs="+", type=Path, metavar="SCAN",
+                   help="one scan (rough surface on a smooth plane) or two (both bodies)")
+    p.add_argument("--channel", help="channel index or name (default: the file's height channel)")
+    p.add_argument("--pixel-size", type=positive_float,
+                   help="pixel size in m, for plain .npy/.txt/.csv height maps")
+    p.add_argument("--height-unit", default="m", help="unit of plain height maps (m, um, nm, ...)")
+    p.add_argument("--youngs-modulus", type=positive_float, default=169e9,
+                   help="Young's modulus of both bodies in Pa (default silicon, 169e9)")
+    p.add_argument("--poisson", type=float, default=0.28, help="Poisson ratio (default 0.28)")
+    p.add_argument("--out", type=Path, help="write the surface TOML read by `feeder contact --surface`")
+    p.add_argument("--plot", type=Path, help="PNG of the height map(s) with the summits marked")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if len(args.scans) > 2:
+        raise InputError("SCAN", f"give one or two scans, got {len(args.scans)}")
+    for target, flag in ((args.out, "--out"), (args.plot, "--plot")):
+        if target is not None and not target.parent.is_dir():
+            raise InputError(flag, f"directory {target.parent} does not exist")
+    maps = [read_height_map(p, args.channel, args.pixel_size, args.height_unit) for p in args.scans]
+    stats = [surface_statistics(m) for m in maps]
+    for s in stats:
+        if s.summit_count == 0 or not np.isfinite(s.mean_summit_radius_m):
+            raise InputError(s.source, "no summits with a fitted radius in this height map")
+    if len(stats) == 1:
+        surface = stats[0].surface_parameters(args.youngs_modulus, args.poisson)
+    else:
+        surface = equivalent_surface(stats[0], stats[1], args.youngs_modulus, args.poisson)
+    report = _report(stats, surface)
+    if args.plot is not None:
+        _plot(maps, args.plot)
+        report["plot"] = str(args.plot)
+    if args.out is not None:
+        surface.write_toml(args.out)
+        report["surface_toml"] = str(args.out)
+    if args.json:
+        print_json(report)
+    else:
+        _print_report(report)
+    return 0
+
+
+def _scan_json(s: SurfaceStatistics) -> dict[str, Any]:
+    data = dataclasses.asdict(s)
+    data["file"] = data.pop("source")
+    return data
+
+
+def _report(stats: list[SurfaceStatistics], surface: SurfaceParameters) -> dict[str, Any]:
+    scans = [_scan_json(s) for s in stats]
+    if len(stats) == 1:
+        report = dict(scans[0])
+    else:
+        report = {
+            "sq_m": surface.sigma_m,
+            "summit_count": sum(s.summit_count for s in stats),
+            "summit_density_per_m2": surface.summit_density_per_m2,
+            "mean_summit_height_m": surface.mean_summit_height_m,
+            "summit_height_std_m": math.hypot(*(s.summit_height_std_m for s in stats)),
+            "mean_summit_radius_m": surface.summit_radius_m,
+            "pixel_size_m": [list(s.pixel_size_m) for s in stats],
+            "scan_size_m": [list(s.scan_size_m) for s in stats],
+        }
+    report["surface"] = {
+        "sigma_m": surface.sigma_m,
+        "summit_radius_m": surface.summit_radius_m,
+        "summit_density_per_m2": surface.summit_density_per_m2,
+        "mean_summit_height_m": surface.mean_summit_height_m,
+        "youngs_modulus_pa": surface.youngs_modulus_pa,
+        "poisson_ratio": surface.poisson_ratio,
+    }
+    report["scans"] = scans
+    report["notes"] = list(NOTES)
+    return report
+
+
+def _print_report(report: dict[str, Any]) -> None:
+    for scan in report["scans"]:
+        print(f"{scan['file']}  channel {scan['channel'] or '-'}")
+        print(f"  scan {scan['scan_size_m'][0] * 1e6:.4g} × {scan['scan_size_m'][1] * 1e6:.4g} µm, "
+              f"pixel {scan['pixel_size_m'][0] * 1e9:.4g} × {scan['pixel_size_m'][1] * 1e9:.4g} nm")
+        print(f"  Sq {scan['sq_m'] * 1e9:.4g} nm; {scan['summit_count']} summits, "
+              f"η {scan['summit_density_per_m2'] * 1e-12:.4g} µm⁻²")
+        print(f"  summit height mean {scan['mean_summit_height_m'] * 1e9:.4g} nm, "
+              f"std {scan['summit_height_std_m'] * 1e9:.4g} nm; "
+              f"mean radius {scan['mean_summit_radius_m'] * 1e9:.4g} nm "
+              f"(1/mean curvature {scan['radius_from_mean_curvature_m'] * 1e9:.4g} nm)")
+    s = report["surface"]
+    label = "equivalent surface" if len(report["scans"]) == 2 else "surface"
+    print(f"{label}: σ {s['sigma_m'] * 1e9:.4g} nm, R {s['summit_radius_m'] * 1e9:.4g} nm, "
+          f"η {s['summit_density_per_m2'] * 1e-12:.4g} µm⁻², μ {s['mean_summit_height_m'] * 1e9:.4g} nm")
+    for key in ("surface_toml", "plot"):
+        if key in report:
+            print(f"wrote {report[key]}")
+    for note in report["notes"]:
+        print(f"note: {note}")
+
+
+def _plot(maps: list[HeightMap], path: Path) -> None:
+    """Height maps (nm, plane removed) with the summits marked; written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(maps), figsize=(5.5 * len(maps), 4.8), squeeze=False)
+    for ax, height_map in zip(axes[0], maps, strict=True):
+        heights = remove_plane(height_map.heights_m)
+        rows, cols = find_summits(heights)
+        d0, d1 = height_map.pixel_size_m
+        extent = (0.0, heights.shape[1] * d1 * 1e6, heights.shape[0] * d0 * 1e6, 0.0)
+        image = ax.imshow(heights * 1e9, cmap="viridis", extent=extent)
+        ax.plot((cols + 0.5) * d1 * 1e6, (rows + 0.5) * d0 * 1e6, "r.", markersize=1.5,
+                label=f"{rows.size} summits")
+        ax.set_title(Path(height_map.source).name, fontsize=9)
+        ax.set_xlabel("µm")
+        ax.set_ylabel("µm")
+        ax.legend(loc="upper right", fontsize=7)
+        fig.colorbar(image, ax=ax, label="height (nm)")
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".tmp")
+    fig.savefig(tmp, dpi=120, format="png")
+    plt.close(fig)
+    tmp.replace(path)
