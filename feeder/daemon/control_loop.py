@@ -121,19 +121,27 @@ class JobResult:
 
 
 class Job:
-    """A move to ``target_m`` or a calibration sequence of fixed bursts; ``done`` is set at the end."""
+    """A move to ``target_m`` (or by ``by_m`` from where the part is when it starts), or a
+    calibration sequence of fixed bursts.  ``on_start`` runs when the loop accepts it, before
+    any step; ``on_done`` with the result at the end, then ``done`` is set."""
 
     def __init__(
         self,
         kind: str,
         target_m: float | None = None,
         bursts: tuple[Burst, ...] = (),
+        *,
+        by_m: float | None = None,
+        on_start: Callable[[], None] | None = None,
         on_done: Callable[[JobResult], None] | None = None,
     ) -> None:
         self.kind = kind
         self.target_m = target_m
+        self.by_m = by_m
         self.planned = collections.deque(bursts)
+        self.on_start = on_start
         self.on_done = on_done
+        self.record_id: int | None = None
         self.done = threading.Event()
         self.result: JobResult | None = None
         # progress
@@ -239,6 +247,7 @@ class ControlLoop:
         self._shutdown = threading.Event()
         self._thread: threading.Thread | None = None
         self._applied: str | None = None
+        self._enabled = False
         self.position_m: float | None = None
         self.position_time_s: float | None = None
         self.fault: str | None = None
@@ -274,6 +283,10 @@ class ControlLoop:
                 return f"sensor lost: {self.sensor_lost}"
             if self._job is not None:
                 return f"a {self._job.kind} is in progress"
+            if job.by_m is not None:
+                if self.position_m is None:
+                    return "position uncertain: no sensor reading yet for a relative move"
+                job.target_m = self.position_m + job.by_m
             if job.target_m is not None:
                 s = self.settings
                 if not (s.min_position_m <= job.target_m <= s.max_position_m):
@@ -281,8 +294,14 @@ class ControlLoop:
                             f"[{s.min_position_m:.6g}, {s.max_position_m:.6g}] m")
             self._stop_requested = False
             job.started_s = self._clock()
+            if job.on_start is not None:
+                job.on_start()
             self._job = job
             return None
+
+    def current_job(self) -> Job | None:
+        with self._lock:
+            return self._job
 
     def request_stop(self, reason: str = "stop requested") -> bool:
         """Ask the active job to stop; False when there is none."""
@@ -298,6 +317,7 @@ class ControlLoop:
         with self._lock:
             self.amplifier = amplifier
             self._applied = None
+            self._enabled = False
             self.fault = None
 
     def replace_sensor(self, sensor: PositionSensor) -> None:
@@ -501,6 +521,9 @@ class ControlLoop:
 
     def _start_burst(self, job: Job, burst: Burst, x: float, now: float) -> None:
         mode = self.modes[burst.mode]
+        if not self._enabled:
+            self.amplifier.enable()
+            self._enabled = True
         if self._applied != burst.mode:
             self.amplifier.apply(mode.settings)
             self._applied = burst.mode

@@ -1,0 +1,488 @@
+"""The daemon: control loop + state database + Unix-socket control interface + fault recovery.
+
+Socket: owner-only (0600) in an owner-only directory (0700); a socket path or
+directory that another user owns is refused, and so is a peer whose uid is not
+ours (SO_PEERCRED).  One JSON object per line, at most
+:data:`~feeder.daemon.client.MAX_LINE_BYTES`; a longer line is answered with
+an error and the connection closed.  Any number of clients; one move at a time
+(a second is refused with the reason, or queued with ``"queue": true``).
+
+Faults: a lost amplifier link ends the move (``fault``), the output is grounded
+where the link still allows it, and a background thread reconnects with
+exponential backoff; the new link is grounded and the daemon waits for the next
+command (no move resumes by itself).  A lost sensor stops the move and is
+reconnected the same way.  Moves are recorded as ``running`` before the first
+step; a daemon killed mid-move finds them on restart and marks them
+``interrupted``, and reports the position as ``uncertain`` until the sensor
+confirms it.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import json
+import os
+import socket
+import stat
+import struct
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+from feeder.daemon.client import MAX_LINE_BYTES, check_owned_by_me
+from feeder.daemon.control_loop import (
+    COARSE,
+    FINE,
+    Burst,
+    ControlLoop,
+    Job,
+    JobResult,
+    LoopSettings,
+    StepMode,
+)
+from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
+from feeder.daemon.store import Calibration, Store
+from feeder.drivers.amplifier import Amplifier, AmplifierError
+from feeder.drivers.sensor import PositionSensor
+from feeder.errors import InputError
+
+MAX_CLIENTS = 32
+CALIBRATION_STEPS = 20
+BACKOFF_FIRST_S = 0.2
+BACKOFF_MAX_S = 5.0
+
+
+class Links(Protocol):
+    """How the daemon reaches its hardware; called again to reconnect."""
+
+    def open_amplifier(self) -> Amplifier: ...
+
+    def open_sensor(self) -> PositionSensor: ...
+
+
+@dataclass(frozen=True)
+class DaemonSetup:
+    """Everything the daemon needs besides its links.
+
+    calibration_key: identifies part, support and waveforms, so a learned step
+    is only reused for the same combination.
+    info: static facts shown by ``status`` (transport, part, ...).
+    """
+
+    modes: dict[str, StepMode]
+    loop: LoopSettings
+    database_path: Path
+    socket_path: Path
+    calibration_key: str
+    info: dict[str, Any]
+    sensor_timeout_s: float = 1.0
+
+
+def prepare_socket_dir(socket_path: Path) -> None:
+    """Create the socket's directory 0700, or check that ours is owner-only; refuse others'."""
+    directory = socket_path.parent
+    with contextlib.suppress(FileExistsError):
+        directory.mkdir(mode=0o700, parents=True)
+    info = check_owned_by_me(directory, "socket directory")
+    if not stat.S_ISDIR(info.st_mode):
+        raise PermissionError(f"{directory} is not a directory")
+    if info.st_mode & 0o022:
+        raise PermissionError(f"socket directory {directory} is writable by others "
+                              f"(mode {oct(info.st_mode & 0o777)}); refusing it")
+
+
+def bind_socket(socket_path: Path) -> socket.socket:
+    """A listening Unix socket at ``socket_path``, mode 0600.
+
+    A stale socket of ours is replaced; a live one (another daemon answers) or
+    any path owned by another user is refused with :class:`InputError`.
+    """
+    field = str(socket_path)
+    if len(os.fsencode(socket_path)) >= 108:
+        raise InputError(field, "socket path is longer than the 107 bytes Unix sockets allow")
+    try:
+        prepare_socket_dir(socket_path)
+        if os.path.lexists(socket_path):
+            info = check_owned_by_me(socket_path, "socket")
+            if not stat.S_ISSOCK(info.st_mode):
+                raise InputError(field, "exists and is not a socket; refusing to replace it")
+            probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                probe.connect(str(socket_path))
+            except OSError:
+                socket_path.unlink()
+            else:
+                raise InputError(field, "another daemon is already listening there")
+            finally:
+                probe.close()
+    except PermissionError as err:
+        raise InputError(field, str(err)) from None
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    old_umask = os.umask(0o177)
+    try:
+        sock.bind(str(socket_path))
+    finally:
+        os.umask(old_umask)
+    os.chmod(socket_path, 0o600)
+    sock.listen(MAX_CLIENTS)
+    return sock
+
+
+def peer_uid(conn: socket.socket) -> int:
+    """The connecting process' uid (Linux SO_PEERCRED)."""
+    creds = conn.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
+    return int(struct.unpack("3i", creds)[1])
+
+
+class Daemon:
+    """The running service.  :meth:`start`, then :meth:`wait`; :meth:`shutdown` from anywhere."""
+
+    def __init__(self, links: Links, setup: DaemonSetup) -> None:
+        self.links = links
+        self.setup = setup
+        self.store = Store(setup.database_path)
+        self.interrupted_moves = self.store.interrupt_running_moves()
+        self.last_known = self.store.position()
+        self._stopping = threading.Event()
+        self._lock = threading.Lock()
+        self._queue: collections.deque[Job] = collections.deque()
+        self._clients = 0
+        self._faults: list[dict[str, Any]] = []
+        self._reconnecting: set[str] = set()
+        self.amplifier = links.open_amplifier()
+        self.amplifier.ground()
+        self.loop = ControlLoop(
+            self.amplifier, links.open_sensor(), setup.modes, setup.loop,
+            estimates=self._restored_estimates(), on_position=self.store.save_position,
+            on_fault=self._on_fault, sensor_timeout_s=setup.sensor_timeout_s,
+        )
+        self._server: socket.socket | None = None
+        self._threads: list[threading.Thread] = []
+
+    # -- life cycle --------------------------------------------------------
+    def start(self) -> None:
+        self.loop.start()
+        self._server = bind_socket(self.setup.socket_path)
+        for target, name in ((self._accept, "accept"), (self._dispatch_queue, "queue")):
+            thread = threading.Thread(target=target, name=name, daemon=True)
+            thread.start()
+            self._threads.append(thread)
+
+    def wait(self, timeout_s: float | None = None) -> bool:
+        """Block until shut down; False on timeout."""
+        return self._stopping.wait(timeout_s)
+
+    def shutdown(self) -> None:
+        """Stop the move, ground the output, close links, remove the socket."""
+        if self._stopping.is_set():
+            return
+        self._stopping.set()
+        with self._lock:
+            queued, self._queue = list(self._queue), collections.deque()
+        for job in queued:
+            self._refuse_queued(job, "daemon shutting down")
+        self.loop.shutdown()
+        with contextlib.suppress(AmplifierError):
+            self.loop.amplifier.ground()
+        self.loop.amplifier.close()
+        if self._server is not None:
+            self._server.close()
+            with contextlib.suppress(FileNotFoundError):
+                self.setup.socket_path.unlink()
+        self.store.close()
+
+    # -- calibration persistence -------------------------------------------
+    def _key(self, mode_direction: str) -> str:
+        return f"{self.setup.calibration_key}/{mode_direction}"
+
+    def _restored_estimates(self) -> dict[str, StepEstimate]:
+        out = {}
+        for mode in (COARSE, FINE):
+            for direction in (FORWARD, BACKWARD):
+                name = f"{mode}/{direction}"
+                cal = self.store.calibration(self._key(name))
+                if cal is not None:
+                    out[name] = StepEstimate(cal.step_m, cal.variance_m2, cal.steps)
+        return out
+
+    def _save_estimates(self) -> None:
+        now = time.time()
+        for name, est in self.loop.estimates().items():
+            if est.steps > 0:
+                self.store.save_calibration(
+                    Calibration(self._key(name), est.step_m, est.variance_m2, est.steps, now))
+
+    # -- jobs ----------------------------------------------------------------
+    def _new_job(self, kind: str, target_m: float | None, by_m: float | None,
+                 bursts: tuple[Burst, ...] = ()) -> Job:
+        job = Job(kind, target_m=target_m, by_m=by_m, bursts=bursts)
+        job.on_start = lambda: self._record_start(job)
+        job.on_done = lambda result: self._record_end(job, result)
+        return job
+
+    def _record_start(self, job: Job) -> None:
+        if job.kind == "move" and job.target_m is not None:
+            job.record_id = self.store.begin_move(job.target_m, self.loop.position_m)
+
+    def _record_end(self, job: Job, result: JobResult) -> None:
+        self._save_estimates()
+        if job.record_id is not None:
+            est = result.estimates
+            self.store.finish_move(
+                job.record_id, status=result.status, reason=result.reason,
+                reached_m=result.reached_m, steps=result.steps, bursts=result.bursts,
+                step_forward_m=est[f"{COARSE}/{FORWARD}"]["step_m"],
+                step_backward_m=est[f"{COARSE}/{BACKWARD}"]["step_m"],
+            )
+
+    def _refuse_queued(self, job: Job, reason: str) -> None:
+        job.result = JobResult(job.kind, "refused", reason, job.target_m, None, None, 0, 0, 0.0,
+                               {})
+        job.done.set()
+
+    def _dispatch_queue(self) -> None:
+        while not self._stopping.wait(0.02):
+            with self._lock:
+                if not self._queue or self.loop.busy():
+                    continue
+                job = self._queue.popleft()
+            reason = self.loop.submit(job)
+            if reason is not None:
+                self._refuse_queued(job, reason)
+
+    # -- faults ----------------------------------------------------------------
+    def _on_fault(self, kind: str, message: str) -> None:
+        with self._lock:
+            self._faults.append({"link": kind, "message": message, "time_s": time.time()})
+            del self._faults[:-20]
+            if kind in self._reconnecting or self._stopping.is_set():
+                return
+            self._reconnecting.add(kind)
+            queued, self._queue = list(self._queue), collections.deque()
+        for job in queued:
+            self._refuse_queued(job, f"{kind} lost: {message}")
+        if kind == "amplifier":
+            with contextlib.suppress(AmplifierError):
+                self.loop.amplifier.ground()
+        thread = threading.Thread(target=self._reconnect, args=(kind,), name=f"reconnect-{kind}",
+                                  daemon=True)
+        thread.start()
+
+    def _reconnect(self, kind: str) -> None:
+        delay = BACKOFF_FIRST_S
+        attempts = 0
+        while not self._stopping.wait(delay):
+            attempts += 1
+            try:
+                if kind == "amplifier":
+                    amp = self.links.open_amplifier()
+                    amp.ground()
+                    old = self.loop.amplifier
+                    self.loop.replace_amplifier(amp)
+                    old.close()
+                else:
+                    self.loop.replace_sensor(self.links.open_sensor())
+            except (AmplifierError, OSError, RuntimeError) as err:
+                with self._lock:
+                    self._faults[-1]["reconnect_attempts"] = attempts
+                    self._faults[-1]["last_error"] = str(err)
+                delay = min(2 * delay, BACKOFF_MAX_S)
+                continue
+            with self._lock:
+                self._faults[-1]["reconnected_after_attempts"] = attempts
+            break
+        with self._lock:
+            self._reconnecting.discard(kind)
+
+    # -- requests ------------------------------------------------------------
+    def handle(self, request: Any) -> dict[str, Any]:
+        """Answer one request object (see :mod:`feeder.daemon.client`)."""
+        if not isinstance(request, dict):
+            return {"ok": False, "error": "a request must be a JSON object"}
+        cmd = request.get("cmd")
+        handler: Callable[[dict[str, Any]], dict[str, Any]] | None = {
+            "move": self._cmd_move, "stop": self._cmd_stop, "status": self._cmd_status,
+            "calibrate": self._cmd_calibrate, "history": self._cmd_history,
+            "shutdown": self._cmd_shutdown,
+        }.get(cmd) if isinstance(cmd, str) else None
+        if handler is None:
+            return {"ok": False, "error": f"unknown cmd {cmd!r}; known: move, stop, status, "
+                                          "calibrate, history, shutdown"}
+        return handler(request)
+
+    @staticmethod
+    def _finite(request: dict[str, Any], key: str) -> float | None:
+        value = request.get(key)
+        if value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value \
+                or abs(value) == float("inf"):
+            raise ValueError(f"{key} must be a finite number of metres, got {value!r}")
+        return float(value)
+
+    def _run_job(self, job: Job, request: dict[str, Any]) -> dict[str, Any]:
+        queue = request.get("queue") is True
+        with self._lock:
+            if queue and (self.loop.busy() or self._queue):
+                self._queue.append(job)
+                position = len(self._queue)
+                reason = None
+            else:
+                position = 0
+                reason = ("moves are queued; add \"queue\": true to join the queue"
+                          if self._queue else self.loop.submit(job))
+        if reason is not None:
+            return {"ok": False, "error": reason}
+        if request.get("wait", True) is False:
+            return {"ok": True, "accepted": True, "queue_position": position}
+        job.done.wait()
+        assert job.result is not None
+        result = job.result.as_dict(with_trace=request.get("trace") is True)
+        result["move_id"] = job.record_id
+        ok = job.result.status == "done"
+        return {"ok": ok, "result": result, **({} if ok else {"error": job.result.reason})}
+
+    def _cmd_move(self, request: dict[str, Any]) -> dict[str, Any]:
+        try:
+            target = self._finite(request, "target_m")
+            by = self._finite(request, "by_m")
+        except ValueError as err:
+            return {"ok": False, "error": str(err)}
+        if (target is None) == (by is None):
+            return {"ok": False, "error": "give exactly one of target_m and by_m"}
+        return self._run_job(self._new_job("move", target, by), request)
+
+    def _cmd_calibrate(self, request: dict[str, Any]) -> dict[str, Any]:
+        steps = request.get("steps", CALIBRATION_STEPS)
+        if not isinstance(steps, int) or isinstance(steps, bool) or not 1 <= steps <= 10_000:
+            return {"ok": False, "error": f"steps must be an integer in [1, 10000], got {steps!r}"}
+        fine_steps = max(1, round(steps * self.setup.modes[COARSE].predicted_step_m
+                                  / self.setup.modes[FINE].predicted_step_m / 4))
+        bursts = (Burst(COARSE, FORWARD, steps), Burst(COARSE, BACKWARD, steps),
+                  Burst(FINE, FORWARD, fine_steps), Burst(FINE, BACKWARD, fine_steps))
+        return self._run_job(self._new_job("calibrate", None, None, bursts), request)
+
+    def _cmd_stop(self, request: dict[str, Any]) -> dict[str, Any]:
+        with self._lock:
+            queued, self._queue = list(self._queue), collections.deque()
+        for job in queued:
+            self._refuse_queued(job, "stop requested")
+        stopped = self.loop.request_stop()
+        return {"ok": True, "stopped": stopped, "dequeued": len(queued)}
+
+    def _cmd_history(self, request: dict[str, Any]) -> dict[str, Any]:
+        limit = request.get("limit", 100)
+        if not isinstance(limit, int) or isinstance(limit, bool) or not 1 <= limit <= 100_000:
+            return {"ok": False, "error": f"limit must be an integer in [1, 100000], got {limit!r}"}
+        return {"ok": True, "moves": self.store.moves(limit)}
+
+    def _cmd_shutdown(self, request: dict[str, Any]) -> dict[str, Any]:
+        threading.Thread(target=self.shutdown, name="shutdown", daemon=True).start()
+        return {"ok": True, "shutting_down": True}
+
+    def _cmd_status(self, request: dict[str, Any]) -> dict[str, Any]:
+        return {"ok": True, **self.status()}
+
+    def status(self) -> dict[str, Any]:
+        loop = self.loop
+        job = loop.current_job()
+        if loop.fault is not None or loop.sensor_lost is not None:
+            state = "fault"
+        elif job is not None:
+            state = "moving" if job.kind == "move" else "calibrating"
+        else:
+            state = "idle"
+        with self._lock:
+            faults = [dict(f) for f in self._faults]
+            queued = len(self._queue)
+            reconnecting = sorted(self._reconnecting)
+        last_known = self.store.position()
+        confirmed = loop.position_m is not None
+        return {
+            "state": state,
+            "position_m": loop.position_m,
+            "position_state": "confirmed" if confirmed else "uncertain",
+            "last_known_position_m": None if last_known is None else last_known.position_m,
+            "target_m": None if job is None else job.target_m,
+            "fault": loop.fault or (None if loop.sensor_lost is None
+                                    else f"sensor lost: {loop.sensor_lost}"),
+            "reconnecting": reconnecting,
+            "faults": faults,
+            "queued_moves": queued,
+            "interrupted_moves": self.interrupted_moves,
+            "tolerance_m": loop.settings.tolerance_m,
+            "travel_limits_m": [loop.settings.min_position_m, loop.settings.max_position_m],
+            "estimates": {k: {"step_m": e.step_m, "std_m": e.std_m, "steps": e.steps}
+                          for k, e in loop.estimates().items()},
+            "predicted_steps_m": {k: m.predicted_step_m for k, m in self.setup.modes.items()},
+            "timing": loop.timing(),
+            "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
+            **self.setup.info,
+        }
+
+    # -- socket ----------------------------------------------------------------
+    def _accept(self) -> None:
+        assert self._server is not None
+        while not self._stopping.is_set():
+            try:
+                conn, _ = self._server.accept()
+            except OSError:
+                return
+            with self._lock:
+                full = self._clients >= MAX_CLIENTS
+                if not full:
+                    self._clients += 1
+            if full:
+                self._send(conn, {"ok": False, "error": f"too many clients (max {MAX_CLIENTS})"})
+                conn.close()
+                continue
+            threading.Thread(target=self._serve_client, args=(conn,), name="client",
+                             daemon=True).start()
+
+    @staticmethod
+    def _send(conn: socket.socket, obj: dict[str, Any]) -> None:
+        with contextlib.suppress(OSError, ValueError):
+            conn.sendall(json.dumps(obj, allow_nan=False, default=str).encode() + b"\n")
+
+    def _serve_client(self, conn: socket.socket) -> None:
+        try:
+            if peer_uid(conn) != os.getuid():
+                self._send(conn, {"ok": False, "error": "permission denied: not the owner"})
+                return
+            reader = conn.makefile("rb")
+            while not self._stopping.is_set():
+                line = reader.readline(MAX_LINE_BYTES + 1)
+                if not line:
+                    return
+                if len(line) > MAX_LINE_BYTES or not line.endswith(b"\n"):
+                    if len(line) <= MAX_LINE_BYTES:
+                        return          # disconnected mid-line
+                    self._send(conn, {"ok": False, "error": f"request longer than "
+                                      f"{MAX_LINE_BYTES} bytes; closing the connection"})
+                    return
+                if not line.strip():
+                    continue
+                try:
+                    request = json.loads(line)
+                except (json.JSONDecodeError, UnicodeDecodeError) as err:
+                    self._send(conn, {"ok": False, "error": f"malformed request: {err}"})
+                    continue
+                self._send(conn, self._safe_handle(request))
+        except OSError:
+            pass
+        finally:
+            conn.close()
+            with self._lock:
+                self._clients -= 1
+
+    def _safe_handle(self, request: Any) -> dict[str, Any]:
+        try:
+            reply = self.handle(request)
+            json.dumps(reply, allow_nan=False, default=str)
+            return reply
+        except ValueError as err:     # NaN in a reply, bad value
+            return {"ok": False, "error": f"cannot answer: {err}"}

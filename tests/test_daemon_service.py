@@ -1,0 +1,254 @@
+"""The daemon service over its Unix socket, with the in-process fake world as hardware."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from test_control_loop import MODES, SETTINGS, TRUE
+from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
+
+from feeder.daemon.client import MAX_LINE_BYTES, Client, DaemonUnavailable
+from feeder.daemon.service import Daemon, DaemonSetup, bind_socket
+from feeder.daemon.store import Store
+from feeder.drivers.amplifier import AmplifierLinkLost
+from feeder.errors import InputError
+
+pytestmark = pytest.mark.timeout(60)
+
+
+class FakeLinks:
+    def __init__(self, world: FakeWorld) -> None:
+        self.world = world
+        self.amplifier_up = True
+        self.amplifiers: list[FakeAmplifier] = []
+        self.sensors: list[FakeSensor] = []
+
+    def open_amplifier(self) -> FakeAmplifier:
+        if not self.amplifier_up:
+            raise AmplifierLinkLost("fake: no answer")
+        amp = FakeAmplifier(self.world)
+        self.amplifiers.append(amp)
+        return amp
+
+    def open_sensor(self) -> FakeSensor:
+        sensor = FakeSensor(self.world)
+        self.sensors.append(sensor)
+        return sensor
+
+
+@pytest.fixture
+def short_dir() -> Iterator[Path]:
+    """Unix socket paths must stay under 108 bytes: a short directory under /tmp."""
+    path = Path(tempfile.mkdtemp(prefix="fd"))
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def make_setup(base: Path) -> DaemonSetup:
+    return DaemonSetup(modes=MODES, loop=SETTINGS, database_path=base / "state" / "f.sqlite",
+                       socket_path=base / "run" / "f.sock", calibration_key="test",
+                       info={"transport": "fake"})
+
+
+def start(base: Path, world: FakeWorld | None = None) -> tuple[Daemon, FakeLinks]:
+    world = world or FakeWorld(TRUE, scatter=0.03, noise_m=0.05e-6, seed=3)
+    links = FakeLinks(world)
+    daemon = Daemon(links, make_setup(base))
+    daemon.start()
+    return daemon, links
+
+
+def wait_for(predicate, timeout: float = 10.0) -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < end, "condition not reached in time"
+        time.sleep(0.01)
+
+
+def test_socket_is_owner_only_and_a_move_is_recorded(short_dir: Path) -> None:
+    daemon, links = start(short_dir)
+    try:
+        sock = short_dir / "run" / "f.sock"
+        assert oct(sock.stat().st_mode & 0o777) == "0o600"
+        assert oct(sock.parent.stat().st_mode & 0o777) == "0o700"
+        with Client(sock) as client:
+            reply = client.request("move", target_m=120e-6)
+            assert reply["ok"], reply
+            assert abs(reply["result"]["error_m"]) <= 1e-6
+            status = client.request("status")
+            history = client.request("history")
+    finally:
+        daemon.shutdown()
+    assert status["state"] == "idle" and status["position_state"] == "confirmed"
+    assert status["timing"]["ticks"] > 0
+    (move,) = history["moves"]
+    assert move["status"] == "done" and move["target_m"] == 120e-6
+    assert move["steps"] == reply["result"]["steps"] > 0
+    assert not sock.exists()
+    assert links.amplifiers[0].grounded                    # grounded on shutdown
+
+
+def test_bad_requests_are_refused_and_the_daemon_keeps_running(short_dir: Path) -> None:
+    daemon, _ = start(short_dir)
+    sock_path = short_dir / "run" / "f.sock"
+    try:
+        with Client(sock_path) as client:
+            assert client.request("move", target_m=20e-6)["ok"]
+        raw = socket.socket(socket.AF_UNIX)
+        raw.connect(str(sock_path))
+        f = raw.makefile("rb")
+        replies = []
+        for line in (b"{not json\n", b"[1, 2]\n", b'{"cmd": "fly"}\n', b"\xff\xfe\n",
+                     b'{"cmd": "move", "target_m": "far"}\n',
+                     b'{"cmd": "move", "target_m": 1e9}\n',
+                     b'{"cmd": "move", "target_m": NaN}\n',
+                     b'{"cmd": "move"}\n'):
+            raw.sendall(line)
+            replies.append(json.loads(f.readline()))
+        assert all(r["ok"] is False and r["error"] for r in replies)
+        assert "travel limits" in replies[5]["error"]
+        raw.sendall(b"x" * (MAX_LINE_BYTES + 10))
+        last = json.loads(f.readline())
+        assert "longer than" in last["error"]
+        assert f.readline() == b""                          # connection closed
+        raw.close()
+        with Client(sock_path) as client:                   # the daemon still answers
+            status = client.request("status")
+            history = client.request("history")
+    finally:
+        daemon.shutdown()
+    assert status["ok"] and status["state"] == "idle"
+    assert [m["target_m"] for m in history["moves"]] == [20e-6]
+    store = Store(short_dir / "state" / "f.sqlite")
+    assert store.integrity_ok() and len(store.moves()) == 1
+
+
+def test_second_move_is_refused_or_queued(short_dir: Path) -> None:
+    daemon, _ = start(short_dir)
+    sock_path = short_dir / "run" / "f.sock"
+    try:
+        with Client(sock_path) as first, Client(sock_path) as second:
+            assert first.request("move", target_m=600e-6, wait=False)["ok"]
+            wait_for(lambda: second.request("status")["state"] == "moving")
+            refused = second.request("move", target_m=0.0)
+            queued = second.request("move", target_m=100e-6, queue=True)
+            assert refused["ok"] is False and "in progress" in refused["error"]
+            assert queued["ok"], queued
+            history = second.request("history")["moves"]
+    finally:
+        daemon.shutdown()
+    assert [m["target_m"] for m in history] == [600e-6, 100e-6]
+    assert [m["status"] for m in history] == ["done", "done"]
+
+
+def test_calibration_and_history_survive_a_restart(short_dir: Path) -> None:
+    world = FakeWorld(TRUE, scatter=0.03, noise_m=0.05e-6, seed=4)
+    daemon, _ = start(short_dir, world)
+    try:
+        with Client(short_dir / "run" / "f.sock") as client:
+            cal = client.request("calibrate")
+            assert cal["ok"], cal
+            learned = client.request("status")["estimates"]
+    finally:
+        daemon.shutdown()
+    assert learned["coarse/forward"]["step_m"] == pytest.approx(3.0e-6, rel=0.05)
+    assert learned["coarse/backward"]["step_m"] == pytest.approx(2.6e-6, rel=0.05)
+    again, _ = start(short_dir, world)
+    try:
+        with Client(short_dir / "run" / "f.sock") as client:
+            restored = client.request("status")["estimates"]
+    finally:
+        again.shutdown()
+    assert restored == learned
+
+
+def test_killed_mid_move_restarts_uncertain_until_the_sensor_confirms(short_dir: Path) -> None:
+    setup = make_setup(short_dir)
+    store = Store(setup.database_path)
+    store.save_position(42e-6)
+    running = store.begin_move(300e-6, 42e-6)    # what a SIGKILL mid-move leaves behind
+    store.close()
+    world = FakeWorld(TRUE, position_m=51e-6)
+    links = FakeLinks(world)
+    daemon = Daemon(links, setup)
+    links.sensors[0].paused = True               # the camera has not delivered a frame yet
+    daemon.start()
+    try:
+        status = daemon.status()
+        assert status["position_state"] == "uncertain" and status["position_m"] is None
+        assert status["last_known_position_m"] == 42e-6
+        assert status["interrupted_moves"] == [running]
+        links.sensors[0].paused = False
+        wait_for(lambda: daemon.status()["position_state"] == "confirmed")
+        assert daemon.status()["position_m"] == pytest.approx(51e-6)
+        history = daemon.handle({"cmd": "history"})["moves"]
+    finally:
+        daemon.shutdown()
+    assert history[0]["status"] == "interrupted"
+
+
+def test_amplifier_link_loss_faults_reconnects_and_does_not_resume(short_dir: Path) -> None:
+    daemon, links = start(short_dir)
+    try:
+        with Client(short_dir / "run" / "f.sock") as client:
+            assert client.request("move", target_m=800e-6, wait=False)["ok"]
+            wait_for(lambda: links.world.position(time.monotonic()) > 30e-6)
+            links.amplifier_up = False
+            links.amplifiers[0].link_up = False
+            wait_for(lambda: client.request("status")["state"] == "fault")
+            refused = client.request("move", target_m=0.0)
+            time.sleep(0.5)                          # a few failed reconnect attempts
+            links.amplifier_up = True
+            wait_for(lambda: client.request("status")["state"] == "idle")
+            status = client.request("status")
+            history = client.request("history")["moves"]
+            time.sleep(0.2)
+    finally:
+        daemon.shutdown()
+    assert refused["ok"] is False and "fault" in refused["error"]
+    assert history[-1]["status"] == "fault"
+    assert status["faults"][-1]["reconnected_after_attempts"] >= 2
+    fresh = links.amplifiers[-1]
+    assert "ground" in fresh.calls and "step" not in fresh.calls   # grounded, not resumed
+
+
+def test_refuses_socket_paths_of_other_users(short_dir: Path) -> None:
+    open_dir = short_dir / "open"
+    open_dir.mkdir()
+    open_dir.chmod(0o777)
+    with pytest.raises(InputError, match="writable by others"):
+        bind_socket(open_dir / "f.sock")
+    if os.getuid() != 0:
+        pytest.skip("needs root to create files owned by another user")
+    foreign = short_dir / "foreign"
+    foreign.mkdir(mode=0o700)
+    os.chown(foreign, 65534, 65534)
+    with pytest.raises(InputError, match="owned by uid 65534"):
+        bind_socket(foreign / "f.sock")
+    mine = short_dir / "mine"
+    mine.mkdir(mode=0o700)
+    planted = socket.socket(socket.AF_UNIX)
+    planted.bind(str(mine / "f.sock"))
+    os.chown(mine / "f.sock", 65534, 65534)
+    with pytest.raises(InputError, match="owned by uid 65534"):
+        bind_socket(mine / "f.sock")
+    with pytest.raises(DaemonUnavailable, match="owned by uid 65534"):
+        Client(mine / "f.sock")
+    planted.close()
+
+
+def test_a_second_daemon_on_the_same_socket_is_refused(short_dir: Path) -> None:
+    daemon, _ = start(short_dir)
+    try:
+        with pytest.raises(InputError, match="already listening"):
+            bind_socket(short_dir / "run" / "f.sock")
+    finally:
+        daemon.shutdown()
