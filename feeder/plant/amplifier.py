@@ -1,0 +1,130 @@
+"""The piezo amplifier's nonlinear limits: rails, slew rate, current into the stack.
+
+The output stage follows the command voltage within its rails, but its output
+can change no faster than min(slew rate, I_max/C): a capacitive stack draws
+I = C·dV/dt.  A sawtooth command that drops at once therefore flies back along
+a ramp of slope I_max/C: the *current-limited* flyback, t_f ≈ C·ΔV/I_max.
+
+Defaults (document of record: docs/plant.md): 0–200 V rails (the paper drives
+200 Vpp), 0.55 A peak current and 2 V/µs slew, which is a mid-range
+commercial piezo driver (0.1–1 A class); 1 Hz–2 kHz stepping frequency.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from feeder.errors import InputError
+from feeder.waveform import Waveform
+
+
+@dataclass(frozen=True)
+class AmplifierLimits:
+    """Rails (V), slew rate (V/s), peak current (A) and allowed stepping frequencies (Hz)."""
+
+    v_min_v: float = 0.0
+    v_max_v: float = 200.0
+    slew_rate_v_per_s: float = 2.0e6
+    current_limit_a: float = 0.55
+    min_frequency_hz: float = 1.0
+    max_frequency_hz: float = 2000.0
+
+    def __post_init__(self) -> None:
+        for name in ("slew_rate_v_per_s", "current_limit_a", "min_frequency_hz", "max_frequency_hz"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise InputError(name, f"must be a positive number, got {value!r}")
+        if not (math.isfinite(self.v_min_v) and math.isfinite(self.v_max_v)
+                and self.v_min_v < self.v_max_v):  # fmt: skip
+            raise InputError("v_max_v", "rails must be finite with v_min_v < v_max_v")
+        if self.min_frequency_hz > self.max_frequency_hz:
+            raise InputError("max_frequency_hz", "must not be below min_frequency_hz")
+
+    @property
+    def max_amplitude_vpp(self) -> float:
+        return self.v_max_v - self.v_min_v
+
+    def max_slope_v_per_s(self, capacitance_f: float) -> float:
+        """Fastest output change into a stack of capacitance C: min(slew, I_max/C)."""
+        return min(self.slew_rate_v_per_s, self.current_limit_a / capacitance_f)
+
+    def check(self, waveform: Waveform, field_prefix: str = "") -> None:
+        """Raise :class:`InputError` if the waveform leaves the rails or the frequency range."""
+        low, high = waveform.offset_v, waveform.offset_v + waveform.amplitude_vpp
+        if high > self.v_max_v * (1 + 1e-12) or low < self.v_min_v - 1e-12 * abs(self.v_max_v):
+            field = "amplitude_vpp" if low >= self.v_min_v else "offset_v"
+            raise InputError(
+                f"{field_prefix}{field}",
+                f"output {low:g}…{high:g} V leaves the amplifier's rails "
+                f"{self.v_min_v:g}…{self.v_max_v:g} V",
+            )
+        if not self.min_frequency_hz <= waveform.frequency_hz <= self.max_frequency_hz:
+            raise InputError(
+                f"{field_prefix}frequency_hz",
+                f"{waveform.frequency_hz:g} Hz is outside the amplifier's "
+                f"{self.min_frequency_hz:g}–{self.max_frequency_hz:g} Hz",
+            )
+
+    def current_limited_flyback(
+        self, amplitude_v: np.ndarray | float, frequency_hz: np.ndarray | float, capacitance_f: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Flyback of a sawtooth whose command drops at once: (t_f in s, swing fraction).
+
+        The output falls at r = min(slew, I/C) while the command already rises at
+        ΔV·f, so they meet after t_f = ΔV/(r + ΔV·f); the output then swings over
+        the fraction 1 − t_f·f of ΔV (rise and flyback alike).
+        """
+        dv = np.asarray(amplitude_v, dtype=float)
+        f = np.asarray(frequency_hz, dtype=float)
+        t_f = dv / (self.max_slope_v_per_s(capacitance_f) + dv * f)
+        return t_f, 1.0 - t_f * f
+
+
+class OutputStage:
+    """Streaming amplifier output: rails, then the slope limit, state kept across calls.
+
+    Events, not a per-sample loop: spans where the output tracks the command are
+    copied in bulk, each slope-limited run is a ramp found in one vectorised step.
+    """
+
+    def __init__(self, limits: AmplifierLimits, capacitance_f: float, sample_rate_hz: float,
+                 initial_v: float = 0.0) -> None:  # fmt: skip
+        self.limits = limits
+        self.max_step_v = limits.max_slope_v_per_s(capacitance_f) / sample_rate_hz
+        self.voltage_v = float(np.clip(initial_v, limits.v_min_v, limits.v_max_v))
+
+    def advance(self, command_v: np.ndarray) -> np.ndarray:
+        """Output voltage for each command sample."""
+        u = np.clip(np.asarray(command_v, dtype=float), self.limits.v_min_v, self.limits.v_max_v)
+        n = u.size
+        out = np.empty(n)
+        d = self.max_step_v
+        fast = np.flatnonzero(np.abs(np.diff(u)) > d) + 1  # samples a tracking output cannot follow
+        y = self.voltage_v
+        i = 0
+        while i < n:
+            if abs(u[i] - y) <= d:  # track the command up to the next fast change
+                k = int(np.searchsorted(fast, i, side="right"))
+                j = int(fast[k]) if k < fast.size else n
+                out[i:j] = u[i:j]
+                y = float(u[j - 1])
+                i = j
+                continue
+            sign = math.copysign(1.0, u[i] - y)
+            window = 64
+            while True:  # slope-limited ramp until it reaches the command
+                stop = min(n, i + window)
+                line = y + sign * d * np.arange(1, stop - i + 1)
+                reach = np.flatnonzero(sign * (u[i:stop] - line) <= 0)
+                m = i + int(reach[0]) if reach.size else stop
+                out[i:m] = line[: m - i]
+                y = float(out[m - 1]) if m > i else y
+                i = m
+                if reach.size or i == n:
+                    break
+                window *= 2
+        self.voltage_v = y
+        return out

@@ -1,0 +1,153 @@
+"""The whole plant: DAC command → amplifier limits → stack + plate → part stick-slip.
+
+:class:`Plant` streams: each :meth:`Plant.advance` call takes the next chunk of
+command-voltage samples (e.g. 100 samples per 1 ms tick at 100 kS/s) and
+returns the part's position at each sample, with all state carried over.
+Between samples the plate's acceleration is held at (v_k − v_{k−1})·rate, the
+plate velocities coming from the discretised stack model; the stick-slip on
+that motion is solved exactly (:mod:`feeder.plant.stick_slip`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from feeder.contact.breakaway import DEFAULT_TAU_PA, contact
+from feeder.errors import InputError
+from feeder.parts import FLAT, Part, Support
+from feeder.plant.amplifier import AmplifierLimits, OutputStage
+from feeder.plant.stack import StackFilter, StackParameters
+from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, StickSlip
+from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters
+from feeder.waveform import Waveform
+
+DEFAULT_SAMPLE_RATE_HZ = 100e3
+
+
+class Plant:
+    """Amplifier + stack + plate + part, streaming at ``sample_rate_hz``.
+
+    friction: the part's a_s and F_k/F_s; amplifier, stack: model parameters;
+    scatter, seed: per-stick relative scatter of a_s (see
+    :class:`~feeder.plant.stick_slip.StickSlip`); initial_v: output voltage at
+    rest at the start (the part sits on the plate at x = g·initial_v).
+    """
+
+    def __init__(
+        self,
+        friction: Friction,
+        amplifier: AmplifierLimits | None = None,
+        stack: StackParameters | None = None,
+        sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
+        scatter: float = 0.0,
+        seed: int | None = None,
+        initial_v: float = 0.0,
+    ) -> None:
+        self.amplifier = amplifier or AmplifierLimits()
+        self.stack = stack or StackParameters()
+        self.sample_rate_hz = float(sample_rate_hz)
+        self.output = OutputStage(self.amplifier, self.stack.capacitance_f, sample_rate_hz, initial_v)
+        self.mechanics = StackFilter(self.stack, sample_rate_hz, self.output.voltage_v)
+        self.contact = StickSlip(friction, scatter=scatter, seed=seed)
+        self.plate_position_m = self.stack.gain_m_per_v * self.output.voltage_v
+        self.plate_velocity_m_s = 0.0
+
+    @classmethod
+    def from_contact(
+        cls,
+        part: Part,
+        support: Support = FLAT,
+        surface: SurfaceParameters = DEFAULT_SURFACE,
+        tau_pa: float = DEFAULT_TAU_PA,
+        kinetic_ratio: float = DEFAULT_KINETIC_RATIO,
+        **kwargs: object,
+    ) -> Plant:
+        """A plant whose a_s is the contact model's breakaway acceleration τ·A_r/m."""
+        result = contact(part, support=support, surface=surface, tau_pa=tau_pa)
+        friction = Friction(result.breakaway_accel_m_s2, kinetic_ratio)
+        return cls(friction, **kwargs)  # type: ignore[arg-type]
+
+    @property
+    def part_position_m(self) -> float:
+        return self.plate_position_m + self.contact.relative_position_m
+
+    @property
+    def output_voltage_v(self) -> float:
+        return self.output.voltage_v
+
+    @property
+    def elapsed_s(self) -> float:
+        return self.contact.elapsed_s
+
+    @property
+    def slip_time_s(self) -> float:
+        return self.contact.slip_time_s
+
+    def advance(self, command_volts: np.ndarray) -> np.ndarray:
+        """Run the next command samples (V); returns the part position (m) at each sample."""
+        return self.advance_traces(command_volts)[0]
+
+    def advance_traces(self, command_volts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Like :meth:`advance`; returns (part position, plate position) in m at each sample."""
+        command = np.asarray(command_volts, dtype=float)
+        if command.size == 0:
+            return np.zeros(0), np.zeros(0)
+        voltage = self.output.advance(command)
+        position, velocity = self.mechanics.advance(voltage)
+        accel = np.diff(velocity, prepend=self.plate_velocity_m_s) * self.sample_rate_hz
+        relative = self.contact.advance(accel, 1.0 / self.sample_rate_hz)
+        self.plate_position_m = float(position[-1])
+        self.plate_velocity_m_s = float(velocity[-1])
+        return position + relative, position
+
+
+@dataclass(frozen=True)
+class WaveformRun:
+    """Result of :func:`run_waveform`: per-period steps (m) and the traces."""
+
+    steps_m: np.ndarray
+    net_displacement_m: float
+    slip_fraction: float
+    time_s: np.ndarray
+    part_position_m: np.ndarray
+    plate_position_m: np.ndarray
+
+
+def run_waveform(
+    friction: Friction,
+    waveform: Waveform,
+    periods: int,
+    amplifier: AmplifierLimits | None = None,
+    stack: StackParameters | None = None,
+    sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
+    scatter: float = 0.0,
+    seed: int | None = None,
+) -> WaveformRun:
+    """Drive a fresh plant, at rest at the bottom of the sawtooth, for ``periods`` steps.
+
+    The command is sampled like a DDS (phase = sample index / samples per
+    period).  Steps are measured between the last samples before consecutive
+    flybacks, where the part rides the rise stuck to the plate: the first rise
+    is a lead-in, so the run is ``periods`` periods plus one rise long.
+    """
+    per = round(sample_rate_hz / waveform.frequency_hz)
+    if per < 4:
+        raise InputError("sample_rate_hz", "needs at least 4 samples per period")
+    bottom = waveform.offset_v + (0.0 if waveform.sign > 0 else waveform.amplitude_vpp)
+    plant = Plant(friction, amplifier, stack, sample_rate_hz, scatter, seed, initial_v=bottom)
+    top = math.ceil((1.0 - waveform.command_flyback_s * waveform.frequency_hz) * per - 1e-9) - 1
+    count = top + 1 + periods * per
+    index = np.arange(1, count + 1)
+    part, plate = plant.advance_traces(waveform.voltage_at_phase((index % per) / per))
+    tops = part[top :: per]
+    return WaveformRun(
+        steps_m=np.diff(tops),
+        net_displacement_m=float(tops[-1] - tops[0]),
+        slip_fraction=plant.slip_time_s / plant.elapsed_s,
+        time_s=index / sample_rate_hz,
+        part_position_m=part,
+        plate_position_m=plate,
+    )

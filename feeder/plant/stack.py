@@ -1,0 +1,107 @@
+"""Piezo stack + plate: a linear model built with python-control, discretised for streaming.
+
+Voltage V at the stack → plate position x (DESIGN §4):
+
+    X(s)/V(s) = g · ω_a/(s + ω_a) · ω_n²/(s² + 2ζω_n·s + ω_n²)
+
+- g: stack gain (m/V), free stroke per volt;
+- ω_a = 1/(R_out·C): the amplifier's output resistance into the stack
+  capacitance C (a first-order low-pass that rounds the voltage's corners);
+- ω_n, ζ: the stack's first axial resonance loaded by the plate, and its damping.
+
+Defaults (docs/plant.md): g = 0.07 µm/V (14 µm at the paper's 200 V), C = 1.0 µF,
+R_out = 8 Ω (20 kHz corner), loaded resonance 30 kHz (a 74–150 kHz stack
+carrying a plate a few times its own effective mass), ζ = 0.1.
+
+:class:`StackFilter` runs the model discretised with a first-order hold (exact
+for piecewise-linear voltages, which is what a slope-limited amplifier produces
+between samples) as two ``scipy.signal.lfilter`` calls with carried state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import control
+import numpy as np
+from scipy.signal import lfilter, lfilter_zi
+
+from feeder.errors import InputError
+
+
+@dataclass(frozen=True)
+class StackParameters:
+    """Stack and plate: gain (m/V), capacitance (F), output resistance (Ω), resonance (Hz), ζ."""
+
+    gain_m_per_v: float = 0.07e-6
+    capacitance_f: float = 1.0e-6
+    output_resistance_ohm: float = 8.0
+    resonance_hz: float = 30.0e3
+    damping_ratio: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("gain_m_per_v", "capacitance_f", "resonance_hz", "damping_ratio"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise InputError(name, f"must be a positive number, got {value!r}")
+        if not (math.isfinite(self.output_resistance_ohm) and self.output_resistance_ohm >= 0):
+            raise InputError("output_resistance_ohm", "must be a non-negative number")
+
+    def position_model(self) -> control.TransferFunction:
+        """X(s)/V(s) in m/V."""
+        w_n = 2 * math.pi * self.resonance_hz
+        plant = control.tf([self.gain_m_per_v * w_n**2], [1.0, 2 * self.damping_ratio * w_n, w_n**2])
+        if self.output_resistance_ohm > 0:
+            w_a = 1.0 / (self.output_resistance_ohm * self.capacitance_f)
+            plant = control.tf([w_a], [1.0, w_a]) * plant
+        return plant
+
+    def state_space(self) -> control.StateSpace:
+        """Continuous model with outputs [position (m), velocity (m/s)]."""
+        position = control.ss(self.position_model())
+        a, b, c, d = position.A, position.B, position.C, position.D
+        # velocity = d/dt (C x) = C A x + C B u (D = 0: the model's relative degree is ≥ 2)
+        return control.ss(a, b, np.vstack([c, c @ a]), np.vstack([d, c @ b]))
+
+    def discrete(self, sample_rate_hz: float) -> control.StateSpace:
+        """First-order-hold discretisation at ``sample_rate_hz``."""
+        return control.sample_system(self.state_space(), 1.0 / sample_rate_hz, method="foh")
+
+
+def _transfer_rows(system: control.StateSpace) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(b, a) of each output of a single-input discrete system, for lfilter."""
+    rows = []
+    for k in range(system.noutputs):
+        tf = control.ss2tf(system[k, 0])
+        rows.append((np.atleast_1d(np.squeeze(tf.num[0][0])), np.atleast_1d(np.squeeze(tf.den[0][0]))))
+    return rows
+
+
+class StackFilter:
+    """Streaming stack + plate: voltage samples → plate position (m) and velocity (m/s).
+
+    Starts at rest at ``initial_v`` (position g·V).
+    """
+
+    def __init__(self, stack: StackParameters, sample_rate_hz: float, initial_v: float = 0.0) -> None:
+        self.stack = stack
+        self.sample_rate_hz = sample_rate_hz
+        self._rows = _transfer_rows(stack.discrete(sample_rate_hz))
+        self._states = [_steady_state(b, a, initial_v) for b, a in self._rows]
+
+    def advance(self, voltage_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(position, velocity) at each voltage sample."""
+        outputs = []
+        for k, (b, a) in enumerate(self._rows):
+            y, self._states[k] = lfilter(b, a, voltage_v, zi=self._states[k])
+            outputs.append(y)
+        return outputs[0], outputs[1]
+
+
+def _steady_state(b: np.ndarray, a: np.ndarray, level: float) -> np.ndarray:
+    """lfilter state of a filter that has seen the constant input ``level`` forever."""
+    n = max(len(a), len(b)) - 1
+    if n == 0:
+        return np.zeros(0)
+    return lfilter_zi(b, a) * level
