@@ -105,14 +105,9 @@ DEFAULT_SURFACE = SurfaceParameters(
 )
 """Embedded default (DESIGN §2): reproduces the paper's flat-support Table III."""
 
-_SURFACE_KEYS = {
-    "sigma_m",
-    "summit_radius_m",
-    "summit_density_per_m2",
-    "mean_summit_height_m",
-    "z_max_m",
-}
-_MATERIAL_KEYS = {"youngs_modulus_pa", "poisson_ratio"}
+_REQUIRED_KEYS = ("sigma_m", "summit_radius_m", "summit_density_per_m2", "mean_summit_height_m")
+_SURFACE_KEYS = (*_REQUIRED_KEYS, "z_max_m")
+_MATERIAL_KEYS = ("youngs_modulus_pa", "poisson_ratio")
 
 
 def load_surface(path: Path) -> SurfaceParameters:
@@ -132,14 +127,15 @@ def load_surface(path: Path) -> SurfaceParameters:
     if not isinstance(material, dict):
         raise InputError(str(path), "[material] must be a table")
     values: dict[str, float] = {}
-    for table, allowed, name in ((surface, _SURFACE_KEYS, "surface"), (material, _MATERIAL_KEYS, "material")):
+    tables = ((surface, _SURFACE_KEYS, "surface"), (material, _MATERIAL_KEYS, "material"))
+    for table, allowed, name in tables:
         for key, value in table.items():
             if key not in allowed:
                 raise InputError(f"{path}: [{name}].{key}", "unknown field")
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise InputError(f"{path}: [{name}].{key}", f"must be a number, got {value!r}")
             values[key] = float(value)
-    for key in _SURFACE_KEYS - {"z_max_m"}:
+    for key in _REQUIRED_KEYS:
         if key not in values:
             raise InputError(f"{path}: [surface].{key}", "missing")
     try:
