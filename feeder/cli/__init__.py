@@ -17,7 +17,7 @@ from typing import NoReturn
 
 from feeder.errors import InputError
 
-SUBCOMMANDS: tuple[str, ...] = ("contact", "surface")
+SUBCOMMANDS: tuple[str, ...] = ("contact", "surface", "friction", "control")
 
 
 class OneLineParser(argparse.ArgumentParser):

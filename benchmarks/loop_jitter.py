@@ -1,0 +1,90 @@
+"""Control-loop tick jitter: the daemon's loop at its default rate vs a bare ``time.sleep`` loop.
+
+Both run for 10 s (2 s with ``--quick``) at the loop's default rate, one after
+the other in the same process.  The control loop runs with a sensor streaming
+frames at 200 Hz through its reader thread and an amplifier that answers at
+once (the loop's own overhead, not the link's).  ratio = baseline p99 jitter /
+loop p99 jitter (1.0: the loop adds nothing to what the OS scheduler gives).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from feeder.daemon.control_loop import COARSE, FINE, ControlLoop, LoopSettings, StepMode
+from feeder.drivers.amplifier import Amplifier, AmplifierStatus, DriveSettings
+from feeder.drivers.sensor import PositionSample, PositionSensor
+
+
+class _StillSensor(PositionSensor):
+    """A camera at 200 Hz looking at a part that does not move."""
+
+    def __init__(self) -> None:
+        self.sequence = 0
+        self.next_s = time.monotonic()
+
+    def read(self, timeout_s: float = 1.0) -> PositionSample:
+        self.next_s += 0.005
+        time.sleep(max(0.0, self.next_s - time.monotonic()))
+        self.sequence += 1
+        return PositionSample(time.monotonic(), 0.0, self.sequence)
+
+    def close(self) -> None:
+        pass
+
+
+class _InstantAmplifier(Amplifier):
+    def apply(self, settings: DriveSettings) -> None: ...
+    def step(self, count: int) -> None: ...
+    def run_continuous(self, forward: bool) -> None: ...
+    def stop(self) -> None: ...
+    def wait(self, timeout_s: float) -> bool:
+        return True
+    def ground(self) -> None: ...
+    def enable(self) -> None: ...
+    def status(self) -> AmplifierStatus:
+        return AmplifierStatus("gnd", 100.0, 0.0, 0, False)
+    def close(self) -> None: ...
+
+
+def _sleep_loop(rate_hz: float, duration_s: float) -> np.ndarray:
+    period = 1.0 / rate_hz
+    deadline = time.monotonic() + period
+    end = deadline + duration_s
+    jitter = []
+    while deadline < end:
+        delay = deadline - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        jitter.append(time.monotonic() - deadline)
+        deadline += period
+    return np.array(jitter)
+
+
+def run(quick: bool) -> dict[str, float | int]:
+    duration = 2.0 if quick else 10.0
+    settings = LoopSettings()
+    baseline = _sleep_loop(settings.rate_hz, duration)
+    mode = StepMode(COARSE, DriveSettings(100.0, 100.0), 3e-6, (2.5e-6, 3.5e-6))
+    modes = {COARSE: mode, FINE: StepMode(FINE, DriveSettings(100.0, 50.0), 1e-6, (0.5e-6, 1.5e-6))}
+    loop = ControlLoop(_InstantAmplifier(), _StillSensor(), modes, settings)
+    loop.start()
+    time.sleep(duration)
+    loop.shutdown()
+    timing = loop.timing()
+    base_p99 = float(np.percentile(baseline, 99))
+    return {
+        "ratio": base_p99 / max(float(timing["jitter_p99_s"]), 1e-9),
+        "rate_hz": settings.rate_hz,
+        "duration_s": duration,
+        "ticks": int(timing["ticks"]),
+        "overruns": int(timing["overruns"]),
+        "jitter_p50_s": float(timing["jitter_p50_s"]),
+        "jitter_p99_s": float(timing["jitter_p99_s"]),
+        "jitter_max_s": float(timing["jitter_max_s"]),
+        "baseline_p50_s": float(np.percentile(baseline, 50)),
+        "baseline_p99_s": base_p99,
+        "baseline_max_s": float(baseline.max()),
+    }
