@@ -35,12 +35,16 @@ from __future__ import annotations
 import enum
 import math
 import threading
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from feeder.plant.amplifier import AmplifierLimits
+from feeder.plant.stack import StackParameters
+from feeder.waveform import Waveform
 from firmware_sim.clock import Clock
 
 MODES = ("gnd", "inp", "cap", "stp", "off", "stp+", "stp-")
@@ -53,6 +57,7 @@ DAC_MAX_CODE = (1 << DAC_BITS) - 1
 PHASE_BITS = 32
 MAX_STEPS = (1 << 31) - 1
 CAPACITANCE_MEASURE_S = 0.1
+DEFAULT_LOAD_CAPACITANCE_F = StackParameters().capacitance_f
 
 
 class FirmwareError(Exception):
@@ -63,11 +68,19 @@ class LimitError(FirmwareError):
     """A value outside its allowed range ``[lo, hi]``."""
 
     def __init__(self, field: str, value: float, lo: float, hi: float) -> None:
-        super().__init__(f"Value out of range: {field} = {value:g} not in [{lo:g}, {hi:g}]")
+        super().__init__(
+            f"Value out of range: {field} = {_plain(value)} not in [{_plain(lo)}, {_plain(hi)}]")
         self.field = field
         self.value = value
         self.lo = lo
         self.hi = hi
+
+
+def _plain(value: float) -> str:
+    """A number in plain fixed point (no exponent), trailing zeros dropped."""
+    if not (math.isfinite(value) and abs(value) < 1e15):
+        return "(too large)"
+    return f"{value:.9f}".rstrip("0").rstrip(".")
 
 
 class Fault(enum.IntFlag):
@@ -84,28 +97,6 @@ def fault_names(word: int) -> tuple[str, ...]:
 
 
 @dataclass(frozen=True)
-class OutputLimits:
-    """The amplifier's output stage as the firmware enforces it.
-
-    rail_v: output range is [0, rail_v] volts (the amplifier's rating, e.g. 200 Vpp).
-    slew_v_per_s: largest |dV/dt| of the output stage, V/s.
-    current_a: output current limit, A.
-    load_capacitance_f: capacitance of the stack the axis drives, F; with
-        ``current_a`` it bounds |dV/dt| ≤ I/C.
-    """
-
-    rail_v: float = 200.0
-    slew_v_per_s: float = 2.0e6
-    current_a: float = 0.5
-    load_capacitance_f: float = 0.5e-6
-
-    @property
-    def max_dv_dt(self) -> float:
-        """The binding slope limit, V/s: min(slew, I/C)."""
-        return min(self.slew_v_per_s, self.current_a / self.load_capacitance_f)
-
-
-@dataclass(frozen=True)
 class FirmwareConfig:
     """Build-time settings of the firmware.
 
@@ -114,6 +105,9 @@ class FirmwareConfig:
     dac_buffer_s: how far ahead of the DAC the tick keeps the buffer filled.
     watchdog_s: a tick later than this grounds every axis (WATCHDOG).
     host_watchdog_s: no host command for this long while moving → HOST_WATCHDOG; 0 = off.
+    amplifier: rails, slew rate, current limit and frequency range (the shared
+        model of :mod:`feeder.plant.amplifier`); load_capacitance_f: the stack
+        capacitance the current limit is enforced for (nominal, F).
     """
 
     axes: int = 3
@@ -123,8 +117,9 @@ class FirmwareConfig:
     dac_buffer_s: float = 0.020
     watchdog_s: float = 0.25
     host_watchdog_s: float = 0.0
-    limits: OutputLimits = field(default_factory=OutputLimits)
-    serial_number: str = "FS-0001"
+    amplifier: AmplifierLimits = field(default_factory=AmplifierLimits)
+    load_capacitance_f: float = DEFAULT_LOAD_CAPACITANCE_F
+    serial_number: str = "FS0001"
 
     @property
     def samples_per_tick(self) -> int:
@@ -179,24 +174,16 @@ DacSink = Callable[[int, int, np.ndarray], None]
 """Called with (axis, index of the first sample, output volts per sample) for
 every block of samples the DAC will play, in order."""
 
+TickListener = Callable[[float], None]
+"""Called at the end of every tick with the tick's time (s since start)."""
 
-def sawtooth_pattern(shape: str, flyback_fraction: float, up: bool) -> list[int]:
-    """256-point ANC300 pattern (0–255) of one sawtooth step.
 
-    ``up``: slow rise over (1 − flyback_fraction) of the period, then the flyback
-    (``linear`` or ``half-cosine``) over ``flyback_fraction``; ``current-limited``
-    drops in one entry and lets the current limit set the flyback time.  The down
-    pattern is the up pattern reversed in time.
-    """
-    x = np.arange(PATTERN_POINTS) / PATTERN_POINTS
-    rise = 1.0 - (1.0 / PATTERN_POINTS if shape == "current-limited" else flyback_fraction)
-    fall = np.clip((x - rise) / (1.0 - rise), 0.0, 1.0)
-    falling = 1.0 - fall if shape != "half-cosine" else 0.5 * (1.0 + np.cos(np.pi * fall))
-    values = np.where(x <= rise, x / rise, falling)
-    table = np.rint(values * PATTERN_MAX).astype(int)
-    if not up:
-        table = np.roll(table[::-1], 1)
-    return [int(v) for v in table]
+def sawtooth_patterns(shape: str, flyback_s: float, frequency_hz: float) -> dict[bool, list[int]]:
+    """The 256-point up (True) and down (False) patterns of a sawtooth design."""
+    design = Waveform(frequency_hz=frequency_hz, amplitude_vpp=1.0, flyback_shape=shape,
+                      flyback_s=flyback_s if shape != "current-limited" else None)
+    up, down = design.anc300_tables()
+    return {True: up, False: down}
 
 
 class Axis:
@@ -214,8 +201,7 @@ class Axis:
         self._offset_v = 0.0
         self._flyback_shape = "current-limited"
         self._flyback_s = 0.0
-        self._patterns: dict[bool, list[int]] = {
-            up: sawtooth_pattern("current-limited", 0.0, up) for up in (True, False)}
+        self._patterns = sawtooth_patterns("current-limited", 0.0, self._frequency_hz)
         self._phase = 0
         self._up = True
         self._remaining = 0          # steps left in the burst; -1 = continuous
@@ -223,7 +209,8 @@ class Axis:
         self._fault_word = 0
         self._code = 0               # last DAC code played
         self._cap_done_sample = 0    # capacitance measurement ends at this sample
-        self._capacitance_f = firmware.config.limits.load_capacitance_f
+        self._active_until = 0       # the last burst's final sample plays before this one
+        self._capacitance_f = firmware.config.load_capacitance_f
 
     # -- settings -------------------------------------------------------------
 
@@ -235,7 +222,7 @@ class Axis:
         """
         with self._fw.lock:
             if mode not in MODES:
-                raise FirmwareError(f"Unknown mode {mode!r}")
+                raise FirmwareError("Unknown mode")
             if mode != "gnd" and self._fault_word:
                 raise FirmwareError("Axis in fault state")
             if mode not in STEPPING_MODES:
@@ -246,42 +233,44 @@ class Axis:
             self._mode = mode
 
     def set_frequency(self, hz: float) -> None:
-        """Step (sawtooth) frequency, 1–10000 Hz; the flyback pattern follows it."""
+        """Step (sawtooth) frequency within the amplifier's range; the flyback pattern follows."""
         with self._fw.lock:
-            _check("frequency", hz, 1.0, 10_000.0)
+            amp = self._fw.config.amplifier
+            _check("frequency", hz, amp.min_frequency_hz, amp.max_frequency_hz)
             if self._flyback_shape != "custom":
-                _check("flyback", self._flyback_s, 0.0, 0.5 / hz)
+                _check("flyback", self._flyback_s, 0.0, 1.0 / hz - 1.0 / self._fw.sample_rate)
             self._frequency_hz = float(hz)
             self._update_patterns()
 
     def set_amplitude(self, volts: float) -> None:
-        """Peak-to-peak step amplitude, 0..rail volts."""
+        """Peak-to-peak step amplitude, 0 … (v_max − v_min) volts."""
         with self._fw.lock:
-            _check("voltage", volts, 0.0, self._fw.config.limits.rail_v)
+            _check("voltage", volts, 0.0, self._fw.config.amplifier.max_amplitude_vpp)
             self._amplitude_v = float(volts)
 
     def set_offset(self, volts: float) -> None:
-        """DC offset used in ``inp``, ``stp+`` and ``stp-``, 0..rail volts."""
+        """DC offset used in ``inp``, ``stp+`` and ``stp-``, within the rails (V)."""
         with self._fw.lock:
-            _check("offset", volts, 0.0, self._fw.config.limits.rail_v)
+            amp = self._fw.config.amplifier
+            _check("offset", volts, amp.v_min_v, amp.v_max_v)
             self._offset_v = float(volts)
 
     def set_flyback(self, shape: str, seconds: float) -> None:
         """Flyback shape (``linear``, ``half-cosine``, ``current-limited``) and time.
 
         ``seconds`` is the flyback duration for ``linear``/``half-cosine`` (more
-        than one DAC sample and at most half a period); it is ignored for
+        than one DAC sample, less than a period); it is ignored for
         ``current-limited``, where the current limit into the stack sets it.
         Rebuilds both patterns.
         """
         with self._fw.lock:
             if shape not in FLYBACK_SHAPES:
-                raise FirmwareError(f"Unknown flyback shape {shape!r}")
+                raise FirmwareError("Unknown flyback shape")
             if shape == "current-limited":
                 seconds = 0.0
             else:
                 _check("flyback", seconds, 1.0 / self._fw.sample_rate,
-                       0.5 / self._frequency_hz)
+                       1.0 / self._frequency_hz - 1.0 / self._fw.sample_rate)
             self._flyback_shape = shape
             self._flyback_s = float(seconds)
             self._update_patterns()
@@ -331,11 +320,11 @@ class Axis:
             self._fw.lock.notify_all()
 
     def wait_idle(self, timeout_s: float | None = None) -> bool:
-        """Block until no burst runs and no capacitance measurement; False on timeout."""
+        """Block until the DAC has played the burst and no capacitance measurement
+        runs; False on timeout."""
         with self._fw.lock:
-            return self._fw.lock.wait_for(
-                lambda: (self._remaining == 0 and self._mode != "cap")
-                or self._fw.stopped, timeout_s)
+            return self._fw.lock.wait_for(lambda: not self._busy() or self._fw.stopped,
+                                          timeout_s)
 
     # -- faults ---------------------------------------------------------------
 
@@ -363,10 +352,14 @@ class Axis:
                 axis=self.number, mode=self._mode, frequency_hz=self._frequency_hz,
                 amplitude_v=self._amplitude_v, offset_v=self._offset_v,
                 flyback_shape=self._flyback_shape, flyback_s=self._flyback_s,
-                step_counter=self._step_counter, moving=self._remaining != 0,
-                fault_word=self._fault_word, output_v=self._code * self._fw.lsb_v)
+                step_counter=self._step_counter, moving=self._busy() and self._mode != "cap",
+                fault_word=self._fault_word, output_v=self._fw.volts(self._code))
 
     # -- internals (called with the lock held) --------------------------------
+
+    def _busy(self) -> bool:
+        return (self._remaining != 0 or self._mode == "cap"
+                or self._fw.samples_played < self._active_until)
 
     def _start(self, up: bool, remaining: int) -> None:
         if self._mode not in STEPPING_MODES:
@@ -385,19 +378,18 @@ class Axis:
     def _update_patterns(self) -> None:
         if self._flyback_shape == "custom":
             return
-        fraction = self._flyback_s * self._frequency_hz
-        self._patterns = {up: sawtooth_pattern(self._flyback_shape, fraction, up)
-                          for up in (True, False)}
+        self._patterns = sawtooth_patterns(self._flyback_shape, self._flyback_s,
+                                           self._frequency_hz)
 
     def _generate(self, first_sample: int, n: int) -> np.ndarray:
         """The next ``n`` DAC codes (uint16 values as int64), advancing DDS and counters."""
         fw = self._fw
-        limits = fw.config.limits
+        amp = fw.config.amplifier
         if self._mode == "cap" and first_sample >= self._cap_done_sample:
             self._mode = "gnd"
             fw.lock.notify_all()
         if self._mode in STEPPING_MODES:
-            wave = self._dds(n)
+            wave = self._dds(first_sample, n)
             if self._mode == "stp":
                 volts = self._amplitude_v * wave
             elif self._mode == "stp+":
@@ -408,17 +400,23 @@ class Axis:
             volts = np.full(n, self._offset_v)
         else:  # gnd, off, cap
             volts = np.zeros(n)
-        target = np.rint(np.clip(volts, 0.0, limits.rail_v) / fw.lsb_v).astype(np.int64)
+        target = np.rint((np.clip(volts, amp.v_min_v, amp.v_max_v) - amp.v_min_v)
+                         / fw.lsb_v).astype(np.int64)
         codes = _slew_limit(target, self._code, fw.max_codes_per_sample)
         self._code = int(codes[-1])
         return codes
 
-    def _dds(self, n: int) -> np.ndarray:
-        """Pattern value (0..1) for the next ``n`` samples; counts completed steps."""
+    def _dds(self, first_sample: int, n: int) -> np.ndarray:
+        """Pattern value (0..1) for the next ``n`` samples; counts completed steps.
+
+        The counter changes when the DDS completes a period, which is up to
+        ``dac_buffer_s`` before the DAC plays it.
+        """
         table = np.asarray(self._patterns[self._up], dtype=float) / PATTERN_MAX
         if self._remaining == 0:
             return np.full(n, _lookup(table, np.array([self._phase], dtype=np.uint64))[0])
         increment = round(self._frequency_hz * (1 << PHASE_BITS) / self._fw.sample_rate)
+        self._active_until = first_sample + n
         phases = self._phase + increment * np.arange(n, dtype=np.uint64)
         wraps = (phases >> np.uint64(PHASE_BITS)).astype(np.int64)
         end_wraps = (self._phase + increment * n) >> PHASE_BITS
@@ -426,6 +424,7 @@ class Axis:
             # The burst ends on the remaining-th wrap: hold the pattern's start from there.
             done = wraps >= self._remaining
             phases = np.where(done, np.uint64(0), phases)
+            self._active_until = first_sample + (int(np.argmax(done)) if done.any() else n)
             steps = self._remaining
             self._phase = 0
             self._remaining = 0
@@ -482,16 +481,19 @@ class Firmware:
             raise ValueError("sample_rate_hz must be an integer multiple of tick_hz")
         self.lock = threading.Condition(threading.RLock())
         self.sample_rate = cfg.sample_rate_hz
-        self.lsb_v = cfg.limits.rail_v / DAC_MAX_CODE
+        self.lsb_v = cfg.amplifier.max_amplitude_vpp / DAC_MAX_CODE
+        self.max_slope_v_per_s = cfg.amplifier.max_slope_v_per_s(cfg.load_capacitance_f)
         self.max_codes_per_sample = max(
-            1, math.floor(cfg.limits.max_dv_dt / cfg.sample_rate_hz / self.lsb_v))
+            1, math.floor(self.max_slope_v_per_s / cfg.sample_rate_hz / self.lsb_v))
         self.buffer_samples = max(cfg.samples_per_tick,
                                   round(cfg.dac_buffer_s * cfg.sample_rate_hz))
         self.samples_written = 0
+        self.samples_played = 0
         self.stats = TickStats()
         self.stopped = False
         self._axes = {n: Axis(self, n) for n in range(1, cfg.axes + 1)}
         self._sinks: list[DacSink] = []
+        self._tick_listeners: list[TickListener] = []
         self._last_host_s = 0.0
         self._now_s = 0.0
         self._tick_index = 0
@@ -513,6 +515,11 @@ class Firmware:
         with self.lock:
             self._sinks.append(sink)
 
+    def add_tick_listener(self, listener: TickListener) -> None:
+        """Call ``listener(now_s)`` at the end of every tick (lock held)."""
+        with self.lock:
+            self._tick_listeners.append(listener)
+
     def host_activity(self) -> None:
         """A front end received a command from the host (kicks the host watchdog)."""
         with self.lock:
@@ -530,6 +537,7 @@ class Firmware:
             self._now_s = now_s
             cfg = self.config
             played = int(now_s * self.sample_rate + 1e-6)
+            self.samples_played = played
             if played > self.samples_written:  # the DAC ran dry: it held its last sample
                 gap = played - self.samples_written
                 self.stats.underruns += 1
@@ -547,10 +555,17 @@ class Firmware:
                 for number, axis in self._axes.items():
                     self._emit(number, axis._generate(first, n))
                 self.samples_written += n
+            for listener in self._tick_listeners:
+                listener(now_s)
+            self.lock.notify_all()  # waiters on played samples (wait_idle)
+
+    def volts(self, code: int) -> float:
+        """Output voltage of a DAC code."""
+        return self.config.amplifier.v_min_v + code * self.lsb_v
 
     def _emit(self, number: int, codes: np.ndarray) -> None:
         first = self.samples_written
-        volts = codes * self.lsb_v
+        volts = self.config.amplifier.v_min_v + codes * self.lsb_v
         for sink in self._sinks:
             sink(number, first, volts)
 
@@ -584,6 +599,8 @@ class Firmware:
                     self.stats.missed_deadlines += skipped
                     self._tick_index += skipped
             done += 1
+            if not clock.realtime:
+                time.sleep(0)  # let the front ends' threads in between virtual ticks
 
     def tick_summary(self) -> dict[str, float | int]:
         """The tick loop's statistics (see :class:`TickStats`)."""
