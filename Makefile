@@ -17,7 +17,7 @@ demo: $(STAMP)
 	$(BIN)/feeder contact --table
 
 lint: $(STAMP)
-	$(BIN)/ruff check feeder firmware_sim tests benchmarks waveforms
+	$(BIN)/ruff check .
 	$(BIN)/mypy
 
 test: lint
