@@ -17,7 +17,9 @@ from typing import NoReturn
 
 from feeder.errors import InputError
 
-SUBCOMMANDS: tuple[str, ...] = ("contact", "surface", "friction", "control")
+SUBCOMMANDS: tuple[str, ...] = (
+    "contact", "surface", "friction", "tau", "control", "waveform", "simulate", "plan",
+)
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -1,0 +1,112 @@
+"""``feeder tau``: interfacial shear strength τ = F/A_r from measured friction forces (paper Tables V–VI)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+from feeder.cli.contact import positive_float
+from feeder.cli.friction import add_curve_options, analyse_files
+from feeder.cli.output import print_json
+from feeder.contact.breakaway import contact
+from feeder.errors import InputError
+from feeder.friction.shear_strength import shear_strength
+from feeder.parts import Part, Support
+from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
+
+BAND_NOTE = (
+    "tau band = tau * sqrt((s_F/mean F)^2 + (dA/A_r)^2), s_F the sample std of the forces (ddof 1), "
+    "dA/A_r the relative real-area band (--area-band; the GW model gives a point value)"
+)
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("tau", help="shear strength τ = F/A_r from friction forces or force curves")
+    p.add_argument("--part", required=True, help="LxWxT in µm, e.g. 300x300x50")
+    p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
+    p.add_argument("--force", action="append", required=True, metavar="N|CURVE.csv",
+                   help="a static-friction force in N, or a force-curve CSV; repeat for several")
+    p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
+    p.add_argument("--density", type=positive_float, default=2330.0, help="part density in kg/m³")
+    p.add_argument("--real-area", type=positive_float,
+                   help="use this real contact area in m² instead of the GW model")
+    p.add_argument("--area-band", type=float, default=0.0,
+                   help="relative half-width of the real-area band, e.g. 0.1 (default 0)")
+    add_curve_options(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(handler=run)
+
+
+def _forces(args: argparse.Namespace) -> tuple[list[float], list[str]]:
+    """Numbers as given; file names analysed as force curves (their static-friction peak)."""
+    forces: list[float] = []
+    sources: list[str] = []
+    for text in args.force:
+        value = _number(text)
+        if value is None:
+            path = Path(text)
+            if not path.is_file():
+                raise InputError("--force", f"{text!r} is neither a force in newtons nor a force-curve file")
+            ((_, peak),) = analyse_files([path], args)
+            forces.append(peak.static_friction_n)
+            sources.append(str(path))
+            continue
+        if not (math.isfinite(value) and value > 0):
+            raise InputError("--force", f"must be a positive force in newtons, got {text!r}")
+        forces.append(value)
+        sources.append("value")
+    return forces, sources
+
+
+def _number(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def run(args: argparse.Namespace) -> int:
+    part = Part.parse(args.part, density_kg_m3=args.density)
+    support = Support.parse(args.support)
+    surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
+    forces, sources = _forces(args)
+    model = contact(part, support, surface)
+    area = args.real_area if args.real_area is not None else model.real_area_m2
+    result = shear_strength(forces, area, args.area_band)
+    checked = contact(part, support, surface, result.tau_pa, min(result.tau_band_pa, 0.999 * result.tau_pa))
+    report: dict[str, Any] = {
+        "tau_pa": result.tau_pa,
+        "tau_band_pa": result.tau_band_pa,
+        "real_area_m2": result.real_area_m2,
+        "real_area_band_m2": list(result.real_area_band_m2),
+        "mean_force_N": result.mean_force_n,
+        "force_spread_N": result.force_spread_n,
+        "inputs": {
+            "part": part.label,
+            "support": support.kind,
+            "surface": str(args.surface) if args.surface else "embedded default",
+            "forces_N": forces,
+            "force_sources": sources,
+            "real_area_source": "--real-area" if args.real_area is not None else "GW model",
+            "area_band": args.area_band,
+        },
+        "model_real_area_m2": model.real_area_m2,
+        "separation_m": model.separation_m,
+        "contacts": model.contacts,
+        "warnings": list(checked.warnings),
+        "notes": [BAND_NOTE],
+    }
+    if args.json:
+        print_json(report)
+        return 0
+    print(f"part {part.label} µm on {support.kind} support, {len(forces)} force(s), "
+          f"mean {result.mean_force_n * 1e6:.4g} µN (spread {result.force_spread_n * 1e6:.3g} µN)")
+    source = report["inputs"]["real_area_source"]
+    print(f"real area A_r {area:.5g} m² ({source})")
+    print(f"τ = {result.tau_pa / 1e9:.3f} ± {result.tau_band_pa / 1e9:.3f} GPa")
+    for warning in checked.warnings:
+        print(f"warning: {warning}")
+    print(f"note: {BAND_NOTE}")
+    return 0
