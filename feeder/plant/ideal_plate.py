@@ -9,8 +9,11 @@ jumps at the sawtooth's corners, the input of :mod:`feeder.plant.stick_slip`:
   whose accelerations are the exact mean accelerations (velocity exact at the
   nodes), so the stick-slip on it converges as pieces⁻².
 
-The motion starts in the periodic steady state: plate at x = 0 moving at the
-rise velocity, part stuck to it.  Arrays broadcast over parameter sets (batch).
+Each period is the flyback followed by the rise.  The motion starts in the
+periodic steady state: plate at the top, x = S, moving at the rise velocity,
+part stuck to it; so each period ends with the part stuck again and the
+relative displacement at period ends is the step.  Arrays broadcast over
+parameter sets (batch).
 
 Closed form for the linear flyback (DESIGN §4): the corner at the start of the
 flyback is a velocity jump S(1/t_r + 1/t_f), the part slips with kinetic
@@ -34,7 +37,8 @@ class PlateMotion:
     """Plate motion as intervals, arrays (sets, intervals).
 
     duration_s, accel_m_s2: each interval; jump_m_s: velocity jump at its start;
-    position_m: plate position at its end; intervals_per_period.
+    position_m: plate position at its end (the motion starts at x = ±S);
+    intervals_per_period.
     """
 
     duration_s: np.ndarray
@@ -53,7 +57,7 @@ def sawtooth_motion(
     direction_sign: float = 1.0,
     cosine_pieces: int = COSINE_PIECES,
 ) -> PlateMotion:
-    """Ideal-plate intervals for ``periods`` periods of a linear or half-cosine sawtooth.
+    """Ideal-plate intervals for ``periods`` periods (flyback, then rise) of a sawtooth.
 
     stroke_m S, frequency_hz f and flyback_s t_f broadcast over parameter sets;
     t_r = 1/f − t_f.  direction_sign −1 mirrors the motion (backward).
@@ -65,33 +69,30 @@ def sawtooth_motion(
     sets = stroke.size
     if flyback_shape == "linear":
         v_fly = -stroke / t_f
-        dur = np.stack([t_r, t_f], axis=1)
+        dur = np.stack([t_f, t_r], axis=1)
         acc = np.zeros((sets, 2))
-        jmp = np.stack([v_rise - v_fly, v_fly - v_rise], axis=1)
-        pos = np.stack([stroke, np.zeros(sets)], axis=1)
+        jmp = np.stack([v_fly - v_rise, v_rise - v_fly], axis=1)
+        pos = np.stack([np.zeros(sets), stroke], axis=1)
     elif flyback_shape == "half-cosine":
         nodes = np.linspace(0.0, 1.0, cosine_pieces + 1)[None, :]
         v_nodes = -(stroke * np.pi / (2 * t_f))[:, None] * np.sin(np.pi * nodes)
         h = (t_f / cosine_pieces)[:, None]
-        dur = np.concatenate([t_r[:, None], np.broadcast_to(h, (sets, cosine_pieces))], axis=1)
-        acc = np.concatenate([np.zeros((sets, 1)), np.diff(v_nodes, axis=1) / h], axis=1)
+        dur = np.concatenate([np.broadcast_to(h, (sets, cosine_pieces)), t_r[:, None]], axis=1)
+        acc = np.concatenate([np.diff(v_nodes, axis=1) / h, np.zeros((sets, 1))], axis=1)
         jmp = np.zeros_like(dur)
-        jmp[:, 0] = v_rise
-        jmp[:, 1] = -v_rise
+        jmp[:, 0] = -v_rise
+        jmp[:, -1] = v_rise
         pos = np.concatenate(
-            [stroke[:, None], 0.5 * stroke[:, None] * (1 + np.cos(np.pi * nodes[:, 1:]))], axis=1
+            [0.5 * stroke[:, None] * (1 + np.cos(np.pi * nodes[:, 1:])), stroke[:, None]], axis=1
         )
     else:
         raise ValueError(f"ideal plate has no flyback shape {flyback_shape!r}")
-    per = dur.shape[1]
-    jmp_all = np.tile(jmp, (1, periods))
-    jmp_all[:, 0] = 0.0  # steady state: already moving at the rise velocity
     return PlateMotion(
         duration_s=np.tile(dur, (1, periods)),
         accel_m_s2=direction_sign * np.tile(acc, (1, periods)),
-        jump_m_s=direction_sign * jmp_all,
+        jump_m_s=direction_sign * np.tile(jmp, (1, periods)),
         position_m=direction_sign * np.tile(pos, (1, periods)),
-        intervals_per_period=per,
+        intervals_per_period=dur.shape[1],
     )
 
 

@@ -1,0 +1,74 @@
+"""``feeder plan``: waveform, step count and predicted step ± band for a wanted displacement."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from feeder.cli.contact import positive_float
+from feeder.cli.output import print_json
+from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
+from feeder.parts import Part, Support
+from feeder.planner import DEFAULT_MARGIN, plan
+from feeder.plant.amplifier import AmplifierLimits
+from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
+from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
+
+_DEFAULT_AMPLIFIER = AmplifierLimits()
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("plan", help="plan a move: waveform, steps, predicted step and band")
+    p.add_argument("--part", required=True, help="LxWxT in µm, e.g. 300x300x50")
+    p.add_argument("--distance-m", type=float, required=True,
+                   help="wanted displacement in m (negative: backward)")
+    p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
+    p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
+    p.add_argument("--tau", type=positive_float, default=DEFAULT_TAU_PA,
+                   help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})")
+    p.add_argument("--tau-band", type=float, default=DEFAULT_TAU_BAND_PA,
+                   help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})")
+    p.add_argument("--kinetic-ratio", type=positive_float, default=DEFAULT_KINETIC_RATIO,
+                   help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})")
+    p.add_argument("--margin", type=positive_float, default=DEFAULT_MARGIN,
+                   help=f"k in the acceleration margins (default {DEFAULT_MARGIN})")
+    p.add_argument("--frequency-hz", type=positive_float, help="fix the frequency (default: chosen)")
+    p.add_argument("--max-voltage-v", type=positive_float, default=_DEFAULT_AMPLIFIER.v_max_v,
+                   help=f"amplifier rail (default {_DEFAULT_AMPLIFIER.v_max_v:g} V)")
+    p.add_argument("--current-limit-a", type=positive_float,
+                   default=_DEFAULT_AMPLIFIER.current_limit_a,
+                   help=f"amplifier peak current (default {_DEFAULT_AMPLIFIER.current_limit_a:g} A)")
+    p.add_argument("--max-frequency-hz", type=positive_float,
+                   default=_DEFAULT_AMPLIFIER.max_frequency_hz,
+                   help=f"amplifier's highest frequency (default {_DEFAULT_AMPLIFIER.max_frequency_hz:g} Hz)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    part = Part.parse(args.part)
+    support = Support.parse(args.support)
+    surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
+    amplifier = AmplifierLimits(v_max_v=args.max_voltage_v, current_limit_a=args.current_limit_a,
+                                max_frequency_hz=args.max_frequency_hz)  # fmt: skip
+    result = plan(part, support, surface, args.tau, amplifier, args.distance_m,
+                  tau_band_pa=args.tau_band, kinetic_ratio=args.kinetic_ratio,
+                  margin=args.margin, frequency_hz=args.frequency_hz)  # fmt: skip
+    out = {"part": part.label, "support": support.kind, **result.to_json()}
+    if args.json:
+        print_json(out)
+        return 0
+    lo, hi = result.predicted_step_band_m
+    print(f"move {args.distance_m * 1e6:.4g} µm: part {part.label} µm on {support.kind} support")
+    print(f"  waveform   {result.frequency_hz:.4g} Hz, {result.amplitude_vpp:.4g} Vpp, "
+          f"{result.flyback_shape} flyback {result.flyback_s * 1e6:.4g} µs, {result.direction}")
+    print(f"  steps      {result.steps}, {result.duration_s:.4g} s")
+    print(f"  step       {result.predicted_step_m * 1e6:.4g} µm  [{lo * 1e6:.4g}, {hi * 1e6:.4g}]")
+    print(f"  a_break    {result.breakaway_accel_m_s2:.4g} m/s²")
+    m = result.margins
+    print(f"  margins    flyback {m['flyback_margin']:.3g}×, ramp {m['ramp_margin']:.3g}× "
+          f"(required {m['required']:g}×)")
+    for w in result.warnings:
+        print(f"  warning: {w}")
+    return 0

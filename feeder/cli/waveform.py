@@ -1,0 +1,165 @@
+"""``feeder waveform show|export``: inspect a waveform file, export its tables (paper §V.B)."""
+
+from __future__ import annotations
+
+import argparse
+import io
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from feeder.cli.output import print_json
+from feeder.errors import InputError
+from feeder.plant.amplifier import AmplifierLimits, OutputStage
+from feeder.plant.stack import StackParameters
+from feeder.waveform import DEFAULT_DAC_BITS, DEFAULT_DAC_POINTS, Waveform, load_waveform
+
+PLOT_SAMPLE_RATE_HZ = 100e3
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("waveform", help="show a waveform file or export its tables")
+    actions = p.add_subparsers(dest="action", required=True, parser_class=type(p))
+    show = actions.add_parser("show", help="fields, derived timing, amplifier checks")
+    show.add_argument("file", type=Path, help="waveform TOML")
+    show.add_argument("--plot", type=Path, metavar="PNG", help="plot two periods to this PNG")
+    show.add_argument("--json", action="store_true", help="print one JSON object")
+    show.set_defaults(handler=run)
+    export = actions.add_parser("export", help="ANC300 256-point tables or a CSV DAC table")
+    export.add_argument("file", type=Path, help="waveform TOML")
+    export.add_argument("--format", required=True, choices=("anc300", "csv"))
+    export.add_argument("--points", type=int, default=DEFAULT_DAC_POINTS,
+                        help=f"CSV table length (default {DEFAULT_DAC_POINTS})")
+    export.add_argument("--axis", type=int, default=1, help="ANC300 axis for setpu/setpd (default 1)")
+    export.add_argument("--out", type=Path, help="write here (atomically) instead of stdout")
+    export.add_argument("--json", action="store_true", help="print one JSON object")
+    export.set_defaults(handler=run)
+
+
+def load_checked(path: Path, amplifier: AmplifierLimits) -> Waveform:
+    """Load a waveform file and check it against the amplifier (rails, frequency)."""
+    waveform = load_waveform(path)
+    amplifier.check(waveform, field_prefix=f"{path}: [waveform].")
+    return waveform
+
+
+def run(args: argparse.Namespace) -> int:
+    amplifier = AmplifierLimits()
+    waveform = load_checked(args.file, amplifier)
+    if args.action == "show":
+        return _show(args, waveform, amplifier)
+    return _export(args, waveform)
+
+
+def _show(args: argparse.Namespace, waveform: Waveform, amplifier: AmplifierLimits) -> int:
+    stack = StackParameters()
+    if waveform.flyback_shape == "current-limited":
+        flyback, fraction = amplifier.current_limited_flyback(
+            waveform.amplitude_vpp, waveform.frequency_hz, stack.capacitance_f
+        )
+        flyback_s, swing = float(flyback), float(fraction) * waveform.amplitude_vpp
+    else:
+        flyback_s, swing = waveform.command_flyback_s, waveform.amplitude_vpp
+    slope = amplifier.max_slope_v_per_s(stack.capacitance_f)
+    info = {
+        "file": str(args.file),
+        "shape": waveform.shape,
+        "frequency_hz": waveform.frequency_hz,
+        "period_s": waveform.period_s,
+        "amplitude_vpp": waveform.amplitude_vpp,
+        "offset_v": waveform.offset_v,
+        "flyback_shape": waveform.flyback_shape,
+        "flyback_s": flyback_s,
+        "rise_s": waveform.period_s - flyback_s,
+        "direction": waveform.direction,
+        "output_swing_v": swing,
+        "stroke_m": swing * stack.gain_m_per_v,
+        "amplifier_max_slope_v_per_s": slope,
+        "command_flyback_slope_v_per_s": (waveform.amplitude_vpp / waveform.command_flyback_s
+                                          if waveform.command_flyback_s else None),
+    }  # fmt: skip
+    warnings = []
+    fly_slope = info["command_flyback_slope_v_per_s"]
+    if isinstance(fly_slope, float) and fly_slope > slope:
+        warnings.append(
+            f"the command's flyback ({fly_slope:.3g} V/s) is faster than the amplifier can follow "
+            f"({slope:.3g} V/s into {stack.capacitance_f:g} F): the current limit sets the flyback"
+        )
+    info["warnings"] = warnings
+    if args.plot:
+        _plot(waveform, amplifier, stack, args.plot)
+        info["plot"] = str(args.plot)
+    if args.json:
+        print_json(info)
+        return 0
+    for key, value in info.items():
+        if key != "warnings":
+            print(f"{key:<30} {value:.6g}" if isinstance(value, float) else f"{key:<30} {value}")
+    for w in warnings:
+        print(f"warning: {w}")
+    return 0
+
+
+def _export(args: argparse.Namespace, waveform: Waveform) -> int:
+    if args.format == "anc300":
+        up, down = waveform.anc300_tables()
+        lines = [f"setpu {args.axis} " + " ".join(map(str, up)),
+                 f"setpd {args.axis} " + " ".join(map(str, down))]  # fmt: skip
+        text = "\n".join(lines) + "\n"
+        obj: dict[str, Any] = {"format": "anc300", "points": len(up), "up": up, "down": down}
+    else:
+        if args.points < 4:
+            raise InputError("--points", f"a table needs at least 4 points, got {args.points}")
+        phase = np.arange(args.points) / args.points
+        shape = waveform.table(args.points)
+        codes = waveform.dac_table(args.points)
+        volts = waveform.voltage_at_phase(phase)
+        buf = io.StringIO()
+        buf.write(f"phase,shape,voltage_v,dac_code_{DEFAULT_DAC_BITS}bit\n")
+        for row in zip(phase, shape, volts, codes, strict=True):
+            buf.write(f"{row[0]:.9g},{row[1]:.9g},{row[2]:.9g},{int(row[3])}\n")
+        text = buf.getvalue()
+        obj = {"format": "csv", "points": args.points, "dac_bits": DEFAULT_DAC_BITS}
+    if args.out:
+        tmp = args.out.with_name(args.out.name + ".tmp")
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(args.out)
+        obj["path"] = str(args.out)
+        if args.json:
+            print_json(obj)
+        return 0
+    if args.json:
+        if args.format == "csv":
+            obj["csv"] = text
+        print_json(obj)
+    else:
+        print(text, end="")
+    return 0
+
+
+def _plot(waveform: Waveform, amplifier: AmplifierLimits, stack: StackParameters, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    per = round(PLOT_SAMPLE_RATE_HZ / waveform.frequency_hz)
+    index = np.arange(1, 2 * per + 1)
+    command = waveform.voltage_at_phase((index % per) / per)
+    output = OutputStage(amplifier, stack.capacitance_f, PLOT_SAMPLE_RATE_HZ,
+                         initial_v=float(command[0])).advance(command)  # fmt: skip
+    t_ms = index / PLOT_SAMPLE_RATE_HZ * 1e3
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.plot(t_ms, command, label="command")
+    ax.plot(t_ms, output, "--", label="amplifier output (limits applied)")
+    ax.set_xlabel("time (ms)")
+    ax.set_ylabel("voltage (V)")
+    ax.set_title(f"{waveform.frequency_hz:g} Hz, {waveform.amplitude_vpp:g} Vpp, "
+                 f"{waveform.flyback_shape} flyback, {waveform.direction}")  # fmt: skip
+    ax.legend()
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".tmp.png")
+    fig.savefig(tmp, dpi=120)
+    plt.close(fig)
+    tmp.replace(path)
