@@ -66,6 +66,7 @@ def test_table_covers_four_parts_on_two_supports(capsys: pytest.CaptureFixture[s
     [
         (["--part", "300x300"], "--part"),
         (["--part=-1x2x3"], "--part"),
+        (["--part", "-1x2x3"], "--part"),
         (["--part", "axbxc"], "--part"),
         (["--part", "0x300x50"], "--part"),
         (["--part", "300x300x50", "--support", "sideways"], "--support"),
