@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "loop_jitter")
+BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "loop_jitter", "summits")
 
 
 def main(argv: list[str] | None = None) -> int:
