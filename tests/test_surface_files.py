@@ -92,9 +92,10 @@ def test_cli_broken_file_exits_2_with_one_line(name: str, tmp_path: Path, capsys
 
 
 def test_cli_surface_toml_is_accepted_by_contact(tmp_path: Path, capsys) -> None:
-    out = tmp_path / "surface.toml"
-    assert main(["surface", str(AFM / "di-5.di"), "--json", "--out", str(out)]) == 0
+    out, plot = tmp_path / "surface.toml", tmp_path / "map.png"
+    assert main(["surface", str(AFM / "di-5.di"), "--json", "--out", str(out), "--plot", str(plot)]) == 0
     report = json.loads(capsys.readouterr().out)
+    assert plot.read_bytes()[:4] == b"\x89PNG"
     for key in ("sq_m", "summit_count", "summit_density_per_m2", "mean_summit_height_m",
                 "summit_height_std_m", "mean_summit_radius_m", "pixel_size_m", "scan_size_m"):
         assert key in report
