@@ -1,27 +1,34 @@
 """The amplifier's firmware: tick loop, DDS, DAC buffer, output limits, safety.
 
-Embedded style (DESIGN §6).  A fixed-period tick (default 1 kHz) tops up a
-circular DAC buffer (two halves, default 2 × 10 ms) so that it always holds
-``dac_buffer_s`` of samples ahead of the DAC's read pointer.  Each axis has a
-DDS: a 32-bit phase accumulator advanced by ``round(f·2³²/f_s)`` per sample
-whose top 8 bits index the axis' 256-point pattern (ANC300 ``setpu``/``setpd``
-tables, values 0–255) with linear interpolation between entries.  A period of
-the pattern is one step: the step counter changes when the accumulator wraps.
+Embedded style (DESIGN §6).  A fixed-period tick (default 1 kHz) hands the
+samples the DAC played since the previous tick to the sinks (the world's
+plant, test recorders) and tops up each axis' DAC buffer to ``dac_buffer_s``
+(default 20 ms) ahead of the DAC's read pointer, the way a DMA ring in
+circular mode with half-transfer interrupts is fed.  A tick that comes late by
+less than the buffer depth costs nothing; a later one makes the DAC repeat its
+last sample for the gap (an underrun, counted).  Commands act from the next
+sample the DAC plays: the unplayed part of the buffer is regenerated.
+
+Each axis has a DDS: a 32-bit phase accumulator advanced by ``round(f·2³²/f_s)``
+per sample whose top 8 bits index the axis' 256-point pattern (ANC300
+``setpu``/``setpd`` tables, values 0–255) with linear interpolation between
+entries.  A period of the pattern is one step: the step counter changes when
+the DAC plays the sample that completes a period.
 
 Output chain per sample:  pattern × amplitude (± offset, by mode) → clamp to
-the rail [0, rail_v] → 16-bit DAC code → slew limit in DAC codes, the step
-per sample bounded by ``min(slew, I_max/C)/f_s`` (current into the stack
-capacitance, I = C·dV/dt).  The limits are enforced on the integer code
-stream, so they hold exactly on what the DAC plays.
+the rails → 16-bit DAC code → slew limit in DAC codes, the step per sample
+bounded by ``min(slew, I_max/C)/f_s`` (current into the stack capacitance,
+I = C·dV/dt, :meth:`feeder.plant.amplifier.AmplifierLimits.max_slope_v_per_s`).
+The limits are enforced on the integer code stream, so they hold exactly on
+what the DAC plays.
 
 Safety state machine per axis: a latched ``fault_word`` (see :class:`Fault`);
 any fault grounds the axis and stops it; stepping modes are refused until
 :meth:`Axis.clear_faults`.  Faults: ``WATCHDOG`` (the tick loop stalled longer
 than ``watchdog_s``), ``HOST_WATCHDOG`` (no host command for
 ``host_watchdog_s`` while an axis moves; off by default), ``OVERTEMP``
-(injected by the host, for tests).  A DAC underrun (the tick came too late and
-the DAC ran dry) makes the DAC hold its last sample for the gap, as DMA
-hardware in circular mode would; it is counted, not a fault.
+(injected by the host, for tests).  An underrun is counted, not a fault: the
+held sample is a constant, safe output.
 
 Thread safety: one lock per :class:`Firmware`; every :class:`Axis` method and
 the tick take it, so any number of front ends (console, CANopen) may call
@@ -205,9 +212,14 @@ class Axis:
         self._phase = 0
         self._up = True
         self._remaining = 0          # steps left in the burst; -1 = continuous
-        self._step_counter = 0
+        self._step_counter = 0       # steps the DAC has played
         self._fault_word = 0
-        self._code = 0               # last DAC code played
+        self._code = 0               # last DAC code generated (the slew limiter's state)
+        self._played_code = 0        # last DAC code played
+        self._written = 0            # index of the next sample to generate
+        self._pending_codes = np.zeros(0, dtype=np.int64)   # generated, not yet played
+        self._pending_steps = np.zeros(0, dtype=np.int64)   # ±1 where a period completes
+        self._pending_phases = np.zeros(0, dtype=np.uint64)  # DDS phase of each sample
         self._cap_done_sample = 0    # capacitance measurement ends at this sample
         self._active_until = 0       # the last burst's final sample plays before this one
         self._capacitance_f = firmware.config.load_capacitance_f
@@ -225,12 +237,13 @@ class Axis:
                 raise FirmwareError("Unknown mode")
             if mode != "gnd" and self._fault_word:
                 raise FirmwareError("Axis in fault state")
+            if mode == "cap":
+                self._cap_done_sample = (self._fw.samples_played
+                                         + round(CAPACITANCE_MEASURE_S * self._fw.sample_rate))
             if mode not in STEPPING_MODES:
                 self._remaining = 0
-            if mode == "cap":
-                self._cap_done_sample = (self._fw.samples_written
-                                         + round(CAPACITANCE_MEASURE_S * self._fw.sample_rate))
             self._mode = mode
+            self._rewrite(resume=mode in STEPPING_MODES)
 
     def set_frequency(self, hz: float) -> None:
         """Step (sawtooth) frequency within the amplifier's range; the flyback pattern follows."""
@@ -241,12 +254,14 @@ class Axis:
                 _check("flyback", self._flyback_s, 0.0, 1.0 / hz - 1.0 / self._fw.sample_rate)
             self._frequency_hz = float(hz)
             self._update_patterns()
+            self._rewrite(resume=True)
 
     def set_amplitude(self, volts: float) -> None:
         """Peak-to-peak step amplitude, 0 … (v_max − v_min) volts."""
         with self._fw.lock:
             _check("voltage", volts, 0.0, self._fw.config.amplifier.max_amplitude_vpp)
             self._amplitude_v = float(volts)
+            self._rewrite(resume=True)
 
     def set_offset(self, volts: float) -> None:
         """DC offset used in ``inp``, ``stp+`` and ``stp-``, within the rails (V)."""
@@ -254,6 +269,7 @@ class Axis:
             amp = self._fw.config.amplifier
             _check("offset", volts, amp.v_min_v, amp.v_max_v)
             self._offset_v = float(volts)
+            self._rewrite(resume=True)
 
     def set_flyback(self, shape: str, seconds: float) -> None:
         """Flyback shape (``linear``, ``half-cosine``, ``current-limited``) and time.
@@ -274,6 +290,7 @@ class Axis:
             self._flyback_shape = shape
             self._flyback_s = float(seconds)
             self._update_patterns()
+            self._rewrite(resume=True)
 
     def set_pattern(self, up: bool, values: Sequence[int]) -> None:
         """Load a 256-point pattern (0–255) for up (``setpu``) or down (``setpd``) steps."""
@@ -285,6 +302,7 @@ class Axis:
             self._patterns[up] = [int(v) for v in values]
             self._flyback_shape = "custom"
             self._flyback_s = 0.0
+            self._rewrite(resume=True)
 
     def pattern(self, up: bool) -> list[int]:
         """The 256-point pattern for up (True) or down steps."""
@@ -307,17 +325,17 @@ class Axis:
             self._start(up=up, remaining=-1)
 
     def stop(self) -> None:
-        """Stop stepping at once; the DDS phase (and output) is frozen where it is."""
+        """Stop stepping at once: the DDS phase (and output) freezes at the next sample."""
         with self._fw.lock:
             self._remaining = 0
-            self._fw.lock.notify_all()
+            self._rewrite(resume=False)
 
     def ground(self) -> None:
-        """Stop and ground the output (the safe state)."""
+        """Stop and ground the output (the safe state) from the next sample on."""
         with self._fw.lock:
             self._remaining = 0
             self._mode = "gnd"
-            self._fw.lock.notify_all()
+            self._rewrite(resume=False)
 
     def wait_idle(self, timeout_s: float | None = None) -> bool:
         """Block until the DAC has played the burst and no capacitance measurement
@@ -353,7 +371,7 @@ class Axis:
                 amplitude_v=self._amplitude_v, offset_v=self._offset_v,
                 flyback_shape=self._flyback_shape, flyback_s=self._flyback_s,
                 step_counter=self._step_counter, moving=self._busy() and self._mode != "cap",
-                fault_word=self._fault_word, output_v=self._fw.volts(self._code))
+                fault_word=self._fault_word, output_v=self._fw.volts(self._played_code))
 
     # -- internals (called with the lock held) --------------------------------
 
@@ -361,19 +379,73 @@ class Axis:
         return (self._remaining != 0 or self._mode == "cap"
                 or self._fw.samples_played < self._active_until)
 
+    def _rewrite(self, resume: bool) -> None:
+        """Regenerate the unplayed part of the DAC buffer from the current state, so
+        that every command acts from the next sample the DAC plays.
+
+        The DDS restarts from the phase of the first unplayed sample; with
+        ``resume`` a burst in progress keeps the steps it has not played yet.
+        """
+        played = self._fw.samples_played
+        n = self._written - played
+        if n <= 0:
+            return
+        if self._pending_phases.size:
+            self._phase = int(self._pending_phases[0])
+            if resume and self._remaining >= 0 and self._active_until > played:
+                self._remaining += int(np.abs(self._pending_steps).sum())
+        self._active_until = min(self._active_until, played)
+        self._code = self._played_code
+        self._written = self._fw.samples_played
+        self._pending_codes = self._pending_codes[:0]
+        self._pending_steps = self._pending_steps[:0]
+        self._pending_phases = self._pending_phases[:0]
+        self._fill(n)
+        self._fw.lock.notify_all()
+
+    def _fill(self, n: int) -> None:
+        """Generate the next ``n`` samples into the DAC buffer."""
+        codes, steps, phases = self._generate(self._written, n)
+        self._pending_codes = np.concatenate((self._pending_codes, codes))
+        self._pending_steps = np.concatenate((self._pending_steps, steps))
+        self._pending_phases = np.concatenate((self._pending_phases, phases))
+        self._written += n
+
+    def _hold(self, n: int) -> None:
+        """The DAC ran dry for ``n`` samples: it repeated its last code."""
+        self._pending_codes = np.concatenate((self._pending_codes,
+                                              np.full(n, self._code, dtype=np.int64)))
+        self._pending_steps = np.concatenate((self._pending_steps, np.zeros(n, dtype=np.int64)))
+        self._pending_phases = np.concatenate((self._pending_phases,
+                                               np.full(n, self._phase, dtype=np.uint64)))
+        self._written += n
+
+    def _play(self, n: int) -> np.ndarray:
+        """The next ``n`` buffered codes leave for the DAC; the step counter follows."""
+        codes = self._pending_codes[:n]
+        self._step_counter += int(self._pending_steps[:n].sum())
+        self._played_code = int(codes[-1])
+        self._pending_codes = self._pending_codes[n:]
+        self._pending_steps = self._pending_steps[n:]
+        self._pending_phases = self._pending_phases[n:]
+        return codes
+
     def _start(self, up: bool, remaining: int) -> None:
         if self._mode not in STEPPING_MODES:
             raise FirmwareError("Axis in wrong mode")
         if self._fault_word:
             raise FirmwareError("Axis in fault state")
+        self._remaining = 0
+        self._rewrite(resume=False)  # the phase where the DAC is now
         self._up = up
         self._remaining = remaining
+        self._rewrite(resume=False)
 
     def _latch(self, bit: Fault) -> None:
         self._fault_word |= int(bit)
         self._remaining = 0
         self._mode = "gnd"
-        self._fw.lock.notify_all()
+        self._rewrite(resume=False)
 
     def _update_patterns(self) -> None:
         if self._flyback_shape == "custom":
@@ -381,61 +453,56 @@ class Axis:
         self._patterns = sawtooth_patterns(self._flyback_shape, self._flyback_s,
                                            self._frequency_hz)
 
-    def _generate(self, first_sample: int, n: int) -> np.ndarray:
-        """The next ``n`` DAC codes (uint16 values as int64), advancing DDS and counters."""
+    def _generate(self, first_sample: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The next ``n`` DAC codes, signed step marks and DDS phases."""
         fw = self._fw
         amp = fw.config.amplifier
         if self._mode == "cap" and first_sample >= self._cap_done_sample:
             self._mode = "gnd"
             fw.lock.notify_all()
         if self._mode in STEPPING_MODES:
-            wave = self._dds(first_sample, n)
+            wave, steps, phases = self._dds(first_sample, n)
             if self._mode == "stp":
                 volts = self._amplitude_v * wave
             elif self._mode == "stp+":
                 volts = self._offset_v + self._amplitude_v * wave
             else:
                 volts = self._offset_v - self._amplitude_v * wave
-        elif self._mode == "inp":
-            volts = np.full(n, self._offset_v)
-        else:  # gnd, off, cap
-            volts = np.zeros(n)
+        else:
+            steps = np.zeros(n, dtype=np.int64)
+            phases = np.full(n, self._phase, dtype=np.uint64)
+            volts = np.full(n, self._offset_v if self._mode == "inp" else 0.0)  # gnd, off, cap: 0
         target = np.rint((np.clip(volts, amp.v_min_v, amp.v_max_v) - amp.v_min_v)
                          / fw.lsb_v).astype(np.int64)
         codes = _slew_limit(target, self._code, fw.max_codes_per_sample)
         self._code = int(codes[-1])
-        return codes
+        return codes, steps, phases
 
-    def _dds(self, first_sample: int, n: int) -> np.ndarray:
-        """Pattern value (0..1) for the next ``n`` samples; counts completed steps.
-
-        The counter changes when the DDS completes a period, which is up to
-        ``dac_buffer_s`` before the DAC plays it.
-        """
+    def _dds(self, first_sample: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pattern value (0..1), signed step marks (±1 on the sample that completes a
+        period) and phase of the next ``n`` samples."""
         table = np.asarray(self._patterns[self._up], dtype=float) / PATTERN_MAX
+        mask = np.uint64((1 << PHASE_BITS) - 1)
         if self._remaining == 0:
-            return np.full(n, _lookup(table, np.array([self._phase], dtype=np.uint64))[0])
+            phases = np.full(n, self._phase, dtype=np.uint64)
+            return _lookup(table, phases), np.zeros(n, dtype=np.int64), phases
         increment = round(self._frequency_hz * (1 << PHASE_BITS) / self._fw.sample_rate)
-        self._active_until = first_sample + n
-        phases = self._phase + increment * np.arange(n, dtype=np.uint64)
-        wraps = (phases >> np.uint64(PHASE_BITS)).astype(np.int64)
-        end_wraps = (self._phase + increment * n) >> PHASE_BITS
-        if self._remaining > 0 and end_wraps >= self._remaining:
-            # The burst ends on the remaining-th wrap: hold the pattern's start from there.
-            done = wraps >= self._remaining
-            phases = np.where(done, np.uint64(0), phases)
-            self._active_until = first_sample + (int(np.argmax(done)) if done.any() else n)
-            steps = self._remaining
+        raw = self._phase + increment * np.arange(n + 1, dtype=np.uint64)
+        wraps = (raw >> np.uint64(PHASE_BITS)).astype(np.int64)  # periods completed before k
+        limit = self._remaining if self._remaining > 0 else int(wraps[-1]) + 1
+        marks = np.diff(np.minimum(wraps, limit))
+        done = wraps[:-1] >= limit  # past the burst's last period: hold its start
+        phases = np.where(done, np.uint64(0), raw[:-1] & mask)
+        self._active_until = first_sample + (int(np.argmax(done)) if done.any() else n)
+        if self._remaining > 0 and wraps[-1] >= self._remaining:
             self._phase = 0
             self._remaining = 0
             self._fw.lock.notify_all()
         else:
-            steps = end_wraps
-            self._phase = (self._phase + increment * n) & ((1 << PHASE_BITS) - 1)
+            self._phase = int(raw[-1] & mask)
             if self._remaining > 0:
-                self._remaining -= steps
-        self._step_counter += steps if self._up else -steps
-        return _lookup(table, phases & np.uint64((1 << PHASE_BITS) - 1))
+                self._remaining -= int(wraps[-1])
+        return _lookup(table, phases), marks if self._up else -marks, phases
 
 
 def _lookup(table: np.ndarray, phases: np.ndarray) -> np.ndarray:
@@ -487,7 +554,6 @@ class Firmware:
             1, math.floor(self.max_slope_v_per_s / cfg.sample_rate_hz / self.lsb_v))
         self.buffer_samples = max(cfg.samples_per_tick,
                                   round(cfg.dac_buffer_s * cfg.sample_rate_hz))
-        self.samples_written = 0
         self.samples_played = 0
         self.stats = TickStats()
         self.stopped = False
@@ -532,29 +598,37 @@ class Firmware:
                 axis.ground()
 
     def tick(self, now_s: float) -> None:
-        """One tick at time ``now_s``: refill the DAC buffer up to ``dac_buffer_s`` ahead."""
+        """One tick at time ``now_s``.
+
+        The samples the DAC played since the last tick go to the sinks (the
+        world); then the buffer is topped up to ``dac_buffer_s`` ahead.  If the
+        DAC ran dry it held its last sample for the gap (an underrun).
+        """
         with self.lock:
             self._now_s = now_s
             cfg = self.config
             played = int(now_s * self.sample_rate + 1e-6)
-            self.samples_played = played
-            if played > self.samples_written:  # the DAC ran dry: it held its last sample
-                gap = played - self.samples_written
-                self.stats.underruns += 1
-                self.stats.underrun_samples += gap
+            if played > self.samples_played:
+                axes = list(self._axes.values())
+                if any(axis._written < played for axis in axes):
+                    self.stats.underruns += 1
+                    self.stats.underrun_samples += played - min(a._written for a in axes)
                 for number, axis in self._axes.items():
-                    self._emit(number, np.full(gap, axis._code, dtype=np.int64))
-                self.samples_written = played
+                    if axis._written < played:
+                        axis._hold(played - axis._written)
+                    codes = axis._play(played - self.samples_played)
+                    volts = cfg.amplifier.v_min_v + codes * self.lsb_v
+                    for sink in self._sinks:
+                        sink(number, self.samples_played, volts)
+                self.samples_played = played
             if cfg.host_watchdog_s > 0 and now_s - self._last_host_s > cfg.host_watchdog_s:
                 for axis in self._axes.values():
                     if axis._remaining != 0:
                         axis._latch(Fault.HOST_WATCHDOG)
-            n = played + self.buffer_samples - self.samples_written
-            if n > 0:
-                first = self.samples_written
-                for number, axis in self._axes.items():
-                    self._emit(number, axis._generate(first, n))
-                self.samples_written += n
+            for axis in self._axes.values():
+                n = played + self.buffer_samples - axis._written
+                if n > 0:
+                    axis._fill(n)
             for listener in self._tick_listeners:
                 listener(now_s)
             self.lock.notify_all()  # waiters on played samples (wait_idle)
@@ -562,12 +636,6 @@ class Firmware:
     def volts(self, code: int) -> float:
         """Output voltage of a DAC code."""
         return self.config.amplifier.v_min_v + code * self.lsb_v
-
-    def _emit(self, number: int, codes: np.ndarray) -> None:
-        first = self.samples_written
-        volts = self.config.amplifier.v_min_v + codes * self.lsb_v
-        for sink in self._sinks:
-            sink(number, first, volts)
 
     def run(self, clock: Clock, stop: threading.Event | None = None,
             max_ticks: int | None = None) -> None:

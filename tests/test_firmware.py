@@ -1,0 +1,258 @@
+"""Firmware core in virtual time: DDS, step counting, DAC limits, safety state machine."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from feeder.plant.amplifier import AmplifierLimits
+from firmware_sim.clock import VirtualClock
+from firmware_sim.firmware import (
+    Fault,
+    Firmware,
+    FirmwareConfig,
+    FirmwareError,
+    LimitError,
+)
+
+
+class Recorder:
+    """Collects the DAC stream per axis and checks that blocks are contiguous."""
+
+    def __init__(self, firmware: Firmware) -> None:
+        self.blocks: dict[int, list[np.ndarray]] = {}
+        self.next_index: dict[int, int] = {}
+        firmware.add_sink(self)
+
+    def __call__(self, axis: int, first: int, volts: np.ndarray) -> None:
+        assert self.next_index.get(axis, 0) == first
+        self.next_index[axis] = first + volts.size
+        self.blocks.setdefault(axis, []).append(volts.copy())
+
+    def volts(self, axis: int = 1) -> np.ndarray:
+        return np.concatenate(self.blocks[axis])
+
+
+def make(**kwargs: object) -> tuple[Firmware, Recorder, VirtualClock]:
+    fw = Firmware(FirmwareConfig(**kwargs))  # type: ignore[arg-type]
+    return fw, Recorder(fw), VirtualClock()
+
+
+def test_burst_of_n_steps_counts_n_and_lasts_n_periods() -> None:
+    fw, rec, clock = make()
+    axis = fw.axis(1)
+    axis.set_frequency(250.0)
+    axis.set_amplitude(100.0)
+    axis.set_flyback("linear", 0.0004)  # slower than the current limit: the DAC follows it
+    axis.set_mode("stp")
+    axis.step(7)
+    fw.run(clock, max_ticks=60)
+    status = axis.status()
+    assert status.step_counter == 7 and not status.moving
+    v = rec.volts()
+    # the output is at rest (0 V) before the burst and after it; it is busy for 7 periods
+    busy = np.flatnonzero(v > 1e-9)
+    duration = (busy[-1] + 1) / fw.sample_rate
+    assert duration == pytest.approx(7 / 250.0, abs=2.0 / 250 / 256 + 2 / fw.sample_rate)
+    axis.step(-3)
+    fw.run(clock, max_ticks=40)
+    assert axis.status().step_counter == 4
+
+
+def test_dds_output_is_the_interpolated_pattern_times_amplitude() -> None:
+    # 10 Hz: the ramp is far below every slope limit, so the DAC plays the pattern itself
+    fw, rec, clock = make()
+    axis = fw.axis(1)
+    axis.set_frequency(10.0)
+    axis.set_amplitude(50.0)
+    axis.set_mode("stp")
+    axis.run_continuous(up=True)
+    fw.run(clock, max_ticks=50)
+    v = rec.volts()[:4000]
+    table = np.array(axis.pattern(True) + axis.pattern(True)[:1], dtype=float) / 255
+    phase = (np.arange(v.size) * 10.0 / fw.sample_rate) % 1.0
+    expected = 50.0 * np.interp(phase * 256, np.arange(257), table)
+    np.testing.assert_allclose(v, expected, atol=fw.lsb_v + 50.0 * 256 * 1e-6)
+
+
+def test_dac_stream_stays_within_rails_slew_and_current_limit() -> None:
+    amp = AmplifierLimits(v_max_v=150.0, slew_rate_v_per_s=3e6, current_limit_a=0.2)
+    fw, rec, clock = make(amplifier=amp, load_capacitance_f=1e-6)
+    axis = fw.axis(1)
+    axis.set_amplitude(150.0)
+    axis.set_frequency(500.0)
+    axis.set_mode("stp")
+    axis.run_continuous(up=True)
+    fw.run(clock, max_ticks=30)
+    axis.set_mode("stp+")
+    axis.set_offset(120.0)
+    fw.run(clock, max_ticks=30)
+    axis.ground()
+    fw.run(clock, max_ticks=30)
+    v = rec.volts()
+    dt = 1.0 / fw.sample_rate
+    assert v.min() >= 0.0 and v.max() <= 150.0
+    current = 1e-6 * np.abs(np.diff(v)) / dt
+    assert current.max() <= 0.2 * (1 + 1e-9)
+    # the current limit binds: the 150 V flyback takes C·ΔV/I = 0.75 ms, not one sample
+    assert current.max() > 0.19
+    assert v[-1] == 0.0
+
+
+def test_limits_refuse_with_field_and_range() -> None:
+    fw, _, _ = make()
+    axis = fw.axis(2)
+    with pytest.raises(LimitError) as err:
+        axis.set_amplitude(250.0)
+    assert (err.value.field, err.value.lo, err.value.hi) == ("voltage", 0.0, 200.0)
+    assert "e+" not in str(err.value)
+    with pytest.raises(LimitError):
+        axis.set_frequency(math.nan)
+    with pytest.raises(LimitError):
+        axis.set_flyback("linear", 0.02)  # longer than the 10 ms period
+    with pytest.raises(FirmwareError, match="wrong mode"):
+        axis.step(3)  # still grounded
+    with pytest.raises(FirmwareError):
+        fw.axis(4)  # empty slot
+    with pytest.raises(FirmwareError):
+        fw.axis(8)  # no such slot
+
+
+def test_fault_grounds_and_blocks_stepping_until_cleared() -> None:
+    fw, rec, clock = make()
+    axis = fw.axis(1)
+    axis.set_amplitude(200.0)
+    axis.set_mode("stp")
+    axis.run_continuous(up=True)
+    fw.run(clock, max_ticks=25)
+    axis.inject_fault(Fault.OVERTEMP)
+    status = axis.status()
+    assert status.mode == "gnd" and not status.moving and status.faults == ("overtemp",)
+    with pytest.raises(FirmwareError, match="fault"):
+        axis.set_mode("stp")
+    fw.run(clock, max_ticks=30)
+    assert rec.volts()[-1] == 0.0
+    axis.clear_faults()
+    axis.set_mode("stp")
+    assert axis.status().fault_word == 0
+
+
+class LateClock(VirtualClock):
+    """Virtual time, but one chosen tick wakes ``late_s`` after its deadline."""
+
+    realtime = True
+
+    def __init__(self, late_tick: int, late_s: float) -> None:
+        super().__init__()
+        self.late_tick, self.late_s, self.calls = late_tick, late_s, 0
+
+    def sleep_until(self, deadline_s: float) -> float:
+        self.calls += 1
+        extra = self.late_s if self.calls == self.late_tick else 0.0
+        return super().sleep_until(deadline_s + extra)
+
+
+def test_late_tick_within_buffer_is_no_underrun_and_longer_one_holds_the_dac() -> None:
+    fw, rec, _ = make(dac_buffer_s=0.010, watchdog_s=1.0)
+    fw.run(LateClock(5, 0.008), max_ticks=20)
+    summary = fw.tick_summary()
+    assert summary["underruns"] == 0 and summary["late_ticks"] == 1
+    assert summary["missed_deadlines"] == 8
+
+    fw, rec, _ = make(dac_buffer_s=0.010, watchdog_s=1.0)
+    axis = fw.axis(1)
+    axis.set_amplitude(100.0)
+    axis.set_frequency(50.0)
+    axis.set_mode("stp")
+    axis.run_continuous(up=True)
+    fw.run(LateClock(5, 0.030), max_ticks=20)
+    summary = fw.tick_summary()
+    assert summary["underruns"] == 1
+    # the last fill (tick at 3 ms) reached 13 ms; the 4 ms tick woke at 34 ms: the DAC
+    # held its last sample for 21 ms
+    gap = summary["underrun_samples"]
+    assert gap == 2100
+    v = rec.volts()
+    held = v[1300:1300 + gap]
+    assert np.all(held == held[0])
+    assert axis.status().fault_word == 0
+
+
+def test_watchdog_grounds_every_axis() -> None:
+    fw, _, _ = make(watchdog_s=0.05)
+    axis = fw.axis(1)
+    axis.set_amplitude(10.0)
+    axis.set_mode("stp")
+    axis.run_continuous(up=False)
+    fw.run(LateClock(3, 0.2), max_ticks=5)
+    for n in fw.axis_numbers:
+        status = fw.axis(n).status()
+        assert status.mode == "gnd" and status.faults == ("watchdog",)
+
+
+def test_host_watchdog_stops_continuous_motion_without_host_commands() -> None:
+    fw, _, clock = make(host_watchdog_s=0.05)
+    axis = fw.axis(1)
+    axis.set_amplitude(10.0)
+    axis.set_mode("stp")
+    axis.run_continuous(up=True)
+    for _ in range(4):
+        fw.run(clock, max_ticks=20)
+        fw.host_activity()
+    assert axis.status().moving
+    fw.run(clock, max_ticks=60)
+    assert axis.status().faults == ("host_watchdog",)
+
+
+def test_virtual_time_is_deterministic() -> None:
+    streams = []
+    for _ in range(2):
+        fw, rec, clock = make()
+        axis = fw.axis(1)
+        axis.set_amplitude(80.0)
+        axis.set_flyback("half-cosine", 0.0004)
+        axis.set_mode("stp")
+        axis.step(-5)
+        fw.run(clock, max_ticks=80)
+        streams.append(rec.volts())
+    np.testing.assert_array_equal(streams[0], streams[1])
+
+
+def test_stop_freezes_the_output_mid_ramp() -> None:
+    fw, rec, clock = make(dac_buffer_s=0.001)
+    axis = fw.axis(1)
+    axis.set_frequency(10.0)
+    axis.set_amplitude(100.0)
+    axis.set_mode("stp")
+    axis.run_continuous(up=True)
+    fw.run(clock, max_ticks=30)
+    axis.stop()
+    fw.run(clock, max_ticks=10)
+    v = rec.volts()
+    assert 20.0 < v[-1] < 40.0  # about 30 % up the 100 ms ramp
+    assert np.all(v[-500:] == v[-1])
+    assert axis.status().step_counter == 0
+
+
+def test_ground_acts_from_the_next_played_sample_not_after_the_buffer() -> None:
+    fw, rec, clock = make(dac_buffer_s=0.020)
+    axis = fw.axis(1)
+    axis.set_amplitude(200.0)
+    axis.set_frequency(20.0)
+    axis.set_mode("stp")
+    axis.run_continuous(up=True)
+    fw.run(clock, max_ticks=31)
+    before = rec.volts()
+    axis.ground()
+    fw.run(clock, max_ticks=1)
+    after = rec.volts()[before.size:]
+    step = fw.max_codes_per_sample * fw.lsb_v
+    # 60 % up a 200 V ramp: it falls at the current limit from the very first sample to 0 V
+    assert before[-1] > 100.0
+    ramp = int(before[-1] // step)
+    np.testing.assert_allclose(np.diff(np.concatenate(([before[-1]], after[:ramp]))), -step,
+                               rtol=1e-9)
+    assert np.all(after[ramp + 1:] == 0.0)
+    assert axis.status().step_counter == 0
