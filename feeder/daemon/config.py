@@ -11,7 +11,10 @@ transport = "serial"          # "serial" (ANC300 console) or "can" (CANopen)
 port = "/dev/ttyUSB0"         # serial device or pyserial URL (socket://, rfc2217://)
 axis = 1
 timeout_s = 1.0
-max_amplitude_v = 200.0       # the amplifier's rating, for the planner
+[amplifier.limits]            # the amplifier's rating, for the planner (AmplifierLimits)
+v_max_v = 200.0
+current_limit_a = 0.55
+max_frequency_hz = 2000.0
 [amplifier.can]               # python-can keyword arguments + node id
 interface = "slcan"
 channel = "/dev/ttyACM0"
@@ -58,6 +61,7 @@ from typing import Any
 from feeder.daemon.control_loop import LoopSettings
 from feeder.errors import InputError
 from feeder.parts import Part, Support
+from feeder.plant.amplifier import AmplifierLimits
 
 TRANSPORTS = ("serial", "can")
 DEFAULT_PART = "300x300x50"
@@ -82,7 +86,7 @@ class AmplifierConfig:
     port: str | None = None
     axis: int = 1
     timeout_s: float = 1.0
-    max_amplitude_v: float = 200.0
+    limits: AmplifierLimits = field(default_factory=AmplifierLimits)
     can: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -171,11 +175,21 @@ def load_config(path: Path | None) -> DaemonConfig:
     axis = amp.get("axis", 1)
     if not isinstance(axis, int) or isinstance(axis, bool) or axis < 1:
         raise InputError(where, f"amplifier.axis must be a positive integer, got {axis!r}")
+    limits_t = _table(amp, "limits", where)
+    known_limits = {f.name for f in dataclasses.fields(AmplifierLimits)}
+    for key in limits_t:
+        if key not in known_limits:
+            raise InputError(where, f"unknown key amplifier.limits.{key}; known: "
+                             f"{', '.join(sorted(known_limits))}")
+        _number(limits_t, key, where, 0.0)
+    try:
+        limits = AmplifierLimits(**{k: float(v) for k, v in limits_t.items()})
+    except InputError as err:
+        raise InputError(where, f"amplifier.limits.{err.field}: {err.message}") from None
     amplifier = AmplifierConfig(
         transport=str(transport), port=_string(amp, "port", where, None), axis=axis,
         timeout_s=_number(amp, "timeout_s", where, 1.0, positive=True),
-        max_amplitude_v=_number(amp, "max_amplitude_v", where, 200.0, positive=True),
-        can=dict(can),
+        limits=limits, can=dict(can),
     )
 
     sensor = _table(doc, "sensor", where)

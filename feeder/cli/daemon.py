@@ -1,0 +1,73 @@
+"""``feeder daemon``: run the control daemon in the foreground until SIGINT/SIGTERM."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import signal
+import sys
+import threading
+from pathlib import Path
+from types import FrameType
+
+from feeder.cli.output import print_json
+from feeder.daemon.config import TRANSPORTS, load_config
+from feeder.daemon.launcher import LaunchError
+from feeder.daemon.runner import start_daemon
+from feeder.daemon.store import StoreError
+from feeder.drivers.amplifier import AmplifierError
+from feeder.drivers.sensor import SensorLost
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "daemon", help="run the control daemon (no config: on a simulated amplifier)")
+    parser.add_argument("--config", type=Path, help="TOML configuration (see docs/daemon.md)")
+    parser.add_argument("--transport", choices=TRANSPORTS,
+                        help="amplifier link, overriding the configuration")
+    parser.add_argument("--state-dir", type=Path, help="calibration/history database directory")
+    parser.add_argument("--socket", type=Path, help="control socket path")
+    parser.add_argument("--sim-arg", action="append", default=[], metavar="ARG",
+                        help="extra firmware_sim argument (repeatable; e.g. --sim-arg=--seed=3)")
+    parser.add_argument("--json", action="store_true",
+                        help="print the ready object as JSON (then the exit summary)")
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    config = load_config(args.config)
+    if args.transport:
+        config = config.with_transport(args.transport)
+    if args.state_dir:
+        config = dataclasses.replace(config, state_dir=args.state_dir)
+    if args.socket:
+        config = dataclasses.replace(config, socket_path=args.socket)
+    if args.sim_arg:
+        config = dataclasses.replace(config, simulator_args=(*config.simulator_args,
+                                                             *args.sim_arg))
+    try:
+        running = start_daemon(config)
+    except (AmplifierError, SensorLost, StoreError, LaunchError) as err:
+        print(f"feeder daemon: error: {err}", file=sys.stderr)
+        return 1
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    ready = {"ready": True, "socket": str(config.socket_path),
+             "database": str(config.database_path), **running.links.describe()}
+    if args.json:
+        print_json(ready)
+    else:
+        print(f"feeder daemon: listening on {config.socket_path} "
+              f"({ready['transport']}{', simulated' if ready['simulated'] else ''})")
+    sys.stdout.flush()
+    while not stop.is_set() and not running.daemon.wait(0.2):
+        pass
+    running.stop()
+    if not args.json:
+        print("feeder daemon: stopped", file=sys.stderr)
+    return 0

@@ -1,0 +1,138 @@
+"""``feeder demo``: the daemon on a simulated amplifier moves a part through a set of targets.
+
+Starts the daemon on the embedded default (firmware_sim on a pty, real-time
+clock, its camera on a local port) with a fresh state directory, moves a
+300×300×50 µm part to each target in turn (both ways), prints one line per
+move, writes a PNG of position vs time with the targets, shuts everything
+down.  Exit 0 when every move ended within tolerance.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from feeder.cli.output import print_json
+from feeder.daemon.client import Client
+from feeder.daemon.config import TRANSPORTS, DaemonConfig
+from feeder.daemon.runner import start_daemon
+from feeder.errors import InputError
+from feeder.parts import Part
+
+DEFAULT_TARGETS_M = (300e-6, 120e-6, 480e-6, -150e-6, -140e-6, 0.0, 250e-6, 247.5e-6)
+MOVE_TIMEOUT_S = 20.0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("demo", help="closed-loop positioning on a simulated amplifier")
+    parser.add_argument("--part", default="300x300x50", help="LxWxT in µm")
+    parser.add_argument("--transport", choices=TRANSPORTS, default="serial")
+    parser.add_argument("--plot", type=Path, default=Path("out/demo.png"),
+                        help="PNG of position vs time (default %(default)s)")
+    parser.add_argument("--json", action="store_true", help="print one JSON summary")
+    parser.set_defaults(handler=run)
+
+
+def _progress(done: int, total: int) -> str:
+    width = 20
+    filled = round(width * done / total)
+    return f"[{'#' * filled}{'.' * (width - filled)}] {done}/{total}"
+
+
+def run(args: argparse.Namespace) -> int:
+    part = Part.parse(args.part)
+    if args.plot.suffix.lower() != ".png":
+        raise InputError("--plot", f"expected a .png path, got {str(args.plot)!r}")
+    started = time.monotonic()
+    base = Path(tempfile.mkdtemp(prefix="fdemo"))
+    config = DaemonConfig(part=part, state_dir=base / "state",
+                          socket_path=base / "run" / "s.sock").with_transport(args.transport)
+    if not args.json:
+        print(f"starting the daemon on a simulated amplifier ({args.transport}) ...",
+              file=sys.stderr, flush=True)
+    running = start_daemon(config)
+    results: list[dict[str, Any]] = []
+    traces: list[list[list[float]]] = []
+    try:
+        with Client(config.socket_path, timeout_s=MOVE_TIMEOUT_S) as client:
+            tolerance = float(client.request("status")["tolerance_m"])
+            for i, target in enumerate(DEFAULT_TARGETS_M, start=1):
+                reply = client.request("move", timeout_s=MOVE_TIMEOUT_S, target_m=target,
+                                       trace=True)
+                if "result" not in reply:
+                    raise InputError("demo", f"move to {target} m refused: {reply.get('error')}")
+                result = reply["result"]
+                traces.append(result.pop("trace"))
+                direction = "forward" if target >= (result["start_m"] or 0.0) else "backward"
+                result["learned_step_m"] = result["estimates"][f"coarse/{direction}"]["step_m"]
+                results.append(result)
+                if not args.json:
+                    print(f"move {i}/{len(DEFAULT_TARGETS_M)}: target {target * 1e6:9.3f} µm  "
+                          f"reached {result['reached_m'] * 1e6:9.3f} µm  error "
+                          f"{result['error_m'] * 1e6:+7.3f} µm  {result['steps']:4d} steps  "
+                          f"learned step {result['learned_step_m'] * 1e6:.3f} µm ({direction})  "
+                          f"{result['duration_s']:.2f} s  {result['status']}", flush=True)
+                    print(_progress(i, len(DEFAULT_TARGETS_M)), file=sys.stderr, flush=True)
+            true_steps = (client.request("status").get("simulator_true") or {})
+    finally:
+        running.stop()
+        shutil.rmtree(base, ignore_errors=True)
+    _plot(args.plot, traces, list(DEFAULT_TARGETS_M), tolerance)
+    errors = [abs(r["error_m"]) for r in results if r["error_m"] is not None]
+    max_error = max(errors) if errors else float("nan")
+    duration = time.monotonic() - started
+    ok = (all(r["status"] == "done" for r in results) and len(errors) == len(results)
+          and max_error <= tolerance)
+    summary: dict[str, Any] = {
+        "moves": [{k: r[k] for k in ("target_m", "reached_m", "error_m", "steps", "bursts",
+                                     "learned_step_m", "duration_s", "status")} for r in results],
+        "max_error_m": max_error,
+        "tolerance_m": tolerance,
+        "all_within_tolerance": ok,
+        "duration_s": duration,
+        "plot": str(args.plot),
+        "tau_true_pa": true_steps.get("tau_pa"),
+    }
+    if args.json:
+        print_json(summary)
+    else:
+        print(f"{len(results)} moves, max error {max_error * 1e6:.3f} µm "
+              f"(tolerance ±{tolerance * 1e6:.3f} µm), {duration:.1f} s; plot: {args.plot}")
+    return 0 if ok else 1
+
+
+def _plot(path: Path, traces: list[list[list[float]]], targets: list[float],
+          tolerance_m: float) -> None:
+    """Position vs time, the targets as a staircase, written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t0 = traces[0][0][0] if traces and traces[0] else 0.0
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    for i, (trace, target) in enumerate(zip(traces, targets, strict=False)):
+        if not trace:
+            continue
+        times = [(t - t0) for t, _ in trace]
+        ax.plot(times, [x * 1e6 for _, x in trace], color="C0", lw=1.2,
+                label="part position (camera)" if i == 0 else "_")
+        ax.hlines(target * 1e6, times[0], times[-1], colors="C3", linestyles="--", lw=1,
+                  label="target" if i == 0 else "_")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("position (µm)")
+    ax.set_title(f"closed-loop moves, tolerance ±{tolerance_m * 1e6:g} µm")
+    ax.legend(loc="best")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)

@@ -1,0 +1,58 @@
+"""Assemble a running daemon from its configuration: plan, links, state, socket."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from feeder.contact.breakaway import DEFAULT_TAU_PA
+from feeder.daemon.config import DaemonConfig
+from feeder.daemon.links import DriverLinks, open_links
+from feeder.daemon.service import Daemon, DaemonSetup
+from feeder.daemon.step_modes import calibration_key, plan_step_modes
+from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
+
+
+@dataclass
+class RunningDaemon:
+    """A started :class:`Daemon` and the links (and simulator) it owns."""
+
+    daemon: Daemon
+    links: DriverLinks
+
+    def stop(self) -> None:
+        """Shut the daemon down (output grounded), then stop firmware_sim if we started it."""
+        self.daemon.shutdown()
+        self.links.close()
+
+
+def start_daemon(config: DaemonConfig) -> RunningDaemon:
+    """Plan the waveforms, open the links (starting firmware_sim if needed), start serving.
+
+    Raises :class:`~feeder.errors.InputError` for an unplannable part or a bad
+    socket path, :class:`~feeder.daemon.store.StoreError` for a bad database.
+    """
+    surface = DEFAULT_SURFACE if config.surface_path is None else load_surface(config.surface_path)
+    tau = DEFAULT_TAU_PA if config.tau_pa is None else config.tau_pa
+    modes = plan_step_modes(config.part, config.support, surface, tau, config.amplifier.limits,
+                            config.loop.tolerance_m)
+    config.state_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
+    links = open_links(config, log_path=config.state_dir / "firmware_sim.log")
+    try:
+        setup = DaemonSetup(
+            modes=modes, loop=config.loop, database_path=config.database_path,
+            socket_path=config.socket_path,
+            calibration_key=calibration_key(config.part, config.support, modes),
+            info={"part": config.part.label, "support": config.support.kind,
+                  "tau_nominal_pa": tau, **links.describe()},
+            sensor_timeout_s=config.sensor_timeout_s,
+        )
+        daemon = Daemon(links, setup)
+        try:
+            daemon.start()
+        except BaseException:
+            daemon.shutdown()
+            raise
+    except BaseException:
+        links.close()
+        raise
+    return RunningDaemon(daemon, links)
