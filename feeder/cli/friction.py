@@ -45,8 +45,8 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.plot is not None and not args.plot.parent.is_dir():
-        raise InputError("--plot", f"directory {args.plot.parent} does not exist")
+    if args.plot is not None and (args.plot.is_dir() or not args.plot.parent.is_dir()):
+        raise InputError("--plot", f"cannot write {args.plot}: a directory, or its directory does not exist")
     analysed = analyse_files(args.curves, args)
     summary = summarize([peak for _, peak in analysed])
     report: dict[str, Any] = {

@@ -52,8 +52,8 @@ def run(args: argparse.Namespace) -> int:
     if len(args.scans) > 2:
         raise InputError("SCAN", f"give one or two scans, got {len(args.scans)}")
     for target, flag in ((args.out, "--out"), (args.plot, "--plot")):
-        if target is not None and not target.parent.is_dir():
-            raise InputError(flag, f"directory {target.parent} does not exist")
+        if target is not None and (target.is_dir() or not target.parent.is_dir()):
+            raise InputError(flag, f"cannot write {target}: a directory, or its directory does not exist")
     maps = [read_height_map(p, args.channel, args.pixel_size, args.height_unit) for p in args.scans]
     stats = [surface_statistics(m) for m in maps]
     for s in stats:
