@@ -65,6 +65,7 @@ class _ConsoleHandler(socketserver.BaseRequestHandler):
 class _ConsoleTcpServer(socketserver.ThreadingTCPServer):
     daemon_threads = True
     allow_reuse_address = True
+    request_queue_size = 2 * MAX_CONSOLE_CLIENTS
 
     def __init__(self, address: tuple[str, int], session_factory: SessionFactory) -> None:
         self.session_factory = session_factory
