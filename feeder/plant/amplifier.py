@@ -98,11 +98,12 @@ class OutputStage:
 
     def advance(self, command_v: np.ndarray) -> np.ndarray:
         """Output voltage for each command sample."""
-        u = np.clip(np.asarray(command_v, dtype=float), self.limits.v_min_v, self.limits.v_max_v)
+        u = np.minimum(np.maximum(np.asarray(command_v, dtype=float), self.limits.v_min_v),
+                       self.limits.v_max_v)  # fmt: skip
         n = u.size
         out = np.empty(n)
         d = self.max_step_v
-        fast = np.flatnonzero(np.abs(np.diff(u)) > d) + 1  # samples a tracking output cannot follow
+        fast = np.flatnonzero(np.abs(u[1:] - u[:-1]) > d) + 1  # samples a tracking output cannot follow
         y = self.voltage_v
         i = 0
         while i < n:

@@ -97,7 +97,10 @@ class Plant:
             return np.zeros(0), np.zeros(0)
         voltage = self.output.advance(command)
         position, velocity = self.mechanics.advance(voltage)
-        accel = np.diff(velocity, prepend=self.plate_velocity_m_s) * self.sample_rate_hz
+        accel = np.empty(velocity.size)
+        accel[0] = velocity[0] - self.plate_velocity_m_s
+        np.subtract(velocity[1:], velocity[:-1], out=accel[1:])
+        accel *= self.sample_rate_hz
         relative = self.contact.advance(accel, 1.0 / self.sample_rate_hz)
         self.plate_position_m = float(position[-1])
         self.plate_velocity_m_s = float(velocity[-1])

@@ -17,7 +17,8 @@ Two drivers of the same interval update, :func:`advance_interval`:
 
 - :class:`StickSlip` streams long sampled series (the plant at 100 kS/s):
   stick spans are skipped in bulk, slip episodes are summed in bulk up to the
-  interval where w crosses zero (vectorised over time).
+  interval where w crosses zero (vectorised over time); that interval is
+  finished with the same closed form in scalar arithmetic.
 - :func:`simulate_batch` runs many parameter sets at once (vectorised over the
   sets), interval by interval: the mode for sweeps.
 """
@@ -146,30 +147,32 @@ class StickSlip:
         """
         a = np.asarray(accel, dtype=float)
         n = a.size
-        dts = np.broadcast_to(np.asarray(dt, dtype=float), (n,))
-        jumps = np.zeros(n) if jump is None else np.asarray(jump, dtype=float)
-        jump_at = np.flatnonzero(jumps)
+        if np.ndim(dt) == 0:
+            dts = np.full(n, float(dt))
+            self.elapsed_s += n * float(dt)
+        else:
+            dts = np.asarray(dt, dtype=float)
+            self.elapsed_s += float(dts.sum())
+        jump_at = np.zeros(0, dtype=int) if jump is None else np.flatnonzero(jump)
         out = np.empty(n)
         i = 0
+        k = 0  # next jump
         while i < n:
-            nxt = int(np.searchsorted(jump_at, i))
-            if nxt < jump_at.size and jump_at[nxt] == i:
-                self._single(i, a, dts, jumps, out)
+            if k < jump_at.size and jump_at[k] == i:
+                self._single(i, a, dts, np.asarray(jump, dtype=float), out)
                 i += 1
+                k += 1
                 continue
-            end = int(jump_at[nxt]) if nxt < jump_at.size else n
+            end = int(jump_at[k]) if k < jump_at.size else n
             i = self._stick_span(i, end, a, out) if self.stuck else self._slip_span(i, end, a, dts, out)
-        self.elapsed_s += float(dts.sum())
         return out
 
-    def _single(
-        self, i: int, a: np.ndarray, dts: np.ndarray, jumps: np.ndarray | None, out: np.ndarray
-    ) -> None:
-        """One interval through :func:`advance_interval` (jumps and zero crossings)."""
+    def _single(self, i: int, a: np.ndarray, dts: np.ndarray, jumps: np.ndarray, out: np.ndarray) -> None:
+        """One interval with a velocity jump at its start, through :func:`advance_interval`."""
         a_s = self.static_accel_m_s2
         stuck, w, s, slip = advance_interval(
             np.array(self.stuck), np.array(self.relative_velocity_m_s),
-            np.array(self.relative_position_m), a[i], dts[i], np.array(0.0 if jumps is None else jumps[i]),
+            np.array(self.relative_position_m), a[i], dts[i], jumps[i],
             np.array(a_s), np.array(self.friction.kinetic_ratio * a_s),
         )  # fmt: skip
         was_stuck = self.stuck
@@ -220,10 +223,29 @@ class StickSlip:
                 self.slip_time_s += float(h[:m].sum())
             i += m
             if hit.size:
-                self._single(i, a, dts, None, out)
+                self._cross(i, float(a[i]), float(dts[i]), sigma, a_k, out)
                 return i + 1
             window *= 2
         return i
+
+    def _cross(self, i: int, accel: float, dt: float, sigma: float, a_k: float,
+               out: np.ndarray) -> None:  # fmt: skip
+        """The interval where w reaches zero: the crossing branch of :func:`advance_interval`, scalar."""
+        w = self.relative_velocity_m_s
+        tau = min(-w / (-sigma * a_k - accel), dt) if w != 0 else 0.0
+        s = self.relative_position_m + 0.5 * w * tau
+        if abs(accel) <= self.static_accel_m_s2:  # the plate can carry it: sticks
+            self.stuck, self.relative_velocity_m_s = True, 0.0
+            self.slip_time_s += tau
+            self._draw()
+        else:  # slips on the other way
+            rate = sigma * a_k - accel
+            rest = dt - tau
+            s += 0.5 * rate * rest * rest
+            self.relative_velocity_m_s = rate * rest
+            self.slip_time_s += dt
+        self.relative_position_m = s
+        out[i] = s
 
 
 def simulate_batch(
