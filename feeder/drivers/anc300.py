@@ -1,0 +1,280 @@
+"""Serial/TCP driver for ANC300-compatible amplifiers (attocube ANC300, firmware_sim).
+
+The link is pyserial's ``serial_for_url``, so one driver speaks to a device
+path (``/dev/ttyUSB0``, a pty), ``socket://HOST:7230`` (the ANC300's TCP
+console) or ``rfc2217://HOST:PORT`` (a serial port behind a network server).
+Protocol: docs/anc300-protocol.md.
+
+- :class:`Anc300Link` is one connection: a lock (one command at a time, so
+  any number of threads may share it), a timeout per reply, login when the
+  device asks for a password, ``echo off``, and recovery: any timeout, broken
+  reply or I/O error closes the port and raises
+  :class:`~feeder.drivers.amplifier.AmplifierLinkLost`; the next command
+  reconnects and resynchronises (flush, ``echo off``, read up to ``OK``).
+- :class:`Anc300Amplifier` is one axis behind a link, implementing
+  :class:`~feeder.drivers.amplifier.Amplifier`.
+
+On a real ANC300 pass ``extensions=False``: the flyback is then uploaded as
+256-point ``setpu``/``setpd`` tables (:meth:`feeder.waveform.Waveform.anc300_tables`),
+``wait`` uses ``stepw``, and the step counter is the driver's own sum of the
+steps it commanded (the ANC300 has none).  Example::
+
+    link = Anc300Link("socket://192.168.1.2:7230", password="123456")
+    with Anc300Amplifier(link, axis=1, extensions=False) as amp:
+        amp.apply(DriveSettings(frequency_hz=100, amplitude_v=40.0))
+        amp.enable(); amp.step(10); amp.wait(5.0); amp.ground()
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import threading
+import time
+
+import serial
+
+from feeder.drivers.amplifier import (
+    Amplifier,
+    AmplifierError,
+    AmplifierLinkLost,
+    AmplifierStatus,
+    DriveSettings,
+)
+from feeder.waveform import Waveform
+
+DEFAULT_PASSWORD = "123456"
+CONNECT_SETTLE_S = 0.05
+"""ANC300 clients wait this long after connecting, then flush the greeting."""
+POLL_S = 0.01
+_VALUE = re.compile(r"^(\w+) = (\S+)(?: (\S+))?$")
+
+
+class Anc300Link:
+    """One serial/TCP connection to an ANC300-compatible console (thread-safe).
+
+    url: anything ``serial.serial_for_url`` opens; timeout_s: longest wait for
+    a complete reply; password: sent when the device asks for it.
+    """
+
+    def __init__(self, url: str, password: str = DEFAULT_PASSWORD, timeout_s: float = 1.0,
+                 baudrate: int = 115200) -> None:
+        self.url = url
+        self.password = password
+        self.timeout_s = timeout_s
+        self.baudrate = baudrate
+        self.lock = threading.Lock()
+        self._port: serial.SerialBase | None = None
+
+    # -- public ---------------------------------------------------------------
+
+    def query(self, command: str, timeout_s: float | None = None) -> list[str]:
+        """Send one command line; return its data lines.
+
+        Raises :class:`AmplifierError` on an ``ERROR`` reply (message = the
+        device's error line) and :class:`AmplifierLinkLost` when no complete
+        reply came within the timeout or the link broke (then the port is
+        closed and the next query reconnects).
+        """
+        with self.lock:
+            try:
+                port = self._port if self._port is not None else self._connect()
+                port.reset_input_buffer()  # stray bytes from before are not our reply
+                port.write(command.encode("ascii") + b"\r\n")
+                lines, error = self._read_reply(port, timeout_s or self.timeout_s, command)
+            except (serial.SerialException, OSError, AmplifierLinkLost) as exc:
+                self._drop()
+                raise AmplifierLinkLost(f"{self.url}: {command.split()[0]}: {exc}") from exc
+            if error is not None:
+                raise AmplifierError(f"{self.url}: {command.split()[0]}: {error}")
+            return lines
+
+    def value(self, command: str, name: str) -> str:
+        """The value of the ``name = value [unit]`` line of ``command``'s reply."""
+        for line in self.query(command):
+            match = _VALUE.match(line)
+            if match and match.group(1) == name:
+                return match.group(2)
+        with self.lock:
+            self._drop()
+        raise AmplifierLinkLost(f"{self.url}: {command}: no '{name} = ...' line in the reply")
+
+    def close(self) -> None:
+        with self.lock:
+            self._drop()
+
+    # -- internals (lock held) -------------------------------------------------
+
+    def _drop(self) -> None:
+        if self._port is not None:
+            with contextlib.suppress(serial.SerialException, OSError):
+                self._port.close()
+            self._port = None
+
+    def _connect(self) -> serial.SerialBase:
+        try:
+            port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=self.timeout_s,
+                                         write_timeout=self.timeout_s)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise AmplifierLinkLost(f"cannot open: {exc}") from exc
+        self._port = port
+        try:
+            time.sleep(CONNECT_SETTLE_S)
+            greeting = self._read_available(port)
+            if "Authorization code" in greeting:
+                self._login(port)
+            # resynchronise: echo off, then everything up to its OK is discarded
+            for _ in range(2):
+                port.write(b"echo off\r\n")
+                _, error = self._read_reply(port, self.timeout_s, "echo off")
+                if error is None:
+                    return port
+                if "Authorization" in error:
+                    self._login(port)
+            raise AmplifierLinkLost("device refuses 'echo off'")
+        except BaseException:
+            self._drop()
+            raise
+
+    def _login(self, port: serial.SerialBase) -> None:
+        port.write(self.password.encode("ascii") + b"\r\n")
+        deadline = time.monotonic() + self.timeout_s
+        while time.monotonic() < deadline:
+            line = self._readline(port, deadline)
+            if line == "Authorization success":
+                return
+            if line.startswith("Authorization failed"):
+                raise AmplifierError(f"{self.url}: wrong password")
+        raise AmplifierLinkLost("no answer to the password")
+
+    @staticmethod
+    def _read_available(port: serial.SerialBase) -> str:
+        port.timeout = 0.1
+        data = port.read(4096)
+        port.timeout = None
+        return data.decode("ascii", errors="replace")
+
+    @staticmethod
+    def _readline(port: serial.SerialBase, deadline: float) -> str:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            raise AmplifierLinkLost("timeout")
+        port.timeout = remaining
+        raw = port.read_until(b"\n")
+        if not raw.endswith(b"\n"):
+            raise AmplifierLinkLost("timeout")
+        return raw.decode("ascii", errors="replace").strip().removeprefix(">").strip()
+
+    def _read_reply(self, port: serial.SerialBase, timeout_s: float,
+                    command: str) -> tuple[list[str], str | None]:
+        """Data lines and the error message (None after ``OK``)."""
+        deadline = time.monotonic() + timeout_s
+        lines: list[str] = []
+        while True:
+            line = self._readline(port, deadline)
+            if line == "OK":
+                return lines, None
+            if line == "ERROR":
+                return lines[:-1], (lines[-1] if lines else "ERROR")
+            if line and line != command and not line.startswith("Authorization code"):
+                lines.append(line)
+            elif line.startswith("Authorization code"):
+                return lines, "Authorization required"
+
+
+class Anc300Amplifier(Amplifier):
+    """One axis of an ANC300-compatible amplifier behind an :class:`Anc300Link`.
+
+    extensions: use firmware_sim's extension verbs (``setfb``, ``getst``);
+    ``False`` for a real ANC300 (tables, ``stepw``, counted steps).
+    """
+
+    def __init__(self, link: Anc300Link, axis: int = 1, extensions: bool = True) -> None:
+        self.link = link
+        self.axis = axis
+        self.extensions = extensions
+        self._commanded_steps = 0
+        self._settings: DriveSettings | None = None
+
+    @classmethod
+    def open(cls, url: str, axis: int = 1, **link_options: object) -> Anc300Amplifier:
+        """A driver on a new link to ``url`` (options: password, timeout_s, baudrate)."""
+        return cls(Anc300Link(url, **link_options), axis)  # type: ignore[arg-type]
+
+    def apply(self, settings: DriveSettings) -> None:
+        a = self.axis
+        self.link.query(f"setf {a} {settings.frequency_hz:.6f}")
+        self.link.query(f"setv {a} {settings.amplitude_v:.6f}")
+        if self.extensions:
+            seconds = settings.flyback_s or 0.0
+            self.link.query(f"setfb {a} {settings.flyback_shape} {seconds:.9f}")
+        else:
+            up, down = Waveform(frequency_hz=settings.frequency_hz, amplitude_vpp=1.0,
+                                flyback_shape=settings.flyback_shape,
+                                flyback_s=settings.flyback_s).anc300_tables()
+            self.link.query(f"setpu {a} " + " ".join(map(str, up)))
+            self.link.query(f"setpd {a} " + " ".join(map(str, down)))
+        self._settings = settings
+
+    def step(self, count: int) -> None:
+        if count == 0:
+            raise AmplifierError("step count 0 refused (stepu 0 runs forever on an ANC300)")
+        verb = "stepu" if count > 0 else "stepd"
+        self.link.query(f"{verb} {self.axis} {abs(count)}")
+        self._commanded_steps += count
+
+    def run_continuous(self, forward: bool) -> None:
+        self.link.query(f"{'stepu' if forward else 'stepd'} {self.axis} c")
+
+    def stop(self) -> None:
+        self.link.query(f"stop {self.axis}")
+
+    def wait(self, timeout_s: float) -> bool:
+        if not self.extensions:
+            try:
+                self.link.query(f"stepw {self.axis}", timeout_s=timeout_s)
+            except AmplifierLinkLost:
+                return False
+            return True
+        deadline = time.monotonic() + timeout_s
+        while self.status().moving:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(POLL_S)
+        return True
+
+    def ground(self) -> None:
+        self.link.query(f"setm {self.axis} gnd")
+
+    def enable(self) -> None:
+        self.link.query(f"setm {self.axis} stp")
+
+    def status(self) -> AmplifierStatus:
+        if not self.extensions:
+            return AmplifierStatus(
+                mode=self.link.value(f"getm {self.axis}", "mode"),
+                frequency_hz=float(self.link.value(f"getf {self.axis}", "frequency")),
+                amplitude_v=float(self.link.value(f"getv {self.axis}", "voltage")),
+                step_counter=self._commanded_steps, moving=False)
+        fields: dict[str, str] = {}
+        for line in self.link.query(f"getst {self.axis}"):
+            match = _VALUE.match(line)
+            if match:
+                fields[match.group(1)] = match.group(2)
+        try:
+            faults = fields["faultnames"]
+            return AmplifierStatus(
+                mode=fields["mode"], frequency_hz=float(fields["frequency"]),
+                amplitude_v=float(fields["voltage"]), step_counter=int(fields["steps"]),
+                moving=fields["moving"] == "1", fault_word=int(fields["faults"]),
+                faults=() if faults == "none" else tuple(faults.split(",")))
+        except (KeyError, ValueError) as exc:
+            self.link.close()
+            raise AmplifierLinkLost(f"{self.link.url}: getst: unreadable reply {fields}") from exc
+
+    def clear_faults(self) -> None:
+        """Clear the latched fault word (firmware_sim extension ``clrf``)."""
+        self.link.query(f"clrf {self.axis}")
+
+    def close(self) -> None:
+        self.link.close()

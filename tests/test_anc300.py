@@ -1,0 +1,139 @@
+"""Host driver (feeder.drivers.anc300) against firmware_sim over a pty and TCP."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from feeder.daemon.launcher import Simulator
+from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost, DriveSettings
+from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
+from firmware_sim.console import ConsoleSession
+from firmware_sim.firmware import Firmware
+from firmware_sim.transports import PtyConsole
+
+pytestmark = pytest.mark.timeout(120)
+
+
+@pytest.fixture(scope="module")
+def sim() -> Iterator[Simulator]:
+    simulator = Simulator(["--console", "pty", "--console", "tcp:127.0.0.1:0", "--axes", "2"])
+    yield simulator
+    simulator.stop()
+
+
+@pytest.mark.parametrize("endpoint", ["console_pty", "console_tcp"])
+def test_driver_configures_steps_waits_and_grounds(sim: Simulator, endpoint: str) -> None:
+    with Anc300Amplifier.open(sim.endpoints[endpoint], axis=2, timeout_s=2.0) as amp:
+        amp.apply(DriveSettings(frequency_hz=400.0, amplitude_v=35.5,
+                                flyback_shape="linear", flyback_s=2e-4))
+        amp.enable()
+        before = amp.status().step_counter
+        amp.step(-40)
+        assert amp.status().moving
+        assert amp.wait(5.0)
+        status = amp.status()
+        assert (status.mode, status.frequency_hz, status.amplitude_v) == ("stp", 400.0, 35.5)
+        assert status.step_counter == before - 40 and not status.moving
+        assert amp.link.query("getfb 2") == ["flybackshape = linear", "flyback = 0.000200000 s"]
+        amp.run_continuous(forward=True)
+        assert not amp.wait(0.05)
+        amp.ground()
+        status = amp.status()
+        assert status.mode == "gnd" and not status.moving and status.fault_word == 0
+        with pytest.raises(AmplifierError, match="wrong mode"):
+            amp.step(3)
+        with pytest.raises(AmplifierError):
+            amp.step(0)
+        with pytest.raises(AmplifierError, match="out of range"):
+            amp.apply(DriveSettings(frequency_hz=100.0, amplitude_v=1e4))
+
+
+def test_plain_anc300_mode_uploads_tables_and_uses_stepw(sim: Simulator) -> None:
+    link = Anc300Link(sim.endpoints["console_tcp"], timeout_s=2.0)
+    amp = Anc300Amplifier(link, axis=1, extensions=False)
+    try:
+        amp.apply(DriveSettings(frequency_hz=200.0, amplitude_v=10.0,
+                                flyback_shape="half-cosine", flyback_s=5e-4))
+        up = [int(v) for v in link.query("getpu 1")]
+        assert len(up) == 256 and max(up) == 255 and up[0] == 0
+        amp.enable()
+        amp.step(10)
+        assert amp.wait(5.0)
+        assert amp.status().step_counter == 10  # the driver's own count
+        assert link.value("getcnt 1", "steps") != ""
+    finally:
+        amp.ground()
+        amp.close()
+
+
+def test_one_link_shared_by_threads_keeps_replies_apart(sim: Simulator) -> None:
+    link = Anc300Link(sim.endpoints["console_pty"], timeout_s=2.0)
+    errors: list[str] = []
+
+    def worker(axis: int, volts: float) -> None:
+        for _ in range(20):
+            link.query(f"setv {axis} {volts}")
+            got = float(link.value(f"getv {axis}", "voltage"))
+            if got != volts:
+                errors.append(f"axis {axis}: {got} != {volts}")
+
+    threads = [threading.Thread(target=worker, args=(1 + k % 2, 10.0 + k)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    link.close()
+    assert errors == []
+
+
+class GarbageSession(ConsoleSession):
+    """A console on a noisy line: garbage lines before replies, and once a broken OK."""
+
+    broken_once = True
+
+    def feed(self, data: bytes) -> bytes:
+        out = super().feed(data)
+        if b"getv" in data and GarbageSession.broken_once:
+            GarbageSession.broken_once = False
+            return out.replace(b"OK\r\n", b"\x00\xffO#K\r\n")  # never terminated
+        return b"\x00\x13 line noise \xfe\r\n" + out if out else out
+
+
+def test_resync_after_garbage_and_reconnect_after_timeout() -> None:
+    fw = Firmware()
+    pty = PtyConsole(lambda: GarbageSession(fw))
+    link = Anc300Link(pty.path, timeout_s=0.5)
+    try:
+        link.query("setv 1 12.5")  # garbage lines before the reply are skipped
+        start = time.monotonic()
+        with pytest.raises(AmplifierLinkLost):
+            link.query("getv 1")  # the reply never ends: lost within one timeout
+        assert time.monotonic() - start < 0.5 + 0.3
+        assert link.value("getv 1", "voltage") == "12.500000"  # reconnected, resynchronised
+    finally:
+        link.close()
+        pty.close()
+
+
+def test_unopenable_device_is_a_lost_link() -> None:
+    with pytest.raises(AmplifierLinkLost):
+        Anc300Link("/dev/does-not-exist", timeout_s=0.2).query("ver")
+    with pytest.raises(AmplifierLinkLost):
+        Anc300Link("socket://127.0.0.1:1", timeout_s=0.2).query("ver")
+
+
+def test_wrong_password_is_refused() -> None:
+    fw = Firmware()
+    pty = PtyConsole(lambda: ConsoleSession(fw, password="secret"))
+    try:
+        with pytest.raises(AmplifierError, match="password"):
+            Anc300Link(pty.path, password="123456", timeout_s=0.5).query("ver")
+        link = Anc300Link(pty.path, password="secret", timeout_s=0.5)
+        assert link.query("ver")[0].startswith("attocube ANC300")
+        link.close()
+    finally:
+        pty.close()
