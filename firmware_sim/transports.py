@@ -14,6 +14,7 @@ import os
 import select
 import socket
 import socketserver
+import termios
 import threading
 import time
 import tty
@@ -117,7 +118,10 @@ class PtyConsole:
             if self._master not in events:
                 continue
             if events[self._master] & select.POLLHUP:
-                session = None  # no program has the pty open
+                if session is not None:  # the program closed the pty: drop unread replies
+                    with contextlib.suppress(termios.error):
+                        termios.tcflush(self._master, termios.TCOFLUSH)
+                session = None
                 time.sleep(HANGUP_POLL_S)
                 continue
             if session is None:  # a program opened the pty: a new session

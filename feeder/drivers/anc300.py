@@ -49,6 +49,16 @@ CONNECT_SETTLE_S = 0.05
 POLL_S = 0.01
 _VALUE = re.compile(r"^(\w+) = (\S+)(?: (\S+))?$")
 
+LINK_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError)
+"""What a broken port raises (plus termios.error on POSIX: tcflush on a dead pty)."""
+try:
+    import termios
+
+    LINK_ERRORS += (termios.error,)
+except ImportError:  # pragma: no cover - not POSIX
+    pass
+QUERY_ERRORS: tuple[type[BaseException], ...] = (*LINK_ERRORS, AmplifierLinkLost)
+
 
 class Anc300Link:
     """One serial/TCP connection to an ANC300-compatible console (thread-safe).
@@ -82,7 +92,7 @@ class Anc300Link:
                 port.reset_input_buffer()  # stray bytes from before are not our reply
                 port.write(command.encode("ascii") + b"\r\n")
                 lines, error = self._read_reply(port, timeout_s or self.timeout_s, command)
-            except (serial.SerialException, OSError, AmplifierLinkLost) as exc:
+            except QUERY_ERRORS as exc:
                 self._drop()
                 raise AmplifierLinkLost(f"{self.url}: {command.split()[0]}: {exc}") from exc
             if error is not None:
@@ -107,7 +117,7 @@ class Anc300Link:
 
     def _drop(self) -> None:
         if self._port is not None:
-            with contextlib.suppress(serial.SerialException, OSError):
+            with contextlib.suppress(*LINK_ERRORS):
                 self._port.close()
             self._port = None
 
@@ -119,6 +129,7 @@ class Anc300Link:
             raise AmplifierLinkLost(f"cannot open: {exc}") from exc
         self._port = port
         try:
+            port.reset_input_buffer()  # whatever a previous session left unread
             time.sleep(CONNECT_SETTLE_S)
             greeting = self._read_available(port)
             if "Authorization code" in greeting:

@@ -1,0 +1,115 @@
+"""Hardware in the loop: host driver ↔ pty ↔ firmware_sim ↔ plant, position from its camera."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from feeder.daemon.launcher import Simulator
+from feeder.drivers.amplifier import AmplifierLinkLost, DriveSettings
+from feeder.drivers.anc300 import Anc300Amplifier
+from feeder.drivers.camera import StreamCamera
+from feeder.drivers.sensor import SensorLost
+
+pytestmark = pytest.mark.timeout(120)
+
+NOISE_M = 50e-9
+SCATTER = 0.02
+SETTLE_S = 0.1
+PAPER = DriveSettings(frequency_hz=100.0, amplitude_v=200.0, flyback_shape="current-limited")
+
+
+def start() -> Simulator:
+    return Simulator(["--console", "pty", "--sensor", "tcp:127.0.0.1:0", "--seed", "7",
+                      "--scatter", str(SCATTER), "--camera-noise-m", str(NOISE_M),
+                      "--camera-rate-hz", "200", "--camera-latency-s", "0.005"])
+
+
+@pytest.fixture(scope="module")
+def rig() -> Iterator[tuple[Simulator, Anc300Amplifier, StreamCamera]]:
+    sim = start()
+    amp = Anc300Amplifier.open(sim.endpoints["console_pty"], axis=1, timeout_s=2.0)
+    camera = StreamCamera(sim.endpoints["sensor_tcp"])
+    yield sim, amp, camera
+    camera.close()
+    amp.close()
+    sim.stop()
+
+
+def position(camera: StreamCamera, frames: int = 8) -> float:
+    """Mean of the next frames taken after the part has come to rest."""
+    time.sleep(SETTLE_S)
+    first = camera.read(1.0).sequence
+    values: list[float] = []
+    while len(values) < frames:
+        sample = camera.read(1.0)
+        if sample.sequence > first:
+            values.append(sample.position_m)
+    return float(np.mean(values))
+
+
+@pytest.mark.parametrize("count", [30, -30])
+def test_n_steps_move_the_part_n_true_steps(
+        rig: tuple[Simulator, Anc300Amplifier, StreamCamera], count: int) -> None:
+    sim, amp, camera = rig
+    amp.apply(PAPER)
+    amp.enable()
+    up, down = (float(v.split()[2]) for v in amp.link.query("simstep 1"))
+    # the ready line publishes the same true step for the same waveform
+    assert up == pytest.approx(sim.ready["true"]["step_up_m"], rel=1e-6)
+    assert down == pytest.approx(sim.ready["true"]["step_down_m"], rel=1e-6)
+    amp.step(count // abs(count))  # start from the rest state of this direction
+    assert amp.wait(2.0)
+    start_m = position(camera)
+    amp.step(count)
+    assert amp.wait(5.0)
+    moved = position(camera) - start_m
+    expected = abs(count) * (up if count > 0 else down)
+    # per-step scatter of a_s (2 %) averages over 30 steps; camera noise over 8 frames
+    assert moved == pytest.approx(expected, rel=0.03, abs=4 * NOISE_M)
+    assert abs(expected) > 50e-6
+
+
+def test_grounding_stops_motion(rig: tuple[Simulator, Anc300Amplifier, StreamCamera]) -> None:
+    _, amp, camera = rig
+    amp.apply(PAPER)
+    amp.enable()
+    amp.run_continuous(forward=True)
+    time.sleep(0.2)
+    assert amp.status().moving
+    amp.ground()
+    resting = position(camera)
+    time.sleep(0.3)
+    assert position(camera) == pytest.approx(resting, abs=6 * NOISE_M / np.sqrt(8))
+    status = amp.status()
+    assert status.mode == "gnd" and not status.moving
+
+
+def test_killed_firmware_is_reported_within_one_timeout() -> None:
+    sim = start()
+    timeout_s = 1.0
+    amp = Anc300Amplifier.open(sim.endpoints["console_pty"], axis=1, timeout_s=timeout_s)
+    camera = StreamCamera(sim.endpoints["sensor_tcp"])
+    try:
+        assert amp.status().mode == "gnd"
+        camera.read(1.0)
+        os.kill(sim.process.pid, signal.SIGKILL)
+        sim.process.wait()
+        start_s = time.monotonic()
+        with pytest.raises(AmplifierLinkLost):
+            amp.status()
+        assert time.monotonic() - start_s <= timeout_s + 0.2
+        with pytest.raises(SensorLost):
+            for _ in range(100):
+                camera.read(timeout_s)
+        with pytest.raises(AmplifierLinkLost):  # reconnecting fails the same way
+            amp.status()
+    finally:
+        camera.close()
+        amp.close()
+        sim.stop()
