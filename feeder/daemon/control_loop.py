@@ -71,6 +71,7 @@ class LoopSettings:
     sensor_noise_m: float = 0.1e-6
     step_scatter_fraction: float = 0.05
     forgetting: float = 0.98
+    position_save_s: float = 0.25
 
 
 @dataclass(frozen=True)
@@ -202,7 +203,8 @@ class ControlLoop:
 
     ``modes`` maps ``"coarse"``/``"fine"`` to their :class:`StepMode`;
     ``estimates`` optionally restores learned steps keyed ``"mode/direction"``.
-    ``on_position`` is called with each settled position (m), ``on_fault`` with
+    ``on_position`` is called with each settled position (m) and, during a job,
+    with the latest reading every ``position_save_s``; ``on_fault`` with
     ``("amplifier"|"sensor", message)`` when a link is lost.
     """
 
@@ -253,6 +255,7 @@ class ControlLoop:
         self.fault: str | None = None
         self.sensor_lost: str | None = None
         self.last_result: JobResult | None = None
+        self._position_saved_s = -math.inf
         self._jitter = collections.deque[float](maxlen=100_000)
         self.ticks = 0
         self.overruns = 0
@@ -394,6 +397,10 @@ class ControlLoop:
         job = self._job
         if job is None:
             return
+        if (self.on_position is not None and self.position_m is not None
+                and now - self._position_saved_s >= self.settings.position_save_s):
+            self._position_saved_s = now
+            self.on_position(self.position_m)
         try:
             if self._stop_requested:
                 self._safe_stop()

@@ -16,7 +16,6 @@ from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.anc300 import Anc300Amplifier
 from feeder.drivers.camera import StreamCamera
-from feeder.drivers.canopen import CanopenAmplifier
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import InputError
 
@@ -36,6 +35,8 @@ class DriverLinks:
     def open_amplifier(self) -> Amplifier:
         amp = self.config.amplifier
         if isinstance(self.amplifier_address, dict):
+            from feeder.drivers.canopen import CanopenAmplifier  # python-can only when used
+
             node_id = int(self.amplifier_address.get("node_id", 1))
             bus = {k: v for k, v in self.amplifier_address.items() if k != "node_id"}
             return CanopenAmplifier(bus, node_id, timeout_s=amp.timeout_s)
@@ -52,6 +53,7 @@ class DriverLinks:
         }
         if self.simulator is not None:
             out["simulator_pid"] = self.simulator.process.pid
+            out["simulator_endpoints"] = self.simulator.endpoints
             out["simulator_true"] = self.simulator.ready.get("true")
         return out
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import json
 import os
 import socket
@@ -419,6 +420,9 @@ class Daemon:
             "estimates": {k: {"step_m": e.step_m, "std_m": e.std_m, "steps": e.steps}
                           for k, e in loop.estimates().items()},
             "predicted_steps_m": {k: m.predicted_step_m for k, m in self.setup.modes.items()},
+            "waveforms": {k: {**dataclasses.asdict(m.settings),
+                              "predicted_step_band_m": list(m.predicted_band_m)}
+                          for k, m in self.setup.modes.items()},
             "timing": loop.timing(),
             "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
             **self.setup.info,

@@ -1,0 +1,195 @@
+"""Hardware in the loop: `feeder daemon` ↔ pty ↔ firmware_sim ↔ plant + camera.
+
+The simulated plant's true τ is 15 % above the host's nominal value, so the
+planner's predicted step is off and the daemon has to learn the real one.
+The true step of the daemon's coarse waveform is the plant model's with the
+simulator's true friction.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from feeder.daemon.client import Client
+from feeder.planner import plant_step
+from feeder.waveform import Waveform
+
+ROOT = Path(__file__).resolve().parents[1]
+SIM_ARGS = ["--tau-offset=0.15", "--seed=5"]
+
+pytestmark = pytest.mark.timeout(120)
+
+
+class DaemonProcess:
+    """``python -m feeder daemon --json`` in a child process, with its ready object."""
+
+    def __init__(self, base: Path, *extra: str) -> None:
+        self.socket = base / "s.sock"
+        cmd = [sys.executable, "-m", "feeder", "daemon", "--json", "--state-dir",
+               str(base / "state"), "--socket", str(self.socket),
+               *[f"--sim-arg={a}" for a in SIM_ARGS], *extra]
+        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, text=True,
+                                     env={**os.environ, "PYTHONPATH": str(ROOT)})
+        assert self.proc.stdout is not None
+        lines = []
+        for line in self.proc.stdout:
+            lines.append(line)
+            if line.rstrip() == "}":
+                break
+        self.ready: dict[str, Any] = json.loads("".join(lines))
+        assert self.ready["ready"] is True
+
+    def client(self) -> Client:
+        return Client(self.socket, timeout_s=60.0)
+
+    def request(self, cmd: str, **fields: Any) -> dict[str, Any]:
+        with self.client() as client:
+            return client.request(cmd, **fields)
+
+    def wait_for(self, predicate: Any, timeout: float = 20.0) -> dict[str, Any]:
+        end = time.monotonic() + timeout
+        while True:
+            status = self.request("status")
+            if predicate(status):
+                return status
+            assert time.monotonic() < end, f"condition not reached; last status {status}"
+            time.sleep(0.05)
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            self.proc.wait(timeout=20)
+        return self.proc.returncode
+
+
+def process_gone(pid: int, timeout: float = 10.0) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        # a zombie child of a dead parent is reaped by init; treat 'Z' state as gone
+        try:
+            if Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z":
+                return True
+        except FileNotFoundError:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.fixture
+def base() -> Iterator[Path]:
+    path = Path(tempfile.mkdtemp(prefix="fd"))
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def true_coarse_steps(daemon: DaemonProcess, status: dict[str, Any]) -> tuple[float, float]:
+    """The plant's true steady step up/down for the daemon's coarse waveform.
+
+    The plant model run with the simulator's true friction (from its ready
+    line), not the host's nominal τ.  (firmware_sim's ``simstep`` averages a
+    3-step burst, which includes the extra slip after a burst's last flyback.)
+    """
+    true = daemon.ready["simulator_true"]
+    wave = status["waveforms"]["coarse"]
+    steps = []
+    for direction in ("forward", "backward"):
+        waveform = Waveform(frequency_hz=wave["frequency_hz"], amplitude_vpp=wave["amplitude_v"],
+                            flyback_shape=wave["flyback_shape"], direction=direction)
+        steps.append(abs(plant_step(waveform, true["static_accel_m_s2"], true["kinetic_ratio"])))
+    return steps[0], steps[1]
+
+
+def test_moves_converge_and_the_step_is_learned_within_5_percent(base: Path) -> None:
+    daemon = DaemonProcess(base)
+    try:
+        calibrated = daemon.request("calibrate", steps=20)
+        assert calibrated["ok"], calibrated
+        status = daemon.request("status")
+        results = [daemon.request("move", target_m=t)
+                   for t in (400e-6, 150e-6, -300e-6, -297e-6, 0.0)]
+        truth = true_coarse_steps(daemon, status)
+    finally:
+        assert daemon.stop() == 0
+    tolerance = status["tolerance_m"]
+    for reply in results:
+        assert reply["ok"], reply
+        assert abs(reply["result"]["error_m"]) <= tolerance
+    est = status["estimates"]
+    predicted = status["predicted_steps_m"]["coarse"]
+    # the prediction is off (τ 15 % high) and the learned step is within 5 % after 20 steps
+    assert est["coarse/forward"]["steps"] == 20 and est["coarse/backward"]["steps"] == 20
+    assert abs(predicted / truth[0] - 1) > 0.02
+    assert est["coarse/forward"]["step_m"] == pytest.approx(truth[0], rel=0.05)
+    assert est["coarse/backward"]["step_m"] == pytest.approx(truth[1], rel=0.05)
+    assert process_gone(daemon.ready["simulator_pid"])     # stopped with its daemon
+
+
+def test_sigkill_mid_move_restarts_with_calibration_and_history(base: Path) -> None:
+    daemon = DaemonProcess(base)
+    assert daemon.request("move", target_m=100e-6)["ok"]
+    before = daemon.request("status")
+    assert daemon.request("move", target_m=4e-3, wait=False)["ok"]
+    daemon.wait_for(lambda s: s["state"] == "moving" and (s["position_m"] or 0) > 200e-6)
+    time.sleep(0.3)                               # the position is saved every 0.25 s mid-move
+    daemon.proc.send_signal(signal.SIGKILL)
+    daemon.proc.wait()
+    assert process_gone(daemon.ready["simulator_pid"]), "firmware_sim outlived its daemon"
+
+    again = DaemonProcess(base)
+    try:
+        status = again.request("status")
+        history = again.request("history")["moves"]
+        confirmed = again.wait_for(lambda s: s["position_state"] == "confirmed")
+    finally:
+        assert again.stop() == 0
+    assert status["interrupted_moves"] == [history[-1]["id"]]
+    assert [m["status"] for m in history] == ["done", "interrupted"]
+    assert history[-1]["target_m"] == 4e-3
+    assert status["estimates"] == before["estimates"]          # calibration intact
+    assert status["last_known_position_m"] > 200e-6            # saved mid-move
+    assert confirmed["position_m"] is not None
+
+
+def test_link_loss_faults_reconnects_and_does_not_resume(base: Path) -> None:
+    # a frozen firmware must not trip its own tick watchdog for this test
+    daemon = DaemonProcess(base, "--sim-arg=--watchdog-s=60")
+    sim = daemon.ready["simulator_pid"]
+    try:
+        assert daemon.request("move", target_m=4e-3, wait=False)["ok"]
+        daemon.wait_for(lambda s: (s["position_m"] or 0) > 100e-6)
+        os.kill(sim, signal.SIGSTOP)                 # the link goes silent
+        try:
+            faulted = daemon.wait_for(lambda s: s["state"] == "fault", timeout=10)
+            refused = daemon.request("move", target_m=0.0)
+            time.sleep(1.0)
+        finally:
+            os.kill(sim, signal.SIGCONT)
+        recovered = daemon.wait_for(lambda s: s["state"] == "idle" and not s["reconnecting"]
+                                    and s["position_state"] == "confirmed", timeout=30)
+        still = recovered["position_m"]
+        time.sleep(0.5)
+        later = daemon.request("status")["position_m"]
+        history = daemon.request("history")["moves"]
+        fresh = daemon.request("move", target_m=still - 50e-6)
+    finally:
+        assert daemon.stop() == 0
+    assert faulted["fault"] and refused["ok"] is False
+    assert history[-1]["status"] == "fault"
+    assert abs(later - still) < 0.5e-6                # no move resumed by itself
+    assert fresh["ok"], fresh                          # a new command works again
