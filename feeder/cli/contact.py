@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from feeder.cli.output import print_json
+from feeder.contact.asperity_sampling import DEFAULT_PLACEMENTS
 from feeder.contact.breakaway import (
     DEFAULT_TAU_BAND_PA,
     DEFAULT_TAU_PA,
@@ -43,6 +44,9 @@ def register(sub: Any) -> None:
                    help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})")
     p.add_argument("--density", type=positive_float, default=2330.0,
                    help="part density in kg/m³ (default silicon, 2330)")
+    p.add_argument("--placements", type=int, default=DEFAULT_PLACEMENTS,
+                   help="random placements sampled summit by summit for the A_r band "
+                        f"(default {DEFAULT_PLACEMENTS}; 0 skips)")
     p.add_argument("--table", action="store_true",
                    help="paper-style table: four parts × two supports, model vs paper")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -50,14 +54,16 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not 0 <= args.placements <= 1_000_000:
+        raise InputError("--placements", f"must be between 0 and 1000000, got {args.placements}")
     surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
     support = Support.parse(args.support)
     if args.table:
-        return _table(surface, args.tau, args.tau_band, args.json)
+        return _table(surface, args.tau, args.tau_band, args.placements, args.json)
     if not args.part:
         raise InputError("--part", "required (LxWxT in µm, e.g. 300x300x50), or use --table")
     part = Part.parse(args.part, density_kg_m3=args.density)
-    result = contact(part, support, surface, args.tau, args.tau_band)
+    result = contact(part, support, surface, args.tau, args.tau_band, args.placements)
     if args.json:
         print_json(result.to_json())
     else:
@@ -73,6 +79,9 @@ def _print_result(r: ContactResult) -> None:
     print(f"  nominal area      {r.nominal_area_m2:.5g} m²")
     print(f"  separation d      {r.separation_m * 1e9:.4f} nm")
     print(f"  real area A_r     {r.real_area_m2:.5g} m²  ({r.contacts:.3g} asperities in contact)")
+    if r.real_area_band_m2 is not None:
+        print(f"  A_r of placements {r.real_area_band_m2[0]:.5g} – {r.real_area_band_m2[1]:.5g} m²"
+              f" (68 %, mean {r.real_area_sampled_mean_m2:.5g})")
     print(f"  τ                 {r.tau_pa / 1e9:.2f} ± {r.tau_band_pa / 1e9:.2f} GPa")
     print(f"  breakaway force   {r.breakaway_force_n * 1e6:.4g} µN  [{lo * 1e6:.4g}, {hi * 1e6:.4g}]")
     print(f"  breakaway accel   {r.breakaway_accel_m_s2:.4g} m/s²  [{alo:.4g}, {ahi:.4g}]"
@@ -81,13 +90,15 @@ def _print_result(r: ContactResult) -> None:
         print(f"  warning: {w}")
 
 
-def _table(surface: SurfaceParameters, tau: float, tau_band: float, as_json: bool) -> int:
+def _table(
+    surface: SurfaceParameters, tau: float, tau_band: float, placements: int, as_json: bool
+) -> int:
     rows: list[dict[str, Any]] = []
     warnings: list[str] = []
     for label, paper in PAPER_ROWS.items():
         part = Part.parse(label)
         for kind in ("flat", "grooved"):
-            r = contact(part, Support(kind), surface, tau, tau_band)
+            r = contact(part, Support(kind), surface, tau, tau_band, placements)
             paper_area = paper.real_area_flat_m2 if kind == "flat" else paper.real_area_grooved_m2
             rows.append({
                 "part": label,
@@ -99,10 +110,13 @@ def _table(surface: SurfaceParameters, tau: float, tau_band: float, as_json: boo
                 "paper_real_area_m2": paper_area,
                 "real_area_deviation": r.real_area_m2 / paper_area - 1.0,
                 "contacts": r.contacts,
+                "real_area_band_m2": r.real_area_band_m2,
+                "real_area_sampled_mean_m2": r.real_area_sampled_mean_m2,
                 "breakaway_force_N": r.breakaway_force_n,
                 "breakaway_accel_m_s2": r.breakaway_accel_m_s2,
             })
-            warnings += [w for w in r.warnings if w not in warnings and "asperities" not in w]
+            warnings += [w for w in r.warnings
+                         if w not in warnings and "asperities" not in w and "placed" not in w]
     few = [f"{row['part']} {row['support']} ({row['contacts']:.2g})" for row in rows
            if row["contacts"] < MIN_CONTACTS]
     if few:
@@ -114,7 +128,8 @@ def _table(surface: SurfaceParameters, tau: float, tau_band: float, as_json: boo
     print("Greenwood–Williamson + Hertz contact, model vs paper (Table I, Table III); "
           f"τ = {tau / 1e9:.2f} GPa")
     header = (f"{'part µm':<12}{'support':<9}{'weight N':>11}{'d nm':>9}{'A_r 1e-17m²':>13}"
-              f"{'paper':>9}{'dev %':>8}{'contacts':>10}{'F_break µN':>12}{'a_break m/s²':>14}")
+              f"{'paper':>9}{'dev %':>8}{'contacts':>10}{'F_break µN':>12}{'a_break m/s²':>14}"
+              f"{'placed A_r 68 %':>18}")
     print(header)
     print("-" * len(header))
     for row in rows:
@@ -122,8 +137,15 @@ def _table(surface: SurfaceParameters, tau: float, tau_band: float, as_json: boo
               f"{row['separation_m'] * 1e9:>9.3f}{row['real_area_m2'] * 1e17:>13.5g}"
               f"{row['paper_real_area_m2'] * 1e17:>9.5g}{row['real_area_deviation'] * 100:>8.2f}"
               f"{row['contacts']:>10.3g}{row['breakaway_force_N'] * 1e6:>12.4g}"
-              f"{row['breakaway_accel_m_s2']:>14.4g}")
+              f"{row['breakaway_accel_m_s2']:>14.4g}{_band_text(row['real_area_band_m2']):>18}")
     print()
+    if placements:
+        print(f"placed A_r: 68 % interval over {placements} random placements sampled summit by summit "
+              "(1e-17 m²); GW's mean field assumes fractional asperities")
     for w in warnings:
         print(f"warning: {w}")
     return 0
+
+
+def _band_text(band: tuple[float, float] | None) -> str:
+    return "–" if band is None else f"{band[0] * 1e17:.3g}–{band[1] * 1e17:.3g}"

@@ -10,6 +10,7 @@ from typing import Any
 from feeder.cli.contact import positive_float
 from feeder.cli.friction import add_curve_options, analyse_files
 from feeder.cli.output import print_json
+from feeder.contact.asperity_sampling import DEFAULT_PLACEMENTS
 from feeder.contact.breakaway import contact
 from feeder.errors import InputError
 from feeder.friction.shear_strength import shear_strength
@@ -18,7 +19,8 @@ from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
 
 BAND_NOTE = (
     "tau band = tau * sqrt((s_F/mean F)^2 + (dA/A_r)^2), s_F the sample std of the forces (ddof 1), "
-    "dA/A_r the relative real-area band (--area-band; the GW model gives a point value)"
+    "dA/A_r the relative real-area band (--area-band; by default the half-width of the A_r interval "
+    "of 68 % of random placements of the part, sampled summit by summit)"
 )
 
 
@@ -32,8 +34,9 @@ def register(sub: Any) -> None:
     p.add_argument("--density", type=positive_float, default=2330.0, help="part density in kg/m³")
     p.add_argument("--real-area", type=positive_float,
                    help="use this real contact area in m² instead of the GW model")
-    p.add_argument("--area-band", type=float, default=0.0,
-                   help="relative half-width of the real-area band, e.g. 0.1 (default 0)")
+    p.add_argument("--area-band", type=float,
+                   help="relative half-width of the real-area band, e.g. 0.1 (default: from "
+                        "placements sampled summit by summit; 0 with --real-area)")
     add_curve_options(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
@@ -72,9 +75,14 @@ def run(args: argparse.Namespace) -> int:
     support = Support.parse(args.support)
     surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
     forces, sources = _forces(args)
-    model = contact(part, support, surface)
-    area = args.real_area if args.real_area is not None else model.real_area_m2
-    result = shear_strength(forces, area, args.area_band)
+    given_area = args.real_area is not None
+    model = contact(part, support, surface, placements=0 if given_area else DEFAULT_PLACEMENTS)
+    area = args.real_area if given_area else model.real_area_m2
+    area_band = args.area_band
+    if area_band is None:
+        lo, hi = model.real_area_band_m2 or (area, area)
+        area_band = (hi - lo) / (hi + lo)
+    result = shear_strength(forces, area, area_band)
     checked = contact(part, support, surface, result.tau_pa, min(result.tau_band_pa, 0.999 * result.tau_pa))
     report: dict[str, Any] = {
         "tau_pa": result.tau_pa,
@@ -90,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
             "forces_N": forces,
             "force_sources": sources,
             "real_area_source": "--real-area" if args.real_area is not None else "GW model",
-            "area_band": args.area_band,
+            "area_band": area_band,
         },
         "model_real_area_m2": model.real_area_m2,
         "separation_m": model.separation_m,
