@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/feeder contact --table
+	$(BIN)/feeder demo
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
