@@ -114,21 +114,20 @@ class PtyConsole:
         poller.register(self._master, select.POLLIN)
         session: ConsoleSession | None = None
         while not self._stop.is_set():
-            events = dict(poller.poll(100))
-            if self._master not in events:
-                continue
-            if events[self._master] & select.POLLHUP:
+            timeout_ms = 100 if session is not None else HANGUP_POLL_S * 1000
+            event = dict(poller.poll(timeout_ms)).get(self._master, 0)
+            if event & select.POLLHUP:
                 if session is not None:  # the program closed the pty: drop unread replies
                     with contextlib.suppress(termios.error):
                         termios.tcflush(self._master, termios.TCOFLUSH)
                 session = None
                 time.sleep(HANGUP_POLL_S)
                 continue
-            if session is None:  # a program opened the pty: a new session
+            if session is None:  # no hang-up any more: a program opened the pty
                 session = self._factory()
                 if not session.logged_in:
                     self._write(session.greeting())
-            if events[self._master] & select.POLLIN:
+            if event & select.POLLIN:
                 try:
                     data = os.read(self._master, 4096)
                 except OSError:

@@ -187,10 +187,10 @@ class Anc300Link:
                 return lines, None
             if line == "ERROR":
                 return lines[:-1], (lines[-1] if lines else "ERROR")
-            if line and line != command and not line.startswith("Authorization code"):
-                lines.append(line)
-            elif line.startswith("Authorization code"):
+            if line.startswith("Authorization"):  # the command was taken as a password
                 return lines, "Authorization required"
+            if line and line != command:
+                lines.append(line)
 
 
 class Anc300Amplifier(Amplifier):
