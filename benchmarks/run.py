@@ -15,7 +15,8 @@ import json
 import sys
 from pathlib import Path
 
-BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "loop_jitter", "summits")
+BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "loop_jitter", "summits",
+                               "console_rtt", "tick_jitter")
 
 
 def main(argv: list[str] | None = None) -> int:

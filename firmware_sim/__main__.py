@@ -21,18 +21,27 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable
 from types import FrameType
 
 from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
+from firmware_sim.canopen_node import serve_slcan_pty
 from firmware_sim.clock import Clock, RealTimeClock, VirtualClock
 from firmware_sim.console import DEFAULT_PASSWORD, ConsoleSession
-from firmware_sim.firmware import DEFAULT_LOAD_CAPACITANCE_F, Axis, Firmware, FirmwareConfig
+from firmware_sim.firmware import (
+    DEFAULT_DAC_BUFFER_S,
+    DEFAULT_LOAD_CAPACITANCE_F,
+    Axis,
+    Firmware,
+    FirmwareConfig,
+)
 from firmware_sim.transports import LineBroadcastServer, PtyConsole, TcpConsoleServer
 from firmware_sim.world import CameraConfig, World, WorldConfig
 
 REFERENCE_FREQUENCY_HZ = 100.0
+VIRTUAL_TICKS_PER_YIELD = 10
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,8 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
     fw.add_argument("--axes", type=int, default=3, help="configured axes 1..N (of 7 slots)")
     fw.add_argument("--tick-hz", type=float, default=1000.0)
     fw.add_argument("--sample-rate-hz", type=float, default=100_000.0, help="DAC rate")
-    fw.add_argument("--dac-buffer-s", type=float, default=0.020,
-                    help="how far the tick keeps the DAC buffer ahead (latency vs. underruns)")
+    fw.add_argument("--dac-buffer-s", type=float, default=DEFAULT_DAC_BUFFER_S,
+                    help="how far the tick keeps the DAC buffer ahead: a tick this late "
+                         "still does not starve the DAC (commands act at once regardless)")
     fw.add_argument("--watchdog-s", type=float, default=0.25,
                     help="a tick this late grounds every axis")
     fw.add_argument("--host-watchdog-s", type=float, default=0.0,
@@ -95,6 +105,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def add_extra_front_end_arguments(group: argparse._ArgumentGroup) -> None:
     """Options of further front ends (e.g. CANopen) go here."""
+    group.add_argument("--can", choices=("slcan-pty",),
+                       help="CANopen: one node per axis behind an emulated SLCAN adapter on a "
+                            "pty (endpoint slcan_pty; docs/canopen.md)")
+    group.add_argument("--can-node-id-base", type=int, default=1,
+                       help="CANopen node id of axis 1 (axis n gets base + n - 1)")
 
 
 def _tcp_spec(spec: str, option: str) -> tuple[str, int]:
@@ -143,6 +158,9 @@ def start_endpoints(args: argparse.Namespace, firmware: Firmware, world: World,
 def start_extra_front_ends(args: argparse.Namespace, firmware: Firmware,
                            closers: list[Callable[[], None]], endpoints: dict[str, str]) -> None:
     """Further front ends (e.g. CANopen) start here, calling the same firmware API."""
+    if args.can == "slcan-pty":
+        endpoints["slcan_pty"], close_can = serve_slcan_pty(firmware, args.can_node_id_base)
+        closers.append(close_can)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -195,7 +213,12 @@ def main(argv: list[str] | None = None) -> int:
                       "endpoints": endpoints, "true": true}), flush=True)
     clock: Clock = RealTimeClock() if args.clock == "real" else VirtualClock()
     try:
-        firmware.run(clock, stop)
+        if clock.realtime:
+            firmware.run(clock, stop)
+        else:  # back to back, but let the front ends' threads in now and then
+            while not stop.is_set():
+                firmware.run(clock, stop, max_ticks=VIRTUAL_TICKS_PER_YIELD)
+                time.sleep(0)
     finally:
         firmware.shutdown()
         for close in reversed(closers):

@@ -156,8 +156,7 @@ class World:
 
         firmware.add_sink(feed)
         clock = VirtualClock()
-        buffer_ticks = math.ceil(firmware.buffer_samples / config.samples_per_tick)
-        settle_ticks = buffer_ticks + math.ceil(SETTLE_S * config.tick_hz)
+        settle_ticks = math.ceil(SETTLE_S * config.tick_hz)
         burst_ticks = math.ceil(config.tick_hz / status.frequency_hz)
 
         def burst(count: int) -> float:
