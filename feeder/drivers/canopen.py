@@ -1,0 +1,348 @@
+"""The amplifier over CAN: a CANopen (CiA 301) master for one amplifier axis node.
+
+Built on the ``canopen`` package's :class:`canopen.RemoteNode` and the node's EDS
+(``firmware_sim/feeder_amplifier.eds``; object reference in docs/canopen.md):
+
+- configuration by SDO (frequency, amplitude, flyback, mode),
+- steps by RPDO1 (signed count + command sequence), each confirmed by the
+  node's echo of the sequence in TPDO1 (a refusal sets a status bit),
+- progress from TPDO1 (step counter, status word, error register),
+- node loss from the heartbeat: no heartbeat for :data:`HEARTBEAT_LOSS_PERIODS`
+  periods, or a heartbeat reporting anything but OPERATIONAL, marks the link
+  lost; every later call raises :class:`AmplifierLinkLost` without sending.
+
+The bus is plain python-can keyword arguments, so the transport is configuration::
+
+    {"interface": "slcan", "channel": "/dev/pts/7", "bitrate": 500000, "sleep_after_open": 0}
+    {"interface": "socketcan", "channel": "can0"}
+    {"interface": "virtual", "channel": "test"}
+
+The code tables below are the node's protocol (documented in the EDS comments);
+``firmware_sim``'s node uses them too.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import can
+import canopen
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from feeder.drivers.amplifier import (
+    FLYBACK_SHAPES,
+    Amplifier,
+    AmplifierError,
+    AmplifierLinkLost,
+    AmplifierStatus,
+    DriveSettings,
+)
+
+DEFAULT_EDS = Path(__file__).resolve().parents[2] / "firmware_sim" / "feeder_amplifier.eds"
+"""The EDS shipped with ``firmware_sim`` (a real amplifier comes with its own)."""
+
+MODES = ("gnd", "inp", "cap", "stp", "off", "stp+", "stp-")
+"""Object 0x2005 ``Mode``: value = index (ANC300 mode names)."""
+
+SHAPE_CODES = (*FLYBACK_SHAPES, "custom")
+"""Object 0x2002 ``Flyback shape``: value = index; ``custom`` (user tables) is read-only."""
+
+FAULT_NAMES = {0x01: "watchdog", 0x02: "host_watchdog", 0x04: "overtemp"}
+"""Bits of object 0x2014 ``Fault word``."""
+
+STATUS_MOVING = 0x01
+STATUS_STEPPING_MODE = 0x02
+STATUS_FAULT = 0x04
+STATUS_REFUSED = 0x08
+"""Bits of object 0x2015 ``Status word`` (``REFUSED``: the last RPDO1 command was refused)."""
+
+HEARTBEAT_LOSS_PERIODS = 2.5
+"""Missing heartbeats for this many periods = node lost (so it is reported
+within 3 periods of the node's last breath)."""
+
+ABORT_MESSAGES = {
+    0x06010001: "object is write-only",
+    0x06010002: "object is read-only",
+    0x06020000: "object does not exist",
+    0x06040043: "conflicts with another setting",
+    0x06090030: "value range exceeded",
+    0x06090031: "value too high",
+    0x06090032: "value too low",
+    0x08000022: "refused in the present device state",
+}
+
+
+def fault_names(word: int) -> tuple[str, ...]:
+    """Names of the bits set in a fault word, lowest bit first (``fault<bit>`` if unknown)."""
+    return tuple(FAULT_NAMES.get(1 << bit, f"fault{bit}") for bit in range(32) if word >> bit & 1)
+
+
+class CanopenAmplifier(Amplifier):
+    """One amplifier axis reached as CANopen node ``node_id`` on a python-can bus.
+
+    bus: python-can keyword arguments (``can.Bus(**bus)``).
+    heartbeat_s: producer heartbeat period the driver configures (object 0x1017).
+    timeout_s: SDO response and RPDO acknowledge timeout.
+    """
+
+    def __init__(self, bus: Mapping[str, Any], node_id: int, eds: str | Path = DEFAULT_EDS,
+                 heartbeat_s: float = 0.1, timeout_s: float = 0.5) -> None:
+        self.node_id = node_id
+        self.heartbeat_s = heartbeat_s
+        self.timeout_s = timeout_s
+        self._lock = threading.RLock()
+        self._changed = threading.Condition()
+        self._lost: str | None = None
+        self._last_heartbeat = time.monotonic()
+        self._started = False
+        self._tpdo_seen = False
+        self._counter = 0
+        self._status_word = 0
+        self._ack = 0
+        self._sequence = 0
+        self._closing = threading.Event()
+        self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
+        self.network.connect(**dict(bus))
+        assert self.network.notifier is not None
+        self.network.notifier.add_listener(_BusErrors(self._on_bus_error))
+        try:
+            self.node = canopen.RemoteNode(node_id, str(eds))
+            self.node.sdo.RESPONSE_TIMEOUT = timeout_s
+            self.network.add_node(self.node)
+            self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
+            self._start()
+        except BaseException:
+            self.network.disconnect()
+            raise
+        self._watchdog = threading.Thread(target=self._watch_heartbeat, daemon=True,
+                                          name=f"canopen-heartbeat-{node_id}")
+        self._watchdog.start()
+
+    # -- link setup and supervision --------------------------------------------
+
+    def _start(self) -> None:
+        """Wait for the node, set its heartbeat, take the PDOs from the EDS, start it."""
+        try:
+            self.node.nmt.wait_for_heartbeat(timeout=max(1.0, 5 * self.heartbeat_s))
+        except canopen.nmt.NmtError as exc:
+            raise AmplifierLinkLost(f"CANopen node {self.node_id}: no heartbeat") from exc
+        self._sdo_write(0x1017, 0, round(self.heartbeat_s * 1000))
+        self._sdo_write(0x1800, 2, 255)  # TPDO1 event-driven: on change and on its timer
+        self.node.tpdo.read(from_od=True)
+        self.node.rpdo.read(from_od=True)
+        self._tpdo = self.node.tpdo[1]
+        self._rpdo = self.node.rpdo[1]
+        self._tpdo.add_callback(self._on_tpdo)
+        self._sequence = self._sdo_read(0x2019, 0)
+        self.node.nmt.state = "OPERATIONAL"
+        with self._changed:
+            if not self._changed.wait_for(lambda: self._tpdo_seen, self.timeout_s + 0.2):
+                raise AmplifierLinkLost(f"CANopen node {self.node_id}: no TPDO after start")
+            # TPDOs flow only in OPERATIONAL: from here on any other state is a loss.
+            self._started = True
+
+    def _on_heartbeat(self, state: int) -> None:
+        with self._changed:
+            self._last_heartbeat = time.monotonic()
+            if self._started and state != 5 and self._lost is None:
+                name = canopen.nmt.NMT_STATES.get(state, str(state))
+                self._lost = f"CANopen node {self.node_id} reported NMT state {name}"
+                self._changed.notify_all()
+
+    def _watch_heartbeat(self) -> None:
+        limit = HEARTBEAT_LOSS_PERIODS * self.heartbeat_s
+        while not self._closing.is_set():
+            with self._changed:
+                silent = time.monotonic() - self._last_heartbeat
+                if silent >= limit and self._lost is None:
+                    self._lost = (f"CANopen node {self.node_id}: no heartbeat for "
+                                  f"{silent * 1000:.0f} ms")
+                    self._changed.notify_all()
+                if self._lost is not None:
+                    return
+            self._closing.wait(max(limit - silent, 0.005))
+
+    def _on_tpdo(self, pdo: Any) -> None:
+        with self._changed:
+            self._counter = int(pdo["Step counter"].raw)
+            self._status_word = int(pdo["Status word"].raw)
+            self._ack = int(pdo["Command acknowledge"].raw)
+            self._tpdo_seen = True
+            self._changed.notify_all()
+
+    def _on_bus_error(self, exc: Exception) -> None:
+        """The bus itself failed (e.g. the adapter's port vanished): the link is lost."""
+        with self._changed:
+            if self._lost is None:
+                self._lost = f"CANopen node {self.node_id}: CAN bus error: {exc}"
+                self._changed.notify_all()
+        time.sleep(0.05)  # the receiver retries; do not spin on a dead port
+
+    def _check_link(self) -> None:
+        if self._lost is not None:
+            raise AmplifierLinkLost(self._lost)
+
+    @property
+    def lost(self) -> str | None:
+        """Why the link was declared lost, or None while it is healthy."""
+        return self._lost
+
+    # -- SDO and RPDO -----------------------------------------------------------
+
+    def _sdo_write(self, index: int, subindex: int, value: int) -> None:
+        self._check_link()
+        variable = self.node.sdo[index] if subindex == 0 else self.node.sdo[index][subindex]
+        try:
+            variable.raw = value
+        except SdoAbortedError as exc:
+            raise AmplifierError(self._abort_text(exc, index, subindex, value)) from exc
+        except SdoCommunicationError as exc:
+            raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
+
+    def _sdo_read(self, index: int, subindex: int) -> int:
+        self._check_link()
+        variable = self.node.sdo[index] if subindex == 0 else self.node.sdo[index][subindex]
+        try:
+            return int(variable.raw)
+        except SdoAbortedError as exc:
+            raise AmplifierError(self._abort_text(exc, index, subindex, None)) from exc
+        except SdoCommunicationError as exc:
+            raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
+
+    def _abort_text(self, exc: SdoAbortedError, index: int, subindex: int,
+                    value: int | None) -> str:
+        name = self.node.object_dictionary[index]
+        if not isinstance(name, canopen.objectdictionary.ODVariable):
+            name = name[subindex]
+        what = f"{name.name} = {value}" if value is not None else name.name
+        reason = ABORT_MESSAGES.get(exc.code, "refused")
+        return f"CANopen node {self.node_id}: {what}: {reason} (SDO abort 0x{exc.code:08X})"
+
+    def _command(self, count: int) -> None:
+        """Send ``count`` by RPDO1 and wait for the node's acknowledge in TPDO1."""
+        with self._lock:
+            self._check_link()
+            self._sequence = (self._sequence + 1) % 256
+            sequence = self._sequence
+            self._rpdo["Step command"].raw = count
+            self._rpdo["Command sequence"].raw = sequence
+            self._rpdo.transmit()
+            with self._changed:
+                acked = self._changed.wait_for(
+                    lambda: self._ack == sequence or self._lost is not None, self.timeout_s)
+                self._check_link()
+                refused = self._status_word & STATUS_REFUSED
+            if not acked:
+                raise AmplifierLinkLost(
+                    f"CANopen node {self.node_id}: step command not acknowledged")
+        if refused:
+            state = self.status()
+            reason = (f"fault {', '.join(state.faults)}" if state.fault_word
+                      else f"mode {state.mode}")
+            raise AmplifierError(f"CANopen node {self.node_id}: step {count} refused ({reason})")
+
+    # -- the Amplifier interface -----------------------------------------------
+
+    def apply(self, settings: DriveSettings) -> None:
+        """Write the settings; if the node refuses one, restore the previous ones."""
+        if settings.flyback_shape not in FLYBACK_SHAPES:
+            raise AmplifierError(f"unknown flyback shape {settings.flyback_shape!r}")
+        wanted = (FLYBACK_SHAPES.index(settings.flyback_shape),
+                  round(settings.frequency_hz * 1000), round((settings.flyback_s or 0.0) * 1e9),
+                  round(settings.amplitude_v * 1000))
+        with self._lock:
+            previous = tuple(self._sdo_read(index, 0) for index in (0x2002, 0x2000, 0x2003, 0x2001))
+            try:
+                self._write_settings(*wanted)
+            except AmplifierError:
+                self._write_settings(*previous)
+                raise
+
+    def _write_settings(self, shape: int, frequency_mhz: int, flyback_ns: int,
+                        amplitude_mv: int) -> None:
+        """SDO writes in an order the firmware accepts from any previous settings:
+        current-limited flyback first (no timing constraint), then frequency, flyback
+        time and the wanted shape (checked against the new period), then amplitude."""
+        current_limited = FLYBACK_SHAPES.index("current-limited")
+        writes = [(0x2002, current_limited), (0x2000, frequency_mhz), (0x2003, flyback_ns)]
+        if shape != current_limited and shape < len(FLYBACK_SHAPES):
+            writes.append((0x2002, shape))
+        for index, value in [*writes, (0x2001, amplitude_mv)]:
+            self._sdo_write(index, 0, value)
+
+    def step(self, count: int) -> None:
+        if count == 0:
+            raise AmplifierError("step count must not be 0")
+        self._command(int(count))
+
+    def run_continuous(self, forward: bool) -> None:
+        with self._lock:
+            self._sdo_write(0x2011, 0, 1 if forward else -1)
+
+    def stop(self) -> None:
+        self._command(0)
+
+    def wait(self, timeout_s: float) -> bool:
+        with self._changed:
+            done = self._changed.wait_for(
+                lambda: not self._status_word & STATUS_MOVING or self._lost is not None,
+                timeout_s)
+            self._check_link()
+            return done
+
+    def ground(self) -> None:
+        with self._lock:
+            self._sdo_write(0x2005, 0, MODES.index("gnd"))
+
+    def enable(self) -> None:
+        with self._lock:
+            self._sdo_write(0x2005, 0, MODES.index("stp"))
+
+    def clear_faults(self) -> None:
+        """Clear the node's latched fault word (object 0x2016); the output stays grounded."""
+        with self._lock:
+            self._sdo_write(0x2016, 0, 1)
+
+    def status(self) -> AmplifierStatus:
+        with self._lock:
+            mode = self._sdo_read(0x2005, 0)
+            frequency_mhz = self._sdo_read(0x2000, 0)
+            amplitude_mv = self._sdo_read(0x2001, 0)
+            fault_word = self._sdo_read(0x2014, 0)
+            counter = self._sdo_read(0x2012, 0)
+            moving = bool(self._sdo_read(0x2015, 0) & STATUS_MOVING)
+        return AmplifierStatus(
+            mode=MODES[mode] if mode < len(MODES) else str(mode),
+            frequency_hz=frequency_mhz / 1000, amplitude_v=amplitude_mv / 1000,
+            step_counter=counter, moving=moving, fault_word=fault_word,
+            faults=fault_names(fault_word))
+
+    @property
+    def step_counter(self) -> int:
+        """The step counter from the latest TPDO1 (no bus traffic)."""
+        with self._changed:
+            return self._counter
+
+    def close(self) -> None:
+        self._closing.set()
+        if self._watchdog.is_alive():
+            self._watchdog.join(timeout=1.0)
+        self.network.disconnect()
+
+
+class _BusErrors(can.Listener):
+    """Passes exceptions from the bus receiver to a callback instead of killing it."""
+
+    def __init__(self, callback: Callable[[Exception], None]) -> None:
+        self._callback = callback
+
+    def on_message_received(self, msg: can.Message) -> None:
+        """Frames are the network's business."""
+
+    def on_error(self, exc: Exception) -> None:
+        self._callback(exc)

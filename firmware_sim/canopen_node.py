@@ -1,0 +1,427 @@
+"""One firmware axis as a CANopen (CiA 301) node: the CAN front end of the amplifier.
+
+The node is the ``canopen`` package's :class:`canopen.LocalNode` (object
+dictionary from ``feeder_amplifier.eds``, SDO server, NMT slave, heartbeat
+producer, EMCY producer) with the amplifier behind its read/write hooks.  It
+calls the same :class:`firmware_sim.firmware.Axis` API as the ANC300 console:
+one amplifier, two front ends.
+
+What this module adds to ``LocalNode``:
+
+- SDO writes outside the EDS's LowLimit/HighLimit abort with 0x06090031 (too
+  high) / 0x06090032 (too low); values the firmware refuses abort with the same
+  codes when the firmware's own limit is tighter (e.g. a lower amplitude rating),
+  0x06040043 when they conflict with another setting (flyback longer than half
+  a period), 0x08000022 when the axis' state forbids them (stepping while
+  grounded or in fault).  A refused write changes nothing.  (Read-only
+  0x06010002, write-only 0x06010001 and unknown objects 0x06020000 come from
+  ``LocalNode`` itself.)
+- NMT: SDO served in PRE-OPERATIONAL and OPERATIONAL only; PDOs in OPERATIONAL
+  only; any state but OPERATIONAL stops the axis; reset node / reset
+  communication restore the EDS defaults (reset node also grounds the axis),
+  send the boot-up message and enter PRE-OPERATIONAL.
+- TPDO1 (step counter, status word, command acknowledge, error register):
+  transmission type 254/255 sends on change (no faster than the inhibit time)
+  and at least every event-timer period; type 1..240 sends on every n-th SYNC.
+- RPDO1 (step command, command sequence): ``+N``/``-N`` starts a burst, 0 stops;
+  the sequence is echoed in TPDO1's command acknowledge, with status bit 3 set
+  when the firmware refused the command.  A too-short RPDO raises EMCY 0x8210.
+- EMCY when a fault bit latches (code per fault, error register, fault word in
+  bytes 3..6), and EMCY 0x0000 when the fault word is cleared.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import struct
+import threading
+import time
+import zlib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import can
+import canopen
+from canopen.objectdictionary import ODVariable
+from canopen.sdo.exceptions import SdoAbortedError
+
+from feeder.drivers.canopen import (
+    MODES,
+    SHAPE_CODES,
+    STATUS_FAULT,
+    STATUS_MOVING,
+    STATUS_REFUSED,
+    STATUS_STEPPING_MODE,
+)
+from feeder.errors import InputError
+from firmware_sim.firmware import (
+    FLYBACK_SHAPES,
+    STEPPING_MODES,
+    AxisStatus,
+    Fault,
+    Firmware,
+    FirmwareError,
+    LimitError,
+)
+from firmware_sim.slcan import SlcanPty
+
+EDS_PATH = Path(__file__).with_name("feeder_amplifier.eds")
+
+NMT_OPERATIONAL = 5
+NMT_PRE_OPERATIONAL = 127
+NMT_RESET_NODE = 0x81
+NMT_RESET_COMMUNICATION = 0x82
+NMT_ENTER_PRE_OPERATIONAL = 0x80
+SYNC_COB_ID = 0x80
+
+ABORT_RANGE = 0x06090030
+ABORT_TOO_HIGH = 0x06090031
+ABORT_TOO_LOW = 0x06090032
+ABORT_INCOMPATIBLE = 0x06040043
+ABORT_DEVICE_STATE = 0x08000022
+
+EMCY_CODES = {Fault.WATCHDOG: 0x6010, Fault.HOST_WATCHDOG: 0x8130, Fault.OVERTEMP: 0x4200}
+"""EMCY error code per fault bit (CiA 301: software reset/watchdog, life guard,
+device temperature); other bits send 0x1000 (generic)."""
+EMCY_PDO_LENGTH = 0x8210
+ERROR_REGISTER_BITS = {Fault.WATCHDOG: 0x80, Fault.HOST_WATCHDOG: 0x10, Fault.OVERTEMP: 0x08}
+"""Object 0x1001 bits besides bit 0 (generic): manufacturer, communication, temperature."""
+
+LIMIT_FIELDS = {0x2000: "frequency", 0x2001: "voltage", 0x2003: "flyback", 0x2006: "offset",
+                0x2010: "steps"}
+"""The firmware's name (``LimitError.field``) of the value each object sets."""
+
+
+def error_register(fault_word: int) -> int:
+    """Object 0x1001 for a fault word: bit 0 on any fault, plus the class bits."""
+    if not fault_word:
+        return 0
+    register = 0x01
+    for bit, mask in ERROR_REGISTER_BITS.items():
+        if fault_word & bit:
+            register |= mask
+    return register
+
+
+def serial_number_u32(serial: str) -> int:
+    """Object 0x1018:4 from the firmware's serial string: its digits, else a CRC-32."""
+    digits = re.sub(r"\D", "", serial)
+    return int(digits) & 0xFFFFFFFF if digits else zlib.crc32(serial.encode())
+
+
+class CanopenNode:
+    """Axis ``axis`` of ``firmware`` as CANopen node ``node_id`` on ``bus``.
+
+    ``start()`` boots the node (boot-up message, PRE-OPERATIONAL, heartbeat);
+    ``close()`` stops it and shuts the bus down.  ``poll_s`` is how often the
+    node samples the axis for TPDO1 and EMCY.
+    """
+
+    def __init__(self, firmware: Firmware, axis: int, node_id: int, bus: can.BusABC,
+                 eds: str | Path = EDS_PATH, poll_s: float = 0.001) -> None:
+        self.firmware = firmware
+        self.axis = firmware.axis(axis)
+        self.node_id = node_id
+        self.poll_s = poll_s
+        self.local = canopen.LocalNode(node_id, str(eds))
+        self.network = canopen.Network(bus)
+        self.network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
+        self._tpdo_lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stopping = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True,
+                                        name=f"canopen-node-{node_id}")
+        self._ack = 0
+        self._refused = False
+        self._last_command = 0
+        self._sync_count = 0
+        self._fault_reported = 0
+        self._flyback_ns = 0
+        self._tpdo_type = 255
+        self._inhibit_s = 0.0
+        self._event_timer_s = 0.0
+        self._writers: dict[int, Callable[[int], None]] = {
+            0x2000: lambda v: self.axis.set_frequency(v / 1000),
+            0x2001: lambda v: self.axis.set_amplitude(v / 1000),
+            0x2002: self._write_flyback_shape,
+            0x2003: self._write_flyback_time,
+            0x2005: lambda v: self.axis.set_mode(MODES[v]),
+            0x2006: lambda v: self.axis.set_offset(v / 1000),
+            0x2010: self._write_step_command,
+            0x2011: self._write_continuous,
+            0x2016: lambda v: self.axis.clear_faults(),
+        }
+
+    @property
+    def nmt_state(self) -> int:
+        """NMT state code: 0 initialising, 4 stopped, 5 operational, 127 pre-operational."""
+        return int(self.local.nmt._state)
+
+    # -- life cycle -------------------------------------------------------------
+
+    def start(self) -> CanopenNode:
+        local, network = self.local, self.network
+        network.connect()
+        network.add_node(local)
+        network.unsubscribe(local.sdo.rx_cobid, local.sdo.on_request)
+        network.subscribe(local.sdo.rx_cobid, self._on_sdo)
+        network.unsubscribe(0, local.nmt.on_command)
+        network.subscribe(0, self._on_nmt)
+        network.subscribe(SYNC_COB_ID, self._on_sync)
+        local.add_read_callback(self._on_read)
+        local.add_write_callback(self._on_write)
+        local.tpdo.read(from_od=True)
+        local.rpdo.read(from_od=True)
+        self._tpdo = local.tpdo[1]
+        self._rpdo = local.rpdo[1]
+        self._rpdo.add_callback(self._on_rpdo)
+        self._boot(reset_application=False)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the node (no more heartbeats: the host sees it vanish)."""
+        self._stopping.set()
+        self._wake.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        self.local.nmt.stop_heartbeat()
+        self.network.disconnect()
+
+    def __enter__(self) -> CanopenNode:
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def _boot(self, reset_application: bool) -> None:
+        """Restore defaults, send the boot-up message and enter PRE-OPERATIONAL."""
+        store = self.local.data_store
+        for index in list(store):
+            if reset_application or index < 0x2000:
+                del store[index]
+        if reset_application:
+            self.axis.ground()
+            self._flyback_ns = 0
+            self._last_command = 0
+        self._tpdo_type = self._default(0x1800, 2)
+        self._inhibit_s = self._default(0x1800, 3) * 100e-6
+        self._event_timer_s = self._default(0x1800, 5) / 1000
+        self._sync_count = 0
+        self.local.nmt.send_command(0x81)  # state INITIALISING: boot-up message
+        self.local.nmt.send_command(NMT_ENTER_PRE_OPERATIONAL)  # starts the heartbeat
+
+    def _default(self, index: int, subindex: int) -> int:
+        """An object's DefaultValue from the EDS."""
+        variable = self.local.object_dictionary.get_variable(index, subindex)
+        assert variable is not None and isinstance(variable.default, int)
+        return variable.default
+
+    # -- CAN services -----------------------------------------------------------
+
+    def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if self.nmt_state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL) and len(data) == 8:
+            self.firmware.host_activity()
+            self.local.sdo.on_request(can_id, data, timestamp)
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) < 2 or data[1] not in (0, self.node_id) \
+                or data[0] not in canopen.nmt.COMMAND_TO_STATE:
+            return
+        if canopen.nmt.COMMAND_TO_STATE[data[0]] != NMT_OPERATIONAL:
+            self.axis.stop()  # before the heartbeat announces the new state
+        self.local.nmt.on_command(can_id, data, timestamp)
+        if data[0] in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
+            self._boot(reset_application=data[0] == NMT_RESET_NODE)
+        self._wake.set()
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if self.nmt_state != NMT_OPERATIONAL or not 1 <= self._tpdo_type <= 240:
+            return
+        self._sync_count += 1
+        if self._sync_count % self._tpdo_type == 0:
+            self._send_tpdo(self.axis.status())
+
+    def _on_rpdo(self, pdo: Any) -> None:
+        if self.nmt_state != NMT_OPERATIONAL:
+            return
+        if len(pdo.data) * 8 < pdo.length:
+            self.local.emcy.send(EMCY_PDO_LENGTH, error_register(self._fault_reported))
+            return
+        self.firmware.host_activity()
+        count = int(pdo["Step command"].raw)
+        try:
+            self._write_step_command(count)
+            self._refused = False
+        except FirmwareError:
+            self._refused = True
+        self._ack = int(pdo["Command sequence"].raw)
+        self._wake.set()
+
+    # -- object dictionary hooks ------------------------------------------------
+
+    def _on_read(self, index: int, subindex: int, od: ODVariable) -> int | None:
+        if index == 0x1018 and subindex == 4:
+            return serial_number_u32(self.firmware.config.serial_number)
+        if index == 0x2020:
+            return round(self.firmware.config.amplifier.max_amplitude_vpp * 1000)
+        if index == 0x2003:
+            return self._flyback_ns
+        if index == 0x2010:
+            return self._last_command
+        if index in (0x1001, 0x2000, 0x2001, 0x2002, 0x2005, 0x2006, 0x2012, 0x2013, 0x2014,
+                     0x2015, 0x2019):
+            return self._live_value(index, self.axis.status())
+        return None
+
+    def _live_value(self, index: int, status: AxisStatus) -> int:
+        """Value of an object that mirrors the axis' state."""
+        if index == 0x1001:
+            return error_register(status.fault_word)
+        if index == 0x2015:
+            word = STATUS_MOVING if status.moving else 0
+            word |= STATUS_STEPPING_MODE if status.mode in STEPPING_MODES else 0
+            word |= STATUS_FAULT if status.fault_word else 0
+            return word | (STATUS_REFUSED if self._refused else 0)
+        if index == 0x2019:
+            return self._ack
+        return {
+            0x2000: round(status.frequency_hz * 1000),
+            0x2001: round(status.amplitude_v * 1000),
+            0x2002: SHAPE_CODES.index(status.flyback_shape),
+            0x2005: MODES.index(status.mode),
+            0x2006: round(status.offset_v * 1000),
+            0x2012: status.step_counter,
+            0x2013: round(status.output_v * 1000),
+            0x2014: status.fault_word,
+        }[index]
+
+    def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
+        value = od.decode_raw(data)
+        if not isinstance(value, int):
+            return
+        if od.min is not None and value < od.min:
+            raise SdoAbortedError(ABORT_TOO_LOW)
+        if od.max is not None and value > od.max:
+            raise SdoAbortedError(ABORT_TOO_HIGH)
+        if index == 0x1800:
+            self._write_tpdo_parameter(subindex, value)
+            return
+        writer = self._writers.get(index)
+        if writer is None:
+            return
+        try:
+            writer(value)
+        except LimitError as exc:
+            if exc.field != LIMIT_FIELDS.get(index):
+                raise SdoAbortedError(ABORT_INCOMPATIBLE) from exc
+            raise SdoAbortedError(ABORT_TOO_HIGH if exc.value > exc.hi else ABORT_TOO_LOW) \
+                from exc
+        except FirmwareError as exc:
+            raise SdoAbortedError(ABORT_DEVICE_STATE) from exc
+        finally:
+            self._wake.set()
+
+    def _write_tpdo_parameter(self, subindex: int, value: int) -> None:
+        if subindex == 2:
+            if 240 < value < 254:
+                raise SdoAbortedError(ABORT_RANGE)
+            self._tpdo_type = value
+            self._sync_count = 0
+        elif subindex == 3:
+            self._inhibit_s = value * 100e-6
+        elif subindex == 5:
+            self._event_timer_s = value / 1000
+
+    def _write_flyback_shape(self, code: int) -> None:
+        self.axis.set_flyback(FLYBACK_SHAPES[code], self._flyback_ns / 1e9)
+
+    def _write_flyback_time(self, ns: int) -> None:
+        shape = self.axis.status().flyback_shape
+        if shape in ("linear", "half-cosine"):
+            self.axis.set_flyback(shape, ns / 1e9)
+        self._flyback_ns = ns
+
+    def _write_step_command(self, count: int) -> None:
+        if count == 0:
+            self.axis.stop()
+        else:
+            self.axis.step(count)
+        self._last_command = count
+
+    def _write_continuous(self, direction: int) -> None:
+        if direction == 0:
+            self.axis.stop()
+        else:
+            self.axis.run_continuous(up=direction > 0)
+
+    # -- TPDO1 and EMCY ---------------------------------------------------------
+
+    def _pack_tpdo(self, status: AxisStatus) -> bytes:
+        """Fill TPDO1 from ``status`` per its mapping (call with ``_tpdo_lock`` held)."""
+        for variable in self._tpdo.map:
+            variable.set_data(variable.od.encode_raw(self._live_value(variable.index, status)))
+        return bytes(self._tpdo.data)
+
+    def _send_tpdo(self, status: AxisStatus) -> None:
+        with self._tpdo_lock:
+            self._pack_tpdo(status)
+            self._tpdo.transmit()
+
+    def _report_faults(self, fault_word: int) -> None:
+        new = fault_word & ~self._fault_reported
+        register = error_register(fault_word)
+        detail = struct.pack("<IB", fault_word, 0)
+        for bit in Fault:
+            if new & bit:
+                self.local.emcy.send(EMCY_CODES.get(bit, 0x1000), register, detail)
+        if self._fault_reported and not fault_word:
+            self.local.emcy.reset(0, detail)
+        self._fault_reported = fault_word
+
+    def _run(self) -> None:
+        """Sample the axis every ``poll_s``: EMCY on fault changes, TPDO1 when due."""
+        last_data: bytes | None = None
+        last_sent = 0.0
+        while not self._stopping.is_set():
+            self._wake.wait(self.poll_s)
+            self._wake.clear()
+            status = self.axis.status()
+            state = self.nmt_state
+            if state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL) \
+                    and status.fault_word != self._fault_reported:
+                self._report_faults(status.fault_word)
+            if state != NMT_OPERATIONAL or self._tpdo_type < 254:
+                last_data = None
+                continue
+            now = time.monotonic()
+            with self._tpdo_lock:
+                data = self._pack_tpdo(status)
+                changed = data != last_data and now - last_sent >= self._inhibit_s
+                timer_due = self._event_timer_s > 0 and now - last_sent >= self._event_timer_s
+                if changed or timer_due:
+                    self._tpdo.transmit()
+                    last_data, last_sent = data, now
+
+
+def serve_slcan_pty(firmware: Firmware, node_id_base: int = 1) -> tuple[str, Callable[[], None]]:
+    """Every configured axis as a node (id = ``node_id_base`` + axis − 1) behind an
+    emulated SLCAN adapter; returns the pty path and a function that stops it all."""
+    if not 1 <= node_id_base <= 128 - max(firmware.axis_numbers):
+        raise InputError("--can-node-id-base",
+                         f"node ids {node_id_base}..{node_id_base + max(firmware.axis_numbers) - 1}"
+                         " leave CANopen's 1..127")
+    channel = f"firmware_sim-can-{os.getpid()}-{id(firmware):x}"
+    adapter = SlcanPty(can.Bus(interface="virtual", channel=channel)).start()
+    nodes = [CanopenNode(firmware, axis, node_id_base + axis - 1,
+                         can.Bus(interface="virtual", channel=channel)).start()
+             for axis in firmware.axis_numbers]
+
+    def close() -> None:
+        for node in nodes:
+            node.close()
+        adapter.close()
+
+    return adapter.path, close
