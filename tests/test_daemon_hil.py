@@ -32,6 +32,22 @@ SIM_ARGS = ["--tau-offset=0.15", "--seed=5"]
 pytestmark = pytest.mark.timeout(120)
 
 
+def _can_available() -> bool:
+    """The CANopen driver and firmware_sim's slcan front end are present."""
+    try:
+        import feeder.drivers.canopen  # noqa: F401
+    except ImportError:
+        return False
+    help_text = subprocess.run([sys.executable, "-m", "firmware_sim", "--help"], cwd=ROOT,
+                               capture_output=True, text=True,
+                               env={**os.environ, "PYTHONPATH": str(ROOT)}).stdout
+    return "slcan-pty" in help_text
+
+
+TRANSPORTS = ["serial", pytest.param("can", marks=pytest.mark.skipif(
+    not _can_available(), reason="CANopen link not available"))]
+
+
 class DaemonProcess:
     """``python -m feeder daemon --json`` in a child process, with its ready object."""
 
@@ -115,8 +131,10 @@ def true_coarse_steps(daemon: DaemonProcess, status: dict[str, Any]) -> tuple[fl
     return steps[0], steps[1]
 
 
-def test_moves_converge_and_the_step_is_learned_within_5_percent(base: Path) -> None:
-    daemon = DaemonProcess(base)
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_moves_converge_and_the_step_is_learned_within_5_percent(base: Path,
+                                                                   transport: str) -> None:
+    daemon = DaemonProcess(base, f"--transport={transport}")
     try:
         calibrated = daemon.request("calibrate", steps=20)
         assert calibrated["ok"], calibrated
@@ -166,9 +184,10 @@ def test_sigkill_mid_move_restarts_with_calibration_and_history(base: Path) -> N
     assert confirmed["position_m"] is not None
 
 
-def test_link_loss_faults_reconnects_and_does_not_resume(base: Path) -> None:
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_link_loss_faults_reconnects_and_does_not_resume(base: Path, transport: str) -> None:
     # a frozen firmware must not trip its own tick watchdog for this test
-    daemon = DaemonProcess(base, "--sim-arg=--watchdog-s=60")
+    daemon = DaemonProcess(base, f"--transport={transport}", "--sim-arg=--watchdog-s=60")
     sim = daemon.ready["simulator_pid"]
     try:
         assert daemon.request("move", target_m=4e-3, wait=False)["ok"]

@@ -19,6 +19,7 @@ deadline) and overruns (work that ran past the next deadline) are counted.
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
 import threading
 import time
@@ -194,7 +195,10 @@ class SensorFeed:
         return out
 
     def close(self) -> None:
+        """Stop reading and close the sensor's link."""
         self._closing = True
+        with contextlib.suppress(Exception):
+            self.sensor.close()
         self._thread.join(timeout=self.timeout_s + 1.0)
 
 
@@ -414,9 +418,11 @@ class ControlLoop:
         except AmplifierError as err:
             self._safe_stop()
             self._finish(job, "fault", f"amplifier refused: {err}")
+        except Exception as err:  # a driver failing in an unforeseen way: treat as a lost link
+            self._link_lost(job, f"{type(err).__name__}: {err}")
 
     def _link_lost(self, job: Job, message: str) -> None:
-        with self._lock:
+        with self._lock:           # fault first: no new job slips in between
             self.fault = f"amplifier link lost: {message}"
         self._finish(job, "fault", self.fault)
         if self.on_fault is not None:
@@ -425,13 +431,17 @@ class ControlLoop:
     def _safe_stop(self) -> None:
         try:
             self.amplifier.stop()
-        except AmplifierLinkLost as err:
-            with self._lock:
-                self.fault = f"amplifier link lost: {err}"
-            if self.on_fault is not None:
-                self.on_fault("amplifier", str(err))
-        except AmplifierError:
-            pass
+        except AmplifierError as err:
+            if isinstance(err, AmplifierLinkLost):
+                self._mark_link_lost(str(err))
+        except Exception as err:  # see tick()
+            self._mark_link_lost(f"{type(err).__name__}: {err}")
+
+    def _mark_link_lost(self, message: str) -> None:
+        with self._lock:
+            self.fault = f"amplifier link lost: {message}"
+        if self.on_fault is not None:
+            self.on_fault("amplifier", message)
 
     def _follow_burst(self, job: Job, now: float) -> None:
         burst = job.burst

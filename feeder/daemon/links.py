@@ -20,6 +20,9 @@ from feeder.drivers.sensor import PositionSensor
 from feeder.errors import InputError
 
 SLCAN_BITRATE = 500_000
+CAN_HEARTBEAT_S = 0.25
+"""Node heartbeat period the daemon asks for: a few lost periods mark the node dead, so a
+loaded host must not miss one (``[amplifier.can] heartbeat_s`` overrides it)."""
 
 
 class DriverLinks:
@@ -38,8 +41,10 @@ class DriverLinks:
             from feeder.drivers.canopen import CanopenAmplifier  # python-can only when used
 
             node_id = int(self.amplifier_address.get("node_id", 1))
-            bus = {k: v for k, v in self.amplifier_address.items() if k != "node_id"}
-            return CanopenAmplifier(bus, node_id, timeout_s=amp.timeout_s)
+            heartbeat = float(self.amplifier_address.get("heartbeat_s", CAN_HEARTBEAT_S))
+            bus = {k: v for k, v in self.amplifier_address.items()
+                   if k not in ("node_id", "heartbeat_s")}
+            return CanopenAmplifier(bus, node_id, heartbeat_s=heartbeat, timeout_s=amp.timeout_s)
         return Anc300Amplifier.open(self.amplifier_address, amp.axis, timeout_s=amp.timeout_s)
 
     def open_sensor(self) -> PositionSensor:
@@ -92,7 +97,8 @@ def open_links(config: DaemonConfig, log_path: Path | None = None) -> DriverLink
         if amp.transport == "can":
             address = {"interface": "slcan", "channel": ends["slcan_pty"],
                        "bitrate": SLCAN_BITRATE, "sleep_after_open": 0,
-                       "node_id": int(amp.can.get("node_id", 1))}
+                       "node_id": int(amp.can.get("node_id", 1)),
+                       "heartbeat_s": float(amp.can.get("heartbeat_s", CAN_HEARTBEAT_S))}
         else:
             address = ends["console_pty"]
         sensor = ends["sensor_tcp"]

@@ -47,7 +47,7 @@ from feeder.daemon.control_loop import (
 )
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.daemon.store import Calibration, Store
-from feeder.drivers.amplifier import Amplifier, AmplifierError
+from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import InputError
 
@@ -187,9 +187,10 @@ class Daemon:
         for job in queued:
             self._refuse_queued(job, "daemon shutting down")
         self.loop.shutdown()
-        with contextlib.suppress(AmplifierError):
+        with contextlib.suppress(Exception):     # a dead link must not stop the shutdown
             self.loop.amplifier.ground()
-        self.loop.amplifier.close()
+        with contextlib.suppress(Exception):
+            self.loop.amplifier.close()
         if self._server is not None:
             self._server.close()
             with contextlib.suppress(FileNotFoundError):
@@ -257,8 +258,9 @@ class Daemon:
 
     # -- faults ----------------------------------------------------------------
     def _on_fault(self, kind: str, message: str) -> None:
+        record: dict[str, Any] = {"link": kind, "message": message, "time_s": time.time()}
         with self._lock:
-            self._faults.append({"link": kind, "message": message, "time_s": time.time()})
+            self._faults.append(record)
             del self._faults[:-20]
             if kind in self._reconnecting or self._stopping.is_set():
                 return
@@ -267,13 +269,17 @@ class Daemon:
         for job in queued:
             self._refuse_queued(job, f"{kind} lost: {message}")
         if kind == "amplifier":
-            with contextlib.suppress(AmplifierError):
+            # ground where the link still allows it, then free the port for the reconnect
+            with contextlib.suppress(Exception):
                 self.loop.amplifier.ground()
-        thread = threading.Thread(target=self._reconnect, args=(kind,), name=f"reconnect-{kind}",
-                                  daemon=True)
+            with contextlib.suppress(Exception):
+                self.loop.amplifier.close()
+        thread = threading.Thread(target=self._reconnect, args=(kind, record),
+                                  name=f"reconnect-{kind}", daemon=True)
         thread.start()
 
-    def _reconnect(self, kind: str) -> None:
+    def _reconnect(self, kind: str, record: dict[str, Any]) -> None:
+        """Re-open the lost link with exponential backoff; progress goes into ``record``."""
         delay = BACKOFF_FIRST_S
         attempts = 0
         while not self._stopping.wait(delay):
@@ -281,20 +287,22 @@ class Daemon:
             try:
                 if kind == "amplifier":
                     amp = self.links.open_amplifier()
-                    amp.ground()
-                    old = self.loop.amplifier
+                    try:
+                        amp.ground()
+                    except BaseException:
+                        amp.close()
+                        raise
                     self.loop.replace_amplifier(amp)
-                    old.close()
                 else:
                     self.loop.replace_sensor(self.links.open_sensor())
-            except (AmplifierError, OSError, RuntimeError) as err:
+            except Exception as err:  # any failure to open is retried with backoff
                 with self._lock:
-                    self._faults[-1]["reconnect_attempts"] = attempts
-                    self._faults[-1]["last_error"] = str(err)
+                    record["reconnect_attempts"] = attempts
+                    record["last_error"] = f"{type(err).__name__}: {err}"
                 delay = min(2 * delay, BACKOFF_MAX_S)
                 continue
             with self._lock:
-                self._faults[-1]["reconnected_after_attempts"] = attempts
+                record["reconnected_after_attempts"] = attempts
             break
         with self._lock:
             self._reconnecting.discard(kind)
