@@ -1,4 +1,8 @@
-"""Hardware in the loop: host driver ↔ pty ↔ firmware_sim ↔ plant, position from its camera."""
+"""Hardware in the loop: host driver ↔ pty ↔ firmware_sim ↔ plant, position from its camera.
+
+Every test runs over both links with the same assertions: ``serial`` (ANC300
+console on a pty) and ``can`` (CANopen node behind the emulated SLCAN adapter).
+"""
 
 from __future__ import annotations
 
@@ -11,9 +15,10 @@ import numpy as np
 import pytest
 
 from feeder.daemon.launcher import Simulator
-from feeder.drivers.amplifier import AmplifierLinkLost, DriveSettings
+from feeder.drivers.amplifier import Amplifier, AmplifierLinkLost, DriveSettings
 from feeder.drivers.anc300 import Anc300Amplifier
 from feeder.drivers.camera import StreamCamera
+from feeder.drivers.canopen import CanopenAmplifier
 from feeder.drivers.sensor import SensorLost
 
 pytestmark = pytest.mark.timeout(120)
@@ -24,16 +29,30 @@ SETTLE_S = 0.1
 PAPER = DriveSettings(frequency_hz=100.0, amplitude_v=200.0, flyback_shape="current-limited")
 
 
-def start() -> Simulator:
+TRANSPORTS = ("serial", "can")
+HEARTBEAT_S = 0.2
+
+
+def start(transport: str = "serial") -> Simulator:
+    can = ["--can", "slcan-pty"] if transport == "can" else []
     return Simulator(["--console", "pty", "--sensor", "tcp:127.0.0.1:0", "--seed", "7",
                       "--scatter", str(SCATTER), "--camera-noise-m", str(NOISE_M),
-                      "--camera-rate-hz", "200", "--camera-latency-s", "0.005"])
+                      "--camera-rate-hz", "200", "--camera-latency-s", "0.005", *can])
 
 
-@pytest.fixture(scope="module")
-def rig() -> Iterator[tuple[Simulator, Anc300Amplifier, StreamCamera]]:
-    sim = start()
-    amp = Anc300Amplifier.open(sim.endpoints["console_pty"], axis=1, timeout_s=2.0)
+def open_amplifier(sim: Simulator, transport: str, timeout_s: float) -> Amplifier:
+    """Axis 1 over the console pty, or CANopen node 1 over the slcan pty."""
+    if transport == "can":
+        bus = {"interface": "slcan", "channel": sim.endpoints["slcan_pty"], "bitrate": 500000,
+               "sleep_after_open": 0}
+        return CanopenAmplifier(bus, node_id=1, heartbeat_s=HEARTBEAT_S, timeout_s=timeout_s)
+    return Anc300Amplifier.open(sim.endpoints["console_pty"], axis=1, timeout_s=timeout_s)
+
+
+@pytest.fixture(scope="module", params=TRANSPORTS)
+def rig(request: pytest.FixtureRequest) -> Iterator[tuple[Simulator, Amplifier, StreamCamera]]:
+    sim = start(request.param)
+    amp = open_amplifier(sim, request.param, timeout_s=2.0)
     camera = StreamCamera(sim.endpoints["sensor_tcp"])
     yield sim, amp, camera
     camera.close()
@@ -55,14 +74,16 @@ def position(camera: StreamCamera, frames: int = 8) -> float:
 
 @pytest.mark.parametrize("count", [30, -30])
 def test_n_steps_move_the_part_n_true_steps(
-        rig: tuple[Simulator, Anc300Amplifier, StreamCamera], count: int) -> None:
+        rig: tuple[Simulator, Amplifier, StreamCamera], count: int) -> None:
     sim, amp, camera = rig
     amp.apply(PAPER)
     amp.enable()
-    up, down = (float(v.split()[2]) for v in amp.link.query("simstep 1"))
-    # the ready line publishes the same true step for the same waveform
-    assert up == pytest.approx(sim.ready["true"]["step_up_m"], rel=1e-6)
-    assert down == pytest.approx(sim.ready["true"]["step_down_m"], rel=1e-6)
+    up, down = sim.ready["true"]["step_up_m"], sim.ready["true"]["step_down_m"]
+    if isinstance(amp, Anc300Amplifier):
+        # the ready line publishes the same true step for the same waveform
+        console_up, console_down = (float(v.split()[2]) for v in amp.link.query("simstep 1"))
+        assert console_up == pytest.approx(up, rel=1e-6)
+        assert console_down == pytest.approx(down, rel=1e-6)
     amp.step(count // abs(count))  # start from the rest state of this direction
     assert amp.wait(2.0)
     start_m = position(camera)
@@ -75,7 +96,7 @@ def test_n_steps_move_the_part_n_true_steps(
     assert abs(expected) > 50e-6
 
 
-def test_grounding_stops_motion(rig: tuple[Simulator, Anc300Amplifier, StreamCamera]) -> None:
+def test_grounding_stops_motion(rig: tuple[Simulator, Amplifier, StreamCamera]) -> None:
     _, amp, camera = rig
     amp.apply(PAPER)
     amp.enable()
@@ -90,10 +111,11 @@ def test_grounding_stops_motion(rig: tuple[Simulator, Anc300Amplifier, StreamCam
     assert status.mode == "gnd" and not status.moving
 
 
-def test_killed_firmware_is_reported_within_one_timeout() -> None:
-    sim = start()
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_killed_firmware_is_reported_within_one_timeout(transport: str) -> None:
+    sim = start(transport)
     timeout_s = 1.0
-    amp = Anc300Amplifier.open(sim.endpoints["console_pty"], axis=1, timeout_s=timeout_s)
+    amp = open_amplifier(sim, transport, timeout_s)
     camera = StreamCamera(sim.endpoints["sensor_tcp"])
     try:
         assert amp.status().mode == "gnd"
@@ -111,5 +133,28 @@ def test_killed_firmware_is_reported_within_one_timeout() -> None:
             amp.status()
     finally:
         camera.close()
+        amp.close()
+        sim.stop()
+
+
+def test_frozen_can_node_is_reported_within_three_heartbeats() -> None:
+    """SIGSTOP keeps the pty open but silences the node: only the heartbeat tells."""
+    sim = start("can")
+    amp = open_amplifier(sim, "can", timeout_s=1.0)
+    assert isinstance(amp, CanopenAmplifier)
+    try:
+        assert amp.status().mode == "gnd"
+        os.kill(sim.process.pid, signal.SIGSTOP)
+        start_s = time.monotonic()
+        while amp.lost is None and time.monotonic() - start_s < 5.0:
+            time.sleep(0.005)
+        assert time.monotonic() - start_s <= 3 * HEARTBEAT_S
+        assert "no heartbeat" in (amp.lost or "")
+        begin = time.monotonic()
+        with pytest.raises(AmplifierLinkLost):  # and it is no longer commanded
+            amp.step(10)
+        assert time.monotonic() - begin < 0.05
+    finally:
+        os.kill(sim.process.pid, signal.SIGCONT)
         amp.close()
         sim.stop()

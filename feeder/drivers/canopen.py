@@ -23,6 +23,7 @@ The code tables below are the node's protocol (documented in the EDS comments);
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -332,7 +333,9 @@ class CanopenAmplifier(Amplifier):
         self._closing.set()
         if self._watchdog.is_alive():
             self._watchdog.join(timeout=1.0)
-        self.network.disconnect()
+        # the adapter may be gone already (e.g. its pty closed): nothing left to release
+        with contextlib.suppress(can.CanError, OSError):
+            self.network.disconnect()
 
 
 class _BusErrors(can.Listener):
