@@ -252,3 +252,16 @@ def test_a_second_daemon_on_the_same_socket_is_refused(short_dir: Path) -> None:
             bind_socket(short_dir / "run" / "f.sock")
     finally:
         daemon.shutdown()
+
+
+def test_a_second_daemon_on_the_same_state_directory_is_refused(short_dir: Path) -> None:
+    daemon, _ = start(short_dir)
+    other = make_setup(short_dir)
+    other = DaemonSetup(**{**other.__dict__, "socket_path": short_dir / "run" / "g.sock"})
+    try:
+        with pytest.raises(InputError, match="another daemon is using this state directory"):
+            Daemon(FakeLinks(FakeWorld(TRUE)), other)
+    finally:
+        daemon.shutdown()
+    again = Daemon(FakeLinks(FakeWorld(TRUE)), other)      # free once the first one is gone
+    again.shutdown()

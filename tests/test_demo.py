@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import subprocess
@@ -30,7 +31,7 @@ def test_demo_json_summary_and_plot(tmp_path: Path) -> None:
     assert summary["max_error_m"] == max(abs(m["error_m"]) for m in moves)
     assert summary["max_error_m"] <= summary["tolerance_m"] == 1e-6
     targets = [m["target_m"] for m in moves]
-    steps = [b - a for a, b in zip(targets, targets[1:], strict=False)]
+    steps = [b - a for a, b in itertools.pairwise(targets)]
     assert any(s > 0 for s in steps) and any(s < 0 for s in steps)   # both ways
     assert summary["duration_s"] > 0
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

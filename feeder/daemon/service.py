@@ -22,6 +22,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import dataclasses
+import fcntl
 import json
 import os
 import socket
@@ -32,7 +33,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import IO, Any, Protocol
 
 from feeder.daemon.client import MAX_LINE_BYTES, check_owned_by_me
 from feeder.daemon.control_loop import (
@@ -133,6 +134,22 @@ def bind_socket(socket_path: Path) -> socket.socket:
     return sock
 
 
+def lock_state(database_path: Path) -> IO[bytes]:
+    """An exclusive lock beside the database (released when the process dies, even by SIGKILL).
+
+    Raises :class:`InputError` when another daemon holds it.
+    """
+    database_path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    handle = open(database_path.with_name(database_path.name + ".lock"), "ab")  # noqa: SIM115
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.close()
+        raise InputError(str(database_path.parent),
+                         "another daemon is using this state directory") from None
+    return handle
+
+
 def peer_uid(conn: socket.socket) -> int:
     """The connecting process' uid (Linux SO_PEERCRED)."""
     creds = conn.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
@@ -145,24 +162,30 @@ class Daemon:
     def __init__(self, links: Links, setup: DaemonSetup) -> None:
         self.links = links
         self.setup = setup
-        self.store = Store(setup.database_path)
-        self.interrupted_moves = self.store.interrupt_running_moves()
-        self.last_known = self.store.position()
         self._stopping = threading.Event()
         self._lock = threading.Lock()
         self._queue: collections.deque[Job] = collections.deque()
         self._clients = 0
         self._faults: list[dict[str, Any]] = []
         self._reconnecting: set[str] = set()
-        self.amplifier = links.open_amplifier()
-        self.amplifier.ground()
-        self.loop = ControlLoop(
-            self.amplifier, links.open_sensor(), setup.modes, setup.loop,
-            estimates=self._restored_estimates(), on_position=self.store.save_position,
-            on_fault=self._on_fault, sensor_timeout_s=setup.sensor_timeout_s,
-        )
         self._server: socket.socket | None = None
         self._threads: list[threading.Thread] = []
+        self._state_lock = lock_state(setup.database_path)
+        with contextlib.ExitStack() as undo:      # on failure: release what was opened
+            undo.callback(self._state_lock.close)
+            self.store = Store(setup.database_path)
+            undo.callback(self.store.close)
+            self.interrupted_moves = self.store.interrupt_running_moves()
+            amplifier = links.open_amplifier()
+            undo.callback(amplifier.close)
+            amplifier.ground()
+            sensor = links.open_sensor()
+            self.loop = ControlLoop(
+                amplifier, sensor, setup.modes, setup.loop,
+                estimates=self._restored_estimates(), on_position=self.store.save_position,
+                on_fault=self._on_fault, sensor_timeout_s=setup.sensor_timeout_s,
+            )
+            undo.pop_all()
 
     # -- life cycle --------------------------------------------------------
     def start(self) -> None:
@@ -196,6 +219,7 @@ class Daemon:
             with contextlib.suppress(FileNotFoundError):
                 self.setup.socket_path.unlink()
         self.store.close()
+        self._state_lock.close()
 
     # -- calibration persistence -------------------------------------------
     def _key(self, mode_direction: str) -> str:
