@@ -6,6 +6,8 @@ import json
 import os
 import shutil
 import socket
+import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -265,3 +267,44 @@ def test_a_second_daemon_on_the_same_state_directory_is_refused(short_dir: Path)
         daemon.shutdown()
     again = Daemon(FakeLinks(FakeWorld(TRUE)), other)      # free once the first one is gone
     again.shutdown()
+
+
+OTHER_USER_CONNECT = """
+import os, socket, sys
+os.setgid(65534); os.setuid(65534)
+s = socket.socket(socket.AF_UNIX)
+try:
+    s.connect(sys.argv[1])
+except PermissionError:
+    print("EACCES"); sys.exit(0)
+s.sendall(b'{"cmd": "status"}\\n')
+print(s.makefile().readline().strip())
+"""
+
+
+def test_other_users_cannot_use_the_socket(short_dir: Path) -> None:
+    if os.getuid() != 0:
+        pytest.skip("needs root to act as another user")
+    daemon, _ = start(short_dir)
+    sock = short_dir / "run" / "f.sock"
+    try:
+        short_dir.chmod(0o755)
+
+        def as_nobody() -> str:
+            done = subprocess.run([sys.executable, "-c", OTHER_USER_CONNECT, str(sock)],
+                                  capture_output=True, text=True, timeout=30)
+            return done.stdout.strip()
+
+        sock.parent.chmod(0o755)
+        blocked_by_mode = as_nobody()                 # socket 0600: cannot connect at all
+        sock.chmod(0o666)                             # even if the mode were opened up ...
+        answer = as_nobody()                          # ... the peer's uid is checked
+        sock.chmod(0o600)
+        sock.parent.chmod(0o700)
+        with Client(sock) as client:
+            still = client.request("status")
+    finally:
+        daemon.shutdown()
+    assert blocked_by_mode == "EACCES"
+    assert json.loads(answer) == {"ok": False, "error": "permission denied: not the owner"}
+    assert still["ok"]
