@@ -7,7 +7,9 @@ decide.  *Burst*: command ``n`` whole steps and wait until the amplifier
 reports the burst done.  Far from the target the *coarse* waveform aims one
 coarse step short (never past the target); the last stretch uses the *fine*
 waveform, whose step is at most twice the tolerance, so the final error is
-at most half a fine step plus scatter: no overshoot, no hunting.
+at most half a fine step plus scatter: no overshoot, no hunting.  A part that
+lands within tolerance but more than half a fine step away gets one more fine
+step (once per move).
 
 The loop stops a move on request, on stall (bursts that move the part by less
 than ``stall_fraction`` of what the estimate predicts), on travel limits
@@ -153,6 +155,7 @@ class Job:
         self.bursts = 0
         self.stalls = 0
         self.reversals = 0
+        self.refined = False
         self.last_direction: str | None = None
         self.trace: list[tuple[float, float]] = []
         self.burst: Burst | None = None
@@ -512,12 +515,17 @@ class ControlLoop:
         if job.bursts >= s.max_bursts:
             return ("unreachable", f"no convergence after {job.bursts} bursts")
         error = job.target_m - x
-        if abs(error) <= s.tolerance_m:
-            return ("done", "within tolerance")
         direction = FORWARD if error > 0 else BACKWARD
         distance = abs(error)
         coarse = self.estimators[f"{COARSE}/{direction}"].estimate
         fine = self.estimators[f"{FINE}/{direction}"].usable_step_m()
+        if distance <= s.tolerance_m:
+            # within tolerance; one fine step more when it brings the part closer (once per
+            # move, so it can never start hunting)
+            if job.refined or distance <= 0.5 * fine:
+                return ("done", "within tolerance")
+            job.refined = True
+            return Burst(FINE, direction, 1)
         # aim one step short with a pessimistic (mean + 2σ) step: never past the target
         coarse_high = coarse.step_m + 2 * coarse.std_m
         coarse_steps = math.floor(distance / coarse_high) - 1
