@@ -520,15 +520,30 @@ def _lookup(table: np.ndarray, phases: np.ndarray) -> np.ndarray:
 
 
 def _slew_limit(target: np.ndarray, start: int, max_step: int) -> np.ndarray:
-    """Codes that follow ``target`` from ``start`` moving at most ``max_step`` per sample."""
-    if abs(int(target[0]) - start) <= max_step and (
-            target.size < 2 or int(np.abs(target[1:] - target[:-1]).max()) <= max_step):
-        return target
-    out = np.empty_like(target)
+    """Codes that follow ``target`` from ``start`` moving at most ``max_step`` per sample.
+
+    Spans that follow the target are found vectorised; only the limited runs
+    (flybacks, jumps) are stepped sample by sample until they meet the target.
+    """
+    out = target.copy()
     code = start
-    for i, want in enumerate(target.tolist()):
-        code += max(-max_step, min(max_step, want - code))
-        out[i] = code
+    i = 0
+    n = target.size
+    while i < n:
+        previous = np.concatenate(([code], target[i:n - 1]))
+        jumps = np.flatnonzero(np.abs(target[i:] - previous) > max_step)
+        if not jumps.size:
+            break
+        j = i + int(jumps[0])
+        code = int(out[j - 1]) if j > 0 else start
+        while j < n:
+            want = int(target[j])
+            code += max(-max_step, min(max_step, want - code))
+            out[j] = code
+            j += 1
+            if code == want:
+                break
+        i = j
     return out
 
 

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from feeder.plant.amplifier import AmplifierLimits
 from firmware_sim.clock import VirtualClock
@@ -15,6 +17,7 @@ from firmware_sim.firmware import (
     FirmwareConfig,
     FirmwareError,
     LimitError,
+    _slew_limit,
 )
 
 
@@ -256,3 +259,16 @@ def test_ground_acts_from_the_next_played_sample_not_after_the_buffer() -> None:
                                rtol=1e-9)
     assert np.all(after[ramp + 1:] == 0.0)
     assert axis.status().step_counter == 0
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.integers(0, 65535), min_size=1, max_size=80), st.integers(0, 65535),
+       st.integers(1, 5000))
+def test_slew_limiter_matches_the_sample_by_sample_definition(
+        target: list[int], start: int, max_step: int) -> None:
+    expected, code = [], start
+    for want in target:
+        code += max(-max_step, min(max_step, want - code))
+        expected.append(code)
+    got = _slew_limit(np.array(target, dtype=np.int64), start, max_step)
+    assert got.tolist() == expected
