@@ -16,7 +16,8 @@ import sys
 from pathlib import Path
 
 BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "loop_jitter", "summits",
-                               "console_rtt", "tick_jitter", "sdo_rtt", "pdo_rate")
+                               "console_rtt", "tick_jitter", "sdo_rtt", "pdo_rate",
+                               "stickslip", "plant_realtime")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,8 +17,8 @@ Two drivers of the same interval update, :func:`advance_interval`:
 
 - :class:`StickSlip` streams long sampled series (the plant at 100 kS/s):
   stick spans are skipped in bulk, slip episodes are summed in bulk up to the
-  interval where w crosses zero (vectorised over time); that interval is
-  finished with the same closed form in scalar arithmetic.
+  interval where w crosses zero (vectorised over time); that interval and
+  the velocity jumps are done with the same closed forms in scalar arithmetic.
 - :func:`simulate_batch` runs many parameter sets at once (vectorised over the
   sets), interval by interval: the mode for sweeps.
 """
@@ -36,7 +36,8 @@ DEFAULT_KINETIC_RATIO = 0.8
 KINETIC_RATIO_BAND = (0.7, 0.9)
 """Assumed spread of F_k/F_s for the step band (not measured in the paper)."""
 
-_WINDOW = 256
+_WINDOW = 1024
+_SCALAR = 4
 
 
 @dataclass(frozen=True)
@@ -153,36 +154,26 @@ class StickSlip:
         else:
             dts = np.asarray(dt, dtype=float)
             self.elapsed_s += float(dts.sum())
-        jump_at = np.zeros(0, dtype=int) if jump is None else np.flatnonzero(jump)
+        jumps = np.zeros(0) if jump is None else np.asarray(jump, dtype=float)
+        jump_at = np.flatnonzero(jumps)
         out = np.empty(n)
         i = 0
         k = 0  # next jump
         while i < n:
             if k < jump_at.size and jump_at[k] == i:
-                self._single(i, a, dts, np.asarray(jump, dtype=float), out)
-                i += 1
+                self._jump(float(jumps[i]), float(a[i]))
                 k += 1
-                continue
             end = int(jump_at[k]) if k < jump_at.size else n
-            i = self._stick_span(i, end, a, out) if self.stuck else self._slip_span(i, end, a, dts, out)
+            if self.stuck:
+                i = self._stick_span(i, end, a, out) if i < end else i
+            else:
+                i = self._slip_span(i, end, a, dts, out)
         return out
 
-    def _single(self, i: int, a: np.ndarray, dts: np.ndarray, jumps: np.ndarray, out: np.ndarray) -> None:
-        """One interval with a velocity jump at its start, through :func:`advance_interval`."""
-        a_s = self.static_accel_m_s2
-        stuck, w, s, slip = advance_interval(
-            np.array(self.stuck), np.array(self.relative_velocity_m_s),
-            np.array(self.relative_position_m), a[i], dts[i], jumps[i],
-            np.array(a_s), np.array(self.friction.kinetic_ratio * a_s),
-        )  # fmt: skip
-        was_stuck = self.stuck
-        self.stuck = bool(stuck)
-        self.relative_velocity_m_s = float(w)
-        self.relative_position_m = float(s)
-        self.slip_time_s += float(slip)
-        out[i] = self.relative_position_m
-        if self.stuck and not was_stuck:
-            self._draw()
+    def _jump(self, jump: float, accel: float) -> None:
+        """A plate-velocity jump (infinite acceleration): the part cannot follow it."""
+        self.relative_velocity_m_s = (0.0 if self.stuck else self.relative_velocity_m_s) - jump
+        self.stuck = self.relative_velocity_m_s == 0 and abs(accel) <= self.static_accel_m_s2
 
     def _stick_span(self, i: int, end: int, a: np.ndarray, out: np.ndarray) -> int:
         """Skip to the first interval in [i, end) whose |a| exceeds a_s; returns its index."""
@@ -202,31 +193,57 @@ class StickSlip:
         return i
 
     def _slip_span(self, i: int, end: int, a: np.ndarray, dts: np.ndarray, out: np.ndarray) -> int:
-        """Slip in bulk up to the interval where w reaches zero; that one goes to :meth:`_single`."""
+        """Slip in bulk up to the interval where w reaches zero; that one goes to :meth:`_cross`."""
         window = _WINDOW
         a_k = self.friction.kinetic_ratio * self.static_accel_m_s2
         while i < end:
             w = self.relative_velocity_m_s
             sigma = math.copysign(1.0, w) if w != 0 else -math.copysign(1.0, a[i])
+            if end - i <= _SCALAR:  # a few intervals: plain arithmetic beats array calls
+                return self._slip_scalar(i, end, a, dts, sigma, a_k, out)
             stop = min(end, i + window)
             h = dts[i:stop]
             dw = (-sigma * a_k - a[i:stop]) * h
-            w_end = w + np.cumsum(dw)
-            hit = np.flatnonzero(sigma * w_end <= 0)
-            m = int(hit[0]) if hit.size else stop - i
+            w_end = np.cumsum(dw)
+            w_end += w
+            back = w_end <= 0 if sigma > 0 else w_end >= 0  # w has reached zero
+            m = int(back.argmax())
+            hit = bool(back[m])
+            if not hit:
+                m = stop - i
             if m:
-                w_start = w_end[:m] - dw[:m]
-                s_end = self.relative_position_m + np.cumsum(0.5 * (w_start + w_end[:m]) * h[:m])
+                # s grows by the mean of w over each interval (w is linear inside)
+                ds = (w_end[:m] - 0.5 * dw[:m]) * h[:m]
+                s_end = np.cumsum(ds)
+                s_end += self.relative_position_m
                 out[i : i + m] = s_end
                 self.relative_position_m = float(s_end[-1])
                 self.relative_velocity_m_s = float(w_end[m - 1])
                 self.slip_time_s += float(h[:m].sum())
             i += m
-            if hit.size:
+            if hit:
                 self._cross(i, float(a[i]), float(dts[i]), sigma, a_k, out)
                 return i + 1
             window *= 2
         return i
+
+    def _slip_scalar(self, i: int, end: int, a: np.ndarray, dts: np.ndarray, sigma: float,
+                     a_k: float, out: np.ndarray) -> int:  # fmt: skip
+        """:meth:`_slip_span` for a handful of intervals, one at a time."""
+        w, s = self.relative_velocity_m_s, self.relative_position_m
+        for k in range(i, end):
+            accel, h = float(a[k]), float(dts[k])
+            w_end = w + (-sigma * a_k - accel) * h
+            if (w_end <= 0) if sigma > 0 else (w_end >= 0):
+                self.relative_velocity_m_s, self.relative_position_m = w, s
+                self._cross(k, accel, h, sigma, a_k, out)
+                return k + 1
+            s += 0.5 * (w + w_end) * h
+            w = w_end
+            out[k] = s
+            self.slip_time_s += h
+        self.relative_velocity_m_s, self.relative_position_m = w, s
+        return end
 
     def _cross(self, i: int, accel: float, dt: float, sigma: float, a_k: float,
                out: np.ndarray) -> None:  # fmt: skip
