@@ -89,6 +89,9 @@ EMCY_PDO_LENGTH = 0x8210
 ERROR_REGISTER_BITS = {Fault.WATCHDOG: 0x80, Fault.HOST_WATCHDOG: 0x10, Fault.OVERTEMP: 0x08}
 """Object 0x1001 bits besides bit 0 (generic): manufacturer, communication, temperature."""
 
+TIMED_SHAPES = ("linear", "half-cosine")
+"""Flyback shapes that use object 0x2003; the others keep it only for later."""
+
 LIMIT_FIELDS = {0x2000: "frequency", 0x2001: "voltage", 0x2003: "flyback", 0x2006: "offset",
                 0x2010: "steps"}
 """The firmware's name (``LimitError.field``) of the value each object sets."""
@@ -268,6 +271,9 @@ class CanopenNode:
         if index == 0x2020:
             return round(self.firmware.config.amplifier.max_amplitude_vpp * 1000)
         if index == 0x2003:
+            status = self.axis.status()
+            if status.flyback_shape in TIMED_SHAPES:  # set here or on the console
+                return round(status.flyback_s * 1e9)
             return self._flyback_ns
         if index == 0x2010:
             return self._last_command
@@ -340,7 +346,7 @@ class CanopenNode:
 
     def _write_flyback_time(self, ns: int) -> None:
         shape = self.axis.status().flyback_shape
-        if shape in ("linear", "half-cosine"):
+        if shape in TIMED_SHAPES:
             self.axis.set_flyback(shape, ns / 1e9)
         self._flyback_ns = ns
 

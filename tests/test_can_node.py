@@ -129,6 +129,11 @@ def test_settings_by_sdo_reach_the_firmware(rig: Rig) -> None:
     assert (sdo["Frequency"].raw, sdo["Amplitude"].raw, sdo["Flyback time"].raw) \
         == (1_234_500, 42_000, 50_000)
     assert sdo["Amplitude limit"].raw == round(AmplifierLimits().max_amplitude_vpp * 1000)
+    # the other front end (the console) calls the same API: the node sees its settings
+    rig.firmware.axis(1).set_flyback("half-cosine", 200e-6)
+    rig.firmware.axis(1).set_frequency(250.0)
+    assert (sdo["Flyback shape"].raw, sdo["Flyback time"].raw, sdo["Frequency"].raw) \
+        == (1, 200_000, 250_000)
 
 
 def test_steps_by_sdo_and_rpdo_advance_the_counter_exactly(rig: Rig) -> None:
