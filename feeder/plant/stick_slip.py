@@ -37,6 +37,7 @@ KINETIC_RATIO_BAND = (0.7, 0.9)
 """Assumed spread of F_k/F_s for the step band (not measured in the paper)."""
 
 _WINDOW = 1024
+_MIN_SLIP_WINDOW = 32
 _SCALAR = 4
 
 
@@ -129,6 +130,7 @@ class StickSlip:
         self.slip_time_s = 0.0
         self.elapsed_s = 0.0
         self.static_accel_m_s2 = friction.static_accel_m_s2
+        self._slip_window = _WINDOW
         self._draw()
 
     def _draw(self) -> None:
@@ -194,8 +196,9 @@ class StickSlip:
 
     def _slip_span(self, i: int, end: int, a: np.ndarray, dts: np.ndarray, out: np.ndarray) -> int:
         """Slip in bulk up to the interval where w reaches zero; that one goes to :meth:`_cross`."""
-        window = _WINDOW
+        window = self._slip_window  # twice the last slip episode's length: usually one window
         a_k = self.friction.kinetic_ratio * self.static_accel_m_s2
+        start = i
         while i < end:
             w = self.relative_velocity_m_s
             sigma = math.copysign(1.0, w) if w != 0 else -math.copysign(1.0, a[i])
@@ -222,6 +225,7 @@ class StickSlip:
                 self.slip_time_s += float(h[:m].sum())
             i += m
             if hit:
+                self._slip_window = max(_MIN_SLIP_WINDOW, 2 * (i + 1 - start))
                 self._cross(i, float(a[i]), float(dts[i]), sigma, a_k, out)
                 return i + 1
             window *= 2
