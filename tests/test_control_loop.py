@@ -215,3 +215,20 @@ def test_timing_reports_jitter_and_overruns(world: FakeWorld) -> None:
     timing = loop.timing()
     assert timing["ticks"] >= 10
     assert 0 <= timing["jitter_p50_s"] <= timing["jitter_p99_s"] <= timing["jitter_max_s"]
+
+
+def test_a_latched_watchdog_fault_is_cleared_by_a_new_move_others_are_reported(
+        world: FakeWorld) -> None:
+    loop, amp, _ = make_loop(world)
+    try:
+        amp.faults = ("watchdog",)            # the firmware grounded itself after a late tick
+        moved = run_job(loop, Job("move", target_m=30e-6))
+        amp.grounded, amp.faults = True, ("overtemp",)     # grounded itself between moves
+        first = run_job(loop, Job("move", target_m=0.0))
+        second = run_job(loop, Job("move", target_m=0.0))
+    finally:
+        loop.shutdown()
+    assert moved.status == "done" and "clear_faults" in amp.calls
+    assert first.status == "fault" and "Axis in wrong mode" in first.reason
+    assert second.status == "fault" and "amplifier fault latched: overtemp" in second.reason
+    assert amp.faults == ("overtemp",)

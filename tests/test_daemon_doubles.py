@@ -18,6 +18,7 @@ import pytest
 
 from feeder.drivers.amplifier import (
     Amplifier,
+    AmplifierError,
     AmplifierLinkLost,
     AmplifierStatus,
     DriveSettings,
@@ -83,6 +84,7 @@ class FakeAmplifier(Amplifier):
         self.world = world
         self.link_up = True
         self.grounded = True
+        self.faults: tuple[str, ...] = ()       # latched, as firmware_sim's fault word
         self.calls: list[str] = []
 
     def _check(self, name: str) -> None:
@@ -97,6 +99,8 @@ class FakeAmplifier(Amplifier):
     def step(self, count: int) -> None:
         self._check("step")
         assert count != 0
+        if self.grounded or self.faults:
+            raise AmplifierError("Axis in wrong mode")
         self.world.start_burst(count, time.monotonic())
 
     def run_continuous(self, forward: bool) -> None:
@@ -121,7 +125,13 @@ class FakeAmplifier(Amplifier):
 
     def enable(self) -> None:
         self._check("enable")
+        if self.faults:
+            raise AmplifierError("Axis in wrong mode")
         self.grounded = False
+
+    def clear_faults(self) -> None:
+        self._check("clear_faults")
+        self.faults = ()
 
     def status(self) -> AmplifierStatus:
         self._check("status")
@@ -132,6 +142,8 @@ class FakeAmplifier(Amplifier):
             amplitude_v=s.amplitude_v if s else 0.0,
             step_counter=self.world.total_steps,
             moving=self.world.moving(time.monotonic()),
+            fault_word=len(self.faults),
+            faults=self.faults,
         )
 
     def close(self) -> None:
@@ -176,6 +188,7 @@ def test_fake_world_moves_n_times_the_true_step() -> None:
     world = FakeWorld({(100.0, 1): 3e-6, (100.0, -1): 2e-6})
     amp = FakeAmplifier(world)
     amp.apply(DriveSettings(frequency_hz=1000.0, amplitude_v=100.0))
+    amp.enable()
     amp.step(7)
     assert amp.wait(2.0)
     assert math.isclose(world.position(time.monotonic()), 21e-6, rel_tol=1e-12)

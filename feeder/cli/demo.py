@@ -27,6 +27,7 @@ from feeder.parts import Part
 
 DEFAULT_TARGETS_M = (300e-6, 120e-6, 480e-6, -150e-6, -140e-6, 0.0, 250e-6, 247.5e-6)
 MOVE_TIMEOUT_S = 20.0
+RECOVERY_TIMEOUT_S = 10.0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -43,6 +44,32 @@ def _progress(done: int, total: int) -> str:
     width = 20
     filled = round(width * done / total)
     return f"[{'#' * filled}{'.' * (width - filled)}] {done}/{total}"
+
+
+def _attempt(client: Client, target: float) -> tuple[dict[str, Any] | None, list[list[float]], str]:
+    """One move request: (result or None when refused, trace, why it did not end done)."""
+    reply = client.request("move", timeout_s=MOVE_TIMEOUT_S, target_m=target, trace=True)
+    if "result" not in reply:
+        return None, [], f"refused: {reply.get('error')}"
+    result = reply["result"]
+    return result, result.pop("trace"), f"{result['status']}: {result['reason']}"
+
+
+def _move(client: Client, target: float, quiet: bool) -> tuple[dict[str, Any], list[list[float]]]:
+    """Move to ``target``; after a fault (e.g. a late tick on a busy machine made the firmware
+    ground itself) wait for the daemon to recover and try once more.  (result, trace)."""
+    result, trace, reason = _attempt(client, target)
+    if result is not None and result["status"] == "done":
+        return result, trace
+    if not quiet:
+        print(f"move to {target * 1e6:.3f} µm: {reason}; retrying once", file=sys.stderr)
+    end = time.monotonic() + RECOVERY_TIMEOUT_S
+    while client.request("status")["state"] != "idle" and time.monotonic() < end:
+        time.sleep(0.1)
+    again, more, reason = _attempt(client, target)
+    if again is None:
+        raise InputError("demo", f"move to {target} m {reason}")
+    return again, trace + more
 
 
 def run(args: argparse.Namespace) -> int:
@@ -63,12 +90,8 @@ def run(args: argparse.Namespace) -> int:
         with Client(config.socket_path, timeout_s=MOVE_TIMEOUT_S) as client:
             tolerance = float(client.request("status")["tolerance_m"])
             for i, target in enumerate(DEFAULT_TARGETS_M, start=1):
-                reply = client.request("move", timeout_s=MOVE_TIMEOUT_S, target_m=target,
-                                       trace=True)
-                if "result" not in reply:
-                    raise InputError("demo", f"move to {target} m refused: {reply.get('error')}")
-                result = reply["result"]
-                traces.append(result.pop("trace"))
+                result, trace = _move(client, target, quiet=args.json)
+                traces.append(trace)
                 direction = "forward" if target >= (result["start_m"] or 0.0) else "backward"
                 result["learned_step_m"] = result["estimates"][f"coarse/{direction}"]["step_m"]
                 results.append(result)

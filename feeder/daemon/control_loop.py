@@ -37,6 +37,8 @@ from feeder.drivers.sensor import PositionSample, PositionSensor, SensorLost
 
 COARSE = "coarse"
 FINE = "fine"
+CLEARABLE_FAULTS = frozenset({"watchdog"})
+"""Latched amplifier faults a new move may clear (transient: the firmware's tick was late)."""
 
 
 @dataclass(frozen=True)
@@ -420,6 +422,7 @@ class ControlLoop:
             self._link_lost(job, str(err))
         except AmplifierError as err:
             self._safe_stop()
+            self._enabled = False          # the next job checks the output's state again
             self._finish(job, "fault", f"amplifier refused: {err}")
         except Exception as err:  # a driver failing in an unforeseen way: treat as a lost link
             self._link_lost(job, f"{type(err).__name__}: {err}")
@@ -544,11 +547,27 @@ class ControlLoop:
                         "the tolerance")
         return burst
 
+    def _prepare_output(self) -> None:
+        """Leave ground for the first burst of a job.
+
+        A latched watchdog fault (a late tick: the firmware grounded itself) is
+        cleared, as the new command is the user's; any other fault is reported.
+        """
+        status = self.amplifier.status()
+        if status.fault_word:
+            clear = getattr(self.amplifier, "clear_faults", None)
+            others = set(status.faults) - CLEARABLE_FAULTS
+            if clear is None or others or not status.faults:
+                names = ", ".join(status.faults) or hex(status.fault_word)
+                raise AmplifierError(f"amplifier fault latched: {names}")
+            clear()
+        self.amplifier.enable()
+        self._enabled = True
+
     def _start_burst(self, job: Job, burst: Burst, x: float, now: float) -> None:
         mode = self.modes[burst.mode]
         if not self._enabled:
-            self.amplifier.enable()
-            self._enabled = True
+            self._prepare_output()
         if self._applied != burst.mode:
             self.amplifier.apply(mode.settings)
             self._applied = burst.mode
