@@ -218,3 +218,10 @@ def test_friction_validation() -> None:
         Friction(100.0, 1.5)
     with pytest.raises(InputError, match="static_accel"):
         Friction(-1.0)
+
+
+def test_closed_form_only_where_the_part_resticks_within_the_rise() -> None:
+    """t_f > t_r: the part never re-sticks; the closed form says NaN, the solver still works."""
+    assert math.isnan(float(linear_flyback_step(14e-6, 1.5e-4, 3.5e-4, 84.0)))
+    steps = streamed_steps(14e-6, 2000.0, 3.5e-4, 105.0, 0.8, "linear", periods=30)
+    assert np.all(np.isfinite(steps)) and abs(steps[-1] - steps[-2]) < 1e-12

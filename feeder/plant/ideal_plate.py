@@ -20,7 +20,8 @@ flyback is a velocity jump S(1/t_r + 1/t_f), the part slips with kinetic
 deceleration a_k; if it is still slipping when the flyback ends it is dragged
 back up to the rise velocity in another t_f, and
 ``step = S(1 + t_f/t_r) − a_k·t_f²`` when ``S(1/t_r + 1/t_f) > a_k·t_f``; else
-it re-sticks during the flyback and the two corners cancel: step 0.
+it re-sticks during the flyback and the two corners cancel: step 0.  Both
+need t_f ≤ t_r; at shorter rises the part never re-sticks.
 """
 
 from __future__ import annotations
@@ -102,8 +103,13 @@ def linear_flyback_step(
     flyback_s: np.ndarray | float,
     kinetic_accel_m_s2: np.ndarray | float,
 ) -> np.ndarray:
-    """Closed-form step per period (m) for a linear flyback on an ideal plate (DESIGN §4)."""
+    """Closed-form step per period (m) for a linear flyback on an ideal plate (DESIGN §4).
+
+    Valid while t_f ≤ t_r (the part re-sticks within the rise); NaN otherwise,
+    where the part never re-sticks and only the solver can tell.
+    """
     s, t_r, t_f, a_k = (np.asarray(v, dtype=float) for v in (stroke_m, rise_s, flyback_s,
                                                               kinetic_accel_m_s2))  # fmt: skip
     moves = s * (1 / t_r + 1 / t_f) > a_k * t_f
-    return np.where(moves, s * (1 + t_f / t_r) - a_k * t_f**2, 0.0)
+    step = np.where(moves, s * (1 + t_f / t_r) - a_k * t_f**2, 0.0)
+    return np.where(t_f <= t_r, step, np.nan)
