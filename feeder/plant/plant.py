@@ -132,15 +132,18 @@ def run_waveform(
     """Drive a fresh plant, at rest at the bottom of the sawtooth, for ``periods`` steps.
 
     The command is sampled like a DDS (phase = sample index / samples per
-    period).  Steps are measured between the last samples before consecutive
-    flybacks, where the part rides the rise stuck to the plate: the first rise
-    is a lead-in, so the run is ``periods`` periods plus one rise long.
+    period), at the rate nearest ``sample_rate_hz`` that holds a whole number
+    of samples per period (the frequency stays exact).  Steps are measured
+    between the last samples before consecutive flybacks, where the part rides
+    the rise stuck to the plate: the first rise is a lead-in, so the run is
+    ``periods`` periods plus one rise long.
     """
     per = round(sample_rate_hz / waveform.frequency_hz)
     if per < 4:
         raise InputError("sample_rate_hz", "needs at least 4 samples per period")
     bottom = waveform.offset_v + (0.0 if waveform.sign > 0 else waveform.amplitude_vpp)
-    plant = Plant(friction, amplifier, stack, sample_rate_hz, scatter, seed, initial_v=bottom)
+    rate = per * waveform.frequency_hz
+    plant = Plant(friction, amplifier, stack, rate, scatter, seed, initial_v=bottom)
     top = math.ceil((1.0 - waveform.command_flyback_s * waveform.frequency_hz) * per - 1e-9) - 1
     count = top + 1 + periods * per
     index = np.arange(1, count + 1)
@@ -150,7 +153,7 @@ def run_waveform(
         steps_m=np.diff(tops),
         net_displacement_m=float(tops[-1] - tops[0]),
         slip_fraction=plant.slip_time_s / plant.elapsed_s,
-        time_s=index / sample_rate_hz,
+        time_s=index / rate,
         part_position_m=part,
         plate_position_m=plate,
     )
