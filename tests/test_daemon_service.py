@@ -277,7 +277,10 @@ try:
     s.connect(sys.argv[1])
 except PermissionError:
     print("EACCES"); sys.exit(0)
-s.sendall(b'{"cmd": "status"}\\n')
+try:
+    s.sendall(b'{"cmd": "status"}\\n')
+except BrokenPipeError:
+    pass                  # the daemon answered (refusal) and closed before our request
 print(s.makefile().readline().strip())
 """
 
