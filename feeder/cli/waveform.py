@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import math
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +63,10 @@ def _show(args: argparse.Namespace, waveform: Waveform, amplifier: AmplifierLimi
     else:
         flyback_s, swing = waveform.command_flyback_s, waveform.amplitude_vpp
     slope = amplifier.max_slope_v_per_s(stack.capacitance_f)
+    fly_slope = None  # the command's steepest flyback slope: ΔV/t_f, or π·ΔV/(2 t_f) for half-cosine
+    if waveform.command_flyback_s:
+        peak = math.pi / 2 if waveform.flyback_shape == "half-cosine" else 1.0
+        fly_slope = peak * waveform.amplitude_vpp / waveform.command_flyback_s
     info = {
         "file": str(args.file),
         "shape": waveform.shape,
@@ -76,12 +81,10 @@ def _show(args: argparse.Namespace, waveform: Waveform, amplifier: AmplifierLimi
         "output_swing_v": swing,
         "stroke_m": swing * stack.gain_m_per_v,
         "amplifier_max_slope_v_per_s": slope,
-        "command_flyback_slope_v_per_s": (waveform.amplitude_vpp / waveform.command_flyback_s
-                                          if waveform.command_flyback_s else None),
-    }  # fmt: skip
+        "command_flyback_peak_slope_v_per_s": fly_slope,
+    }
     warnings = []
-    fly_slope = info["command_flyback_slope_v_per_s"]
-    if isinstance(fly_slope, float) and fly_slope > slope:
+    if fly_slope is not None and fly_slope > slope:
         warnings.append(
             f"the command's flyback ({fly_slope:.3g} V/s) is faster than the amplifier can follow "
             f"({slope:.3g} V/s into {stack.capacitance_f:g} F): the current limit sets the flyback"
@@ -95,7 +98,7 @@ def _show(args: argparse.Namespace, waveform: Waveform, amplifier: AmplifierLimi
         return 0
     for key, value in info.items():
         if key != "warnings":
-            print(f"{key:<30} {value:.6g}" if isinstance(value, float) else f"{key:<30} {value}")
+            print(f"{key:<36} {value:.6g}" if isinstance(value, float) else f"{key:<36} {value}")
     for w in warnings:
         print(f"warning: {w}")
     return 0
