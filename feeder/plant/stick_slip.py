@@ -13,14 +13,14 @@ s = x_part − x_plate, a slipping part has dw/dt = −sign(w)·a_k − a_plate,
 is linear and s quadratic inside an interval and every zero crossing of w is
 found in closed form.  Nothing is stepped with a fixed dt.
 
-Two drivers of the same interval update, :func:`advance_interval`:
+Two drivers of the same closed forms (tests check they agree to rounding):
 
 - :class:`StickSlip` streams long sampled series (the plant at 100 kS/s):
   stick spans are skipped in bulk, slip episodes are summed in bulk up to the
   interval where w crosses zero (vectorised over time); that interval and
-  the velocity jumps are done with the same closed forms in scalar arithmetic.
+  the velocity jumps are done in scalar arithmetic.
 - :func:`simulate_batch` runs many parameter sets at once (vectorised over the
-  sets), interval by interval: the mode for sweeps.
+  sets) through :func:`advance_interval`, interval by interval: the mode for sweeps.
 """
 
 from __future__ import annotations
@@ -251,7 +251,7 @@ class StickSlip:
 
     def _cross(self, i: int, accel: float, dt: float, sigma: float, a_k: float,
                out: np.ndarray) -> None:  # fmt: skip
-        """The interval where w reaches zero: the crossing branch of :func:`advance_interval`, scalar."""
+        """The interval where w reaches zero (the crossing branch of :func:`advance_interval`)."""
         w = self.relative_velocity_m_s
         tau = min(-w / (-sigma * a_k - accel), dt) if w != 0 else 0.0
         s = self.relative_position_m + 0.5 * w * tau
