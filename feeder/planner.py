@@ -16,7 +16,7 @@ API for other agents (feeder/daemon)
 
 Steps are predicted with the full plant model (:func:`feeder.plant.plant.run_waveform`:
 amplifier limits, stack dynamics, exact stick-slip).  The band propagates τ's
-band (a_s ∝ τ) and F_k/F_s ∈ :data:`~feeder.plant.stick_slip.KINETIC_RATIO_BAND`.
+band (a_s ∝ τ) and F_k/F_s ± :data:`~feeder.plant.stick_slip.KINETIC_RATIO_SPREAD`.
 
 Margins (DESIGN §4, for a sawtooth of stroke S, rise t_r, flyback t_f):
 
@@ -51,7 +51,7 @@ from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.ideal_plate import linear_flyback_step
 from feeder.plant.plant import run_waveform
 from feeder.plant.stack import StackParameters
-from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, KINETIC_RATIO_BAND, Friction
+from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, kinetic_ratio_band
 from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters
 from feeder.waveform import Waveform
 
@@ -164,10 +164,11 @@ def _prediction(
     stack: StackParameters | None,
 ) -> StepPrediction:
     nominal = plant_step(waveform, a_s, kinetic_ratio, amplifier, stack)
+    r_lo, r_hi = kinetic_ratio_band(kinetic_ratio)
     # weakest motion: high a_s and high F_k/F_s; strongest: low a_s and low F_k/F_s
     ends = [
-        plant_step(waveform, a_band[1], KINETIC_RATIO_BAND[1], amplifier, stack),
-        plant_step(waveform, a_band[0], KINETIC_RATIO_BAND[0], amplifier, stack),
+        plant_step(waveform, a_band[1], r_hi, amplifier, stack),
+        plant_step(waveform, a_band[0], r_lo, amplifier, stack),
     ]
     return StepPrediction(nominal, (min(*ends, nominal), max(*ends, nominal)))
 

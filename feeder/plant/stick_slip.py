@@ -33,8 +33,14 @@ import numpy as np
 from feeder.errors import InputError
 
 DEFAULT_KINETIC_RATIO = 0.8
-KINETIC_RATIO_BAND = (0.7, 0.9)
-"""Assumed spread of F_k/F_s for the step band (not measured in the paper)."""
+KINETIC_RATIO_SPREAD = 0.1
+"""Assumed ± spread of F_k/F_s for the step band (not measured in the paper)."""
+
+
+def kinetic_ratio_band(kinetic_ratio: float) -> tuple[float, float]:
+    """F_k/F_s ± :data:`KINETIC_RATIO_SPREAD`, kept inside (0, 1]: (0.7, 0.9) for 0.8."""
+    return (max(0.05, kinetic_ratio - KINETIC_RATIO_SPREAD),
+            min(1.0, kinetic_ratio + KINETIC_RATIO_SPREAD))  # fmt: skip
 
 _WINDOW = 1024
 _MIN_SLIP_WINDOW = 32
