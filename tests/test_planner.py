@@ -10,7 +10,7 @@ import pytest
 from feeder.cli import main
 from feeder.contact.breakaway import contact
 from feeder.errors import InputError
-from feeder.parts import Part
+from feeder.parts import GROOVED, Part
 from feeder.planner import Plan, plan, predict_step
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.plant import run_waveform
@@ -106,3 +106,13 @@ def test_cli_plan_json_and_refusal(capsys: pytest.CaptureFixture[str]) -> None:
     captured = capsys.readouterr()
     assert captured.out == "" and "breaks the part loose" in captured.err
     assert len(captured.err.strip().splitlines()) == 1
+
+
+def test_grooved_support_uses_its_breakaway_band(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["plan", "--part", "80x80x50", "--support", "grooved", "--distance-m", "-20e-6",
+                 "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    c = contact(Part.parse("80x80x50"), GROOVED)
+    assert data["breakaway_accel_m_s2"] == pytest.approx(c.breakaway_accel_m_s2)
+    assert data["breakaway_accel_band_m_s2"] == pytest.approx(list(c.breakaway_accel_band_m_s2))
+    assert data["direction"] == "backward" and data["predicted_step_m"] < 0
