@@ -28,6 +28,10 @@ What this module adds to ``LocalNode``:
   when the firmware refused the command.  A too-short RPDO raises EMCY 0x8210.
 - EMCY when a fault bit latches (code per fault, error register, fault word in
   bytes 3..6), and EMCY 0x0000 when the fault word is cleared.
+- Heartbeat consumer (0x1016:1, producer id << 16 | ms): the host's heartbeats
+  count as host activity; once one has arrived, none for the set time while
+  the axis moves latches the firmware's ``host_watchdog`` fault (axis grounded,
+  EMCY 0x8130).  Monitoring restarts with the next heartbeat.
 """
 
 from __future__ import annotations
@@ -145,6 +149,9 @@ class CanopenNode:
         self._tpdo_type = 255
         self._inhibit_s = 0.0
         self._event_timer_s = 0.0
+        self._consumer_id = 0            # host whose heartbeat is consumed; 0 = none
+        self._consumer_timeout_s = 0.0
+        self._consumer_seen: float | None = None
         self._writers: dict[int, Callable[[int], None]] = {
             0x2000: lambda v: self.axis.set_frequency(v / 1000),
             0x2001: lambda v: self.axis.set_amplitude(v / 1000),
@@ -213,6 +220,7 @@ class CanopenNode:
         self._inhibit_s = self._default(0x1800, 3) * 100e-6
         self._event_timer_s = self._default(0x1800, 5) / 1000
         self._sync_count = 0
+        self._consume_heartbeat(0, 0.0)
         self.local.nmt.send_command(0x81)  # state INITIALISING: boot-up message
         self.local.nmt.send_command(NMT_ENTER_PRE_OPERATIONAL)  # starts the heartbeat
 
@@ -315,6 +323,12 @@ class CanopenNode:
         if index == 0x1800:
             self._write_tpdo_parameter(subindex, value)
             return
+        if index == 0x1016:
+            producer, milliseconds = value >> 16 & 0xFF, value & 0xFFFF
+            if value >> 23 or (milliseconds and not 1 <= producer <= 127):
+                raise SdoAbortedError(ABORT_RANGE)
+            self._consume_heartbeat(producer if milliseconds else 0, milliseconds / 1000)
+            return
         writer = self._writers.get(index)
         if writer is None:
             return
@@ -340,6 +354,19 @@ class CanopenNode:
             self._inhibit_s = value * 100e-6
         elif subindex == 5:
             self._event_timer_s = value / 1000
+
+    def _consume_heartbeat(self, producer: int, timeout_s: float) -> None:
+        """Watch node ``producer``'s heartbeat (0 = nobody)."""
+        if self._consumer_id:
+            self.network.unsubscribe(0x700 + self._consumer_id, self._on_host_heartbeat)
+        self._consumer_id, self._consumer_timeout_s = producer, timeout_s
+        self._consumer_seen = None
+        if producer:
+            self.network.subscribe(0x700 + producer, self._on_host_heartbeat)
+
+    def _on_host_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        self._consumer_seen = time.monotonic()
+        self.firmware.host_activity()
 
     def _write_flyback_shape(self, code: int) -> None:
         self.axis.set_flyback(FLYBACK_SHAPES[code], self._flyback_ns / 1e9)
@@ -395,6 +422,12 @@ class CanopenNode:
             self._wake.wait(self.poll_s)
             self._wake.clear()
             status = self.axis.status()
+            seen = self._consumer_seen
+            if seen is not None and time.monotonic() - seen > self._consumer_timeout_s:
+                self._consumer_seen = None  # one event per silence
+                if status.moving:
+                    self.axis.inject_fault(Fault.HOST_WATCHDOG)
+                    status = self.axis.status()
             state = self.nmt_state
             if state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL) \
                     and status.fault_word != self._fault_reported:

@@ -200,3 +200,29 @@ def test_node_stopped_by_nmt_is_reported(rig: Rig) -> None:
         expect_lost(rig.amp)
     finally:
         other.disconnect()
+
+
+def test_a_host_that_dies_mid_move_gets_the_axis_grounded(rig: Rig) -> None:
+    amp, axis = rig.amp, rig.firmware.axis(2)
+    amp.apply(FAST)
+    amp.enable()
+    amp.run_continuous(forward=True)
+    assert amp._host_heartbeat is not None
+    amp._host_heartbeat.stop()             # the host process froze: no more heartbeats
+    deadline = time.monotonic() + 5.0
+    while not axis.status().fault_word and time.monotonic() < deadline:
+        time.sleep(0.01)
+    status = axis.status()
+    assert (status.faults, status.mode) == (("host_watchdog",), "gnd")
+
+
+def test_closing_the_driver_leaves_a_moving_axis_alone(rig: Rig) -> None:
+    amp, axis = rig.amp, rig.firmware.axis(2)
+    amp.apply(FAST)
+    amp.enable()
+    amp.run_continuous(forward=True)
+    amp.close()
+    time.sleep(6 * HEARTBEAT_S)            # twice the node's consumer time
+    status = axis.status()
+    assert status.moving and status.fault_word == 0
+    axis.stop()

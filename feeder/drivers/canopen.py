@@ -61,6 +61,9 @@ STATUS_FAULT = 0x04
 STATUS_REFUSED = 0x08
 """Bits of object 0x2015 ``Status word`` (``REFUSED``: the last RPDO1 command was refused)."""
 
+HOST_SILENCE_PERIODS = 3
+"""The node's heartbeat consumer time, in the driver's heartbeat periods."""
+
 HEARTBEAT_LOSS_PERIODS = 2.5
 """Missing heartbeats for this many periods = node lost (so it is reported
 within 3 periods of the node's last breath)."""
@@ -86,13 +89,18 @@ class CanopenAmplifier(Amplifier):
     """One amplifier axis reached as CANopen node ``node_id`` on a python-can bus.
 
     bus: python-can keyword arguments (``can.Bus(**bus)``).
-    heartbeat_s: producer heartbeat period the driver configures (object 0x1017).
+    heartbeat_s: heartbeat period of the node (the driver sets object 0x1017) and
+        of the driver itself, which beats as node ``host_id`` when the node's EDS
+        has a heartbeat consumer (0x1016): a host that dies mid-move gets the
+        axis grounded after :data:`HOST_SILENCE_PERIODS` periods.
     timeout_s: SDO response and RPDO acknowledge timeout.
     """
 
     def __init__(self, bus: Mapping[str, Any], node_id: int, eds: str | Path = DEFAULT_EDS,
-                 heartbeat_s: float = 0.1, timeout_s: float = 0.5) -> None:
+                 heartbeat_s: float = 0.25, timeout_s: float = 0.5, host_id: int = 127) -> None:
         self.node_id = node_id
+        self.host_id = host_id
+        self._host_heartbeat: canopen.network.PeriodicMessageTask | None = None
         self.heartbeat_s = heartbeat_s
         self.timeout_s = timeout_s
         self._lock = threading.RLock()
@@ -133,6 +141,11 @@ class CanopenAmplifier(Amplifier):
         except canopen.nmt.NmtError as exc:
             raise AmplifierLinkLost(f"CANopen node {self.node_id}: no heartbeat") from exc
         self._sdo_write(0x1017, 0, round(self.heartbeat_s * 1000))
+        if 0x1016 in self.node.object_dictionary:  # consumer first: it sees the first beat
+            self._sdo_write(0x1016, 1, self.host_id << 16
+                            | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000))
+            self._host_heartbeat = self.network.send_periodic(
+                0x700 + self.host_id, b"\x05", self.heartbeat_s)  # 5: OPERATIONAL
         self._sdo_write(0x1800, 2, 255)  # TPDO1 event-driven: on change and on its timer
         self.node.tpdo.read(from_od=True)
         self.node.rpdo.read(from_od=True)
@@ -330,6 +343,14 @@ class CanopenAmplifier(Amplifier):
             return self._counter
 
     def close(self) -> None:
+        """Release the link; the output is left alone (the node stops watching us first)."""
+        if self._closing.is_set():
+            return
+        if self._host_heartbeat is not None:
+            if self._lost is None:
+                with contextlib.suppress(AmplifierError):
+                    self._sdo_write(0x1016, 1, 0)
+            self._host_heartbeat.stop()
         self._closing.set()
         if self._watchdog.is_alive():
             self._watchdog.join(timeout=1.0)
