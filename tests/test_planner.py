@@ -109,7 +109,7 @@ def test_cli_plan_json_and_refusal(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_grooved_support_uses_its_breakaway_band(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["plan", "--part", "80x80x50", "--support", "grooved", "--distance-m", "-20e-6",
+    assert main(["plan", "--part", "80x80x50", "--support", "grooved", "--distance-m=-20e-6",
                  "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     c = contact(Part.parse("80x80x50"), GROOVED)

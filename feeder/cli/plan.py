@@ -22,7 +22,7 @@ def register(sub: Any) -> None:
     p = sub.add_parser("plan", help="plan a move: waveform, steps, predicted step and band")
     p.add_argument("--part", required=True, help="LxWxT in µm, e.g. 300x300x50")
     p.add_argument("--distance-m", type=float, required=True,
-                   help="wanted displacement in m (negative: backward)")
+                   help="wanted displacement in m; negative: backward (write --distance-m=-20e-6)")
     p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
     p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
     p.add_argument("--tau", type=positive_float, default=DEFAULT_TAU_PA,
