@@ -55,7 +55,8 @@ def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
         adapter = SlcanPty(can.Bus(interface="virtual", channel=channel)).start()
         bus = {"interface": "slcan", "channel": adapter.path, "bitrate": 500000,
                "sleep_after_open": 0}
-    amp = CanopenAmplifier(bus, NODE_ID, heartbeat_s=HEARTBEAT_S, timeout_s=0.5)
+    amp = CanopenAmplifier(bus, NODE_ID, heartbeat_s=HEARTBEAT_S, timeout_s=0.5,
+                           supervise_host=True)
     yield Rig(firmware, node, amp, channel)
     amp.close()
     if node.network.bus is not None:

@@ -89,16 +89,20 @@ class CanopenAmplifier(Amplifier):
     """One amplifier axis reached as CANopen node ``node_id`` on a python-can bus.
 
     bus: python-can keyword arguments (``can.Bus(**bus)``).
-    heartbeat_s: heartbeat period of the node (the driver sets object 0x1017) and
-        of the driver itself, which beats as node ``host_id`` when the node's EDS
-        has a heartbeat consumer (0x1016): a host that dies mid-move gets the
-        axis grounded after :data:`HOST_SILENCE_PERIODS` periods.
+    heartbeat_s: heartbeat period of the node (the driver sets object 0x1017).
     timeout_s: SDO response and RPDO acknowledge timeout.
+    supervise_host: the driver beats too (as node ``host_id``, every
+        ``heartbeat_s``) and the node consumes it (0x1016): a host that dies
+        mid-move gets the axis grounded (``host_watchdog``) after
+        :data:`HOST_SILENCE_PERIODS` periods.  Off by default, like the
+        firmware's ``--host-watchdog-s``.
     """
 
     def __init__(self, bus: Mapping[str, Any], node_id: int, eds: str | Path = DEFAULT_EDS,
-                 heartbeat_s: float = 0.25, timeout_s: float = 0.5, host_id: int = 127) -> None:
+                 heartbeat_s: float = 0.25, timeout_s: float = 0.5, supervise_host: bool = False,
+                 host_id: int = 127) -> None:
         self.node_id = node_id
+        self.supervise_host = supervise_host
         self.host_id = host_id
         self._host_heartbeat: canopen.network.PeriodicMessageTask | None = None
         self.heartbeat_s = heartbeat_s
@@ -141,7 +145,7 @@ class CanopenAmplifier(Amplifier):
         except canopen.nmt.NmtError as exc:
             raise AmplifierLinkLost(f"CANopen node {self.node_id}: no heartbeat") from exc
         self._sdo_write(0x1017, 0, round(self.heartbeat_s * 1000))
-        if 0x1016 in self.node.object_dictionary:  # consumer first: it sees the first beat
+        if self.supervise_host:  # consumer first: it sees the first beat
             self._sdo_write(0x1016, 1, self.host_id << 16
                             | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000))
             self._host_heartbeat = self.network.send_periodic(
