@@ -38,7 +38,7 @@ from firmware_sim.firmware import (
     FirmwareConfig,
 )
 from firmware_sim.transports import LineBroadcastServer, PtyConsole, TcpConsoleServer
-from firmware_sim.world import CameraConfig, World, WorldConfig
+from firmware_sim.world import CameraConfig, TrueStep, World, WorldConfig
 
 REFERENCE_FREQUENCY_HZ = 100.0
 VIRTUAL_TICKS_PER_YIELD = 10
@@ -125,10 +125,10 @@ def start_endpoints(args: argparse.Namespace, firmware: Firmware, world: World,
     """Start every endpoint asked for; returns the ready line's ``endpoints`` map."""
     endpoints: dict[str, str] = {}
 
-    def true_step(axis: Axis) -> tuple[float, float] | None:
+    def true_step(axis: Axis) -> TrueStep | None:
         if axis.number != world.config.plant_axis:
             return None
-        return world.true_steps_m(axis)
+        return world.true_step(axis)
 
     def session(password: str | None) -> Callable[[], ConsoleSession]:
         return lambda: ConsoleSession(firmware, password=password, true_step=true_step)
@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     world.attach(firmware)
     reference = firmware.axis(args.plant_axis)
     reference.set_amplitude(amplifier.max_amplitude_vpp)
-    step_up, step_down = world.true_steps_m(reference)
+    step = world.true_step(reference)
     reference.set_amplitude(0.0)
 
     stop = threading.Event()
@@ -205,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"firmware_sim: error: {exc}", file=sys.stderr)
         return 2
     true = {**world.describe(),
-            "step_up_m": step_up, "step_down_m": step_down,
+            "step_up_m": step.up_m, "step_down_m": step.down_m, "step_scatter": step.scatter,
             "step_reference": {"frequency_hz": REFERENCE_FREQUENCY_HZ,
                                "amplitude_v": amplifier.max_amplitude_vpp,
                                "flyback_shape": "current-limited"}}

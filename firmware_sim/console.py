@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from firmware_sim.firmware import (
     PATTERN_POINTS,
@@ -21,6 +22,9 @@ from firmware_sim.firmware import (
     Firmware,
     FirmwareError,
 )
+
+if TYPE_CHECKING:
+    from firmware_sim.world import TrueStep
 
 CRLF = "\r\n"
 PROMPT = "> "
@@ -31,8 +35,8 @@ MAX_LINE = 4096
 MAX_LOGIN_ATTEMPTS = 3
 INTEGER = re.compile(r"[+-]?[0-9]{1,12}")
 
-TrueStep = Callable[[Axis], tuple[float, float] | None]
-"""The plant's true (up, down) step in m for an axis' current settings, or None."""
+TrueStepSource = Callable[[Axis], "TrueStep | None"]
+"""The plant's true step for an axis' current settings, or None (no plant there)."""
 
 
 def fixed(value: float, decimals: int = 6) -> str:
@@ -60,7 +64,7 @@ class ConsoleSession:
     """
 
     def __init__(self, firmware: Firmware, password: str | None = None,
-                 true_step: TrueStep | None = None, max_line: int = MAX_LINE,
+                 true_step: TrueStepSource | None = None, max_line: int = MAX_LINE,
                  wait_timeout_s: float = 600.0) -> None:
         self.firmware = firmware
         self.password = password
@@ -321,10 +325,11 @@ class ConsoleSession:
 
     def _simstep(self, axis: Axis, args: list[str]) -> list[str]:
         _arity(args, 0)
-        steps = self.true_step(axis) if self.true_step is not None else None
-        if steps is None:
+        step = self.true_step(axis) if self.true_step is not None else None
+        if step is None:
             raise ConsoleError("No plant on this axis")
-        return [f"stepup = {fixed(steps[0], 12)} m", f"stepdown = {fixed(steps[1], 12)} m"]
+        return [f"stepup = {fixed(step.up_m, 12)} m", f"stepdown = {fixed(step.down_m, 12)} m",
+                f"stepscatter = {fixed(step.scatter)}"]
 
 
 def _arity(args: list[str], n: int) -> None:

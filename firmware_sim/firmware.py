@@ -10,9 +10,9 @@ last sample for the gap (an underrun, counted).  Commands act from the next
 sample the DAC plays: the unplayed part of the buffer is regenerated.
 
 Each axis has a DDS: a 32-bit phase accumulator advanced by ``round(f·2³²/f_s)``
-per sample whose top 8 bits index the axis' 256-point pattern (ANC300
-``setpu``/``setpd`` tables, values 0–255) with linear interpolation between
-entries.  A period of the pattern is one step: the step counter changes when
+per sample whose top bits index the axis' wavetable, with linear interpolation
+between entries: the flyback design's 4096-point 16-bit table, or after
+``setpu``/``setpd`` the ANC300's 256-point pattern (values 0–255).  A period of the pattern is one step: the step counter changes when
 the DAC plays the sample that completes a period.
 
 Output chain per sample:  pattern × amplitude (± offset, by mode) → clamp to
@@ -58,6 +58,7 @@ STEPPING_MODES = ("stp", "stp+", "stp-")
 FLYBACK_SHAPES = ("linear", "half-cosine", "current-limited")
 PATTERN_POINTS = 256
 PATTERN_MAX = 255
+WAVETABLE_POINTS = 4096
 DAC_BITS = 16
 DAC_MAX_CODE = (1 << DAC_BITS) - 1
 PHASE_BITS = 32
@@ -187,12 +188,12 @@ TickListener = Callable[[float], None]
 """Called at the end of every tick with the tick's time (s since start)."""
 
 
-def sawtooth_patterns(shape: str, flyback_s: float, frequency_hz: float) -> dict[bool, list[int]]:
-    """The 256-point up (True) and down (False) patterns of a sawtooth design."""
-    design = Waveform(frequency_hz=frequency_hz, amplitude_vpp=1.0, flyback_shape=shape,
-                      flyback_s=flyback_s if shape != "current-limited" else None)
-    up, down = design.anc300_tables()
-    return {True: up, False: down}
+def sawtooth_design(shape: str, flyback_s: float, frequency_hz: float,
+                    direction: str = "forward") -> Waveform:
+    """The sawtooth design (unit amplitude) behind an axis' flyback settings."""
+    return Waveform(frequency_hz=frequency_hz, amplitude_vpp=1.0, flyback_shape=shape,
+                    flyback_s=flyback_s if shape != "current-limited" else None,
+                    direction=direction)
 
 
 class Axis:
@@ -210,7 +211,9 @@ class Axis:
         self._offset_v = 0.0
         self._flyback_shape = "current-limited"
         self._flyback_s = 0.0
-        self._patterns = sawtooth_patterns("current-limited", 0.0, self._frequency_hz)
+        self._patterns: dict[bool, list[int]] = {}  # 256-point 0–255 (getpu/setpu)
+        self._tables: dict[bool, np.ndarray] = {}    # what the DDS reads, 0..1
+        self._update_patterns()
         self._phase = 0
         self._up = True
         self._remaining = 0          # steps left in the burst; -1 = continuous
@@ -302,6 +305,7 @@ class Axis:
             for v in values:
                 _check("pattern", v, 0, PATTERN_MAX)
             self._patterns[up] = [int(v) for v in values]
+            self._tables[up] = np.asarray(values, dtype=float) / PATTERN_MAX
             self._flyback_shape = "custom"
             self._flyback_s = 0.0
             self._rewrite(resume=True)
@@ -450,10 +454,22 @@ class Axis:
         self._rewrite(resume=False)
 
     def _update_patterns(self) -> None:
+        """Rebuild both patterns from the flyback design (not after setpu/setpd).
+
+        The DDS reads the design's 4096-point 16-bit table (``Waveform.dac_table``);
+        the ANC300's 8-bit 256-point tables would put a slope change on the ramp
+        at every rounding step, enough to shake a part loose at low amplitude.
+        """
         if self._flyback_shape == "custom":
             return
-        self._patterns = sawtooth_patterns(self._flyback_shape, self._flyback_s,
-                                           self._frequency_hz)
+        design = sawtooth_design(self._flyback_shape, self._flyback_s, self._frequency_hz)
+        up, down = design.anc300_tables()
+        self._patterns = {True: up, False: down}
+        self._tables = {
+            forward: sawtooth_design(self._flyback_shape, self._flyback_s, self._frequency_hz,
+                                     "forward" if forward else "backward")
+            .dac_table(WAVETABLE_POINTS, DAC_BITS).astype(float) / DAC_MAX_CODE
+            for forward in (True, False)}
 
     def _generate(self, first_sample: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The next ``n`` DAC codes, signed step marks and DDS phases."""
@@ -487,7 +503,7 @@ class Axis:
     def _dds(self, first_sample: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pattern value (0..1), signed step marks (±1 on the sample that completes a
         period) and phase of the next ``n`` samples."""
-        table = np.asarray(self._patterns[self._up], dtype=float) / PATTERN_MAX
+        table = self._tables[self._up]
         mask = np.uint64((1 << PHASE_BITS) - 1)
         if self._remaining == 0:
             phases = np.full(n, self._phase, dtype=np.uint64)
@@ -512,11 +528,12 @@ class Axis:
 
 
 def _lookup(table: np.ndarray, phases: np.ndarray) -> np.ndarray:
-    """Linear interpolation of a 256-point cyclic table at 32-bit phases."""
-    index = (phases >> np.uint64(PHASE_BITS - 8)).astype(np.int64)
-    frac = (phases & np.uint64((1 << (PHASE_BITS - 8)) - 1)).astype(float) / (1 << (PHASE_BITS - 8))
+    """Linear interpolation of a cyclic 2**k-point table at 32-bit phases (top k bits index)."""
+    shift = PHASE_BITS - (table.size.bit_length() - 1)
+    index = (phases >> np.uint64(shift)).astype(np.int64)
+    frac = (phases & np.uint64((1 << shift) - 1)).astype(float) / (1 << shift)
     here = table[index]
-    return here + (table[(index + 1) % PATTERN_POINTS] - here) * frac
+    return here + (table[(index + 1) % table.size] - here) * frac
 
 
 def _slew_limit(target: np.ndarray, start: int, max_step: int) -> np.ndarray:

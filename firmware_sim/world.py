@@ -27,11 +27,21 @@ from feeder.plant.plant import Plant
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction
 from firmware_sim.clock import VirtualClock
-from firmware_sim.firmware import Axis, Firmware, FirmwareConfig
+from firmware_sim.firmware import PHASE_BITS, Axis, Firmware, FirmwareConfig
 
-SETTLE_S = 0.005
 WARMUP_STEPS = 2
 MEASURED_STEPS = 3
+SCATTER_STEPS = 20
+
+
+@dataclass(frozen=True)
+class TrueStep:
+    """The plant's true steady-state step up and down (m, signed) and its relative
+    single-step spread (1σ / mean) from the per-stick scatter of the friction."""
+
+    up_m: float
+    down_m: float
+    scatter: float
 
 
 @dataclass(frozen=True)
@@ -127,13 +137,25 @@ class World:
                 line = json.dumps({"seq": seq, "time_s": t, "position_m": position})
                 self.publish(line.encode() + b"\n")
 
-    def true_steps_m(self, axis: Axis) -> tuple[float, float]:
-        """The plant's mean step up and down (m, signed) for ``axis``' current settings.
+    def true_step(self, axis: Axis) -> TrueStep:
+        """The plant's true step for ``axis``' current settings, measured, not predicted.
 
-        Measured, not predicted: a fresh firmware with the axis' patterns,
-        amplitude, offset, frequency and mode drives a fresh copy of the true
-        plant without scatter; after two warm-up steps, the mean of three.
+        A fresh firmware with the axis' flyback (or patterns), amplitude, offset,
+        frequency and mode drives a fresh copy of the true plant.  The step is
+        the part's displacement between the same phase (mid-period) of two
+        periods of one burst, after two warm-up periods, per period: without
+        scatter for the mean, with the world's scatter for the spread.
         """
+        up = self._period_steps(axis, 1, MEASURED_STEPS, scatter=0.0)
+        down = self._period_steps(axis, -1, MEASURED_STEPS, scatter=0.0)
+        spread = 0.0
+        if self.config.scatter > 0:
+            steps = self._period_steps(axis, 1, SCATTER_STEPS, scatter=self.config.scatter)
+            spread = float(np.std(steps) / abs(np.mean(steps))) if np.mean(steps) else 0.0
+        return TrueStep(float(np.mean(up)), float(np.mean(down)), spread)
+
+    def _period_steps(self, axis: Axis, sign: int, count: int, scatter: float) -> np.ndarray:
+        """Per-period displacements (m) of ``count`` periods of a burst after the warm-up."""
         status = axis.status()
         config = FirmwareConfig(axes=1, tick_hz=self.firmware_config.tick_hz,
                                 sample_rate_hz=self.firmware_config.sample_rate_hz,
@@ -142,35 +164,27 @@ class World:
                                 watchdog_s=math.inf)
         firmware = Firmware(config)
         probe = firmware.axis(1)
-        probe.set_pattern(True, axis.pattern(True))
-        probe.set_pattern(False, axis.pattern(False))
         probe.set_frequency(status.frequency_hz)
+        if status.flyback_shape == "custom":
+            probe.set_pattern(True, axis.pattern(True))
+            probe.set_pattern(False, axis.pattern(False))
+        else:
+            probe.set_flyback(status.flyback_shape, status.flyback_s)
         probe.set_amplitude(status.amplitude_v)
         probe.set_offset(status.offset_v)
         probe.set_mode(status.mode if status.mode in ("stp+", "stp-") else "stp")
-        plant = self._plant(0.0, None)
-        latest = [plant.part_position_m]
-
-        def feed(_axis: int, _first: int, volts: np.ndarray) -> None:
-            latest[0] = float(plant.advance(volts)[-1])
-
-        firmware.add_sink(feed)
-        clock = VirtualClock()
-        settle_ticks = math.ceil(SETTLE_S * config.tick_hz)
-        burst_ticks = math.ceil(config.tick_hz / status.frequency_hz)
-
-        def burst(count: int) -> float:
-            probe.step(count)
-            firmware.run(clock, max_ticks=abs(count) * burst_ticks + settle_ticks)
-            return latest[0]
-
-        steps = []
-        for sign in (1, -1):
-            burst(sign * WARMUP_STEPS)
-            start = latest[0]
-            end = burst(sign * MEASURED_STEPS)
-            steps.append((end - start) / MEASURED_STEPS)
-        return steps[0], steps[1]
+        plant = self._plant(scatter, self.config.seed + 2)
+        trace: list[np.ndarray] = []
+        firmware.add_sink(lambda _axis, _first, volts: trace.append(plant.advance(volts)))
+        increment = round(status.frequency_hz * (1 << PHASE_BITS) / config.sample_rate_hz)
+        period = (1 << PHASE_BITS) / increment  # samples per DDS period
+        steps = WARMUP_STEPS + count + 1
+        probe.step(sign * steps)
+        firmware.run(VirtualClock(), max_ticks=math.ceil(steps * period
+                                                          / config.samples_per_tick) + 2)
+        x = np.concatenate(trace)
+        at = [round((k + 0.5) * period) for k in range(WARMUP_STEPS, steps)]
+        return np.diff(x[at])
 
     def describe(self) -> dict[str, object]:
         """The true parameters, for the ready line."""

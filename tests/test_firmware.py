@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from feeder.plant.amplifier import AmplifierLimits
+from feeder.waveform import Waveform
 from firmware_sim.clock import VirtualClock
 from firmware_sim.firmware import (
     Fault,
@@ -64,19 +65,36 @@ def test_burst_of_n_steps_counts_n_and_lasts_n_periods() -> None:
     assert axis.status().step_counter == 4
 
 
-def test_dds_output_is_the_interpolated_pattern_times_amplitude() -> None:
-    # 10 Hz: the ramp is far below every slope limit, so the DAC plays the pattern itself
-    fw, rec, clock = make()
+def play_continuous(fw: Firmware, rec: Recorder, clock: VirtualClock, ticks: int) -> np.ndarray:
     axis = fw.axis(1)
     axis.set_frequency(10.0)
     axis.set_amplitude(50.0)
     axis.set_mode("stp")
     axis.run_continuous(up=True)
-    fw.run(clock, max_ticks=50)
-    v = rec.volts()[:4000]
-    table = np.array(axis.pattern(True) + axis.pattern(True)[:1], dtype=float) / 255
+    fw.run(clock, max_ticks=ticks)
+    return rec.volts()
+
+
+def test_dds_plays_the_flyback_design_times_amplitude() -> None:
+    # 10 Hz: the ramp is far below every slope limit, so the DAC plays the design itself
+    fw, rec, clock = make()
+    fw.axis(1).set_frequency(10.0)
+    fw.axis(1).set_flyback("half-cosine", 0.01)
+    v = play_continuous(fw, rec, clock, 250)[:20000]
+    design = Waveform(frequency_hz=10.0, amplitude_vpp=50.0, flyback_shape="half-cosine",
+                      flyback_s=0.01)
+    expected = design.voltage_at_phase(np.arange(v.size) * 10.0 / fw.sample_rate)
+    np.testing.assert_allclose(v, expected, atol=2 * fw.lsb_v)
+
+
+def test_dds_after_setpu_plays_the_interpolated_8_bit_pattern() -> None:
+    fw, rec, clock = make()
+    table = [round(255 * (i / 255) ** 2) for i in range(256)]
+    fw.axis(1).set_pattern(True, table)
+    v = play_continuous(fw, rec, clock, 150)[:10000]
+    cyclic = np.array([*table, table[0]], dtype=float) / 255
     phase = (np.arange(v.size) * 10.0 / fw.sample_rate) % 1.0
-    expected = 50.0 * np.interp(phase * 256, np.arange(257), table)
+    expected = 50.0 * np.interp(phase * 256, np.arange(257), cyclic)
     np.testing.assert_allclose(v, expected, atol=fw.lsb_v + 50.0 * 256 * 1e-6)
 
 
