@@ -30,7 +30,7 @@ PAPER = DriveSettings(frequency_hz=100.0, amplitude_v=200.0, flyback_shape="curr
 
 
 TRANSPORTS = ("serial", "can")
-HEARTBEAT_S = 0.2
+HEARTBEAT_S = 0.5  # generous: on a loaded machine Python threads can stall for 100s of ms
 
 
 def start(transport: str = "serial") -> Simulator:
