@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import socket
 import threading
 import time
 from collections.abc import Iterator
 
 import pytest
+import serial
+import serial.rfc2217
 
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost, DriveSettings
@@ -137,3 +141,48 @@ def test_wrong_password_is_refused() -> None:
         link.close()
     finally:
         pty.close()
+
+
+class Rfc2217Bridge:
+    """A minimal RFC 2217 server (pyserial's PortManager) in front of a serial port
+    (here firmware_sim's TCP console opened as ``socket://``: a pty refuses the
+    modem-line ioctls RFC 2217 forwards)."""
+
+    def __init__(self, device: str) -> None:
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        self.device = serial.serial_for_url(device, timeout=0.05)
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self) -> None:
+        connection, _ = self.listener.accept()
+        writer = type("Writer", (), {"write": lambda _self, data: connection.sendall(data)})()
+        manager = serial.rfc2217.PortManager(self.device, writer)
+
+        def device_to_network() -> None:
+            with contextlib.suppress(OSError, AttributeError, serial.SerialException):
+                while self.device.is_open:
+                    data = self.device.read(4096)
+                    if data:
+                        connection.sendall(b"".join(manager.escape(data)))
+
+        threading.Thread(target=device_to_network, daemon=True).start()
+        with contextlib.suppress(OSError, AttributeError, serial.SerialException):
+            while data := connection.recv(4096):
+                self.device.write(b"".join(manager.filter(data)))
+
+    def close(self) -> None:
+        self.listener.close()
+        self.device.close()
+
+
+def test_driver_over_rfc2217(sim: Simulator) -> None:
+    bridge = Rfc2217Bridge(sim.endpoints["console_tcp"])
+    link = Anc300Link(f"rfc2217://127.0.0.1:{bridge.port}", timeout_s=3.0)
+    try:
+        link.query("setv 1 17.25")
+        assert link.value("getv 1", "voltage") == "17.250000"
+        assert link.query("ver")[0].startswith("attocube ANC300")
+    finally:
+        link.close()
+        bridge.close()

@@ -123,8 +123,10 @@ class Anc300Link:
 
     def _connect(self) -> serial.SerialBase:
         try:
+            # pyserial's rfc2217 client has no write timeout
+            write_timeout = None if self.url.startswith("rfc2217://") else self.timeout_s
             port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=self.timeout_s,
-                                         write_timeout=self.timeout_s)
+                                         write_timeout=write_timeout)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise AmplifierLinkLost(f"cannot open: {exc}") from exc
         self._port = port
@@ -282,6 +284,9 @@ class Anc300Amplifier(Amplifier):
         except (KeyError, ValueError) as exc:
             self.link.close()
             raise AmplifierLinkLost(f"{self.link.url}: getst: unreadable reply {fields}") from exc
+
+    def __enter__(self) -> Anc300Amplifier:
+        return self
 
     def clear_faults(self) -> None:
         """Clear the latched fault word (firmware_sim extension ``clrf``)."""
