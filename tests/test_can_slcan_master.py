@@ -82,3 +82,20 @@ def test_bad_writes_are_refused_over_slcan(master: tuple[Simulator, canopen.Remo
     assert info.value.code == code
     assert (node.sdo["Frequency"].raw, node.sdo["Amplitude"].raw,
             node.sdo["Step counter"].raw) == before
+
+
+def test_garbage_lines_and_unknown_frames_do_no_harm(
+        master: tuple[Simulator, canopen.RemoteNode]) -> None:
+    sim, node = master
+    network = node.network
+    before = (node.sdo["Frequency"].raw, node.sdo["Amplitude"].raw, node.sdo["Mode"].raw,
+              node.sdo["Step counter"].raw)
+    port = network.bus.serialPortOrig  # type: ignore[union-attr]
+    port.write(b"\xff\xfe\x00\x07zz\rt12\rT1\rd1230\rt8000\r" + b"t" * 5000 + b"\r\n")
+    for can_id in (0x123, 0x7FF, 0x580 + 11, 0x700 + 3, 0x080, 0x601, 0x20B):
+        network.send_message(can_id, b"\x01\x02")    # unknown ids, short SDO/RPDO, SYNC
+    network.send_message(0x000, b"\x81\x05")          # reset for another node
+    time.sleep(0.3)
+    assert sim.alive()
+    assert (node.sdo["Frequency"].raw, node.sdo["Amplitude"].raw, node.sdo["Mode"].raw,
+            node.sdo["Step counter"].raw) == before
