@@ -131,7 +131,7 @@ class World:
             self._next_frame += 1
 
     def _on_tick(self, now_s: float) -> None:
-        while self._pending and self._pending[0][0] <= now_s:
+        while self._pending and self._pending[0][0] <= now_s + 1e-9:
             _, seq, t, position = heapq.heappop(self._pending)
             if self.publish is not None:
                 line = json.dumps({"seq": seq, "time_s": t, "position_m": position})
