@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import re
 import socket
 import threading
@@ -228,3 +229,35 @@ def test_fuzzed_commands_keep_the_dac_stream_inside_voltage_slew_and_current_lim
         slope = np.abs(np.diff(volts)) / dt
         assert slope.max(initial=0.0) <= amp.slew_rate_v_per_s * (1 + 1e-9)
         assert (c * slope).max(initial=0.0) <= amp.current_limit_a * (1 + 1e-9)
+
+
+@pytest.fixture(scope="module")
+def tcp_console() -> Iterator[TcpConsoleServer]:
+    fw = Firmware()
+    server = TcpConsoleServer("127.0.0.1", 0, lambda: ConsoleSession(fw, password="123456"))
+    yield server
+    server.close()
+
+
+def _still_answers(port: int) -> bool:
+    sock = _connect(port)
+    try:
+        _read_until(sock, b"code: ")
+        sock.sendall(b"123456\r\necho off\r\ngetm 1\r\n")
+        return b"mode = gnd\r\nOK\r\n" in _read_until(sock, b"gnd\r\nOK\r\n")
+    finally:
+        sock.close()
+
+
+@pytest.mark.timeout(120)
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.one_of(st.binary(max_size=300), st.just(b"123456\r\n"),
+                          st.just(b"q" * 70_000), st.just(b"stepu 1 5\r\n")), max_size=6))
+def test_tcp_fuzz_then_disconnect_mid_line_leaves_the_server_answering(
+        tcp_console: TcpConsoleServer, chunks: list[bytes]) -> None:
+    sock = _connect(tcp_console.port)
+    with contextlib.suppress(OSError):  # the server closes after three failed logins
+        for chunk in chunks:
+            sock.sendall(chunk)
+    sock.close()
+    assert _still_answers(tcp_console.port)
