@@ -29,13 +29,13 @@ TOML file::
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from feeder.errors import InputError
+from feeder.files import read_toml, write_text
 
 SHAPES = ("sawtooth",)
 FLYBACK_SHAPES = ("linear", "half-cosine", "current-limited")
@@ -182,9 +182,7 @@ class Waveform:
 
     def write_toml(self, path: Path) -> None:
         """Write atomically (temporary file, then rename)."""
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(self.to_toml(), encoding="utf-8")
-        tmp.replace(path)
+        write_text(path, self.to_toml())
 
 
 _NUMBER_KEYS = ("frequency_hz", "amplitude_vpp", "offset_v", "flyback_s")
@@ -199,14 +197,7 @@ def load_waveform(path: Path | str) -> Waveform:
     :meth:`feeder.plant.amplifier.AmplifierLimits.check`.
     """
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(str(path), "no such file") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(str(path), f"cannot read: {err}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise InputError(str(path), f"not valid TOML: {err}") from None
+    data = read_toml(path)
     table = data.get("waveform")
     if not isinstance(table, dict):
         raise InputError(str(path), "missing [waveform] table")

@@ -3,47 +3,22 @@
 from __future__ import annotations
 
 import argparse
-import math
-from pathlib import Path
 from typing import Any
 
+from feeder.cli.arguments import add_part_arguments, add_tau_arguments, part_from, surface_from
 from feeder.cli.output import print_json
 from feeder.contact.asperity_sampling import DEFAULT_PLACEMENTS
-from feeder.contact.breakaway import (
-    DEFAULT_TAU_BAND_PA,
-    DEFAULT_TAU_PA,
-    MIN_CONTACTS,
-    ContactResult,
-    contact,
-)
+from feeder.contact.breakaway import MIN_CONTACTS, ContactResult, contact
 from feeder.errors import InputError
 from feeder.paper import PAPER_ROWS
 from feeder.parts import Part, Support
-from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters, load_surface
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a positive finite number."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
+from feeder.surface.parameters import SurfaceParameters
 
 
 def register(sub: Any) -> None:
     p = sub.add_parser("contact", help="real contact area and breakaway force of a part")
-    p.add_argument("--part", help="LxWxT in µm, e.g. 300x300x50")
-    p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
-    p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
-    p.add_argument("--tau", type=positive_float, default=DEFAULT_TAU_PA,
-                   help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})")
-    p.add_argument("--tau-band", type=float, default=DEFAULT_TAU_BAND_PA,
-                   help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})")
-    p.add_argument("--density", type=positive_float, default=2330.0,
-                   help="part density in kg/m³ (default silicon, 2330)")
+    add_part_arguments(p, part_required=False)
+    add_tau_arguments(p)
     p.add_argument("--placements", type=int, default=DEFAULT_PLACEMENTS,
                    help="random placements sampled summit by summit for the A_r band "
                         f"(default {DEFAULT_PLACEMENTS}; 0 skips)")
@@ -56,13 +31,11 @@ def register(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     if not 0 <= args.placements <= 1_000_000:
         raise InputError("--placements", f"must be between 0 and 1000000, got {args.placements}")
-    surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
-    support = Support.parse(args.support)
     if args.table:
-        return _table(surface, args.tau, args.tau_band, args.placements, args.json)
+        return _table(surface_from(args), args.tau, args.tau_band, args.placements, args.json)
     if not args.part:
         raise InputError("--part", "required (LxWxT in µm, e.g. 300x300x50), or use --table")
-    part = Part.parse(args.part, density_kg_m3=args.density)
+    part, support, surface = part_from(args)
     result = contact(part, support, surface, args.tau, args.tau_band, args.placements)
     if args.json:
         print_json(result.to_json())

@@ -20,6 +20,7 @@ import numpy as np
 from feeder.cli.output import print_json
 from feeder.contact.greenwood_williamson import GreenwoodWilliamson
 from feeder.errors import InputError
+from feeder.files import save_figure
 from feeder.friction.shear_strength import shear_strength
 from feeder.paper import (
     PAPER_ROWS,
@@ -155,7 +156,7 @@ def _figure_9(path: Path) -> dict[str, Any]:
                  fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     result["file"] = str(path)
     return result
 
@@ -186,13 +187,4 @@ def _table_figure(rows: list[dict[str, Any]], path: Path) -> None:
     ax.set_title("Paper Tables IV–VI: τ recomputed from the printed F and A_r", fontsize=10)
     notes = "\n".join(textwrap.fill(f"• {n}", 150, subsequent_indent="   ") for n in NOTES[:4])
     fig.text(0.02, 0.03, notes, fontsize=7, va="bottom")
-    _save(fig, path)
-
-
-def _save(fig: Any, path: Path) -> None:
-    import matplotlib.pyplot as plt
-
-    tmp = path.with_name(path.name + ".tmp")
-    fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure(fig, path)

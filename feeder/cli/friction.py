@@ -6,9 +6,10 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.contact import positive_float
+from feeder.cli.arguments import positive_float
 from feeder.cli.output import print_json
 from feeder.errors import InputError
+from feeder.files import save_figure
 from feeder.friction.cantilevers import CANTILEVERS, cantilever_stiffness
 from feeder.friction.force_curves import (
     ForceCurve,
@@ -117,7 +118,4 @@ def _plot(analysed: list[tuple[ForceCurve, FrictionPeak]], path: Path) -> None:
                  fontsize=8)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    tmp = path.with_name(path.name + ".tmp")
-    fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure(fig, path)

@@ -3,32 +3,23 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 from typing import Any
 
-from feeder.cli.contact import positive_float
+from feeder.cli.arguments import add_part_arguments, add_tau_arguments, part_from, positive_float
 from feeder.cli.output import print_json
-from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
-from feeder.parts import Part, Support
 from feeder.planner import DEFAULT_MARGIN, plan
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
-from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
 
 _DEFAULT_AMPLIFIER = AmplifierLimits()
 
 
 def register(sub: Any) -> None:
     p = sub.add_parser("plan", help="plan a move: waveform, steps, predicted step and band")
-    p.add_argument("--part", required=True, help="LxWxT in µm, e.g. 300x300x50")
+    add_part_arguments(p)
     p.add_argument("--distance-m", type=float, required=True,
                    help="wanted displacement in m; negative: backward (write --distance-m=-20e-6)")
-    p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
-    p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
-    p.add_argument("--tau", type=positive_float, default=DEFAULT_TAU_PA,
-                   help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})")
-    p.add_argument("--tau-band", type=float, default=DEFAULT_TAU_BAND_PA,
-                   help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})")
+    add_tau_arguments(p)
     p.add_argument("--kinetic-ratio", type=positive_float, default=DEFAULT_KINETIC_RATIO,
                    help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})")
     p.add_argument("--margin", type=positive_float, default=DEFAULT_MARGIN,
@@ -47,9 +38,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    part = Part.parse(args.part)
-    support = Support.parse(args.support)
-    surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
+    part, support, surface = part_from(args)
     amplifier = AmplifierLimits(v_max_v=args.max_voltage_v, current_limit_a=args.current_limit_a,
                                 max_frequency_hz=args.max_frequency_hz)  # fmt: skip
     result = plan(part, support, surface, args.tau, amplifier, args.distance_m,

@@ -10,28 +10,24 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.contact import positive_float
+from feeder.cli.arguments import add_part_arguments, add_tau_arguments, part_from, positive_float
 from feeder.cli.output import print_json
 from feeder.cli.waveform import load_checked
-from feeder.contact.breakaway import DEFAULT_TAU_PA, contact
+from feeder.contact.breakaway import contact
 from feeder.errors import InputError
-from feeder.parts import Part, Support
+from feeder.files import save_figure
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.ideal_plate import linear_flyback_step, sawtooth_motion
 from feeder.plant.plant import run_waveform
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, StickSlip
-from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
 from feeder.waveform import DIRECTIONS
 
 
 def register(sub: Any) -> None:
     p = sub.add_parser("simulate", help="simulate a part stepping on the plate")
-    p.add_argument("--part", required=True, help="LxWxT in µm, e.g. 500x500x50")
-    p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
-    p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
-    p.add_argument("--tau", type=positive_float, default=DEFAULT_TAU_PA,
-                   help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})")
+    add_part_arguments(p, example="500x500x50")
+    add_tau_arguments(p, band=False)
     p.add_argument("--kinetic-ratio", type=positive_float, default=DEFAULT_KINETIC_RATIO,
                    help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})")
     p.add_argument("--waveform", type=Path, help="waveform TOML (full plant, or --ideal)")
@@ -60,9 +56,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--kinetic-ratio", f"must lie in (0, 1], got {args.kinetic_ratio}")
     if not (math.isfinite(args.scatter) and args.scatter >= 0):
         raise InputError("--scatter", f"must be a non-negative number, got {args.scatter}")
-    part = Part.parse(args.part)
-    surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
-    result = contact(part, Support.parse(args.support), surface, args.tau)
+    part, support, surface = part_from(args)
+    result = contact(part, support, surface, args.tau)
     friction = Friction(result.breakaway_accel_m_s2, args.kinetic_ratio)
     out: dict[str, Any] = {"part": part.label, "support": args.support,
                            "breakaway_accel_m_s2": friction.static_accel_m_s2,
@@ -164,7 +159,4 @@ def _plot(time: np.ndarray, part: np.ndarray, plate: np.ndarray, path: Path) -> 
     ax.set_ylabel("position (µm)")
     ax.legend()
     fig.tight_layout()
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=120)
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure(fig, path)

@@ -10,9 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.contact import positive_float
+from feeder.cli.arguments import positive_float
 from feeder.cli.output import print_json
 from feeder.errors import InputError
+from feeder.files import save_figure
 from feeder.surface.parameters import SurfaceParameters
 from feeder.surface.reading import HeightMap, read_height_map
 from feeder.surface.statistics import (
@@ -155,7 +156,4 @@ def _plot(maps: list[HeightMap], path: Path) -> None:
         ax.legend(loc="upper right", fontsize=7)
         fig.colorbar(image, ax=ax, label="height (nm)")
     fig.tight_layout()
-    tmp = path.with_name(path.name + ".tmp")
-    fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure(fig, path)

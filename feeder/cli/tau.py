@@ -7,15 +7,13 @@ import math
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.contact import positive_float
+from feeder.cli.arguments import add_part_arguments, part_from, positive_float
 from feeder.cli.friction import add_curve_options, analyse_files
 from feeder.cli.output import print_json
 from feeder.contact.asperity_sampling import DEFAULT_PLACEMENTS
 from feeder.contact.breakaway import contact
 from feeder.errors import InputError
 from feeder.friction.shear_strength import shear_strength
-from feeder.parts import Part, Support
-from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
 
 BAND_NOTE = (
     "tau band = tau * sqrt((s_F/mean F)^2 + (dA/A_r)^2), s_F the sample std of the forces (ddof 1), "
@@ -26,12 +24,9 @@ BAND_NOTE = (
 
 def register(sub: Any) -> None:
     p = sub.add_parser("tau", help="shear strength τ = F/A_r from friction forces or force curves")
-    p.add_argument("--part", required=True, help="LxWxT in µm, e.g. 300x300x50")
-    p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
+    add_part_arguments(p)
     p.add_argument("--force", action="append", required=True, metavar="N|CURVE.csv",
                    help="a static-friction force in N, or a force-curve CSV; repeat for several")
-    p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
-    p.add_argument("--density", type=positive_float, default=2330.0, help="part density in kg/m³")
     p.add_argument("--real-area", type=positive_float,
                    help="use this real contact area in m² instead of the GW model")
     p.add_argument("--area-band", type=float,
@@ -71,9 +66,7 @@ def _number(text: str) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    part = Part.parse(args.part, density_kg_m3=args.density)
-    support = Support.parse(args.support)
-    surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
+    part, support, surface = part_from(args)
     forces, sources = _forces(args)
     given_area = args.real_area is not None
     model = contact(part, support, surface, placements=0 if given_area else DEFAULT_PLACEMENTS)

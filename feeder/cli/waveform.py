@@ -12,6 +12,7 @@ import numpy as np
 
 from feeder.cli.output import print_json
 from feeder.errors import InputError
+from feeder.files import save_figure
 from feeder.plant.amplifier import AmplifierLimits, OutputStage
 from feeder.plant.stack import StackParameters
 from feeder.waveform import DEFAULT_DAC_BITS, DEFAULT_DAC_POINTS, Waveform, load_waveform
@@ -162,7 +163,4 @@ def _plot(waveform: Waveform, amplifier: AmplifierLimits, stack: StackParameters
                  f"{waveform.flyback_shape} flyback, {waveform.direction}")  # fmt: skip
     ax.legend()
     fig.tight_layout()
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=120)
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure(fig, path)

@@ -16,11 +16,11 @@ File format (also written by ``feeder surface --out``)::
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from feeder.errors import InputError
+from feeder.files import read_toml, write_text
 
 Z_MAX_SIGMAS = 10.0
 
@@ -92,9 +92,7 @@ class SurfaceParameters:
 
     def write_toml(self, path: Path) -> None:
         """Write atomically (temporary file, then rename): nothing half-written."""
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(self.to_toml(), encoding="utf-8")
-        tmp.replace(path)
+        write_text(path, self.to_toml())
 
 
 DEFAULT_SURFACE = SurfaceParameters(
@@ -112,14 +110,7 @@ _MATERIAL_KEYS = ("youngs_modulus_pa", "poisson_ratio")
 
 def load_surface(path: Path) -> SurfaceParameters:
     """Read a surface TOML file; every problem is an :class:`InputError` naming file and field."""
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(str(path), "no such file") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(str(path), f"cannot read: {err}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise InputError(str(path), f"not valid TOML: {err}") from None
+    data = read_toml(path)
     surface = data.get("surface")
     if not isinstance(surface, dict):
         raise InputError(str(path), "missing [surface] table")

@@ -1,0 +1,52 @@
+"""Argument types and option groups shared by the sub-commands."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
+from feeder.parts import SILICON_DENSITY_KG_M3, Part, Support
+from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters, load_surface
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a positive finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return value
+
+
+def add_part_arguments(
+    p: argparse.ArgumentParser, *, part_required: bool = True, example: str = "300x300x50"
+) -> None:
+    """``--part``, ``--support``, ``--surface`` and ``--density``."""
+    p.add_argument("--part", required=part_required, help=f"LxWxT in µm, e.g. {example}")
+    p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
+    p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
+    p.add_argument("--density", type=positive_float, default=SILICON_DENSITY_KG_M3,
+                   help=f"part density in kg/m³ (default silicon, {SILICON_DENSITY_KG_M3:g})")
+
+
+def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
+    """``--tau`` (and ``--tau-band``)."""
+    p.add_argument("--tau", type=positive_float, default=DEFAULT_TAU_PA,
+                   help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})")
+    if band:
+        p.add_argument("--tau-band", type=float, default=DEFAULT_TAU_BAND_PA,
+                       help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})")
+
+
+def surface_from(args: argparse.Namespace) -> SurfaceParameters:
+    """The ``--surface`` file, or the embedded default."""
+    return load_surface(args.surface) if args.surface else DEFAULT_SURFACE
+
+
+def part_from(args: argparse.Namespace) -> tuple[Part, Support, SurfaceParameters]:
+    """Part, support and surface from :func:`add_part_arguments`' options."""
+    return Part.parse(args.part, density_kg_m3=args.density), Support.parse(args.support), surface_from(args)

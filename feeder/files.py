@@ -1,0 +1,50 @@
+"""User files: TOML read with one-line errors, text and PNG written atomically.
+
+Every reader raises :class:`feeder.errors.InputError` naming the file; every
+writer goes through a temporary file and a rename, so nothing is half-written.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from feeder.errors import InputError
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    """Parse a TOML file; a missing, unreadable or malformed file is an InputError naming it."""
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(str(path), "no such file") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(str(path), f"cannot read: {err}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise InputError(str(path), f"not valid TOML: {err}") from None
+
+
+def _temporary(path: Path) -> Path:
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (temporary file, then rename)."""
+    tmp = _temporary(path)
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+
+
+def save_figure(fig: Any, path: Path, dpi: int = 120) -> None:
+    """Save a matplotlib figure as PNG atomically and close it."""
+    import matplotlib.pyplot as plt
+
+    tmp = _temporary(path)
+    try:
+        fig.savefig(tmp, dpi=dpi, format="png")
+        tmp.replace(path)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
