@@ -6,7 +6,7 @@ and the endpoints, prints ONE JSON line on stdout::
     {"ready": true, "pid": 1234, "clock": "real",
      "endpoints": {"console_pty": "/dev/pts/7", "console_tcp": "socket://127.0.0.1:7230",
                    "sensor_tcp": "socket://127.0.0.1:40123"},
-     "true": {"tau_pa": ..., "step_up_m": ..., "step_down_m": ..., ...}}
+     "true": {"tau_pa": ..., "step_up_m": ..., "step_down_m": ..., "step_scatter": ..., ...}}
 
 and runs until SIGINT/SIGTERM (then grounds every axis, closes the endpoints,
 prints the tick statistics as one JSON line on stderr and exits 0).
