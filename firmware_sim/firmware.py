@@ -12,8 +12,9 @@ sample the DAC plays: the unplayed part of the buffer is regenerated.
 Each axis has a DDS: a 32-bit phase accumulator advanced by ``round(f·2³²/f_s)``
 per sample whose top bits index the axis' wavetable, with linear interpolation
 between entries: the flyback design's 4096-point 16-bit table, or after
-``setpu``/``setpd`` the ANC300's 256-point pattern (values 0–255).  A period of the pattern is one step: the step counter changes when
-the DAC plays the sample that completes a period.
+``setpu``/``setpd`` the ANC300's 256-point pattern (values 0–255).  A period
+of the pattern is one step: the step counter changes when the DAC plays the
+sample that completes a period.
 
 Output chain per sample:  pattern × amplitude (± offset, by mode) → clamp to
 the rails → 16-bit DAC code → slew limit in DAC codes, the step per sample
@@ -615,12 +616,12 @@ class Firmware:
         return tuple(self._axes)
 
     def add_sink(self, sink: DacSink) -> None:
-        """Receive every block of DAC output (called from the tick, lock held)."""
+        """Receive every block of DAC output the DAC played (called from the tick thread)."""
         with self.lock:
             self._sinks.append(sink)
 
     def add_tick_listener(self, listener: TickListener) -> None:
-        """Call ``listener(now_s)`` at the end of every tick (lock held)."""
+        """Call ``listener(now_s)`` at the end of every tick (from the tick thread)."""
         with self.lock:
             self._tick_listeners.append(listener)
 
@@ -640,8 +641,11 @@ class Firmware:
 
         The samples the DAC played since the last tick go to the sinks (the
         world); then the buffer is topped up to ``dac_buffer_s`` ahead.  If the
-        DAC ran dry it held its last sample for the gap (an underrun).
+        DAC ran dry it held its last sample for the gap (an underrun).  Sinks and
+        tick listeners run after the lock is released, so the front ends wait
+        only for the firmware's own work, not for the world's.
         """
+        blocks: list[tuple[int, int, np.ndarray]] = []
         with self.lock:
             self._now_s = now_s
             cfg = self.config
@@ -655,9 +659,8 @@ class Firmware:
                     if axis._written < played:
                         axis._hold(played - axis._written)
                     codes = axis._play(played - self.samples_played)
-                    volts = cfg.amplifier.v_min_v + codes * self.lsb_v
-                    for sink in self._sinks:
-                        sink(number, self.samples_played, volts)
+                    blocks.append((number, self.samples_played,
+                                   cfg.amplifier.v_min_v + codes * self.lsb_v))
                 self.samples_played = played
             if cfg.host_watchdog_s > 0 and now_s - self._last_host_s > cfg.host_watchdog_s:
                 for axis in self._axes.values():
@@ -667,9 +670,13 @@ class Firmware:
                 n = played + self.buffer_samples - axis._written
                 if n > 0:
                     axis._fill(n)
-            for listener in self._tick_listeners:
-                listener(now_s)
             self.lock.notify_all()  # waiters on played samples (wait_idle)
+            sinks, listeners = list(self._sinks), list(self._tick_listeners)
+        for number, first, volts in blocks:
+            for sink in sinks:
+                sink(number, first, volts)
+        for listener in listeners:
+            listener(now_s)
 
     def volts(self, code: int) -> float:
         """Output voltage of a DAC code."""
@@ -698,7 +705,8 @@ class Firmware:
                 if late > self.config.watchdog_s:
                     for axis in self._axes.values():
                         axis._latch(Fault.WATCHDOG)
-                self.tick(now)
+            self.tick(now)
+            with self.lock:
                 self._tick_index += 1
                 if clock.realtime and now >= self._tick_index * period:
                     skipped = math.floor(now / period) + 1 - self._tick_index
