@@ -16,8 +16,9 @@ Protocol: docs/anc300-protocol.md.
 
 On a real ANC300 pass ``extensions=False``: the flyback is then uploaded as
 256-point ``setpu``/``setpd`` tables (:meth:`feeder.waveform.Waveform.anc300_tables`),
-``wait`` uses ``stepw``, and the step counter is the driver's own sum of the
-steps it commanded (the ANC300 has none).  Example::
+``wait`` uses ``stepw``, the step counter is the driver's own sum of the
+steps it commanded and ``moving`` is always False (the ANC300 reports neither;
+no fault word either).  Example::
 
     link = Anc300Link("socket://192.168.1.2:7230", password="123456")
     with Anc300Amplifier(link, axis=1, extensions=False) as amp:
