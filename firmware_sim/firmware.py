@@ -51,12 +51,11 @@ import numpy as np
 
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.stack import StackParameters
-from feeder.waveform import Waveform
+from feeder.waveform import FLYBACK_SHAPES, Waveform
 from firmware_sim.clock import Clock
 
 MODES = ("gnd", "inp", "cap", "stp", "off", "stp+", "stp-")
 STEPPING_MODES = ("stp", "stp+", "stp-")
-FLYBACK_SHAPES = ("linear", "half-cosine", "current-limited")
 PATTERN_POINTS = 256
 PATTERN_MAX = 255
 WAVETABLE_POINTS = 4096
