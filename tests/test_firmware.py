@@ -290,3 +290,24 @@ def test_slew_limiter_matches_the_sample_by_sample_definition(
         expected.append(code)
     got = _slew_limit(np.array(target, dtype=np.int64), start, max_step)
     assert got.tolist() == expected
+
+
+def test_settings_changed_mid_burst_keep_its_step_count_and_stop_ends_it() -> None:
+    fw, _, clock = make()
+    axis = fw.axis(1)
+    axis.set_amplitude(50.0)
+    axis.set_mode("stp")
+    axis.step(20)  # 200 ms at 100 Hz
+    fw.run(clock, max_ticks=55)
+    axis.set_amplitude(80.0)
+    axis.set_frequency(200.0)  # the rest of the burst runs twice as fast
+    fw.run(clock, max_ticks=120)
+    status = axis.status()
+    assert status.step_counter == 20 and not status.moving
+    axis.step(-30)
+    fw.run(clock, max_ticks=40)
+    axis.stop()
+    stopped_at = axis.status().step_counter
+    fw.run(clock, max_ticks=100)
+    assert axis.status().step_counter == stopped_at
+    assert 20 - 9 <= stopped_at <= 20 - 7  # 40 ms at 200 Hz = 8 periods
