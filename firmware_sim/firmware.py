@@ -601,6 +601,7 @@ class Firmware:
         self._last_host_s = 0.0
         self._now_s = 0.0
         self._tick_index = 0
+        self._epoch_s: float | None = None  # clock time of the first tick: the DAC starts there
 
     def axis(self, number: int) -> Axis:
         """Axis ``number`` (1-based); empty or non-existent slots raise FirmwareError."""
@@ -704,7 +705,9 @@ class Firmware:
                 if late > self.config.watchdog_s:
                     for axis in self._axes.values():
                         axis._latch(Fault.WATCHDOG)
-            self.tick(now)
+            if self._epoch_s is None:
+                self._epoch_s = now
+            self.tick(now - self._epoch_s)
             with self.lock:
                 self._tick_index += 1
                 if clock.realtime and now >= self._tick_index * period:
