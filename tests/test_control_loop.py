@@ -12,13 +12,13 @@ from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
 from feeder.daemon.control_loop import (
     COARSE,
     FINE,
-    Burst,
     ControlLoop,
     Job,
     JobResult,
     LoopSettings,
     StepMode,
 )
+from feeder.daemon.service import calibration_bursts
 from feeder.drivers.amplifier import DriveSettings
 
 COARSE_V, FINE_V = 100.0, 40.0
@@ -74,8 +74,9 @@ def test_move_reaches_tolerance_without_overshoot(world: FakeWorld, target: floa
 def test_learns_the_true_step_after_20_steps_per_direction(world: FakeWorld) -> None:
     loop, _, _ = make_loop(world)
     try:
-        run_job(loop, Job("move", target_m=70e-6))       # ≥ 20 coarse steps forward
-        run_job(loop, Job("move", target_m=0.0))          # ≥ 20 coarse steps backward
+        # the first burst after a reversal is not learned from: two moves each way
+        for target in (150e-6, 0.0, 150e-6, 0.0):
+            run_job(loop, Job("move", target_m=target))
         est = loop.estimates()
     finally:
         loop.shutdown()
@@ -86,15 +87,20 @@ def test_learns_the_true_step_after_20_steps_per_direction(world: FakeWorld) -> 
 
 def test_calibration_job_runs_its_bursts_and_returns(world: FakeWorld) -> None:
     loop, _, _ = make_loop(world)
-    bursts = (Burst(COARSE, "forward", 20), Burst(COARSE, "backward", 20))
+    bursts = calibration_bursts(20, 8)
     try:
         result = run_job(loop, Job("calibrate", bursts=bursts))
     finally:
         loop.shutdown()
-    assert result.status == "done" and result.steps == 40 and result.bursts == 2
-    assert result.estimates["coarse/forward"]["step_m"] == pytest.approx(3.0e-6, rel=0.05)
-    assert result.estimates["coarse/backward"]["step_m"] == pytest.approx(2.6e-6, rel=0.05)
-    assert world.position(time.monotonic()) == pytest.approx(20 * (3.0e-6 - 2.6e-6), abs=3e-6)
+    assert result.status == "done" and result.bursts == len(bursts) == 12
+    assert result.steps == 2 * (21 + 9)
+    est = result.estimates
+    assert est["coarse/forward"]["steps"] == est["coarse/backward"]["steps"] == 20
+    assert est["coarse/forward"]["step_m"] == pytest.approx(3.0e-6, rel=0.05)
+    assert est["coarse/backward"]["step_m"] == pytest.approx(2.6e-6, rel=0.05)
+    assert est["fine/forward"]["step_m"] == pytest.approx(0.7e-6, rel=0.1)
+    expected = 21 * (3.0e-6 - 2.6e-6) + 9 * (0.7e-6 - 0.6e-6)
+    assert world.position(time.monotonic()) == pytest.approx(expected, abs=3e-6)
 
 
 def test_target_outside_travel_limits_is_refused(world: FakeWorld) -> None:

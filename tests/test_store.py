@@ -20,7 +20,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_round_trip(tmp_path: Path) -> None:
     store = Store(tmp_path / "state" / "feeder.sqlite")
     store.save_calibration(Calibration("a/coarse/forward", 3.1e-6, 1e-14, 20, 1.0))
-    store.save_calibration(Calibration("a/coarse/forward", 3.2e-6, 4e-15, 40, 2.0))
+    store.save_calibration(Calibration("a/coarse/forward", 3.2e-6, 4e-15, 40, 2.0,
+                                       0.9e-6, 3e-14, -2e-15))
     move = store.begin_move(100e-6, 0.0)
     store.finish_move(move, status="done", reason="within tolerance", reached_m=100.4e-6,
                       steps=33, bursts=4, step_forward_m=3.2e-6, step_backward_m=None)
@@ -29,7 +30,7 @@ def test_round_trip(tmp_path: Path) -> None:
 
     again = Store(tmp_path / "state" / "feeder.sqlite")
     assert again.calibration("a/coarse/forward") == Calibration(
-        "a/coarse/forward", 3.2e-6, 4e-15, 40, 2.0)
+        "a/coarse/forward", 3.2e-6, 4e-15, 40, 2.0, 0.9e-6, 3e-14, -2e-15)
     (row,) = again.moves()
     assert row["status"] == "done" and row["steps"] == 33
     assert row["error_m"] == pytest.approx(0.4e-6, rel=1e-9)
@@ -114,3 +115,25 @@ def test_refuses_a_newer_schema(tmp_path: Path) -> None:
     conn.close()
     with pytest.raises(StoreError, match="newer"):
         Store(path)
+
+
+def test_a_version_1_database_is_migrated(tmp_path: Path) -> None:
+    """Version 1 stored the step only; its rows gain the offset prior of a fresh seed."""
+    path = tmp_path / "v1.sqlite"
+    conn = sqlite3.connect(path)
+    conn.executescript("""
+        CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+        INSERT INTO meta VALUES ('schema_version', '1');
+        CREATE TABLE calibration (key TEXT PRIMARY KEY, step_m REAL NOT NULL,
+            variance_m2 REAL NOT NULL, steps INTEGER NOT NULL, updated_s REAL NOT NULL);
+        INSERT INTO calibration VALUES ('k', 3e-6, 1e-15, 40, 5.0);
+    """)
+    conn.commit()
+    conn.close()
+    store = Store(path)
+    assert store.calibration("k") == Calibration("k", 3e-6, 1e-15, 40, 5.0, 0.0,
+                                                 0.25 * 3e-6 * 3e-6, 0.0)
+    store.close()
+    version = sqlite3.connect(path).execute(
+        "SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
+    assert version == "2"

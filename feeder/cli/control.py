@@ -115,8 +115,8 @@ def run_move(args: argparse.Namespace) -> int:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    if not 1 <= args.steps <= 10_000:
-        raise InputError("--steps", "must be in [1, 10000]")
+    if not 2 <= args.steps <= 10_000:
+        raise InputError("--steps", "must be in [2, 10000]")
     return _job(args, "calibrate", steps=args.steps)
 
 

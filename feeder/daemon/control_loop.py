@@ -11,6 +11,11 @@ at most half a fine step plus scatter: no overshoot, no hunting.  A part that
 lands within tolerance but more than half a fine step away gets one more fine
 step (once per move).
 
+The estimators learn from every burst but the first after a direction
+reversal (or the first of all, when the history is unknown): that one loses
+part of a step (the plate's state left by the other direction), which is
+neither the step nor the burst offset.
+
 The loop stops a move on request, on stall (bursts that move the part by less
 than ``stall_fraction`` of what the estimate predicts), on travel limits
 (target outside, or the part seen outside), on too many direction reversals,
@@ -52,9 +57,9 @@ class StepMode:
 
     @property
     def seed(self) -> StepEstimate:
-        """Estimator seed: prediction, variance = (half-width of the band)²."""
+        """Estimator seed: prediction ± half-width of the band (at least 5 %)."""
         half = 0.5 * (self.predicted_band_m[1] - self.predicted_band_m[0])
-        return StepEstimate(self.predicted_step_m, max(half, 0.05 * self.predicted_step_m) ** 2)
+        return StepEstimate.seed(self.predicted_step_m, max(half, 0.05 * self.predicted_step_m))
 
 
 @dataclass(frozen=True)
@@ -163,6 +168,7 @@ class Job:
         self.burst: Burst | None = None
         self.measured_burst: Burst | None = None
         self.burst_from_m = 0.0
+        self.burst_reversed = False
         self.burst_end_s = 0.0
         self.settle_until_s = 0.0
         self.samples: list[float] = []
@@ -259,6 +265,7 @@ class ControlLoop:
         self._thread: threading.Thread | None = None
         self._applied: str | None = None
         self._enabled = False
+        self._last_direction: str | None = None
         self.position_m: float | None = None
         self.position_time_s: float | None = None
         self.fault: str | None = None
@@ -343,6 +350,12 @@ class ControlLoop:
 
     def estimates(self) -> dict[str, StepEstimate]:
         return {k: e.estimate for k, e in self.estimators.items()}
+
+    def estimates_json(self) -> dict[str, dict[str, float]]:
+        """Learned step and burst offset per ``mode/direction`` (m), for replies."""
+        return {k: {"step_m": e.step_m, "std_m": e.std_m, "offset_m": e.offset_m,
+                    "offset_std_m": e.offset_std_m, "steps": e.steps}
+                for k, e in self.estimates().items()}
 
     def timing(self) -> dict[str, float | int]:
         """Tick jitter p50/p99/max (s), ticks and overruns."""
@@ -501,12 +514,15 @@ class ControlLoop:
         sign = 1.0 if burst.direction == FORWARD else -1.0
         moved = sign * (x - job.burst_from_m)
         est = self.estimators[f"{burst.mode}/{burst.direction}"]
-        expected = burst.steps * est.step_m
+        expected = est.estimate.displacement_m(burst.steps)
+        if job.burst_reversed:       # may lose up to a step: judged, not learned from
+            expected -= est.estimate.step_m
         if moved < self.settings.stall_fraction * expected:
             job.stalls += 1
             return
         job.stalls = 0
-        est.update(burst.steps, moved)
+        if not job.burst_reversed:
+            est.update(burst.steps, moved)
 
     def _next_burst(self, job: Job, x: float) -> Burst | tuple[str, str]:
         """The next burst, or (status, reason) when the job is over."""
@@ -520,25 +536,30 @@ class ControlLoop:
         error = job.target_m - x
         direction = FORWARD if error > 0 else BACKWARD
         distance = abs(error)
-        coarse = self.estimators[f"{COARSE}/{direction}"].estimate
-        fine = self.estimators[f"{FINE}/{direction}"].usable_step_m()
+        coarse = self.estimators[f"{COARSE}/{direction}"]
+        fine = self.estimators[f"{FINE}/{direction}"]
+        single = fine.estimate.displacement_m(1)       # what one fine step does
         if distance <= s.tolerance_m:
             # within tolerance; one fine step more when it brings the part closer (once per
             # move, so it can never start hunting)
-            if job.refined or distance <= 0.5 * fine:
+            if job.refined or distance <= 0.5 * single:
                 return ("done", "within tolerance")
             job.refined = True
             return Burst(FINE, direction, 1)
-        # aim one step short with a pessimistic (mean + 2σ) step: never past the target
-        coarse_high = coarse.step_m + 2 * coarse.std_m
-        coarse_steps = math.floor(distance / coarse_high) - 1
-        if coarse_steps >= 1 and coarse.step_m > fine:
+        # aim one step short with a pessimistic (mean + 2σ) step and offset: never past the target
+        c = coarse.estimate
+        step_high = c.step_m + 2 * c.std_m
+        offset_high = c.offset_m + 2 * c.offset_std_m
+        coarse_steps = math.floor((distance - offset_high) / step_high) - 1
+        if coarse_steps >= 1 and coarse.usable_step_m() > fine.usable_step_m():
             burst = Burst(COARSE, direction, min(coarse_steps, s.max_burst_steps))
         else:
-            steps = round(distance / fine)
-            if steps == 0:
-                return ("unreachable", f"fine step {fine:.3g} m is more than twice the tolerance "
-                        f"{s.tolerance_m:.3g} m; error {error:.3g} m")
+            steps = round((distance - fine.estimate.offset_m) / fine.usable_step_m())
+            if steps < 1:
+                if abs(distance - single) >= distance:
+                    return ("unreachable", f"one fine step ({single:.3g} m) cannot reduce the "
+                            f"error {error:.3g} m below the tolerance {s.tolerance_m:.3g} m")
+                steps = 1
             burst = Burst(FINE, direction, min(steps, s.max_burst_steps))
         if job.last_direction is not None and direction != job.last_direction:
             job.reversals += 1
@@ -574,6 +595,8 @@ class ControlLoop:
         self.amplifier.step(burst.steps if burst.direction == FORWARD else -burst.steps)
         job.burst = burst
         job.burst_from_m = x
+        job.burst_reversed = self._last_direction != burst.direction   # None: unknown history
+        self._last_direction = burst.direction
         job.burst_end_s = now + burst.steps / mode.settings.frequency_hz
         job.steps += burst.steps
         job.bursts += 1
@@ -586,8 +609,7 @@ class ControlLoop:
             start_m=job.start_m, reached_m=reached_m if reached_m is not None else self.position_m,
             steps=job.steps, bursts=job.bursts,
             duration_s=now - job.started_s,
-            estimates={k: {"step_m": e.estimate.step_m, "std_m": e.estimate.std_m,
-                           "steps": e.estimate.steps} for k, e in self.estimators.items()},
+            estimates=self.estimates_json(),
             trace=job.trace,
         )
         with self._lock:

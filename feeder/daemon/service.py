@@ -134,6 +134,19 @@ def bind_socket(socket_path: Path) -> socket.socket:
     return sock
 
 
+def calibration_bursts(coarse_steps: int, fine_steps: int) -> tuple[Burst, ...]:
+    """Per waveform and direction: one step (takes up a reversal, not learned from), then a
+    short and a long burst (¼ and ¾ of the steps: two lengths separate the step from the
+    burst offset).  The part ends about where it started."""
+    bursts = []
+    for mode, total in ((COARSE, coarse_steps), (FINE, fine_steps)):
+        short = max(1, total // 4)
+        for direction in (FORWARD, BACKWARD):
+            bursts += [Burst(mode, direction, 1), Burst(mode, direction, short),
+                       Burst(mode, direction, total - short)]
+    return tuple(bursts)
+
+
 def lock_state(database_path: Path) -> IO[bytes]:
     """An exclusive lock beside the database (released when the process dies, even by SIGKILL).
 
@@ -232,15 +245,18 @@ class Daemon:
                 name = f"{mode}/{direction}"
                 cal = self.store.calibration(self._key(name))
                 if cal is not None:
-                    out[name] = StepEstimate(cal.step_m, cal.variance_m2, cal.steps)
+                    out[name] = StepEstimate(cal.step_m, cal.variance_m2, cal.steps,
+                                             cal.offset_m, cal.offset_variance_m2,
+                                             cal.covariance_m2)
         return out
 
     def _save_estimates(self) -> None:
         now = time.time()
         for name, est in self.loop.estimates().items():
             if est.steps > 0:
-                self.store.save_calibration(
-                    Calibration(self._key(name), est.step_m, est.variance_m2, est.steps, now))
+                self.store.save_calibration(Calibration(
+                    self._key(name), est.step_m, est.variance_m2, est.steps, now,
+                    est.offset_m, est.offset_variance_m2, est.covariance_m2))
 
     # -- jobs ----------------------------------------------------------------
     def _new_job(self, kind: str, target_m: float | None, by_m: float | None,
@@ -391,13 +407,12 @@ class Daemon:
 
     def _cmd_calibrate(self, request: dict[str, Any]) -> dict[str, Any]:
         steps = request.get("steps", CALIBRATION_STEPS)
-        if not isinstance(steps, int) or isinstance(steps, bool) or not 1 <= steps <= 10_000:
-            return {"ok": False, "error": f"steps must be an integer in [1, 10000], got {steps!r}"}
-        fine_steps = max(1, round(steps * self.setup.modes[COARSE].predicted_step_m
+        if not isinstance(steps, int) or isinstance(steps, bool) or not 2 <= steps <= 10_000:
+            return {"ok": False, "error": f"steps must be an integer in [2, 10000], got {steps!r}"}
+        fine_steps = max(2, round(steps * self.setup.modes[COARSE].predicted_step_m
                                   / self.setup.modes[FINE].predicted_step_m / 4))
-        bursts = (Burst(COARSE, FORWARD, steps), Burst(COARSE, BACKWARD, steps),
-                  Burst(FINE, FORWARD, fine_steps), Burst(FINE, BACKWARD, fine_steps))
-        return self._run_job(self._new_job("calibrate", None, None, bursts), request)
+        return self._run_job(self._new_job("calibrate", None, None,
+                                           calibration_bursts(steps, fine_steps)), request)
 
     def _cmd_stop(self, request: dict[str, Any]) -> dict[str, Any]:
         with self._lock:
@@ -449,8 +464,7 @@ class Daemon:
             "interrupted_moves": self.interrupted_moves,
             "tolerance_m": loop.settings.tolerance_m,
             "travel_limits_m": [loop.settings.min_position_m, loop.settings.max_position_m],
-            "estimates": {k: {"step_m": e.step_m, "std_m": e.std_m, "steps": e.steps}
-                          for k, e in loop.estimates().items()},
+            "estimates": loop.estimates_json(),
             "predicted_steps_m": {k: m.predicted_step_m for k, m in self.setup.modes.items()},
             "waveforms": {k: {**dataclasses.asdict(m.settings),
                               "predicted_step_band_m": list(m.predicted_band_m)}

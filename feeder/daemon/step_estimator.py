@@ -1,18 +1,21 @@
 """Online estimate of the real step size, one per direction (and per waveform).
 
-The measurement model of a burst of ``n`` steps is ``Δx = n·s + v`` with the
-unknown step ``s`` and noise ``v`` of variance ``R(n) = 2σ_x² + n·σ_s²`` (two
-sensor readings of noise σ_x, independent step-to-step scatter σ_s).  ``s`` is
-estimated by scalar recursive least squares with exponential forgetting,
-written as its equivalent Kalman filter: before each update the variance is
+A burst of ``n`` steps moves the part by ``Δx = n·s + c + v``: ``s`` is the
+steady step (paper §V.B), ``c`` the extra slip after the burst's last flyback
+(in steady stepping the next ramp absorbs it; at the end of a burst nothing
+does), ``v`` noise of variance ``R(n) = 2σ_x² + n·σ_s²`` (two sensor readings
+of noise σ_x, independent step-to-step scatter σ_s).  θ = (s, c) is estimated
+by recursive least squares with exponential forgetting, written as its
+equivalent Kalman filter with H = (n, 1): before each update the covariance is
 inflated, ``P ← P/λ`` (λ < 1 forgets old bursts, so a slow drift of the
 friction is followed), then
 
-    K = P·n / (n²·P + R(n)),   s ← s + K·(Δx − n·s),   P ← (1 − K·n)·P.
+    S = H·P·Hᵀ + R(n),   K = P·Hᵀ/S,   θ ← θ + K·(Δx − H·θ),   P ← P − K·S·Kᵀ.
 
-It is seeded by the planner's prediction (paper §V.B): ``s₀`` = predicted step,
-``P₀`` = (half-width of the predicted band)², so a good prediction is trusted
-and a bad one is corrected within the first burst.
+It is seeded by the planner's prediction: ``s₀`` = predicted step with
+``var s₀`` = (half-width of the predicted band)², and ``c₀ = 0`` with a broad
+``var c₀`` = (s₀/2)².  Bursts of different lengths separate ``s`` from ``c``;
+bursts of one length only pin ``n·s + c`` (which is what they need).
 """
 
 from __future__ import annotations
@@ -20,26 +23,50 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 FORWARD = "forward"
 BACKWARD = "backward"
 DIRECTIONS = (FORWARD, BACKWARD)
 
 
-@dataclass
+@dataclass(frozen=True)
 class StepEstimate:
-    """Step size (m, positive) and its variance (m²) after ``steps`` observed steps."""
+    """Step ``s`` (m), burst offset ``c`` (m), their covariance (m²), and steps observed."""
 
     step_m: float
     variance_m2: float
     steps: int = 0
+    offset_m: float = 0.0
+    offset_variance_m2: float = 0.0
+    covariance_m2: float = 0.0
+
+    @classmethod
+    def seed(cls, step_m: float, step_std_m: float) -> StepEstimate:
+        """The prior: a predicted step ± std, offset 0 ± step/2."""
+        return cls(step_m, step_std_m**2, 0, 0.0, (0.5 * step_m) ** 2, 0.0)
 
     @property
     def std_m(self) -> float:
         return math.sqrt(self.variance_m2)
 
+    @property
+    def offset_std_m(self) -> float:
+        return math.sqrt(self.offset_variance_m2)
+
+    def displacement_m(self, steps: int) -> float:
+        """Expected displacement of a burst of ``steps`` steps: n·s + c."""
+        return steps * self.step_m + self.offset_m
+
+    def displacement_std_m(self, steps: int) -> float:
+        """Its uncertainty: sqrt(H·P·Hᵀ) with H = (n, 1)."""
+        var = (steps * steps * self.variance_m2 + 2 * steps * self.covariance_m2
+               + self.offset_variance_m2)
+        return math.sqrt(max(var, 0.0))
+
 
 class StepEstimator:
-    """RLS with forgetting for the step size of one direction of one waveform.
+    """RLS with forgetting for the step (and burst offset) of one direction of one waveform.
 
     sensor_noise_m: σ_x of one position reading (m).
     step_scatter_m: σ_s, step-to-step scatter (m).
@@ -54,11 +81,11 @@ class StepEstimator:
         step_scatter_m: float,
         forgetting: float = 0.98,
     ) -> None:
-        if not (seed.step_m > 0 and seed.variance_m2 > 0):
+        if not (seed.step_m > 0 and seed.variance_m2 > 0 and seed.offset_variance_m2 >= 0):
             raise ValueError("seed step and variance must be positive")
         if not 0 < forgetting <= 1:
             raise ValueError("forgetting must be in (0, 1]")
-        self.estimate = StepEstimate(seed.step_m, seed.variance_m2, seed.steps)
+        self.estimate = seed
         self.sensor_noise_m = sensor_noise_m
         self.step_scatter_m = step_scatter_m
         self.forgetting = forgetting
@@ -80,13 +107,19 @@ class StepEstimator:
         if steps <= 0:
             raise ValueError("steps must be positive")
         est = self.estimate
-        p = est.variance_m2 / self.forgetting
-        gain = p * steps / (steps * steps * p + self.measurement_variance_m2(steps))
-        step = est.step_m + gain * (displacement_m - steps * est.step_m)
-        p = (1.0 - gain * steps) * p
-        self.estimate = StepEstimate(step, p, est.steps + steps)
+        theta = np.array([est.step_m, est.offset_m])
+        p = np.array([[est.variance_m2, est.covariance_m2],
+                      [est.covariance_m2, est.offset_variance_m2]]) / self.forgetting
+        h = np.array([float(steps), 1.0])
+        s = float(h @ p @ h) + self.measurement_variance_m2(steps)
+        gain = p @ h / s
+        theta = theta + gain * (displacement_m - float(h @ theta))
+        p = p - s * np.outer(gain, gain)
+        p = 0.5 * (p + p.T)
+        self.estimate = StepEstimate(float(theta[0]), float(p[0, 0]), est.steps + steps,
+                                     float(theta[1]), float(p[1, 1]), float(p[0, 1]))
         return self.estimate
 
     def usable_step_m(self) -> float:
-        """The estimate, floored at 1 nm so a near-zero estimate never divides by zero."""
+        """The step estimate, floored at 1 nm so a near-zero estimate never divides by zero."""
         return max(self.estimate.step_m, 1e-9)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (
@@ -27,7 +27,10 @@ CREATE TABLE IF NOT EXISTS calibration (
     step_m REAL NOT NULL,
     variance_m2 REAL NOT NULL,
     steps INTEGER NOT NULL,
-    updated_s REAL NOT NULL
+    updated_s REAL NOT NULL,
+    offset_m REAL NOT NULL DEFAULT 0,
+    offset_variance_m2 REAL NOT NULL DEFAULT 0,
+    covariance_m2 REAL NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS moves (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
@@ -51,6 +54,20 @@ CREATE TABLE IF NOT EXISTS position (
 );
 """
 
+_MIGRATE_1_TO_2 = """
+BEGIN IMMEDIATE;
+ALTER TABLE calibration ADD COLUMN offset_m REAL NOT NULL DEFAULT 0;
+ALTER TABLE calibration ADD COLUMN offset_variance_m2 REAL NOT NULL DEFAULT 0;
+ALTER TABLE calibration ADD COLUMN covariance_m2 REAL NOT NULL DEFAULT 0;
+UPDATE calibration SET offset_variance_m2 = 0.25 * step_m * step_m;
+UPDATE meta SET value = '2' WHERE key = 'schema_version';
+COMMIT;
+"""
+"""Version 2 learns a per-burst offset beside the step; old rows get the seed's offset prior."""
+
+CALIBRATION_COLUMNS = ("key, step_m, variance_m2, steps, updated_s, offset_m, offset_variance_m2,"
+                       " covariance_m2")
+
 MOVE_COLUMNS = (
     "id", "started_s", "finished_s", "start_m", "target_m", "reached_m", "error_m",
     "steps", "bursts", "status", "reason", "step_forward_m", "step_backward_m",
@@ -63,13 +80,16 @@ class StoreError(RuntimeError):
 
 @dataclass(frozen=True)
 class Calibration:
-    """One learned step size: mean (m) and variance (m²) after ``steps`` observed steps."""
+    """One learned step: step and burst offset (m), their covariance (m²), steps observed."""
 
     key: str
     step_m: float
     variance_m2: float
     steps: int
     updated_s: float
+    offset_m: float = 0.0
+    offset_variance_m2: float = 0.0
+    covariance_m2: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -102,6 +122,8 @@ class Store:
                 self._set_meta("schema_version", str(SCHEMA_VERSION))
             elif int(version) > SCHEMA_VERSION:
                 raise StoreError(f"{self.path}: schema version {version} is newer than this feeder")
+            elif int(version) == 1:
+                self._conn.executescript(_MIGRATE_1_TO_2)
         except sqlite3.DatabaseError as err:
             raise StoreError(f"{self.path}: {err}") from err
         self.path.chmod(0o600)
@@ -141,22 +163,18 @@ class Store:
     # -- calibration ------------------------------------------------------
     def save_calibration(self, cal: Calibration) -> None:
         self._write(
-            "INSERT OR REPLACE INTO calibration (key, step_m, variance_m2, steps, updated_s)"
-            " VALUES (?, ?, ?, ?, ?)",
-            (cal.key, cal.step_m, cal.variance_m2, cal.steps, cal.updated_s),
+            f"INSERT OR REPLACE INTO calibration ({CALIBRATION_COLUMNS})"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (cal.key, cal.step_m, cal.variance_m2, cal.steps, cal.updated_s, cal.offset_m,
+             cal.offset_variance_m2, cal.covariance_m2),
         )
 
     def calibration(self, key: str) -> Calibration | None:
-        rows = self._read(
-            "SELECT key, step_m, variance_m2, steps, updated_s FROM calibration WHERE key = ?",
-            (key,),
-        )
+        rows = self._read(f"SELECT {CALIBRATION_COLUMNS} FROM calibration WHERE key = ?", (key,))
         return Calibration(*rows[0]) if rows else None
 
     def calibrations(self) -> list[Calibration]:
-        rows = self._read(
-            "SELECT key, step_m, variance_m2, steps, updated_s FROM calibration ORDER BY key"
-        )
+        rows = self._read(f"SELECT {CALIBRATION_COLUMNS} FROM calibration ORDER BY key")
         return [Calibration(*row) for row in rows]
 
     # -- moves ------------------------------------------------------------
