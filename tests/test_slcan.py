@@ -153,9 +153,11 @@ def test_fuzzed_lines_never_crash(line: bytes) -> None:
         sent = peer.recv(0)
         if sent is None:
             assert reply in (OK, ERROR, b"") or reply[:1] in b"FVvN"
-        else:  # only a well-formed transmit line sends, and it re-encodes to itself
+        else:  # only a well-formed transmit line sends; it re-encodes to itself, hex in upper case
             assert reply in (b"z\r", b"Z\r")
-            assert adapter.frame_line(sent) == line.replace(b"\r", b"") + OK
+            encoded, given = adapter.frame_line(sent), line.replace(b"\r", b"") + OK
+            assert encoded is not None and encoded[:1] == given[:1]
+            assert encoded[1:] == given[1:].upper()
     finally:
         side.shutdown()
         peer.shutdown()
