@@ -10,14 +10,12 @@ ratio = floor median / firmware_sim median (1.0: the console costs nothing).
 
 from __future__ import annotations
 
-import os
-import subprocess
 import sys
 import time
-import tty
 
 import numpy as np
 import serial
+from pty_floor import FLAG, floor_pty, serve
 
 from feeder.daemon.launcher import Simulator
 
@@ -46,38 +44,21 @@ def _round_trips(port: serial.SerialBase, count: int) -> np.ndarray:
     return times
 
 
-def _echo_responder() -> None:
-    """Serve canned replies on a new pty; prints its path, runs until killed."""
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    print(os.ttyname(slave), flush=True)
-    pending = b""
-    while True:
-        pending += os.read(master, 4096)
-        *lines, pending = pending.split(b"\n")
-        if lines:
-            os.write(master, REPLY * len(lines))
-
-
 def run(quick: bool) -> dict[str, object]:
     count = 200 if quick else 2000
-    floor_process = subprocess.Popen([sys.executable, __file__, "--echo-responder"],
-                                     stdout=subprocess.PIPE, text=True)
     simulator = Simulator(["--console", "pty"])
     floor: list[np.ndarray] = []
     ours: list[np.ndarray] = []
     try:
-        assert floor_process.stdout is not None
-        floor_port = _open(floor_process.stdout.readline().strip())
-        our_port = _open(simulator.endpoints["console_pty"])
-        for _ in range(ROUNDS):  # interleaved, so both see the same machine load
-            floor.append(_round_trips(floor_port, count // ROUNDS))
-            ours.append(_round_trips(our_port, count // ROUNDS))
-        floor_port.close()
-        our_port.close()
+        with floor_pty(__file__) as floor_path:
+            floor_port = _open(floor_path)
+            our_port = _open(simulator.endpoints["console_pty"])
+            for _ in range(ROUNDS):  # interleaved, so both see the same machine load
+                floor.append(_round_trips(floor_port, count // ROUNDS))
+                ours.append(_round_trips(our_port, count // ROUNDS))
+            floor_port.close()
+            our_port.close()
     finally:
-        floor_process.kill()
-        floor_process.wait()
         simulator.stop()
     floor_times, our_times = np.concatenate(floor), np.concatenate(ours)
     return {
@@ -90,5 +71,5 @@ def run(quick: bool) -> dict[str, object]:
     }
 
 
-if __name__ == "__main__" and "--echo-responder" in sys.argv:
-    _echo_responder()
+if __name__ == "__main__" and FLAG in sys.argv:
+    serve(b"\n", lambda line: REPLY)

@@ -18,7 +18,9 @@ import sys
 import threading
 import time
 
-from sdo_rtt import NODE_ID, firmware_sim_pty, floor_pty, master
+import sdo_rtt
+from pty_floor import floor_pty
+from sdo_rtt import NODE_ID, firmware_sim_pty, master
 
 RATES_HZ = (250, 500, 1000, 2000, 3000, 4000, 6000, 8000, 12000, 16000)
 GRACE_S = 0.5
@@ -63,7 +65,7 @@ def _delivered(path: str, rates: tuple[int, ...], seconds: float, node_present: 
 def run(quick: bool) -> dict[str, object]:
     seconds = 0.2 if quick else 0.5
     rates = RATES_HZ[:4] if quick else RATES_HZ
-    with floor_pty() as path:
+    with floor_pty(sdo_rtt.__file__) as path:
         floor_rate, _ = _delivered(path, rates, seconds, node_present=False)
     with firmware_sim_pty() as path:
         our_rate, our_lost = _delivered(path, rates, seconds, node_present=True)

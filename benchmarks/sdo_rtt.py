@@ -15,17 +15,15 @@ ratio = floor median / firmware_sim median (1.0: the node and adapter cost nothi
 
 from __future__ import annotations
 
-import os
-import subprocess
 import sys
 import time
-import tty
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import canopen
 import numpy as np
+from pty_floor import FLAG, floor_pty, serve
 
 from feeder.daemon.launcher import Simulator
 
@@ -44,32 +42,6 @@ def _floor_reply(line: bytes) -> bytes:
     if line.startswith(b"t"):
         return b"z\r"
     return b"V1013\r" if line == b"V" else b"\r"
-
-
-def floor_adapter() -> None:
-    """Serve :func:`_floor_reply` on a new pty; prints its path, runs until killed."""
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    print(os.ttyname(slave), flush=True)
-    pending = b""
-    while True:
-        pending += os.read(master, 4096)
-        *lines, pending = pending.split(b"\r")
-        if lines:
-            os.write(master, b"".join(_floor_reply(line) for line in lines))
-
-
-@contextmanager
-def floor_pty() -> Iterator[str]:
-    """The floor adapter as a separate process; yields its pty path."""
-    process = subprocess.Popen([sys.executable, __file__, "--floor-adapter"],
-                               stdout=subprocess.PIPE, text=True)
-    try:
-        assert process.stdout is not None
-        yield process.stdout.readline().strip()
-    finally:
-        process.kill()
-        process.wait()
 
 
 @contextmanager
@@ -109,7 +81,7 @@ def _reads(path: str, count: int) -> np.ndarray:
 
 def run(quick: bool) -> dict[str, object]:
     count = 200 if quick else 2000
-    with floor_pty() as path:
+    with floor_pty(__file__) as path:
         floor = _reads(path, count)
     with firmware_sim_pty() as path:
         ours = _reads(path, count)
@@ -124,7 +96,7 @@ def run(quick: bool) -> dict[str, object]:
 
 
 if __name__ == "__main__":
-    if sys.argv[1:] == ["--floor-adapter"]:
-        floor_adapter()
+    if FLAG in sys.argv:
+        serve(b"\r", _floor_reply)
     else:
         print(run(quick="--quick" in sys.argv))
