@@ -238,3 +238,22 @@ def test_a_latched_watchdog_fault_is_cleared_by_a_new_move_others_are_reported(
     assert first.status == "fault" and "Axis in wrong mode" in first.reason
     assert second.status == "fault" and "amplifier fault latched: overtemp" in second.reason
     assert amp.faults == ("overtemp",)
+
+
+def test_a_plate_jump_on_a_waveform_change_is_measured_not_learned(world: FakeWorld) -> None:
+    """After a backward burst the output rests at its amplitude: switching coarse (100 V) →
+    fine (40 V) moves the part by 0.05 µm/V × −60 V = −3 µm.  The loop measures again after
+    the switch, so the estimates stay true, and the moves still end within tolerance."""
+    world.stack_gain_m_per_v = 0.05e-6
+    loop, _, _ = make_loop(world)
+    try:
+        results = [run_job(loop, Job("move", target_m=t))
+                   for t in (200e-6, 20e-6, 26e-6, 13e-6, 14.5e-6, -30e-6, -29e-6, -60e-6)]
+        est = loop.estimates()
+    finally:
+        loop.shutdown()
+    assert [r.status for r in results] == ["done"] * len(results)
+    assert all(abs(r.error_m or 1.0) <= 1e-6 for r in results)
+    for key, true in (("fine/backward", 0.6e-6), ("coarse/backward", 2.6e-6)):
+        if est[key].steps:
+            assert est[key].displacement_m(3) == pytest.approx(3 * true, abs=0.3e-6)

@@ -44,6 +44,17 @@ class FakeWorld:
         self.burst_increments: np.ndarray = np.zeros(0)
         self.stuck = False
         self.total_steps = 0
+        # a backward burst leaves the output at its amplitude (a forward one at 0 V); a new
+        # amplitude then moves the plate, and the stuck part with it, by gain × ΔV
+        self.stack_gain_m_per_v = 0.0
+        self.rest_v = 0.0
+
+    def set_amplitude(self, settings: DriveSettings) -> None:
+        with self.lock:
+            if self.rest_v > 0:
+                self.base_m += self.stack_gain_m_per_v * (settings.amplitude_v - self.rest_v)
+                self.rest_v = settings.amplitude_v
+            self.settings = settings
 
     def _done_steps(self, now: float) -> int:
         if self.burst_steps == 0 or self.settings is None:
@@ -70,6 +81,7 @@ class FakeWorld:
             self.burst_increments = step * (1 + self.scatter * self.rng.standard_normal(n))
             self.burst_start, self.burst_steps, self.burst_sign = now, n, sign
             self.total_steps += n
+            self.rest_v = self.settings.amplitude_v if sign < 0 else 0.0
 
     def stop(self, now: float) -> None:
         with self.lock:
@@ -94,7 +106,7 @@ class FakeAmplifier(Amplifier):
 
     def apply(self, settings: DriveSettings) -> None:
         self._check("apply")
-        self.world.settings = settings
+        self.world.set_amplitude(settings)
 
     def step(self, count: int) -> None:
         self._check("step")

@@ -169,6 +169,8 @@ class Job:
         self.measured_burst: Burst | None = None
         self.burst_from_m = 0.0
         self.burst_reversed = False
+        self.burst_learnable = False
+        self.switched = False
         self.burst_end_s = 0.0
         self.settle_until_s = 0.0
         self.samples: list[float] = []
@@ -504,24 +506,52 @@ class ControlLoop:
         if job.stalls >= s.stall_bursts:
             self._finish(job, "stalled", f"{job.stalls} bursts in a row barely moved the part", x)
             return
+        refined = job.refined
         nxt = self._next_burst(job, x)
         if isinstance(nxt, tuple):
             self._finish(job, nxt[0], nxt[1], x)
             return
+        unmeasured_switch = False
+        if not self._enabled or self._applied != nxt.mode:
+            # leaving ground or changing the amplitude moves the plate's rest position (and
+            # the part with it): prepare the output, then measure again before the burst --
+            # once; should the decision then change waveform again, step without re-measuring
+            # (and without learning from that burst), so the loop cannot ping-pong
+            if not self._enabled:
+                self._prepare_output()
+            if self._applied != nxt.mode:
+                self.amplifier.apply(self.modes[nxt.mode].settings)
+                self._applied = nxt.mode
+                unmeasured_switch = job.switched
+            if not unmeasured_switch:
+                if job.target_m is None:
+                    job.planned.appendleft(nxt)
+                job.refined = refined
+                job.switched = True
+                job.settle_until_s = now + s.settle_s
+                return
+        job.switched = False
+        if job.last_direction is not None and nxt.direction != job.last_direction:
+            job.reversals += 1
+            if job.reversals > s.max_reversals:
+                self._finish(job, "oscillating", f"{job.reversals} direction reversals without "
+                             "reaching the tolerance", x)
+                return
         self._start_burst(job, nxt, x, now)
+        job.burst_learnable = not (job.burst_reversed or unmeasured_switch)
 
     def _learn(self, job: Job, burst: Burst, x: float) -> None:
         sign = 1.0 if burst.direction == FORWARD else -1.0
         moved = sign * (x - job.burst_from_m)
         est = self.estimators[f"{burst.mode}/{burst.direction}"]
         expected = est.estimate.displacement_m(burst.steps)
-        if job.burst_reversed:       # may lose up to a step: judged, not learned from
+        if not job.burst_learnable:  # e.g. after a reversal: may lose up to a step
             expected -= est.estimate.step_m
         if moved < self.settings.stall_fraction * expected:
             job.stalls += 1
             return
         job.stalls = 0
-        if not job.burst_reversed:
+        if job.burst_learnable:
             est.update(burst.steps, moved)
 
     def _next_burst(self, job: Job, x: float) -> Burst | tuple[str, str]:
@@ -561,11 +591,6 @@ class ControlLoop:
                             f"error {error:.3g} m below the tolerance {s.tolerance_m:.3g} m")
                 steps = 1
             burst = Burst(FINE, direction, min(steps, s.max_burst_steps))
-        if job.last_direction is not None and direction != job.last_direction:
-            job.reversals += 1
-            if job.reversals > s.max_reversals:
-                return ("oscillating", f"{job.reversals} direction reversals without reaching "
-                        "the tolerance")
         return burst
 
     def _prepare_output(self) -> None:
@@ -587,11 +612,6 @@ class ControlLoop:
 
     def _start_burst(self, job: Job, burst: Burst, x: float, now: float) -> None:
         mode = self.modes[burst.mode]
-        if not self._enabled:
-            self._prepare_output()
-        if self._applied != burst.mode:
-            self.amplifier.apply(mode.settings)
-            self._applied = burst.mode
         self.amplifier.step(burst.steps if burst.direction == FORWARD else -burst.steps)
         job.burst = burst
         job.burst_from_m = x
