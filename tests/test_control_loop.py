@@ -257,3 +257,19 @@ def test_a_plate_jump_on_a_waveform_change_is_measured_not_learned(world: FakeWo
     for key, true in (("fine/backward", 0.6e-6), ("coarse/backward", 2.6e-6)):
         if est[key].steps:
             assert est[key].displacement_m(3) == pytest.approx(3 * true, abs=0.3e-6)
+
+
+def test_a_failing_position_store_ends_the_move_but_not_the_loop(world: FakeWorld) -> None:
+    def broken(position_m: float) -> None:
+        raise OSError("disk full")
+
+    loop, _, _ = make_loop(world, on_position=broken)
+    try:
+        result = run_job(loop, Job("move", target_m=50e-6))
+        ticks = loop.ticks
+        time.sleep(0.1)
+        alive = loop.ticks > ticks
+    finally:
+        loop.shutdown()
+    assert result.status == "fault" and "disk full" in result.reason
+    assert alive

@@ -385,7 +385,13 @@ class ControlLoop:
             woke = self._clock()
             self._jitter.append(woke - deadline)
             self.ticks += 1
-            self.tick(woke)
+            try:
+                self.tick(woke)
+            except Exception as err:  # e.g. the state database failing: end the job, keep ticking
+                job = self._job
+                if job is not None:
+                    self._safe_stop()
+                    self._finish(job, "fault", f"internal error: {type(err).__name__}: {err}")
             deadline += period
             if self._clock() > deadline:
                 self.overruns += 1
