@@ -182,7 +182,6 @@ class Daemon:
         self._faults: list[dict[str, Any]] = []
         self._reconnecting: set[str] = set()
         self._server: socket.socket | None = None
-        self._threads: list[threading.Thread] = []
         self._state_lock = lock_state(setup.database_path)
         with contextlib.ExitStack() as undo:      # on failure: release what was opened
             undo.callback(self._state_lock.close)
@@ -205,9 +204,7 @@ class Daemon:
         self.loop.start()
         self._server = bind_socket(self.setup.socket_path)
         for target, name in ((self._accept, "accept"), (self._dispatch_queue, "queue")):
-            thread = threading.Thread(target=target, name=name, daemon=True)
-            thread.start()
-            self._threads.append(thread)
+            threading.Thread(target=target, name=name, daemon=True).start()
 
     def wait(self, timeout_s: float | None = None) -> bool:
         """Block until shut down; False on timeout."""
