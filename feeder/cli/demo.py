@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
                           f"learned step {result['learned_step_m'] * 1e6:.3f} µm ({direction})  "
                           f"{result['duration_s']:.2f} s  {result['status']}", flush=True)
                     print(_progress(i, len(DEFAULT_TARGETS_M)), file=sys.stderr, flush=True)
-            true_steps = (client.request("status").get("simulator_true") or {})
+            final = client.request("status")
     finally:
         running.stop()
         shutil.rmtree(base, ignore_errors=True)
@@ -120,13 +120,18 @@ def run(args: argparse.Namespace) -> int:
         "all_within_tolerance": ok,
         "duration_s": duration,
         "plot": str(args.plot),
-        "tau_true_pa": true_steps.get("tau_pa"),
+        "tau_true_pa": (final.get("simulator_true") or {}).get("tau_pa"),
+        "loop_timing": final["timing"],
     }
     if args.json:
         print_json(summary)
     else:
+        timing = final["timing"]
         print(f"{len(results)} moves, max error {max_error * 1e6:.3f} µm "
               f"(tolerance ±{tolerance * 1e6:.3f} µm), {duration:.1f} s; plot: {args.plot}")
+        print(f"control loop: {timing['ticks']} ticks at {timing['rate_hz']:g} Hz, "
+              f"{timing['overruns']} overruns, jitter p99 {timing['jitter_p99_s'] * 1e3:.2f} ms, "
+              f"max {timing['jitter_max_s'] * 1e3:.2f} ms")
     return 0 if ok else 1
 
 
