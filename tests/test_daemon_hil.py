@@ -23,6 +23,7 @@ from typing import Any
 import pytest
 
 from feeder.daemon.client import Client
+from feeder.daemon.launcher import Simulator
 from feeder.planner import plant_step
 from feeder.waveform import Waveform
 
@@ -215,3 +216,33 @@ def test_link_loss_faults_reconnects_and_does_not_resume(base: Path, transport: 
     assert history[-1]["status"] == "fault"
     assert abs(later - still) < 0.5e-6                # no move resumed by itself
     assert fresh["ok"], fresh                          # a new command works again
+
+
+def test_configured_hardware_over_tcp_with_a_password(base: Path) -> None:
+    """A config naming the amplifier (TCP console, password) and the camera: no simulator is
+    started by the daemon; it drives the one it is pointed at."""
+    sim = Simulator(["--console", "tcp:127.0.0.1:0", "--sensor", "tcp:127.0.0.1:0",
+                     "--password", "s3cret", "--seed", "2"])
+    try:
+        config = base / "feeder.toml"
+        config.write_text(
+            f'[amplifier]\nport = "{sim.endpoints["console_tcp"]}"\npassword = "s3cret"\n'
+            f'[sensor]\naddress = "{sim.endpoints["sensor_tcp"]}"\n')
+        daemon = DaemonProcess(base, f"--config={config}")
+        try:
+            reply = daemon.request("move", target_m=-80e-6)
+        finally:
+            assert daemon.stop() == 0
+        assert daemon.ready["simulated"] is False
+        assert reply["ok"], reply
+        wrong = base / "wrong.toml"
+        wrong.write_text(config.read_text().replace("s3cret", "guess"))
+        done = subprocess.run([sys.executable, "-m", "feeder", "daemon", "--config", str(wrong),
+                               "--state-dir", str(base / "state2"), "--socket",
+                               str(base / "t.sock")], cwd=ROOT, capture_output=True, text=True,
+                              timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)})
+        assert done.returncode == 1
+        assert done.stderr.count("\n") == 1 and "password" in done.stderr
+        assert sim.alive()                      # not ours to stop
+    finally:
+        sim.stop()

@@ -11,6 +11,7 @@ transport = "serial"          # "serial" (ANC300 console) or "can" (CANopen)
 port = "/dev/ttyUSB0"         # serial device or pyserial URL (socket://, rfc2217://)
 axis = 1
 timeout_s = 1.0
+password = "123456"           # sent when the console asks (TCP; ANC300 default)
 [amplifier.limits]            # the amplifier's rating, for the planner (AmplifierLimits)
 v_max_v = 200.0
 current_limit_a = 0.55
@@ -86,6 +87,7 @@ class AmplifierConfig:
     port: str | None = None
     axis: int = 1
     timeout_s: float = 1.0
+    password: str = "123456"
     limits: AmplifierLimits = field(default_factory=AmplifierLimits)
     can: dict[str, Any] = field(default_factory=dict)
 
@@ -189,6 +191,7 @@ def load_config(path: Path | None) -> DaemonConfig:
     amplifier = AmplifierConfig(
         transport=str(transport), port=_string(amp, "port", where, None), axis=axis,
         timeout_s=_number(amp, "timeout_s", where, 1.0, positive=True),
+        password=str(_string(amp, "password", where, "123456")),
         limits=limits, can=dict(can),
     )
 

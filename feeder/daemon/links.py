@@ -45,7 +45,8 @@ class DriverLinks:
             bus = {k: v for k, v in self.amplifier_address.items()
                    if k not in ("node_id", "heartbeat_s")}
             return CanopenAmplifier(bus, node_id, heartbeat_s=heartbeat, timeout_s=amp.timeout_s)
-        return Anc300Amplifier.open(self.amplifier_address, amp.axis, timeout_s=amp.timeout_s)
+        return Anc300Amplifier.open(self.amplifier_address, amp.axis, timeout_s=amp.timeout_s,
+                                    password=amp.password)
 
     def open_sensor(self) -> PositionSensor:
         return StreamCamera(self.sensor_address, connect_timeout_s=self.config.sensor_timeout_s)
