@@ -8,13 +8,16 @@ simulator's true friction.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +27,7 @@ import pytest
 
 from feeder.daemon.client import Client
 from feeder.daemon.launcher import Simulator
+from feeder.drivers.camera import StreamCamera
 from feeder.planner import plant_step
 from feeder.waveform import Waveform
 
@@ -246,3 +250,83 @@ def test_configured_hardware_over_tcp_with_a_password(base: Path) -> None:
         assert sim.alive()                      # not ours to stop
     finally:
         sim.stop()
+
+
+class CameraRelay:
+    """A TCP relay in front of the camera stream that the test can cut and restore."""
+
+    def __init__(self, upstream: str) -> None:
+        self.upstream = upstream.removeprefix("socket://").rsplit(":", 1)
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.url = f"socket://127.0.0.1:{self.server.getsockname()[1]}"
+        self.up = True
+        self.pairs: list[tuple[socket.socket, socket.socket]] = []
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self.server.accept()
+            except OSError:
+                return
+            if not self.up:
+                client.close()
+                continue
+            source = socket.create_connection((self.upstream[0], int(self.upstream[1])))
+            self.pairs.append((client, source))
+            threading.Thread(target=self._pipe, args=(source, client), daemon=True).start()
+
+    @staticmethod
+    def _pipe(source: socket.socket, sink: socket.socket) -> None:
+        with contextlib.suppress(OSError):
+            while data := source.recv(65536):
+                sink.sendall(data)
+        for s in (source, sink):
+            with contextlib.suppress(OSError):
+                s.shutdown(socket.SHUT_RDWR)
+
+    def cut(self) -> None:
+        self.up = False
+        for pair in self.pairs:
+            for s in pair:
+                with contextlib.suppress(OSError):
+                    s.shutdown(socket.SHUT_RDWR)
+        self.pairs.clear()
+
+    def close(self) -> None:
+        self.cut()
+        self.server.close()
+
+
+def test_sensor_loss_stops_the_part_and_reconnects(base: Path) -> None:
+    sim = Simulator(["--console", "pty", "--sensor", "tcp:127.0.0.1:0", "--seed", "4"])
+    relay = CameraRelay(sim.endpoints["sensor_tcp"])
+    direct = StreamCamera(sim.endpoints["sensor_tcp"])     # the test's own view of the part
+    try:
+        config = base / "feeder.toml"
+        config.write_text(f'[amplifier]\nport = "{sim.endpoints["console_pty"]}"\n'
+                          f'[sensor]\naddress = "{relay.url}"\n')
+        daemon = DaemonProcess(base, f"--config={config}")
+        try:
+            assert daemon.request("move", target_m=4e-3, wait=False)["ok"]
+            daemon.wait_for(lambda s: (s["position_m"] or 0) > 100e-6)
+            relay.cut()
+            faulted = daemon.wait_for(lambda s: s["state"] == "fault", timeout=10)
+            time.sleep(0.3)
+            first = direct.read(2.0).position_m
+            time.sleep(0.5)
+            second = direct.read(2.0).position_m
+            history = daemon.request("history")["moves"]
+            relay.up = True
+            recovered = daemon.wait_for(lambda s: s["state"] == "idle"
+                                        and s["position_state"] == "confirmed", timeout=30)
+        finally:
+            assert daemon.stop() == 0
+    finally:
+        direct.close()
+        relay.close()
+        sim.stop()
+    assert "sensor lost" in faulted["fault"] and faulted["position_state"] == "uncertain"
+    assert history[-1]["status"] == "fault" and "sensor lost" in history[-1]["reason"]
+    assert abs(second - first) < 0.5e-6 and second < 3e-3       # stopped well short of 4 mm
+    assert recovered["position_m"] == pytest.approx(second, abs=1e-6)
