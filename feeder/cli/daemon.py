@@ -30,7 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--sim-arg", action="append", default=[], metavar="ARG",
                         help="extra firmware_sim argument (repeatable; e.g. --sim-arg=--seed=3)")
     parser.add_argument("--json", action="store_true",
-                        help="print the ready object as JSON (then the exit summary)")
+                        help="print the ready object (socket, endpoints, ...) as JSON")
     parser.set_defaults(handler=run)
 
 
