@@ -10,7 +10,6 @@ down.  Exit 0 when every move ended within tolerance.
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import sys
 import tempfile
@@ -23,6 +22,7 @@ from feeder.daemon.client import Client
 from feeder.daemon.config import TRANSPORTS, DaemonConfig
 from feeder.daemon.runner import start_daemon
 from feeder.errors import InputError
+from feeder.files import save_figure
 from feeder.parts import Part
 
 DEFAULT_TARGETS_M = (300e-6, 120e-6, 480e-6, -150e-6, -140e-6, 0.0, 250e-6, 247.5e-6)
@@ -160,7 +160,4 @@ def _plot(path: Path, traces: list[list[list[float]]], targets: list[float],
     ax.grid(alpha=0.3)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    save_figure(fig, path, dpi=110)

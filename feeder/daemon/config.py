@@ -54,13 +54,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from feeder.daemon.control_loop import LoopSettings
 from feeder.errors import InputError
+from feeder.files import read_toml
 from feeder.parts import Part, Support
 from feeder.plant.amplifier import AmplifierLimits
 
@@ -158,12 +158,7 @@ def load_config(path: Path | None) -> DaemonConfig:
     if path is None:
         return DaemonConfig()
     where = str(path)
-    try:
-        doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(where, "no such file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise InputError(where, f"not valid TOML: {err}") from None
+    doc = read_toml(path)
     known = {"amplifier", "sensor", "simulator", "part", "control", "state"}
     unknown = sorted(set(doc) - known)
     if unknown:
