@@ -163,15 +163,17 @@ class StickSlip:
             dts = np.asarray(dt, dtype=float)
             self.elapsed_s += float(dts.sum())
         jumps = np.zeros(0) if jump is None else np.asarray(jump, dtype=float)
-        jump_at = np.flatnonzero(jumps)
+        where = np.flatnonzero(jumps)
+        # jumps as Python numbers: this loop runs per jump, where numpy scalars cost ~5×
+        jump_at, jump_size, jump_accel = where.tolist(), jumps[where].tolist(), a[where].tolist()
         out = np.empty(n)
         i = 0
         k = 0  # next jump
         while i < n:
-            if k < jump_at.size and jump_at[k] == i:
-                self._jump(float(jumps[i]), float(a[i]))
+            if k < len(jump_at) and jump_at[k] == i:
+                self._jump(jump_size[k], jump_accel[k])
                 k += 1
-            end = int(jump_at[k]) if k < jump_at.size else n
+            end = jump_at[k] if k < len(jump_at) else n
             if self.stuck:
                 i = self._stick_span(i, end, a, out) if i < end else i
             else:
@@ -232,7 +234,7 @@ class StickSlip:
             i += m
             if hit:
                 self._slip_window = max(_MIN_SLIP_WINDOW, 2 * (i + 1 - start))
-                self._cross(i, float(a[i]), float(dts[i]), sigma, a_k, out)
+                self._cross(i, a.item(i), dts.item(i), sigma, a_k, out)
                 return i + 1
             window *= 2
         return i
@@ -242,7 +244,7 @@ class StickSlip:
         """:meth:`_slip_span` for a handful of intervals, one at a time."""
         w, s = self.relative_velocity_m_s, self.relative_position_m
         for k in range(i, end):
-            accel, h = float(a[k]), float(dts[k])
+            accel, h = a.item(k), dts.item(k)
             w_end = w + (-sigma * a_k - accel) * h
             if (w_end <= 0) if sigma > 0 else (w_end >= 0):
                 self.relative_velocity_m_s, self.relative_position_m = w, s
