@@ -10,6 +10,7 @@ import pytest
 from feeder.cli import main
 from feeder.contact.breakaway import contact
 from feeder.errors import InputError
+from feeder.paper import STEP_500_M
 from feeder.parts import GROOVED, Part
 from feeder.planner import Plan, plan, predict_step
 from feeder.plant.amplifier import AmplifierLimits
@@ -68,7 +69,7 @@ def test_band_follows_tau() -> None:
     w = Waveform(frequency_hz=100, amplitude_vpp=200)
     part = Part.parse("500x500x50")
     nominal = predict_step(w, part)
-    assert nominal.step_m == pytest.approx(3.3e-6, abs=0.2e-6)
+    assert nominal.step_m == pytest.approx(STEP_500_M, abs=0.2e-6)
     low_tau = predict_step(w, part, tau_pa=22.18e9 - 3.15e9, tau_band_pa=1e6)
     high_tau = predict_step(w, part, tau_pa=22.18e9 + 3.15e9, tau_band_pa=1e6)
     assert high_tau.step_m < nominal.step_m < low_tau.step_m

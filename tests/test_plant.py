@@ -11,6 +11,7 @@ import pytest
 
 from feeder.cli import main
 from feeder.contact.breakaway import contact
+from feeder.paper import STEP_500_M
 from feeder.parts import Part
 from feeder.plant.amplifier import AmplifierLimits, OutputStage
 from feeder.plant.ideal_plate import linear_flyback_step
@@ -85,7 +86,7 @@ def paper_friction(label: str = "500x500x50") -> Friction:
 
 def test_paper_waveform_gives_3_3_um_per_step() -> None:
     run = run_waveform(paper_friction(), load_waveform(PAPER), 5)
-    assert np.all(np.abs(run.steps_m - 3.3e-6) <= 0.2e-6)
+    assert np.all(np.abs(run.steps_m - STEP_500_M) <= 0.2e-6)
     assert run.steps_m.std() < 1e-12
     assert run.net_displacement_m == pytest.approx(run.steps_m.sum())
     assert 0 < run.slip_fraction < 0.2
@@ -149,7 +150,7 @@ def test_cli_simulate_paper_and_ideal(capsys: pytest.CaptureFixture[str]) -> Non
     data = json.loads(capsys.readouterr().out)
     assert data.keys() >= {"step_mean_m", "step_std_m", "net_displacement_m", "periods",
                            "slip_fraction"}
-    assert data["step_mean_m"] == pytest.approx(3.3e-6, abs=0.2e-6)
+    assert data["step_mean_m"] == pytest.approx(STEP_500_M, abs=0.2e-6)
     assert data["periods"] == 10
     assert main(["simulate", "--part", "300x300x50", "--ideal", "--stroke-m", "5e-6",
                  "--frequency-hz", "100", "--flyback-s", "1e-4", "--flyback-shape", "linear",

@@ -269,7 +269,6 @@ class ControlLoop:
         self._enabled = False
         self._last_direction: str | None = None
         self.position_m: float | None = None
-        self.position_time_s: float | None = None
         self.fault: str | None = None
         self.sensor_lost: str | None = None
         self.last_result: JobResult | None = None
@@ -348,7 +347,6 @@ class ControlLoop:
             self._feed = SensorFeed(sensor, self._sensor_timeout_s, self._clock)
             self.sensor_lost = None
             self.position_m = None
-            self.position_time_s = None
 
     def estimates(self) -> dict[str, StepEstimate]:
         return {k: e.estimate for k, e in self.estimators.items()}
@@ -409,7 +407,6 @@ class ControlLoop:
         """One period of work: sensor, faults, stop requests, the active job's phase."""
         for arrival, sample in self._feed.take():
             self.position_m = sample.position_m
-            self.position_time_s = arrival
             job = self._job
             if job is not None:
                 job.trace.append((arrival, sample.position_m))

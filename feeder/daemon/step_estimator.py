@@ -58,12 +58,6 @@ class StepEstimate:
         """Expected displacement of a burst of ``steps`` steps: n·s + c."""
         return steps * self.step_m + self.offset_m
 
-    def displacement_std_m(self, steps: int) -> float:
-        """Its uncertainty: sqrt(H·P·Hᵀ) with H = (n, 1)."""
-        var = (steps * steps * self.variance_m2 + 2 * steps * self.covariance_m2
-               + self.offset_variance_m2)
-        return math.sqrt(max(var, 0.0))
-
 
 class StepEstimator:
     """RLS with forgetting for the step (and burst offset) of one direction of one waveform.

@@ -173,10 +173,6 @@ class Store:
         rows = self._read(f"SELECT {CALIBRATION_COLUMNS} FROM calibration WHERE key = ?", (key,))
         return Calibration(*rows[0]) if rows else None
 
-    def calibrations(self) -> list[Calibration]:
-        rows = self._read(f"SELECT {CALIBRATION_COLUMNS} FROM calibration ORDER BY key")
-        return [Calibration(*row) for row in rows]
-
     # -- moves ------------------------------------------------------------
     def begin_move(self, target_m: float, start_m: float | None) -> int:
         """Record a move as ``running``; returns its id."""

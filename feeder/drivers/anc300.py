@@ -208,7 +208,6 @@ class Anc300Amplifier(Amplifier):
         self.axis = axis
         self.extensions = extensions
         self._commanded_steps = 0
-        self._settings: DriveSettings | None = None
 
     @classmethod
     def open(cls, url: str, axis: int = 1, **link_options: object) -> Anc300Amplifier:
@@ -228,7 +227,6 @@ class Anc300Amplifier(Amplifier):
                                 flyback_s=settings.flyback_s).anc300_tables()
             self.link.query(f"setpu {a} " + " ".join(map(str, up)))
             self.link.query(f"setpd {a} " + " ".join(map(str, down)))
-        self._settings = settings
 
     def step(self, count: int) -> None:
         if count == 0:

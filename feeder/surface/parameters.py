@@ -16,7 +16,7 @@ File format (also written by ``feeder surface --out``)::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 from feeder.errors import InputError
@@ -67,9 +67,6 @@ class SurfaceParameters:
     def effective_modulus_pa(self) -> float:
         """E* for two bodies of the same material: E / (2(1 − ν²))."""
         return self.youngs_modulus_pa / (2.0 * (1.0 - self.poisson_ratio**2))
-
-    def with_density(self, summit_density_per_m2: float) -> SurfaceParameters:
-        return replace(self, summit_density_per_m2=summit_density_per_m2)
 
     def to_toml(self) -> str:
         lines = [
