@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import replace
 from pathlib import Path
 
 from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
+from feeder.errors import InputError
 from feeder.parts import SILICON_DENSITY_KG_M3, Part, Support
 from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters, load_surface
 
@@ -31,6 +33,9 @@ def add_part_arguments(
     p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
     p.add_argument("--density", type=positive_float, default=SILICON_DENSITY_KG_M3,
                    help=f"part density in kg/m³ (default silicon, {SILICON_DENSITY_KG_M3:g})")
+    p.add_argument("--adhesion-work", type=float, metavar="J_M2",
+                   help="work of adhesion w in J/m² for DMT adhesion per summit (default: the "
+                        "surface file's, else 0 as in the paper; silicon in air ≈ 0.1)")
 
 
 def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
@@ -43,8 +48,14 @@ def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
 
 
 def surface_from(args: argparse.Namespace) -> SurfaceParameters:
-    """The ``--surface`` file, or the embedded default."""
-    return load_surface(args.surface) if args.surface else DEFAULT_SURFACE
+    """The ``--surface`` file (or the embedded default), with ``--adhesion-work`` applied."""
+    surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
+    if getattr(args, "adhesion_work", None) is None:
+        return surface
+    try:
+        return replace(surface, adhesion_work_j_m2=args.adhesion_work)
+    except InputError as err:
+        raise InputError("--adhesion-work", err.message) from None
 
 
 def part_from(args: argparse.Namespace) -> tuple[Part, Support, SurfaceParameters]:

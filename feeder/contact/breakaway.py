@@ -23,6 +23,8 @@ DEFAULT_TAU_PA = TAU_MEAN_PA
 DEFAULT_TAU_BAND_PA = TAU_SPREAD_PA
 IDEAL_SHEAR_STRENGTH_PA = 9.6e9
 """Silicon's ideal shear strength, G{111}/2π ≈ 9.6 GPa (range quoted 6–10 GPa)."""
+EQUILIBRIUM_SPACING_M = 0.3e-9
+"""Interatomic equilibrium spacing z0 in Tabor's parameter."""
 MIN_CONTACTS = 10.0
 """Below this many contacting asperities GW's statistical averaging is unreliable."""
 
@@ -49,6 +51,9 @@ class ContactResult:
     real_area_band_m2: tuple[float, float] | None = None
     """68 % of random placements of the part have A_r in this interval (sampled; None = not sampled)."""
     real_area_sampled_mean_m2: float | None = None
+    adhesion_work_j_m2: float = 0.0
+    adhesion_n: float = 0.0
+    """DMT adhesive pull of the contacting summits (N); 0 without adhesion."""
 
     def to_json(self) -> dict[str, Any]:
         """The ``feeder contact --json`` object (unit in every key)."""
@@ -69,15 +74,26 @@ class ContactResult:
             "breakaway_accel_band_m_s2": list(self.breakaway_accel_band_m_s2),
             "real_area_band_m2": list(self.real_area_band_m2) if self.real_area_band_m2 else None,
             "real_area_sampled_mean_m2": self.real_area_sampled_mean_m2,
+            "adhesion_work_j_m2": self.adhesion_work_j_m2,
+            "adhesion_force_N": self.adhesion_n,
             "warnings": list(self.warnings),
         }
 
 
+def tabor_parameter(surface: SurfaceParameters) -> float:
+    """Tabor's μ = (R w² / (E*² z0³))^{1/3}, z0 = 0.3 nm: DMT holds for μ ≲ 0.1, JKR above ~5."""
+    s = surface
+    return float((s.summit_radius_m * s.adhesion_work_j_m2**2
+                  / (s.effective_modulus_pa**2 * EQUILIBRIUM_SPACING_M**3)) ** (1 / 3))
+
+
 def _warnings(
     part: Part, support: Support, surface: SurfaceParameters, contacts: float, tau_pa: float,
-    real_area_m2: float,
+    real_area_m2: float, adhesion_n: float,
 ) -> list[str]:
     out = []
+    w = surface.adhesion_work_j_m2
+    hint = "" if w else " (--adhesion-work adds DMT adhesion; w ≈ 0.1 J/m² for silicon in air)"
     if contacts < MIN_CONTACTS:
         out.append(
             f"only {contacts:.2g} asperities in contact (< {MIN_CONTACTS:g}): Greenwood–Williamson "
@@ -86,18 +102,37 @@ def _warnings(
     if tau_pa > IDEAL_SHEAR_STRENGTH_PA:
         out.append(
             f"τ = {tau_pa / 1e9:.2f} GPa exceeds silicon's ideal shear strength (≈ 6–10 GPa, "
-            "G{111}/2π ≈ 9.6 GPa): the model neglects adhesion, so A_r is underestimated and τ "
-            "absorbs the difference"
+            + ("G{111}/2π ≈ 9.6 GPa): the model neglects adhesion, so A_r is underestimated and τ "
+               "absorbs the difference" + hint if not w else
+               f"G{{111}}/2π ≈ 9.6 GPa), even with adhesion w = {w:g} J/m²; re-estimate τ from the "
+               "measured forces with the same w (feeder tau --adhesion-work)")
         )
+    if w:
+        mu = tabor_parameter(surface)
+        if adhesion_n > part.weight_n:
+            out.append(
+                f"DMT adhesion ({adhesion_n:.3g} N) exceeds the part's weight ({part.weight_n:.3g} N): "
+                "the contact is adhesion-dominated"
+            )
+        if mu > 0.1:
+            out.append(f"Tabor parameter {mu:.2g} > 0.1: DMT is only approximate (JKR above ~5)")
     if support.kind == "grooved":
         flat = GreenwoodWilliamson(surface, FLAT.nominal_area_m2(part))
         ratio = real_area_m2 / float(flat.real_area_m2(flat.separation_m(part.weight_n)))
-        out.append(
-            f"grooved/flat real-area ratio is {ratio:.3f} in this model, not the paper's "
-            f"{GROOVED_AREA_RATIO}: halving the summits at the same load barely changes A_r in "
-            "GW/Hertz; the measured friction ratio "
-            f"{GROOVED_FRICTION_RATIO} needs adhesion (DMT), whose load scales with nominal area"
-        )
+        if w:
+            out.append(
+                f"grooved/flat real-area ratio is {ratio:.3f} with DMT adhesion w = {w:g} J/m² "
+                f"(measured friction ratio {GROOVED_FRICTION_RATIO}): the adhesive load scales "
+                "with the nominal area"
+            )
+        else:
+            out.append(
+                f"grooved/flat real-area ratio is {ratio:.3f} in this model, not the paper's "
+                f"{GROOVED_AREA_RATIO}: halving the summits at the same load barely changes A_r in "
+                "GW/Hertz; the measured friction ratio "
+                f"{GROOVED_FRICTION_RATIO} needs adhesion (DMT), whose load scales with nominal area"
+                + hint
+            )
     return out
 
 
@@ -112,7 +147,8 @@ def contact(
     """Separation, real area and breakaway force/acceleration of ``part`` resting on ``support``.
 
     ``placements`` > 0 also samples that many random placements summit by summit
-    (:mod:`feeder.contact.asperity_sampling`, ~0.1 s for 2000) for the A_r band.
+    (:mod:`feeder.contact.asperity_sampling`, ~0.1 s for 2000) for the A_r band
+    (without adhesion only: the sampling balances Hertz loads).
     """
     if not (math.isfinite(tau_pa) and tau_pa > 0):
         raise InputError("--tau", f"must be a positive number of pascals, got {tau_pa!r}")
@@ -125,13 +161,14 @@ def contact(
         raise InputError("--part", f"the surface cannot carry this part: {err.message}") from None
     area = float(gw.real_area_m2(separation))
     contacts = float(gw.contacts(separation))
+    adhesion = float(gw.adhesion_n(separation))
     force = tau_pa * area
     band = ((tau_pa - tau_band_pa) * area, (tau_pa + tau_band_pa) * area)
     mass = part.mass_kg
-    warnings = _warnings(part, support, surface, contacts, tau_pa, area)
+    warnings = _warnings(part, support, surface, contacts, tau_pa, area, adhesion)
     band_m2: tuple[float, float] | None = None
     sampled_mean: float | None = None
-    if placements > 0:
+    if placements > 0 and not surface.adhesion_work_j_m2:  # the sampling is Hertz-only
         sampled = sample_contact(surface, gw.nominal_area_m2, part.weight_n, placements)
         band_m2, sampled_mean = sampled.band_m2(), float(np.mean(sampled.real_area_m2))
         if contacts < MIN_CONTACTS:
@@ -158,4 +195,6 @@ def contact(
         warnings=tuple(warnings),
         real_area_band_m2=band_m2,
         real_area_sampled_mean_m2=sampled_mean,
+        adhesion_work_j_m2=surface.adhesion_work_j_m2,
+        adhesion_n=adhesion,
     )

@@ -9,11 +9,18 @@ highest summit H = (z_max − μ)/σ:
     P_r(d) = 4/3 N E* R^½ σ^{3/2} F_{3/2}(h, H)       (eqs. 6, 8, 10)
 
 N = η A_n.  All of it vectorised over d (or over loads for the inverse).
+
+With a work of adhesion w > 0 (``SurfaceParameters.adhesion_work_j_m2``) each
+contacting summit also pulls with the DMT force 2πwR, so the load the contact
+carries is P_r(d) − 2πwR·n(d); the paper leaves adhesion out (its future work).
+That net load is strictly decreasing in d wherever it is positive (F_{3/2}/F_0
+decreases with h), so the separation for a given weight is unique.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -24,7 +31,40 @@ from feeder.surface.parameters import SurfaceParameters
 
 _TABLE_POINTS = 40001
 _ACCEPT_STEP = 1e-6
-_MAX_NEWTON = 40
+_ACCEPT_STEP_LINEAR = 1e-9
+_MAX_NEWTON = 60
+
+
+def _newton(
+    h: NDArray[np.float64],
+    lo: float | NDArray[np.float64],
+    hi: float | NDArray[np.float64],
+    residual_and_step: Callable[[NDArray[np.float64], NDArray[np.intp]], tuple[NDArray[np.float64], ...]],
+    accept_step: float,
+) -> NDArray[np.float64]:
+    """Safeguarded Newton on a residual decreasing in h, bracket [lo, hi], vectorised.
+
+    ``residual_and_step(x, idx)`` gives the residual at x (the values ``idx``)
+    and the Newton step; a step leaving the bracket is replaced by bisection.
+    Only unconverged values are iterated.
+    """
+    low = np.broadcast_to(np.asarray(lo, dtype=np.float64), h.shape).copy()
+    high = np.broadcast_to(np.asarray(hi, dtype=np.float64), h.shape).copy()
+    active = np.arange(h.size)
+    for _ in range(_MAX_NEWTON):
+        x, a, b = h[active], low[active], high[active]
+        residual, step = residual_and_step(x, active)
+        a = np.where(residual > 0, x, a)
+        b = np.where(residual < 0, x, b)
+        inside = (x + step >= a) & (x + step <= b)
+        # quadratic convergence: the error after an accepted step is ~|g''/2g'|·step²
+        converged = inside & (np.abs(step) <= accept_step) | (b - a <= 1e-13)
+        h[active] = np.where(inside, x + step, 0.5 * (a + b))
+        low[active], high[active] = a, b
+        active = active[~converged]
+        if active.size == 0:
+            return h
+    raise ArithmeticError("separation: Newton iteration did not converge")
 
 
 class GreenwoodWilliamson:
@@ -44,6 +84,7 @@ class GreenwoodWilliamson:
             * math.sqrt(s.summit_radius_m) * s.sigma_m**1.5
         )
         self._area_scale = math.pi * self.summits * s.summit_radius_m * s.sigma_m
+        self._adhesion_scale = 2.0 * math.pi * s.adhesion_work_j_m2 * s.summit_radius_m * self.summits
         self._table: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
     def _h(self, separation_m: ArrayLike) -> NDArray[np.float64]:
@@ -59,13 +100,22 @@ class GreenwoodWilliamson:
         return self._area_scale * gaussian_integral(1.0, self._h(separation_m), self._h_max)
 
     def load_n(self, separation_m: ArrayLike) -> NDArray[np.float64]:
-        """Load P_r(d) in newtons the asperities carry at separation d (eq. 10); 0 above z_max."""
-        return self._load_scale * gaussian_integral(1.5, self._h(separation_m), self._h_max)
+        """Load in newtons the contact carries at separation d: P_r(d) (eq. 10) less the DMT
+        adhesion (when w > 0); 0 above z_max."""
+        return self._net_load(self._h(separation_m))
+
+    def adhesion_n(self, separation_m: ArrayLike) -> NDArray[np.float64]:
+        """DMT adhesive pull 2πwR·n(d) in newtons (0 without adhesion)."""
+        return self._adhesion_scale * gaussian_integral(0.0, self._h(separation_m), self._h_max)
+
+    def _net_load(self, h: NDArray[np.float64]) -> NDArray[np.float64]:
+        f32, f0 = gaussian_integrals((1.5, 0.0), h, self._h_max)
+        return self._load_scale * f32 - self._adhesion_scale * f0
 
     @property
     def max_load_n(self) -> float:
         """Largest load the model is valid for (separation μ − 8σ)."""
-        return float(self._load_scale * gaussian_integral(1.5, H_MIN, self._h_max))
+        return float(self._net_load(np.asarray(H_MIN)))
 
     def _initial_h(self, log_target: NDArray[np.float64]) -> NDArray[np.float64]:
         """Start for Newton: h at ``log_target`` from a table uniform in log F_{3/2} (~1e-7 off)."""
@@ -84,7 +134,8 @@ class GreenwoodWilliamson:
         """Separation d (m) at which the asperities carry ``load_n`` (N); vectorised.
 
         Solves P_r(d) = load by Newton on log F_{3/2}(h) (dF_n/dh = −n F_{n−1}),
-        started from an interpolated inverse and kept inside its bracket.
+        started from an interpolated inverse and kept inside its bracket; with
+        adhesion, a second Newton from there on the net load (DMT).
         Raises :class:`InputError` for loads ≤ 0 or above :attr:`max_load_n`.
         """
         load = np.asarray(load_n, dtype=np.float64)
@@ -97,26 +148,23 @@ class GreenwoodWilliamson:
                 f"({self.max_load_n:.4g} N, separation μ − 8σ)",
             )
         log_target = np.log(load / self._load_scale).ravel()
-        h = self._initial_h(log_target)
-        lo = np.full_like(h, H_MIN)
-        hi = np.full_like(h, self._h_max)
-        active = np.arange(h.size)  # only unconverged values are iterated
-        for _ in range(_MAX_NEWTON):
-            x, a, b = h[active], lo[active], hi[active]
+
+        def hertz(x: NDArray[np.float64], idx: NDArray[np.intp]) -> tuple[NDArray[np.float64], ...]:
             f32, f12 = gaussian_integrals((1.5, 0.5), x, self._h_max)
-            residual = np.log(f32) - log_target[active]  # decreasing in h
-            a = np.where(residual > 0, x, a)
-            b = np.where(residual < 0, x, b)
-            step = residual * f32 / (1.5 * f12)  # Newton: Δh = −g/g', g' = −1.5 F½/F3/2
-            inside = (x + step >= a) & (x + step <= b)
-            # quadratic convergence: error after the step ≈ |g''/2g'|·step² ≲ 0.5·(1e-6)² (h ≥ −8)
-            converged = inside & (np.abs(step) <= _ACCEPT_STEP) | (b - a <= 1e-13)
-            h[active] = np.where(inside, x + step, 0.5 * (a + b))
-            lo[active], hi[active] = a, b
-            active = active[~converged]
-            if active.size == 0:
-                break
-        else:
-            raise ArithmeticError("separation: Newton iteration did not converge")
+            residual = np.log(f32) - log_target[idx]
+            return residual, residual * f32 / (1.5 * f12)  # Δh = −g/g', g' = −1.5 F½/F3/2
+
+        h = _newton(self._initial_h(log_target), H_MIN, self._h_max, hertz, _ACCEPT_STEP)
+        if self._adhesion_scale > 0:  # the Hertz-only h has too little load: an upper bracket
+            target = load.ravel()
+
+            def dmt(x: NDArray[np.float64], idx: NDArray[np.intp]) -> tuple[NDArray[np.float64], ...]:
+                f32, f12, f0 = gaussian_integrals((1.5, 0.5, 0.0), x, self._h_max)
+                excess = self._load_scale * f32 - self._adhesion_scale * f0 - target[idx]
+                slope = (-1.5 * self._load_scale * f12
+                         + self._adhesion_scale * np.exp(-0.5 * x * x) / math.sqrt(2 * math.pi))
+                return excess, -excess / slope
+
+            h = _newton(h.copy(), H_MIN, h, dmt, _ACCEPT_STEP_LINEAR)
         h = h.reshape(load.shape)
         return np.asarray(self.surface.mean_summit_height_m + self.surface.sigma_m * h)

@@ -11,6 +11,7 @@ File format (also written by ``feeder surface --out``)::
     [material]          # applies to both bodies
     youngs_modulus_pa = 169e9
     poisson_ratio = 0.28
+    # adhesion_work_j_m2 = 0.1   (optional; DMT adhesion per asperity, default 0)
 """
 
 from __future__ import annotations
@@ -31,7 +32,9 @@ class SurfaceParameters:
 
     sigma_m: std of summit heights σ (eq. 3); summit_radius_m: R (eq. 1);
     summit_density_per_m2: η; mean_summit_height_m: μ; z_max_m: highest summit
-    (default μ + 10σ); youngs_modulus_pa, poisson_ratio: both bodies.
+    (default μ + 10σ); youngs_modulus_pa, poisson_ratio: both bodies;
+    adhesion_work_j_m2: work of adhesion w of the interface (J/m²; 0 = the
+    paper's adhesion-free model), used as DMT adhesion 2πwR per contacting summit.
     """
 
     sigma_m: float
@@ -41,6 +44,7 @@ class SurfaceParameters:
     youngs_modulus_pa: float = 169e9
     poisson_ratio: float = 0.28
     z_max_m: float | None = None
+    adhesion_work_j_m2: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("sigma_m", "summit_radius_m", "summit_density_per_m2", "youngs_modulus_pa"):
@@ -51,6 +55,8 @@ class SurfaceParameters:
             raise InputError("mean_summit_height_m", "must be a finite number")
         if not (-1.0 < self.poisson_ratio < 0.5):
             raise InputError("poisson_ratio", f"must lie in (-1, 0.5), got {self.poisson_ratio!r}")
+        if not (math.isfinite(self.adhesion_work_j_m2) and self.adhesion_work_j_m2 >= 0):
+            raise InputError("adhesion_work_j_m2", f"must be ≥ 0, got {self.adhesion_work_j_m2!r}")
         if self.z_max_m is not None and not (
             math.isfinite(self.z_max_m) and self.z_max_m > self.mean_summit_height_m
         ):
@@ -83,8 +89,10 @@ class SurfaceParameters:
             "[material]",
             f"youngs_modulus_pa = {self.youngs_modulus_pa!r}",
             f"poisson_ratio = {self.poisson_ratio!r}",
-            "",
         ]
+        if self.adhesion_work_j_m2:
+            lines.append(f"adhesion_work_j_m2 = {self.adhesion_work_j_m2!r}")
+        lines.append("")
         return "\n".join(lines)
 
     def write_toml(self, path: Path) -> None:
@@ -102,7 +110,7 @@ DEFAULT_SURFACE = SurfaceParameters(
 
 _REQUIRED_KEYS = ("sigma_m", "summit_radius_m", "summit_density_per_m2", "mean_summit_height_m")
 _SURFACE_KEYS = (*_REQUIRED_KEYS, "z_max_m")
-_MATERIAL_KEYS = ("youngs_modulus_pa", "poisson_ratio")
+_MATERIAL_KEYS = ("youngs_modulus_pa", "poisson_ratio", "adhesion_work_j_m2")
 
 
 def load_surface(path: Path) -> SurfaceParameters:
