@@ -112,6 +112,13 @@ def process_gone(pid: int, timeout: float = 10.0) -> bool:
     return False
 
 
+def assert_within_tolerance(replies: list[dict[str, Any]], tolerance_m: float) -> None:
+    """Every move reply is ``ok`` and ended within the tolerance."""
+    for reply in replies:
+        assert reply["ok"], reply
+        assert abs(reply["result"]["error_m"]) <= tolerance_m
+
+
 @pytest.fixture
 def base() -> Iterator[Path]:
     path = Path(tempfile.mkdtemp(prefix="fd"))
@@ -149,10 +156,7 @@ def test_moves_converge_and_the_step_is_learned_within_5_percent(base: Path,
         truth = true_coarse_steps(daemon, status)
     finally:
         assert daemon.stop() == 0
-    tolerance = status["tolerance_m"]
-    for reply in results:
-        assert reply["ok"], reply
-        assert abs(reply["result"]["error_m"]) <= tolerance
+    assert_within_tolerance(results, status["tolerance_m"])
     est = status["estimates"]
     predicted = status["predicted_steps_m"]["coarse"]
     # the prediction is off (τ 15 % high) and the learned step is within 5 % after 20 steps

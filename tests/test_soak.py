@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_daemon_hil import DaemonProcess, base  # noqa: F401  (fixture)
+from test_daemon_hil import DaemonProcess, assert_within_tolerance, base  # noqa: F401  (fixture)
 
 MOVES = 60
 
@@ -29,10 +29,7 @@ def test_many_random_moves_all_converge(base: Path) -> None:  # noqa: F811
         history = daemon.request("history", limit=MOVES)["moves"]
     finally:
         assert daemon.stop() == 0
-    tolerance = status["tolerance_m"]
-    for reply in results:
-        assert reply["ok"], reply
-        assert abs(reply["result"]["error_m"]) <= tolerance
+    assert_within_tolerance(results, status["tolerance_m"])
     assert len(history) == MOVES
     assert all(move["status"] == "done" for move in history)
     databases = list((base / "state").glob("*.sqlite*")) + list((base / "state").glob("*.db"))
