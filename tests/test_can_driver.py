@@ -227,3 +227,16 @@ def test_closing_the_driver_leaves_a_moving_axis_alone(rig: Rig) -> None:
     status = axis.status()
     assert status.moving and status.fault_word == 0
     axis.stop()
+
+
+def test_a_dead_host_bus_is_a_lost_link_not_a_can_error(rig: Rig) -> None:
+    """The adapter's port vanishing under the host (e.g. firmware_sim killed) must surface as
+    AmplifierLinkLost from SDO and RPDO alike, never as a python-can exception."""
+    assert rig.amp.status().mode == "gnd"
+    bus = rig.amp.network.bus
+    assert bus is not None
+    bus.shutdown()                         # every send now raises can.CanOperationError
+    with pytest.raises(AmplifierLinkLost):
+        rig.amp.status()
+    with pytest.raises(AmplifierLinkLost):
+        rig.amp.step(3)

@@ -219,7 +219,7 @@ class CanopenAmplifier(Amplifier):
             variable.raw = value
         except SdoAbortedError as exc:
             raise AmplifierError(self._abort_text(exc, index, subindex, value)) from exc
-        except SdoCommunicationError as exc:
+        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
             raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
 
     def _sdo_read(self, index: int, subindex: int) -> int:
@@ -229,7 +229,7 @@ class CanopenAmplifier(Amplifier):
             return int(variable.raw)
         except SdoAbortedError as exc:
             raise AmplifierError(self._abort_text(exc, index, subindex, None)) from exc
-        except SdoCommunicationError as exc:
+        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
             raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
 
     def _abort_text(self, exc: SdoAbortedError, index: int, subindex: int,
@@ -249,7 +249,10 @@ class CanopenAmplifier(Amplifier):
             sequence = self._sequence
             self._rpdo["Step command"].raw = count
             self._rpdo["Command sequence"].raw = sequence
-            self._rpdo.transmit()
+            try:
+                self._rpdo.transmit()
+            except (can.CanError, OSError) as exc:  # the adapter's port is gone
+                raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
             with self._changed:
                 acked = self._changed.wait_for(
                     lambda: self._ack == sequence or self._lost is not None, self.timeout_s)
