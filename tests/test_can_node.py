@@ -20,20 +20,16 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from feeder.drivers.canopen import (
-    MODES,
-    STATUS_FAULT,
-    STATUS_MOVING,
-    STATUS_REFUSED,
-    STATUS_STEPPING_MODE,
-)
 from feeder.plant.amplifier import AmplifierLimits
-from firmware_sim.canopen_node import EDS_PATH, CanopenNode, error_register
+from feeder.protocol.eds import MODES, STATUS_WORD_BITS, object_dictionary
+from firmware_sim.canopen_node import CanopenNode, error_register
 from firmware_sim.clock import VirtualClock
 from firmware_sim.firmware import Fault, Firmware, FirmwareConfig
 
 pytestmark = pytest.mark.timeout(60)
 NODE_ID = 5
+STATUS_MOVING, STATUS_STEPPING_MODE, STATUS_FAULT, STATUS_REFUSED = \
+    (1 << STATUS_WORD_BITS.index(name) for name in ("moving", "stepping mode", "fault", "refused"))
 
 
 @dataclass
@@ -79,7 +75,7 @@ def make_rig(config: FirmwareConfig | None = None) -> Iterator[Rig]:
     network = canopen.Network()
     network.NOTIFIER_CYCLE = 0.1
     network.connect(interface="virtual", channel=channel)
-    master = canopen.RemoteNode(NODE_ID, str(EDS_PATH))
+    master = canopen.RemoteNode(NODE_ID, object_dictionary(NODE_ID))
     master.sdo.RESPONSE_TIMEOUT = 1.0
     network.add_node(master)
     node.start()
@@ -104,7 +100,7 @@ def snapshot(rig: Rig) -> tuple[object, ...]:
 
 
 def test_identity_matches_the_eds_and_the_firmware_serial(rig: Rig) -> None:
-    od = canopen.import_od(str(EDS_PATH), NODE_ID)
+    od = object_dictionary(NODE_ID)
     identity = rig.master.sdo["Identity object"]
     assert identity["Vendor-ID"].raw == od.device_information.vendor_number
     assert identity["Product code"].raw == od.device_information.product_number

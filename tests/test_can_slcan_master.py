@@ -12,7 +12,7 @@ import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
 from feeder.daemon.launcher import Simulator
-from firmware_sim.canopen_node import EDS_PATH
+from feeder.protocol.eds import object_dictionary
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -23,7 +23,7 @@ def master() -> Iterator[tuple[Simulator, canopen.RemoteNode]]:
     network = canopen.Network()
     network.connect(interface="slcan", channel=sim.endpoints["slcan_pty"], bitrate=500000,
                     sleep_after_open=0)
-    node = network.add_node(11, str(EDS_PATH))   # axis 2
+    node = network.add_node(11, object_dictionary(11))   # axis 2
     node.sdo.RESPONSE_TIMEOUT = 2.0
     yield sim, node
     network.disconnect()
