@@ -65,6 +65,7 @@ class SdoServer(canopen.sdo.SdoServer):
         assert node.id is not None
         super().__init__(0x600 + node.id, 0x580 + node.id, node)
         self.transfer: str | None = None
+        self._index = self._subindex = 0  # the multiplexer an abort names before any transfer
         self._request = bytes(8)
 
     def on_request(self, can_id: int, data: Any, timestamp: float) -> None:
