@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import re
 import struct
+import sys
 import threading
 import time
 import zlib
@@ -100,6 +101,10 @@ TIMED_SHAPES = ("linear", "half-cosine")
 LIMIT_FIELDS = {"Frequency": "frequency", "Amplitude": "voltage", "Flyback time": "flyback",
                 "Offset": "offset", "Step command": "steps"}
 """The firmware's name (``LimitError.field``) of the value each object sets."""
+
+INTERRUPT_LATENCY_S = 100e-6
+"""Longest wait of an arriving frame's thread for the interpreter (``sys.setswitchinterval``;
+Python's default of 5 ms would let a busy tick delay an SDO answer by milliseconds)."""
 
 TPDO1 = "TPDO1 communication parameter"
 CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
@@ -468,11 +473,18 @@ class CanopenNode:
 
 def serve_slcan_pty(firmware: Firmware, node_id_base: int = 1) -> tuple[str, Callable[[], None]]:
     """Every configured axis as a node (id = ``node_id_base`` + axis − 1) behind an
-    emulated SLCAN adapter; returns the pty path and a function that stops it all."""
+    emulated SLCAN adapter on one :class:`CanWire`; returns the pty path and a
+    function that stops it all.
+
+    Sets the interpreter's switch interval to :data:`INTERRUPT_LATENCY_S`: the
+    thread a frame arrives in then gets the interpreter from the busy tick
+    thread within that time, as an interrupt preempts a firmware's main loop.
+    """
     if not 1 <= node_id_base <= 128 - max(firmware.axis_numbers):
         raise InputError("--can-node-id-base",
                          f"node ids {node_id_base}..{node_id_base + max(firmware.axis_numbers) - 1}"
                          " leave CANopen's 1..127")
+    sys.setswitchinterval(INTERRUPT_LATENCY_S)
     wire = CanWire()
     adapter = SlcanPty(wire.bus()).start()
     nodes = [CanopenNode(firmware, axis, node_id_base + axis - 1, wire.bus()).start()
