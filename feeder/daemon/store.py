@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from feeder.errors import FeederError
+
 SCHEMA_VERSION = 2
 
 _SCHEMA = """
@@ -74,7 +76,7 @@ MOVE_COLUMNS = (
 )
 
 
-class StoreError(RuntimeError):
+class StoreError(FeederError, RuntimeError):
     """The state database is unusable (corrupt, newer schema, not a database)."""
 
 

@@ -11,8 +11,10 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from types import TracebackType
 
+from feeder.errors import FeederError
 
-class AmplifierError(RuntimeError):
+
+class AmplifierError(FeederError, RuntimeError):
     """The amplifier answered with an error, or refused a value."""
 
 
