@@ -309,6 +309,7 @@ def test_sensor_loss_stops_the_part_and_reconnects(base: Path) -> None:
     try:
         config = base / "feeder.toml"
         config.write_text(f'[amplifier]\nport = "{sim.endpoints["console_pty"]}"\n'
+                          'model = "firmware_sim"\n'
                           f'[sensor]\naddress = "{relay.url}"\n')
         daemon = DaemonProcess(base, f"--config={config}")
         try:

@@ -223,6 +223,7 @@ class Anc300Amplifier(Amplifier):
         self._frequency_hz = 0.0
         self._burst: tuple[float, int] | None = None   # (start s, signed steps) while it runs
         self._estimated = False
+        self._continuous = False        # stepu/stepd c: never ends, so never ``stepw``
 
     @classmethod
     def open(cls, url: str, axis: int = 1, **link_options: object) -> Anc300Amplifier:
@@ -250,12 +251,16 @@ class Anc300Amplifier(Amplifier):
         self.link.query(f"{verb} {self.axis} {abs(count)}")
         with self._lock:
             self._settle_burst()
+            self._continuous = False
             self._burst = (self._clock(), count)
             self._counter += count
             self._estimated = False
 
     def run_continuous(self, forward: bool) -> None:
         self.link.query(f"{'stepu' if forward else 'stepd'} {self.axis} c")
+        with self._lock:
+            self._cut_burst()
+            self._continuous = True
 
     def stop(self) -> None:
         self.link.query(f"stop {self.axis}")
@@ -266,8 +271,9 @@ class Anc300Amplifier(Amplifier):
         """Sleep until N/f after the burst started, then confirm with ``stepw``."""
         deadline = time.monotonic() + timeout_s
         with self._lock:
-            remaining = self._remaining_s()
+            remaining = math.inf if self._continuous else self._remaining_s()
         if remaining > timeout_s:
+            time.sleep(timeout_s)
             return False
         time.sleep(max(0.0, remaining))
         try:
@@ -301,7 +307,7 @@ class Anc300Amplifier(Amplifier):
         amplitude = float(self.link.value(f"getv {self.axis}", "voltage"))
         counter, estimated = self.steps_played()
         with self._lock:
-            moving = self._burst is not None
+            moving = self._burst is not None or self._continuous
         return AmplifierStatus(mode=mode, frequency_hz=frequency, amplitude_v=amplitude,
                                step_counter=counter, moving=moving,
                                counted_by="estimated" if estimated else "host")
@@ -331,6 +337,7 @@ class Anc300Amplifier(Amplifier):
 
     def _cut_burst(self) -> None:
         """The output stopped now: keep only the steps played so far (estimated)."""
+        self._continuous = False
         self._settle_burst()
         if self._burst is not None:
             start, count = self._burst
