@@ -167,11 +167,11 @@ def test_stop_when_nothing_plays_holds_without_a_stop_command() -> None:
 
 def test_stop_mid_burst_counts_the_steps_actually_played() -> None:
     rig = Rig()
-    job, step = to_first_burst(rig, 900e-6)
+    _job, step = to_first_burst(rig, 900e-6)
     rig.complete(step, counter=1000)
     rig.tick()
     rig.policy.request_stop()
-    stop = [o for o in rig.tick() if isinstance(o, Command)][0]
+    stop = next(o for o in rig.tick() if isinstance(o, Command))
     rig.complete(stop, counter=1000 + 12, estimated=True)
     for _ in range(6):
         rig.tick()
@@ -183,7 +183,7 @@ def test_hold_times_out_when_the_part_never_settles() -> None:
     rig = Rig()
     to_first_burst(rig)
     rig.policy.request_stop()
-    stop = [o for o in rig.tick() if isinstance(o, Command)][0]
+    stop = next(o for o in rig.tick() if isinstance(o, Command))
     rig.complete(stop, counter=0)
     for k in range(int(SETTINGS.hold_timeout_s / DT) + 5):
         rig.position_m = k * 5e-6
