@@ -28,8 +28,9 @@ GRACE_S = 0.5
 PACE_S = 0.001
 
 
-def _delivered(path: str, rates: tuple[int, ...], seconds: float, node_present: bool
-               ) -> tuple[int, dict[int, int]]:
+def _delivered(
+    path: str, rates: tuple[int, ...], seconds: float, node_present: bool
+) -> tuple[int, dict[int, int]]:
     """Highest lossless rate and the TPDOs lost at each rate tried."""
     with master(path) as (network, node):
         if node_present:

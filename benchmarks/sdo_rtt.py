@@ -84,8 +84,12 @@ def run(quick: bool) -> dict[str, object]:
     count = 200 if quick else 2000
     floor: list[float] = []
     ours: list[float] = []
-    with floor_pty(__file__) as floor_path, firmware_sim_pty() as our_path, \
-            master(floor_path) as (_, floor_node), master(our_path) as (_, our_node):
+    with (
+        floor_pty(__file__) as floor_path,
+        firmware_sim_pty() as our_path,
+        master(floor_path) as (_, floor_node),
+        master(our_path) as (_, our_node),
+    ):
         _read_times(floor_node, 20)  # warm up (first frames, caches)
         _read_times(our_node, 20)
         for _ in range(count // BATCH):  # interleaved: both see the same machine load

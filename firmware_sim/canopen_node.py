@@ -98,8 +98,13 @@ ERROR_REGISTER_BITS = {Fault.WATCHDOG: 0x80, Fault.HOST_WATCHDOG: 0x10, Fault.OV
 TIMED_SHAPES = ("linear", "half-cosine")
 """Flyback shapes that use ``Flyback time``; the others keep it only for later."""
 
-LIMIT_FIELDS = {"Frequency": "frequency", "Amplitude": "voltage", "Flyback time": "flyback",
-                "Offset": "offset", "Step command": "steps"}
+LIMIT_FIELDS = {
+    "Frequency": "frequency",
+    "Amplitude": "voltage",
+    "Flyback time": "flyback",
+    "Offset": "offset",
+    "Step command": "steps",
+}
 """The firmware's name (``LimitError.field``) of the value each object sets."""
 
 INTERRUPT_LATENCY_S = 100e-6
@@ -108,9 +113,19 @@ Python's default of 5 ms would let a busy tick delay an SDO answer by millisecon
 
 TPDO1 = "TPDO1 communication parameter"
 CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
-LIVE_OBJECTS = ("Error register", "Frequency", "Amplitude", "Flyback shape", "Mode", "Offset",
-                "Step counter", "Output voltage", "Fault word", "Status word",
-                "Command acknowledge")
+LIVE_OBJECTS = (
+    "Error register",
+    "Frequency",
+    "Amplitude",
+    "Flyback shape",
+    "Mode",
+    "Offset",
+    "Step counter",
+    "Output voltage",
+    "Fault word",
+    "Status word",
+    "Command acknowledge",
+)
 """Objects whose value is the axis' (or the node's) present state, read when asked."""
 
 
@@ -142,8 +157,15 @@ class CanopenNode:
     node samples the axis for event-driven TPDO1 and EMCY.
     """
 
-    def __init__(self, firmware: Firmware, axis: int, node_id: int, bus: can.BusABC,
-                 od: ObjectDictionary | None = None, poll_s: float = 0.001) -> None:
+    def __init__(
+        self,
+        firmware: Firmware,
+        axis: int,
+        node_id: int,
+        bus: can.BusABC,
+        od: ObjectDictionary | None = None,
+        poll_s: float = 0.001,
+    ) -> None:
         self.firmware = firmware
         self.axis = firmware.axis(axis)
         self.node_id = node_id
@@ -155,8 +177,7 @@ class CanopenNode:
         self._tpdo_lock = threading.Lock()
         self._wake = threading.Event()
         self._stopping = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True,
-                                        name=f"canopen-node-{node_id}")
+        self._thread = threading.Thread(target=self._run, daemon=True, name=f"canopen-node-{node_id}")
         self._ack = 0
         self._refused = False
         self._last_command = 0
@@ -166,7 +187,7 @@ class CanopenNode:
         self._tpdo_type = 255
         self._inhibit_s = 0.0
         self._event_timer_s = 0.0
-        self._consumer_id = 0            # host whose heartbeat is consumed; 0 = none
+        self._consumer_id = 0  # host whose heartbeat is consumed; 0 = none
         self._consumer_timeout_s = 0.0
         self._consumer_seen: float | None = None
         self._writers: dict[str, Callable[[int], None]] = {
@@ -187,8 +208,10 @@ class CanopenNode:
         od_ = self.local.object_dictionary
         for name in (*self._writers, *LIVE_OBJECTS, "Amplitude limit", "Identity object"):
             od_[name]  # a name the EDS lacks fails here, not on the first request
-        self._status_mask = {name: bit_mask(od_, "Status word", name)
-                             for name in ("moving", "stepping mode", "fault", "refused")}
+        self._status_mask = {
+            name: bit_mask(od_, "Status word", name)
+            for name in ("moving", "stepping mode", "fault", "refused")
+        }
 
     @property
     def nmt_state(self) -> int:
@@ -270,8 +293,7 @@ class CanopenNode:
             self._wake.set()
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if len(data) < 2 or data[1] not in (0, self.node_id) \
-                or data[0] not in canopen.nmt.COMMAND_TO_STATE:
+        if len(data) < 2 or data[1] not in (0, self.node_id) or data[0] not in canopen.nmt.COMMAND_TO_STATE:
             return
         with self.firmware.lock:
             if canopen.nmt.COMMAND_TO_STATE[data[0]] != NMT_OPERATIONAL:
@@ -363,8 +385,7 @@ class CanopenNode:
         except LimitError as exc:
             if exc.field != LIMIT_FIELDS.get(od.qualname):
                 raise SdoAbortedError(ABORT_INCOMPATIBLE) from exc
-            raise SdoAbortedError(ABORT_TOO_HIGH if exc.value > exc.hi else ABORT_TOO_LOW) \
-                from exc
+            raise SdoAbortedError(ABORT_TOO_HIGH if exc.value > exc.hi else ABORT_TOO_LOW) from exc
         except FirmwareError as exc:
             raise SdoAbortedError(ABORT_DEVICE_STATE) from exc
 
@@ -455,8 +476,7 @@ class CanopenNode:
                     self.axis.inject_fault(Fault.HOST_WATCHDOG)
                     status = self.axis.status()
             state = self.nmt_state
-            if state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL) \
-                    and status.fault_word != self._fault_reported:
+            if state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL) and status.fault_word != self._fault_reported:
                 self._report_faults(status.fault_word)
             if state != NMT_OPERATIONAL or self._tpdo_type < 254:
                 last_data = None
@@ -481,14 +501,18 @@ def serve_slcan_pty(firmware: Firmware, node_id_base: int = 1) -> tuple[str, Cal
     thread within that time, as an interrupt preempts a firmware's main loop.
     """
     if not 1 <= node_id_base <= 128 - max(firmware.axis_numbers):
-        raise InputError("--can-node-id-base",
-                         f"node ids {node_id_base}..{node_id_base + max(firmware.axis_numbers) - 1}"
-                         " leave CANopen's 1..127")
+        raise InputError(
+            "--can-node-id-base",
+            f"node ids {node_id_base}..{node_id_base + max(firmware.axis_numbers) - 1}"
+            " leave CANopen's 1..127",
+        )
     sys.setswitchinterval(INTERRUPT_LATENCY_S)
     wire = CanWire()
     adapter = SlcanPty(wire.bus()).start()
-    nodes = [CanopenNode(firmware, axis, node_id_base + axis - 1, wire.bus()).start()
-             for axis in firmware.axis_numbers]
+    nodes = [
+        CanopenNode(firmware, axis, node_id_base + axis - 1, wire.bus()).start()
+        for axis in firmware.axis_numbers
+    ]
 
     def close() -> None:
         for node in nodes:

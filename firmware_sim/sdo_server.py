@@ -119,7 +119,8 @@ class SdoServer(canopen.sdo.SdoServer):
             self.transfer = None if response[0] & EXPEDITED else UPLOAD
         elif scs == RESPONSE_DOWNLOAD:
             self.transfer = None if request[0] & EXPEDITED else DOWNLOAD
-        elif (scs == RESPONSE_SEGMENT_UPLOAD and response[0] & NO_MORE_DATA) or \
-                (scs == RESPONSE_SEGMENT_DOWNLOAD and request[0] & NO_MORE_DATA):
+        elif (scs == RESPONSE_SEGMENT_UPLOAD and response[0] & NO_MORE_DATA) or (
+            scs == RESPONSE_SEGMENT_DOWNLOAD and request[0] & NO_MORE_DATA
+        ):
             self.transfer = None
         super().send_response(response)

@@ -65,8 +65,17 @@ FLAG_DATA_OVERRUN = 0x08
 FLAG_BUS_ERROR = 0x80
 HARDWARE_VERSION = "10"
 SOFTWARE_VERSION = "13"
-BITRATES = {0: 10_000, 1: 20_000, 2: 50_000, 3: 100_000, 4: 125_000,
-            5: 250_000, 6: 500_000, 7: 800_000, 8: 1_000_000}
+BITRATES = {
+    0: 10_000,
+    1: 20_000,
+    2: 50_000,
+    3: 100_000,
+    4: 125_000,
+    5: 250_000,
+    6: 500_000,
+    7: 800_000,
+    8: 1_000_000,
+}
 _HEX = frozenset(b"0123456789ABCDEFabcdef")
 
 
@@ -168,11 +177,10 @@ class SlcanAdapter:
         remote = verb in b"rR"
         id_digits = 8 if extended else 3
         can_id = _hex_value(arg[:id_digits])
-        dlc = _hex_value(arg[id_digits:id_digits + 1])
-        if (can_id is None or dlc is None or dlc > 8
-                or can_id > (0x1FFFFFFF if extended else 0x7FF)):
+        dlc = _hex_value(arg[id_digits : id_digits + 1])
+        if can_id is None or dlc is None or dlc > 8 or can_id > (0x1FFFFFFF if extended else 0x7FF):
             return None
-        payload = arg[id_digits + 1:]
+        payload = arg[id_digits + 1 :]
         if remote:
             if payload:
                 return None
@@ -183,8 +191,9 @@ class SlcanAdapter:
             data = bytes.fromhex(payload.decode())
         if not self.is_open or self.listen_only:
             return None
-        return can.Message(arbitration_id=can_id, is_extended_id=extended,
-                           is_remote_frame=remote, dlc=dlc, data=data)
+        return can.Message(
+            arbitration_id=can_id, is_extended_id=extended, is_remote_frame=remote, dlc=dlc, data=data
+        )
 
     def frame_line(self, message: can.Message) -> bytes | None:
         """The line announcing ``message`` to the host; None while closed or for
@@ -233,8 +242,7 @@ class SlcanPty:
         if isinstance(bus, WireBus):
             bus.receiver = self._forward
         else:
-            self._threads.append(
-                threading.Thread(target=self._receive_bus, name="slcan-bus", daemon=True))
+            self._threads.append(threading.Thread(target=self._receive_bus, name="slcan-bus", daemon=True))
 
     def start(self) -> SlcanPty:
         for thread in self._threads:
@@ -323,7 +331,8 @@ class SlcanPty:
             with self._lock:
                 pending = bool(self._queued)
             readable, writable, _ = select.select(
-                [self._master, self._wake_r], [self._master] if pending else [], [], 0.5)
+                [self._master, self._wake_r], [self._master] if pending else [], [], 0.5
+            )
             if self._wake_r in readable:
                 os.read(self._wake_r, 4096)
             if writable:

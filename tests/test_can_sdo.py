@@ -28,8 +28,8 @@ ABORT_READ_ONLY = 0x06010002
 ABORT_TOO_HIGH = 0x06090031
 OD = object_dictionary(NODE_ID)
 FREQUENCY = OD["Frequency"].index
-DEVICE_NAME = OD["Manufacturer device name"].index        # a string: segmented upload
-STEP_COUNTER = OD["Step counter"].index                  # read-only
+DEVICE_NAME = OD["Manufacturer device name"].index  # a string: segmented upload
+STEP_COUNTER = OD["Step counter"].index  # read-only
 IDENTITY = OD["Identity object"].index
 
 
@@ -43,8 +43,9 @@ class Rig:
     def request(self, data: bytes) -> bytes | None:
         """Send one SDO request; the answer it got (None: no answer)."""
         before = len(self.answers)
-        self.host.send(can.Message(arbitration_id=0x600 + NODE_ID, is_extended_id=False,
-                                   data=data.ljust(8, b"\0")))
+        self.host.send(
+            can.Message(arbitration_id=0x600 + NODE_ID, is_extended_id=False, data=data.ljust(8, b"\0"))
+        )
         assert len(self.answers) - before <= 1
         return self.answers[-1][0] if len(self.answers) > before else None
 
@@ -109,14 +110,14 @@ def test_unknown_sub_index_of_a_record_aborts_0x06090011(rig: Rig) -> None:
 
 def test_a_client_abort_ends_a_segmented_upload(rig: Rig) -> None:
     answer = rig.request(initiate(0x40, DEVICE_NAME, 0))
-    assert answer is not None and answer[0] == 0x41          # segmented, size given
+    assert answer is not None and answer[0] == 0x41  # segmented, size given
     size = int.from_bytes(answer[4:8], "little")
     first = rig.request(b"\x60")
     assert first is not None and first[1:8] == b"feeder "
     assert rig.node.local.sdo.transfer == "upload"
     assert rig.request(initiate(0x80, DEVICE_NAME, 0, (0x05040000).to_bytes(4, "little"))) is None
     assert rig.node.local.sdo.transfer is None
-    assert abort_code(rig.request(b"\x70")) == ABORT_COMMAND   # the next segment: no transfer
+    assert abort_code(rig.request(b"\x70")) == ABORT_COMMAND  # the next segment: no transfer
     # a new transfer starts from the beginning
     answer = rig.request(initiate(0x40, DEVICE_NAME, 0))
     assert answer is not None and int.from_bytes(answer[4:8], "little") == size
@@ -124,7 +125,7 @@ def test_a_client_abort_ends_a_segmented_upload(rig: Rig) -> None:
     while True:
         segment = rig.request(bytes([0x60 | toggle]))
         assert segment is not None and segment[0] & 0xE0 == 0x00
-        text += segment[1:8 - (segment[0] >> 1 & 7)]
+        text += segment[1 : 8 - (segment[0] >> 1 & 7)]
         toggle ^= 0x10
         if segment[0] & 1:
             break
@@ -149,8 +150,8 @@ def test_a_client_abort_ends_a_segmented_download_and_writes_nothing(rig: Rig) -
 
 
 def test_segments_outside_a_transfer_and_block_download_abort_0x05040001(rig: Rig) -> None:
-    assert abort_code(rig.request(b"\x60")) == ABORT_COMMAND          # upload segment
-    assert abort_code(rig.request(b"\x01abc")) == ABORT_COMMAND       # download segment
+    assert abort_code(rig.request(b"\x60")) == ABORT_COMMAND  # upload segment
+    assert abort_code(rig.request(b"\x01abc")) == ABORT_COMMAND  # download segment
     assert abort_code(rig.request(initiate(0xC0, FREQUENCY, 0))) == ABORT_COMMAND  # block
     # an expedited transfer leaves no segmented one behind
     expedited_upload(rig, FREQUENCY)

@@ -44,7 +44,8 @@ from feeder.drivers.amplifier import (
     AmplifierStatus,
     DriveSettings,
 )
-from feeder.protocol.eds import FAULT_WORD_BITS, MODES, bit_mask, object_dictionary
+from feeder.protocol import anc300
+from feeder.protocol.eds import MODES, bit_mask, object_dictionary
 
 HOST_SILENCE_PERIODS = 3
 """The node's heartbeat consumer time, in the driver's heartbeat periods."""
@@ -73,9 +74,10 @@ ABORT_MESSAGES = {
 
 
 def fault_names(word: int) -> tuple[str, ...]:
-    """Names of the bits set in a fault word, lowest bit first (``fault<bit>`` if unknown)."""
-    return tuple(FAULT_WORD_BITS[bit] if bit < len(FAULT_WORD_BITS) else f"fault{bit}"
-                 for bit in range(32) if word >> bit & 1)
+    """Names of the bits set in a fault word: the protocol's, then ``fault<bit>`` for
+    bits it does not name (a real drive may set more)."""
+    unknown = word & ~sum(anc300.FAULT_BITS.values())
+    return anc300.fault_names(word) + tuple(f"fault{bit}" for bit in range(32) if unknown >> bit & 1)
 
 
 class CanopenAmplifier(Amplifier):
@@ -93,9 +95,16 @@ class CanopenAmplifier(Amplifier):
         firmware's ``--host-watchdog-s``.
     """
 
-    def __init__(self, bus: Mapping[str, Any], node_id: int, eds: ObjectDictionary | None = None,
-                 heartbeat_s: float = 0.25, timeout_s: float = 0.5, supervise_host: bool = False,
-                 host_id: int = 127) -> None:
+    def __init__(
+        self,
+        bus: Mapping[str, Any],
+        node_id: int,
+        eds: ObjectDictionary | None = None,
+        heartbeat_s: float = 0.25,
+        timeout_s: float = 0.5,
+        supervise_host: bool = False,
+        host_id: int = 127,
+    ) -> None:
         self.node_id = node_id
         self.supervise_host = supervise_host
         self.host_id = host_id
@@ -130,8 +139,9 @@ class CanopenAmplifier(Amplifier):
         except BaseException:
             self.network.disconnect()
             raise
-        self._watchdog = threading.Thread(target=self._watch_heartbeat, daemon=True,
-                                          name=f"canopen-heartbeat-{node_id}")
+        self._watchdog = threading.Thread(
+            target=self._watch_heartbeat, daemon=True, name=f"canopen-heartbeat-{node_id}"
+        )
         self._watchdog.start()
 
     # -- link setup and supervision --------------------------------------------
@@ -144,10 +154,12 @@ class CanopenAmplifier(Amplifier):
             raise AmplifierLinkLost(f"CANopen node {self.node_id}: no heartbeat") from exc
         self._sdo_write("Producer heartbeat time", round(self.heartbeat_s * 1000))
         if self.supervise_host:  # consumer first: it sees the first beat
-            self._sdo_write(CONSUMER_HEARTBEAT, self.host_id << 16
-                            | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000))
+            self._sdo_write(
+                CONSUMER_HEARTBEAT, self.host_id << 16 | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000)
+            )
             self._host_heartbeat = self.network.send_periodic(
-                0x700 + self.host_id, b"\x05", self.heartbeat_s)  # 5: OPERATIONAL
+                0x700 + self.host_id, b"\x05", self.heartbeat_s
+            )  # 5: OPERATIONAL
         self._sdo_write(TPDO1_TYPE, 255)  # TPDO1 event-driven: on change and on its timer
         self.node.tpdo.read(from_od=True)
         self.node.rpdo.read(from_od=True)
@@ -176,8 +188,7 @@ class CanopenAmplifier(Amplifier):
             with self._changed:
                 silent = time.monotonic() - self._last_heartbeat
                 if silent >= limit and self._lost is None:
-                    self._lost = (f"CANopen node {self.node_id}: no heartbeat for "
-                                  f"{silent * 1000:.0f} ms")
+                    self._lost = f"CANopen node {self.node_id}: no heartbeat for {silent * 1000:.0f} ms"
                     self._changed.notify_all()
                 if self._lost is not None:
                     return
@@ -249,16 +260,15 @@ class CanopenAmplifier(Amplifier):
                 raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
             with self._changed:
                 acked = self._changed.wait_for(
-                    lambda: self._ack == sequence or self._lost is not None, self.timeout_s)
+                    lambda: self._ack == sequence or self._lost is not None, self.timeout_s
+                )
                 self._check_link()
                 refused = self._status_word & self._refused
             if not acked:
-                raise AmplifierLinkLost(
-                    f"CANopen node {self.node_id}: step command not acknowledged")
+                raise AmplifierLinkLost(f"CANopen node {self.node_id}: step command not acknowledged")
         if refused:
             state = self.status()
-            reason = (f"fault {', '.join(state.faults)}" if state.fault_word
-                      else f"mode {state.mode}")
+            reason = f"fault {', '.join(state.faults)}" if state.fault_word else f"mode {state.mode}"
             raise AmplifierError(f"CANopen node {self.node_id}: step {count} refused ({reason})")
 
     # -- the Amplifier interface -----------------------------------------------
@@ -267,9 +277,12 @@ class CanopenAmplifier(Amplifier):
         """Write the settings; if the node refuses one, restore the previous ones."""
         if settings.flyback_shape not in FLYBACK_SHAPES:
             raise AmplifierError(f"unknown flyback shape {settings.flyback_shape!r}")
-        wanted = (FLYBACK_SHAPES.index(settings.flyback_shape),
-                  round(settings.frequency_hz * 1000), round((settings.flyback_s or 0.0) * 1e9),
-                  round(settings.amplitude_v * 1000))
+        wanted = (
+            FLYBACK_SHAPES.index(settings.flyback_shape),
+            round(settings.frequency_hz * 1000),
+            round((settings.flyback_s or 0.0) * 1e9),
+            round(settings.amplitude_v * 1000),
+        )
         with self._lock:
             previous = tuple(self._sdo_read(name) for name in SETTINGS)
             try:
@@ -278,14 +291,16 @@ class CanopenAmplifier(Amplifier):
                 self._write_settings(*previous)
                 raise
 
-    def _write_settings(self, shape: int, frequency_mhz: int, flyback_ns: int,
-                        amplitude_mv: int) -> None:
+    def _write_settings(self, shape: int, frequency_mhz: int, flyback_ns: int, amplitude_mv: int) -> None:
         """SDO writes in an order the firmware accepts from any previous settings:
         current-limited flyback first (no timing constraint), then frequency, flyback
         time and the wanted shape (checked against the new period), then amplitude."""
         current_limited = FLYBACK_SHAPES.index("current-limited")
-        writes = [("Flyback shape", current_limited), ("Frequency", frequency_mhz),
-                  ("Flyback time", flyback_ns)]
+        writes = [
+            ("Flyback shape", current_limited),
+            ("Frequency", frequency_mhz),
+            ("Flyback time", flyback_ns),
+        ]
         if shape != current_limited and shape < len(FLYBACK_SHAPES):
             writes.append(("Flyback shape", shape))
         for name, value in [*writes, ("Amplitude", amplitude_mv)]:
@@ -306,8 +321,8 @@ class CanopenAmplifier(Amplifier):
     def wait(self, timeout_s: float) -> bool:
         with self._changed:
             done = self._changed.wait_for(
-                lambda: not self._status_word & self._moving or self._lost is not None,
-                timeout_s)
+                lambda: not self._status_word & self._moving or self._lost is not None, timeout_s
+            )
             self._check_link()
             return done
 
@@ -334,9 +349,13 @@ class CanopenAmplifier(Amplifier):
             moving = bool(self._sdo_read("Status word") & self._moving)
         return AmplifierStatus(
             mode=MODES[mode] if mode < len(MODES) else str(mode),
-            frequency_hz=frequency_mhz / 1000, amplitude_v=amplitude_mv / 1000,
-            step_counter=counter, moving=moving, fault_word=fault_word,
-            faults=fault_names(fault_word))
+            frequency_hz=frequency_mhz / 1000,
+            amplitude_v=amplitude_mv / 1000,
+            step_counter=counter,
+            moving=moving,
+            fault_word=fault_word,
+            faults=fault_names(fault_word),
+        )
 
     @property
     def step_counter(self) -> int:

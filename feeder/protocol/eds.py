@@ -16,12 +16,10 @@ from typing import TextIO, cast
 import canopen
 from canopen.objectdictionary import ObjectDictionary, ODVariable
 
+from feeder.protocol.anc300 import FAULT_BITS, MODES
 from feeder.waveform import FLYBACK_SHAPES
 
 EDS_FILE = "feeder_amplifier.eds"
-
-MODES = ("gnd", "inp", "cap", "stp", "off", "stp+", "stp-")
-"""``Mode`` (0x2005): value = index (the ANC300's mode names)."""
 
 SHAPE_CODES = (*FLYBACK_SHAPES, "custom")
 """``Flyback shape`` (0x2002): value = index; ``custom`` (user tables) is read-only."""
@@ -29,11 +27,13 @@ SHAPE_CODES = (*FLYBACK_SHAPES, "custom")
 STATUS_WORD_BITS = ("moving", "stepping mode", "fault", "refused")
 """``Status word`` (0x2015), bit 0 first; ``refused``: the last RPDO1 command was refused."""
 
-FAULT_WORD_BITS = ("watchdog", "host_watchdog", "overtemp")
-"""``Fault word`` (0x2014), bit 0 first (the firmware's latched faults)."""
-
 VALUE_NAMES = {"Mode": MODES, "Flyback shape": SHAPE_CODES}
-BIT_NAMES = {"Status word": STATUS_WORD_BITS, "Fault word": FAULT_WORD_BITS}
+"""Value descriptions: ``Mode`` (0x2005) value = index in the ANC300's mode names."""
+BIT_NAMES = {
+    "Status word": {name: bit for bit, name in enumerate(STATUS_WORD_BITS)},
+    "Fault word": {name: mask.bit_length() - 1 for name, mask in FAULT_BITS.items()},
+}
+"""Bit definitions: ``Fault word`` (0x2014) holds the firmware's fault bits."""
 
 
 def object_dictionary(node_id: int) -> ObjectDictionary:
@@ -46,7 +46,7 @@ def object_dictionary(node_id: int) -> ObjectDictionary:
             variable.add_value_description(code, value)
     for name, bits in BIT_NAMES.items():
         variable = entry(od, name)
-        for bit, bit_name in enumerate(bits):
+        for bit_name, bit in bits.items():
             variable.add_bit_definition(bit_name, [bit])
     return od
 
