@@ -111,6 +111,10 @@ INTERRUPT_LATENCY_S = 100e-6
 """Longest wait of an arriving frame's thread for the interpreter (``sys.setswitchinterval``;
 Python's default of 5 ms would let a busy tick delay an SDO answer by milliseconds)."""
 
+IDLE_POLL_S = 0.01
+"""How often a node without event-driven PDOs to send (not OPERATIONAL, or TPDO1 on
+SYNC) samples its axis for EMCY and the heartbeat consumer."""
+
 TPDO1 = "TPDO1 communication parameter"
 CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
 LIVE_OBJECTS = (
@@ -232,7 +236,11 @@ class CanopenNode:
         local.add_write_callback(self._on_write)
         local.tpdo.read(from_od=True)
         local.rpdo.read(from_od=True)
-        self._tpdo = local.tpdo[1]
+        tpdo = local.tpdo[1]
+        self._tpdo_cob_id = tpdo.cob_id
+        # TPDO1's layout from its mapping (byte-aligned, as in the EDS): packed with
+        # struct, not through canopen's PDO variables, on every SYNC / change
+        self._tpdo_layout = [(v.od.qualname, v.od.STRUCT_TYPES[v.od.data_type]) for v in tpdo.map]
         self._rpdo = local.rpdo[1]
         self._rpdo.add_callback(self._on_rpdo)
         bus = network.bus
@@ -440,15 +448,12 @@ class CanopenNode:
     # -- TPDO1 and EMCY ---------------------------------------------------------
 
     def _pack_tpdo(self, status: AxisStatus) -> bytes:
-        """Fill TPDO1 from ``status`` per its mapping (call with ``_tpdo_lock`` held)."""
-        for variable in self._tpdo.map:
-            variable.set_data(variable.od.encode_raw(self._live_value(variable.od.qualname, status)))
-        return bytes(self._tpdo.data)
+        """TPDO1's data for ``status``, per its mapping."""
+        return b"".join(layout.pack(self._live_value(name, status)) for name, layout in self._tpdo_layout)
 
     def _send_tpdo(self, status: AxisStatus) -> None:
         with self._tpdo_lock:
-            self._pack_tpdo(status)
-            self._tpdo.transmit()
+            self.network.send_message(self._tpdo_cob_id, self._pack_tpdo(status))
 
     def _report_faults(self, fault_word: int) -> None:
         new = fault_word & ~self._fault_reported
@@ -462,11 +467,13 @@ class CanopenNode:
         self._fault_reported = fault_word
 
     def _run(self) -> None:
-        """Sample the axis every ``poll_s``: EMCY on fault changes, TPDO1 when due."""
+        """Sample the axis every ``poll_s`` (every :data:`IDLE_POLL_S` while no PDOs
+        flow): EMCY on fault changes, TPDO1 when due."""
         last_data: bytes | None = None
         last_sent = 0.0
         while not self._stopping.is_set():
-            self._wake.wait(self.poll_s)
+            pdos_flow = self.nmt_state == NMT_OPERATIONAL and self._tpdo_type >= 254
+            self._wake.wait(self.poll_s if pdos_flow else max(self.poll_s, IDLE_POLL_S))
             self._wake.clear()
             status = self.axis.status()
             seen = self._consumer_seen
@@ -487,7 +494,7 @@ class CanopenNode:
                 changed = data != last_data and now - last_sent >= self._inhibit_s
                 timer_due = self._event_timer_s > 0 and now - last_sent >= self._event_timer_s
                 if changed or timer_due:
-                    self._tpdo.transmit()
+                    self.network.send_message(self._tpdo_cob_id, data)
                     last_data, last_sent = data, now
 
 
