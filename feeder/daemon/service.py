@@ -24,6 +24,7 @@ import contextlib
 import dataclasses
 import fcntl
 import json
+import logging
 import os
 import socket
 import stat
@@ -51,6 +52,8 @@ from feeder.daemon.store import Calibration, Store
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import InputError
+
+log = logging.getLogger(__name__)
 
 MAX_CLIENTS = 32
 CALIBRATION_STEPS = 20
@@ -268,6 +271,9 @@ class Daemon:
             job.record_id = self.store.begin_move(job.target_m, self.loop.position_m)
 
     def _record_end(self, job: Job, result: JobResult) -> None:
+        log.info("%s %s: %s (target %s m, reached %s m, %d steps in %d bursts)", job.kind,
+                 result.status, result.reason, result.target_m, result.reached_m, result.steps,
+                 result.bursts)
         self._save_estimates()
         if job.record_id is not None:
             est = result.estimates
@@ -296,6 +302,7 @@ class Daemon:
 
     # -- faults ----------------------------------------------------------------
     def _on_fault(self, kind: str, message: str) -> None:
+        log.error("%s link lost: %s; output grounded, reconnecting", kind, message)
         record: dict[str, Any] = {"link": kind, "message": message, "time_s": time.time()}
         with self._lock:
             self._faults.append(record)
@@ -341,6 +348,7 @@ class Daemon:
                 continue
             with self._lock:
                 record["reconnected_after_attempts"] = attempts
+            log.info("%s link restored after %d attempts", kind, attempts)
             break
         with self._lock:
             self._reconnecting.discard(kind)
