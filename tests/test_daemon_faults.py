@@ -6,6 +6,7 @@ the fault tests count the records before and after.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import sqlite3
@@ -90,10 +91,9 @@ def _exchange(path: Path, data: bytes, read: bool = True) -> dict[str, object] |
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as conn:
         conn.connect(str(path))         # blocking: waits for room in the backlog
         conn.settimeout(10)
-        try:
+        # a too-long line: the daemon answers and hangs up mid-send
+        with contextlib.suppress(BrokenPipeError, ConnectionResetError):
             conn.sendall(data)
-        except (BrokenPipeError, ConnectionResetError):
-            pass        # a too-long line: the daemon answered and hung up mid-send
         if not read:
             return None
         reply = conn.makefile("rb").readline()
