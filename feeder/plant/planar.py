@@ -27,10 +27,11 @@ x or y drive) the segment is solved in the 1-D closed form of
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import solve_ivp
+from scipy.integrate import DOP853
 from scipy.optimize import brentq
 
 from feeder.errors import InputError
@@ -45,6 +46,7 @@ _SEED_TIME_S = 1e-12
 _STOP = 1e-10
 """A slip ends when the twist has fallen below this fraction of its value at the start."""
 _BREAKAWAY_SAMPLES = 16
+_ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
 
 
 @dataclass(frozen=True)
@@ -184,7 +186,8 @@ class _PartState:
         return y[3] - (vel[0] - vel[2] * ry), y[4] - (vel[1] + vel[2] * rx), y[5] - vel[2]
 
     def _norm(self, w: tuple[float, float, float]) -> float:
-        return math.sqrt(w[0] * w[0] + w[1] * w[1] + self.part.inertia_kg_m2 / self.part.mass_kg * w[2] * w[2])
+        """Twist size √(|w|² + (I/m)·ω²) (m/s): kinetic energy per mass."""
+        return math.sqrt(self._dot(w, w))
 
     # --- one segment ------------------------------------------------------
     def run(self, seg: Segment, plate: _Plate) -> None:
@@ -262,24 +265,67 @@ class _PartState:
             return [y[3], y[4], y[5], -tau_k * (c * ux - s * uy) / m,
                     -tau_k * (s * ux + c * uy) / m, -tau_k * mu / inertia]  # fmt: skip
 
-        def stops(t: float, y: np.ndarray) -> float:
+        def twist(t: float, y: np.ndarray) -> tuple[float, float, float]:
             p, v = plate.at(seg, t)
-            return self._norm(self._twist([x0 + y[0], y0 + y[1], 0.0, y[3], y[4], y[5]], p, v)) - self._stop
+            return self._twist([x0 + y[0], y0 + y[1], 0.0, y[3], y[4], y[5]], p, v)
 
-        stops.terminal = True  # type: ignore[attr-defined]
-        stops.direction = -1  # type: ignore[attr-defined]
-        y_start = [0.0, 0.0, 0.0, *self.lab[3:]]
-        sol = solve_ivp(rhs, (tau, seg.duration_s), y_start, method="DOP853", rtol=1e-10,
-                        atol=[1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9], events=stops)  # fmt: skip
-        if sol.status == 1:
-            end, y = float(sol.t_events[0][0]), sol.y_events[0][0]
-        else:
-            end, y = float(sol.t[-1]), sol.y[:, -1]
+        def twist_rate(t: float, y: np.ndarray) -> tuple[float, float, float]:
+            """d(w, ω_r)/dt = (dv/dt − a_plate(c) − Ω ẑ×w, dω/dt − α)."""
+            p, v = plate.at(seg, t)
+            ax, ay, alpha = seg.accel_at(t)
+            rx, ry = x0 + y[0] - p[0], y0 + y[1] - p[1]
+            wx, wy, _ = twist(t, y)
+            d = rhs(t, y)
+            om = v[2]
+            return (d[3] - (ax - alpha * ry - om * om * rx) + om * wy,
+                    d[4] - (ay + alpha * rx - om * om * ry) - om * wx, d[5] - alpha)  # fmt: skip
+
+        end, y, stopped = self._integrate(rhs, twist, twist_rate, tau, seg.duration_s,
+                                          np.array([0.0, 0.0, 0.0, *self.lab[3:]]))  # fmt: skip
         self.lab = [x0 + float(y[0]), y0 + float(y[1]), phi0 + float(y[2]), *map(float, y[3:])]
         self.slip_time_s += end - tau
-        if sol.status == 1:
+        if stopped:
             self._settle(seg, plate, end)
         return end
+
+    def _dot(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
+        return a[0] * b[0] + a[1] * b[1] + self.part.inertia_kg_m2 / self.part.mass_kg * a[2] * b[2]
+
+    def _integrate(self, rhs: Callable[[float, np.ndarray], list[float]],
+                   twist: Callable[[float, np.ndarray], tuple[float, float, float]],
+                   rate: Callable[[float, np.ndarray], tuple[float, float, float]],
+                   t: float, t_end: float, y: np.ndarray) -> tuple[float, np.ndarray, bool]:  # fmt: skip
+        """DOP853 from t towards t_end until the twist vanishes; returns (time, state, vanished).
+
+        Friction jumps where the twist passes zero, so no step may cross it: a
+        step that reverses the twist is dropped and the integration restarts
+        with its end at 0.9 of the linearly predicted time to zero, until the
+        twist is below the stop threshold.
+        """
+        bound = t_end
+        previous = twist(t, y)
+        for _ in range(1000):
+            stepper = DOP853(rhs, t, y, bound, rtol=1e-10, atol=_ATOL)
+            reversed_ = False
+            while stepper.status == "running":
+                stepper.step()
+                if stepper.status == "failed":
+                    raise RuntimeError(f"planar stick-slip: integration failed at t = {t}")
+                now = twist(stepper.t, stepper.y)
+                if self._dot(now, previous) <= 0:
+                    reversed_ = True
+                    break
+                t, y, previous = stepper.t, stepper.y, now
+                if math.sqrt(self._dot(now, now)) <= self._stop:
+                    return t, y, True
+            if not reversed_ and t >= t_end:
+                return t, y, False
+            d = rate(t, y)
+            to_zero = -self._dot(previous, d) / self._dot(d, d)
+            if not to_zero > 0:
+                return t, y, True
+            bound = min(t_end, t + 0.9 * to_zero)
+        raise RuntimeError("planar stick-slip: the twist does not vanish")
 
     def _settle(self, seg: Segment, plate: _Plate, tau: float) -> None:
         """The twist has vanished at τ: sticks if the static surface holds it, else slips on."""
@@ -362,7 +408,7 @@ class PlanarStickSlip:
         return [s.stuck for s in self._states]
 
     def advance(self, segments: tuple[Segment, ...] | list[Segment], every: int = 1) -> np.ndarray:
-        """Run the segments; returns plate-frame poses (parts, len(segments)//every, 3) after every ``every``-th."""
+        """Run the segments; plate-frame poses (parts, len(segments) // every, 3) every ``every`` segments."""
         out = []
         for k, seg in enumerate(segments):
             for state in self._states:

@@ -52,7 +52,7 @@ class Segment:
         return v[0] + a[0] * tau + k[0] * s, v[1] + a[1] * tau + k[1] * s, v[2] + a[2] * tau + k[2] * s
 
     def accel_at(self, tau: float) -> tuple[float, float, float]:
-        c = -self.kappa**2 * math.cos(self.kappa * tau)
+        c = -(self.kappa**2) * math.cos(self.kappa * tau)
         a, k = self.accel, self.cosine
         return a[0] + k[0] * c, a[1] + k[1] * c, a[2] + k[2] * c
 
