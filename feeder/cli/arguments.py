@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -31,20 +32,36 @@ def add_part_arguments(
     p.add_argument("--part", required=part_required, help=f"LxWxT in µm, e.g. {example}")
     p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
     p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
-    p.add_argument("--density", type=positive_float, default=SILICON_DENSITY_KG_M3,
-                   help=f"part density in kg/m³ (default silicon, {SILICON_DENSITY_KG_M3:g})")
-    p.add_argument("--adhesion-work", type=float, metavar="J_M2",
-                   help="work of adhesion w in J/m² for DMT adhesion per summit (default: the "
-                        "surface file's, else 0 as in the paper; silicon in air ≈ 0.1)")
+    p.add_argument(
+        "--density",
+        type=positive_float,
+        default=SILICON_DENSITY_KG_M3,
+        help=f"part density in kg/m³ (default silicon, {SILICON_DENSITY_KG_M3:g})",
+    )
+    p.add_argument(
+        "--adhesion-work",
+        type=float,
+        metavar="J_M2",
+        help="work of adhesion w in J/m² for DMT adhesion per summit (default: the "
+        "surface file's, else 0 as in the paper; silicon in air ≈ 0.1)",
+    )
 
 
 def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
     """``--tau`` (and ``--tau-band``)."""
-    p.add_argument("--tau", type=positive_float, default=DEFAULT_TAU_PA,
-                   help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})")
+    p.add_argument(
+        "--tau",
+        type=positive_float,
+        default=DEFAULT_TAU_PA,
+        help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})",
+    )
     if band:
-        p.add_argument("--tau-band", type=float, default=DEFAULT_TAU_BAND_PA,
-                       help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})")
+        p.add_argument(
+            "--tau-band",
+            type=float,
+            default=DEFAULT_TAU_BAND_PA,
+            help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})",
+        )
 
 
 def surface_from(args: argparse.Namespace) -> SurfaceParameters:
@@ -61,3 +78,24 @@ def surface_from(args: argparse.Namespace) -> SurfaceParameters:
 def part_from(args: argparse.Namespace) -> tuple[Part, Support, SurfaceParameters]:
     """Part, support and surface from :func:`add_part_arguments`' options."""
     return Part.parse(args.part, density_kg_m3=args.density), Support.parse(args.support), surface_from(args)
+
+
+def pose(text: str) -> tuple[float, float, float]:
+    """argparse type: ``X,Y,PSI`` (m, m, rad), finite numbers."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,PSI in m, m, rad, got {text!r}") from None
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,PSI, got {text!r}")
+    return values[0], values[1], values[2]
+
+
+def allow_negative_values(p: argparse.ArgumentParser) -> None:
+    """Let option values start with a minus sign (``--pose -1e-3,0,0``, ``--stroke-rad -0.01``).
+
+    argparse takes ``-1e-3,0,0`` for an option unless it looks like a plain
+    negative number; this parser has no options that look like numbers, so any
+    argument starting with ``-`` and a digit is a value.
+    """
+    p._negative_number_matcher = re.compile(r"^-\.?\d")
