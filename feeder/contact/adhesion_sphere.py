@@ -39,14 +39,13 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq, minimize_scalar
 
 from feeder.errors import InputError
+from feeder.surface.parameters import DEFAULT_ADHESION_RANGE_M
 
 Model = Literal["hertz", "dmt", "jkr", "maugis-dugdale"]
 MODELS: tuple[str, ...] = ("hertz", "dmt", "jkr", "maugis-dugdale")
-EQUILIBRIUM_SPACING_M = 0.3e-9
-"""Interatomic equilibrium spacing z₀ (Tabor's parameter)."""
-DEFAULT_RANGE_M = 0.971 * EQUILIBRIUM_SPACING_M
-"""Default Dugdale range h₀: Maugis' match of the Dugdale law to a Lennard-Jones one
-(σ₀ = 1.03·w/z₀, so λ = 1.16·μ)."""
+DEFAULT_RANGE_M = DEFAULT_ADHESION_RANGE_M
+"""Default Dugdale range h₀ = 0.971·z₀: Maugis' match of the Dugdale law to a Lennard-Jones
+one (σ₀ = 1.03·w/z₀, so λ = 1.16·μ)."""
 _BISECTIONS = 110
 _SQRT6 = math.sqrt(6.0)
 
