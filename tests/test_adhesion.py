@@ -37,7 +37,9 @@ def test_tau_is_fitted_with_w_and_keeps_the_measured_breakaway() -> None:
     # τ·A_r on the flat support is the measured force, whatever w: a stays ≈ 105 m/s²
     assert adhesive.breakaway_force_n == pytest.approx(plain.breakaway_force_n, rel=1e-9)
     assert adhesive.breakaway_accel_m_s2 == pytest.approx(105.25, rel=1e-3)
-    assert adhesive.tau_pa == pytest.approx(TAU_MEAN_PA * plain.real_area_m2 / adhesive.real_area_m2, rel=1e-9)
+    assert adhesive.tau_pa == pytest.approx(
+        TAU_MEAN_PA * plain.real_area_m2 / adhesive.real_area_m2, rel=1e-9
+    )
     assert adhesive.tau_pa < 1e7  # the adhesion-free 22 GPa is never paired with w = 0.1
     assert adhesive.tau_adhesion_work_j_m2 == W and "w = 0.1" in adhesive.tau_source
     # a τ that was fitted without adhesion is refused with w > 0; its own w is accepted
@@ -71,14 +73,14 @@ def test_full_model_fit_of_w_to_the_grooved_ratio() -> None:
 
 
 def test_fit_reports_sensitivity_and_unreachable_targets() -> None:
-    fit = fit_adhesion_work(DEFAULT_SURFACE, PART, curve_points=5)
+    fit = fit_adhesion_work(DEFAULT_SURFACE, PART, curve_points=4)
     assert fit.adhesion_work_j_m2 == pytest.approx(FITTED_ADHESION_WORK_J_M2, rel=1e-3)
     assert fit.ratio_slope_per_j_m2 is not None and fit.ratio_slope_per_j_m2 < 0
     assert fit.adhesion_work_band_j_m2 is not None
     lo, hi = fit.adhesion_work_band_j_m2
     assert lo < fit.adhesion_work_j_m2 < hi
     assert (hi - lo) / (hi + lo) == pytest.approx(ADHESION_WORK_REL_BAND, rel=0.02)
-    none = fit_adhesion_work(DEFAULT_SURFACE, PART, target=0.3, curve_points=5)
+    none = fit_adhesion_work(DEFAULT_SURFACE, PART, target=0.3, curve_points=3)
     assert none.adhesion_work_j_m2 is None and "no w" in none.explanation
 
 
@@ -86,7 +88,9 @@ def test_grooved_breakaway_scales_with_the_ratio() -> None:
     surface = replace(DEFAULT_SURFACE, adhesion_work_j_m2=FITTED_ADHESION_WORK_J_M2)
     flat, grooved = contact(PART, FLAT, surface), contact(PART, GROOVED, surface)
     assert grooved.tau_pa == flat.tau_pa == fitted_tau(surface).tau_pa
-    assert grooved.breakaway_force_n / flat.breakaway_force_n == pytest.approx(GROOVED_FRICTION_RATIO, abs=2e-4)
+    assert grooved.breakaway_force_n / flat.breakaway_force_n == pytest.approx(
+        GROOVED_FRICTION_RATIO, abs=2e-4
+    )
 
 
 def test_cli_contact_and_tau_pairs(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
@@ -113,3 +117,14 @@ def test_cli_contact_and_tau_pairs(capsys: pytest.CaptureFixture[str], tmp_path:
     spread = abs(0.9759e-6 - 0.9174e-6) / math.sqrt(2) / ((0.9759e-6 + 0.9174e-6) / 2)
     band = report["inputs"]["area_band"]
     assert report["tau_band_pa"] == pytest.approx(report["tau_pa"] * math.hypot(spread, band), rel=1e-9)
+
+
+def test_cli_fit_says_plainly_when_no_w_reaches_the_target(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    plot = tmp_path / "fit.png"
+    assert main(["adhesion", "fit", "--ratio", "0.3", "--plot", str(plot), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["adhesion_work_j_m2"] is None and "no w" in out["explanation"]
+    assert out["ratio_range"][0] == pytest.approx(0.5, abs=1e-3) and "tau_pa" not in out
+    assert plot.stat().st_size > 1000

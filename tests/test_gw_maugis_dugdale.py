@@ -63,19 +63,19 @@ class MaugisDugdaleReference(Reference):
         hertz = max(s_bar, 0.0)
         return _md_state(a, self.lam)[0] - hertz**1.5, a * a - hertz
 
-    def corrections(self, d: float) -> tuple[float, float]:
+    def corrections(self, d: float, parts: tuple[int, ...] = (0, 1)) -> tuple[float, ...]:
         unit = self.sphere.approach_unit_m
         lo, top = d - self.h0 * unit, self.s.z_max
         breaks = [d + self.edge * unit, d]
         out = []
-        for i in (0, 1):
-            f = lambda z: self.summit((z - d) / unit)[i] * self.phi(z)  # noqa: E731
+        for i in parts:
+            f = lambda z, i=i: self.summit((z - d) / unit)[i] * self.phi(z)  # noqa: E731
             out.append(quad(f, lo, top, points=breaks, epsabs=0, epsrel=1e-10, limit=400)[0])
-        return (self.n * self.sphere.load_unit_n * out[0],
-                self.n * math.pi * self.sphere.radius_unit_m**2 * out[1])  # fmt: skip
+        scales = (self.n * self.sphere.load_unit_n, self.n * math.pi * self.sphere.radius_unit_m**2)
+        return tuple(scales[i] * value for i, value in zip(parts, out, strict=True))
 
     def net_load(self, d: float) -> float:
-        return self.load(d) + self.corrections(d)[0]
+        return self.load(d) + self.corrections(d, (0,))[0]
 
 
 def test_zero_adhesion_limit_is_gw_to_1e_9() -> None:

@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.arguments import positive_float
+from feeder.cli.arguments import add_part_arguments, part_from, positive_float
 from feeder.cli.output import print_json
+from feeder.contact.adhesion_fit import RATIO_BAND, AdhesionFit, fit_adhesion_work
 from feeder.contact.adhesion_sphere import DEFAULT_RANGE_M, MODELS, SphereContact
+from feeder.contact.tau_pair import fitted_tau
 from feeder.errors import InputError
 from feeder.files import save_figure
+from feeder.paper import GROOVED_FRICTION_RATIO
 
 CURVE_POINTS = 200
 
@@ -50,6 +54,25 @@ def register(sub: Any) -> None:
     s.add_argument("--plot", type=Path, metavar="PNG", help="plot the curve (implies --curve)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.set_defaults(handler=run)
+    f = kinds.add_parser("fit", help="the w that gives the measured grooved/flat ratio (GW-MD)")
+    add_part_arguments(f, part_required=False)
+    f.add_argument(
+        "--ratio",
+        type=positive_float,
+        default=GROOVED_FRICTION_RATIO,
+        help=f"target grooved/flat ratio (default the measured {GROOVED_FRICTION_RATIO})",
+    )
+    f.add_argument(
+        "--ratio-band",
+        type=positive_float,
+        nargs=2,
+        default=RATIO_BAND,
+        metavar=("LO", "HI"),
+        help=f"ratio band mapped to a w band (default {RATIO_BAND[0]} {RATIO_BAND[1]})",
+    )
+    f.add_argument("--plot", type=Path, metavar="PNG", help="ratio against w")
+    f.add_argument("--json", action="store_true", help="print one JSON object")
+    f.set_defaults(handler=run_fit, part="300x300x50")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -141,5 +164,60 @@ def _plot(sphere: SphereContact, model: str, load: Any, radius: Any, approach: A
         + (f", λ = {sphere.tabor:.3g}" if model == "maugis-dugdale" else ""),
         fontsize=10,
     )
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    if args.plot is not None and (args.plot.is_dir() or not args.plot.parent.is_dir()):
+        raise InputError("--plot", f"cannot write {args.plot}: a directory, or its directory does not exist")
+    part, _, surface = part_from(args)
+    fit = fit_adhesion_work(surface, part, args.ratio, tuple(args.ratio_band))
+    report: dict[str, Any] = {
+        "part": part.label,
+        "target_ratio": fit.target_ratio,
+        "ratio_band": list(args.ratio_band),
+        "adhesion_work_j_m2": fit.adhesion_work_j_m2,
+        "ratio_slope_per_j_m2": fit.ratio_slope_per_j_m2,
+        "adhesion_work_band_j_m2": fit.adhesion_work_band_j_m2,
+        "ratio_range": list(fit.ratio_range),
+        "curve": {"adhesion_work_j_m2": fit.curve_w_j_m2, "ratio": fit.curve_ratio},
+        "explanation": fit.explanation,
+    }
+    if fit.adhesion_work_j_m2 is not None:
+        pair = fitted_tau(dataclasses.replace(surface, adhesion_work_j_m2=fit.adhesion_work_j_m2))
+        report.update(tau_pa=pair.tau_pa, tau_band_pa=pair.tau_band_pa)
+    if args.plot is not None:
+        _plot_fit(fit, args.plot)
+        report["plot"] = str(args.plot)
+    if args.json:
+        print_json(report)
+        return 0
+    print(fit.explanation)
+    if fit.adhesion_work_band_j_m2 is not None:
+        lo, hi = fit.adhesion_work_band_j_m2
+        print(f"  ratio band {args.ratio_band[0]}–{args.ratio_band[1]} → w {lo:.4g}–{hi:.4g} J/m²")
+    if "tau_pa" in report:
+        print(f"  τ fitted with that w: {report['tau_pa']:.4g} ± {report['tau_band_pa']:.3g} Pa")
+    return 0
+
+
+def _plot_fit(fit: AdhesionFit, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.semilogx(fit.curve_w_j_m2, fit.curve_ratio, "o-", label="GW-MD model")
+    ax.axhline(fit.target_ratio, color="r", ls="--", lw=0.8, label=f"measured {fit.target_ratio:g}")
+    if fit.adhesion_work_j_m2 is not None:
+        ax.axvline(
+            fit.adhesion_work_j_m2, color="k", ls=":", lw=0.8, label=f"w = {fit.adhesion_work_j_m2:.3g} J/m²"
+        )
+    ax.set_xlabel("work of adhesion w (J/m²)")
+    ax.set_ylabel("A_r grooved / A_r flat")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
     fig.tight_layout()
     save_figure(fig, path)

@@ -80,8 +80,8 @@ def fit_adhesion_work(
                            f"{target:g}: the model spans {lo_r:.3f}–{hi_r:.3f}")  # fmt: skip
     step = 1e-3 * w
     slope = (grooved_ratio(surface, part, w + step) - grooved_ratio(surface, part, w - step)) / (2 * step)
-    ends = [solve(r) for r in band]
-    w_band = None if None in ends else (min(ends), max(ends))  # type: ignore[type-var]
+    ends = [e for e in (solve(r) for r in band) if e is not None]
+    w_band = (min(ends), max(ends)) if len(ends) == 2 else None
     return AdhesionFit(
         target, w, slope, w_band, (lo_r, hi_r), tuple(ws), tuple(ratios),
         f"w = {w:.4g} J/m² gives the ratio {target:g}; d ratio/d w = {slope:.4g} per J/m²: the ratio "
