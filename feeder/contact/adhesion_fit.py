@@ -70,7 +70,7 @@ def fit_adhesion_work(
             return None
         k = int(crossing[0])
         x = brentq(lambda lw: grooved_ratio(surface, part, math.exp(lw)) - r,
-                   math.log(ws[k]), math.log(ws[k + 1]), xtol=1e-10)  # fmt: skip
+                   math.log(ws[k]), math.log(ws[k + 1]), xtol=1e-7)  # fmt: skip
         return math.exp(x)
 
     w = solve(target)
