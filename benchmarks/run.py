@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "loop_jitter", "summits",
+BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "gw_md_solve", "loop_jitter", "summits",
                                "console_rtt", "tick_jitter", "sdo_rtt", "pdo_rate",
                                "stickslip", "plant_realtime", "planar_period")
 

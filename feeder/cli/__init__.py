@@ -18,7 +18,7 @@ from typing import NoReturn
 from feeder.errors import InputError
 
 SUBCOMMANDS: tuple[str, ...] = (
-    "contact", "surface", "friction", "tau", "figures", "control", "waveform", "simulate", "plan",
+    "contact", "adhesion", "surface", "friction", "tau", "figures", "control", "waveform", "simulate", "plan",
     "daemon", "demo",
 )
 

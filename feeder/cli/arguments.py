@@ -32,36 +32,23 @@ def add_part_arguments(
     p.add_argument("--part", required=part_required, help=f"LxWxT in µm, e.g. {example}")
     p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
     p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
-    p.add_argument(
-        "--density",
-        type=positive_float,
-        default=SILICON_DENSITY_KG_M3,
-        help=f"part density in kg/m³ (default silicon, {SILICON_DENSITY_KG_M3:g})",
-    )
-    p.add_argument(
-        "--adhesion-work",
-        type=float,
-        metavar="J_M2",
-        help="work of adhesion w in J/m² for DMT adhesion per summit (default: the "
-        "surface file's, else 0 as in the paper; silicon in air ≈ 0.1)",
-    )
+    p.add_argument("--density", type=positive_float, default=SILICON_DENSITY_KG_M3,
+                   help=f"part density in kg/m³ (default silicon, {SILICON_DENSITY_KG_M3:g})")
+    p.add_argument("--adhesion-work", type=float, metavar="J_M2",
+                   help="work of adhesion w in J/m² for Maugis–Dugdale adhesion per summit (default: "
+                        "the surface file's, else 0 as in the paper); τ is then the one fitted with w")
 
 
 def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
-    """``--tau`` (and ``--tau-band``)."""
-    p.add_argument(
-        "--tau",
-        type=positive_float,
-        default=DEFAULT_TAU_PA,
-        help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})",
-    )
+    """``--tau``, ``--tau-adhesion-work`` (and ``--tau-band``); None = the τ fitted with the surface's w."""
+    p.add_argument("--tau", type=positive_float,
+                   help=f"interfacial shear strength in Pa (default: the paper's, {DEFAULT_TAU_PA:g} "
+                        "at w = 0, fitted again with the surface's w when it has one)")
+    p.add_argument("--tau-adhesion-work", type=float, metavar="J_M2",
+                   help="the w the given --tau was fitted with (default 0); must equal the contact's w")
     if band:
-        p.add_argument(
-            "--tau-band",
-            type=float,
-            default=DEFAULT_TAU_BAND_PA,
-            help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})",
-        )
+        p.add_argument("--tau-band", type=float,
+                       help=f"± band of τ in Pa (default {DEFAULT_TAU_BAND_PA / DEFAULT_TAU_PA:.3g}·τ)")
 
 
 def surface_from(args: argparse.Namespace) -> SurfaceParameters:
