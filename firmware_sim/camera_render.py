@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -64,6 +64,15 @@ class CameraModel:
     @property
     def full_scale(self) -> int:
         return (1 << self.bits) - 1
+
+    def with_noise(self, fraction_of_contrast: float) -> CameraModel:
+        """This camera with the full well that gives noise σ = ``fraction_of_contrast`` × the
+        part/support contrast at the mid level (read noise kept)."""
+        level = self.exposure * (self.part_level + self.support_level) / 2
+        target = fraction_of_contrast * self.exposure * abs(self.part_level - self.support_level)
+        read2 = self.read_noise_e**2
+        full_well = (level + math.sqrt(level**2 + 4 * target**2 * read2)) / (2 * target**2)
+        return replace(self, full_well_e=full_well)
 
     def noise_at(self, level: float) -> float:
         """Noise σ (full-scale units) of a pixel at scene ``level``."""
