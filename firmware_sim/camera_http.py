@@ -137,7 +137,7 @@ class _Handler(BaseHTTPRequestHandler):
     server: _Server
     protocol_version = "HTTP/1.0"
 
-    def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base class' name)
+    def log_message(self, format: str, *args: Any) -> None:
         log.debug("camera http: " + format, *args)
 
     def do_GET(self) -> None:
