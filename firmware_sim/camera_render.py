@@ -12,10 +12,13 @@ Gaussian approximation, ``full_well_e`` electrons at full scale) and read noise
 12 → uint16 0..4095).
 
 Geometry follows feeder.vision.model (image convention, orientation mark).  A
-part's coverage of each pixel is the product of two clipped ramps along its own
-axes (the exact coverage of a pixel-sized square aligned with the part; odd
-about the edge, so a blurred straight edge crosses half contrast exactly on the
-true edge).
+part is drawn as the samples of its outline already seen through a Gaussian of
+σ = min(``blur_px``, 1 px) (for a rectangle the product of two Φ(d/σ) along its
+own axes, which is exact), then blurred by the rest of ``blur_px`` on the pixel
+grid.  Drawing a sharp outline (pixel area coverage) and blurring that instead
+aliases: the edge would seem shifted by up to 0.1 px depending on its subpixel
+phase, which is not what a lens and a sensor do.  ``blur_px`` is the σ of the
+whole point spread, the pixel's own integration included.
 
 Speed: the blurred support, its noise σ and the illumination are rendered once;
 a frame copies them and redraws (and blurs) only a box around each part; the
@@ -33,7 +36,11 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from scipy.special import ndtr
+
 from feeder.vision.model import MARK_OFFSET, MARK_RADIUS
+
+EDGE_SIGMA_PX = 1.0  # part outlines are drawn already blurred by this much (see the module doc)
 
 
 @dataclass(frozen=True)
@@ -118,6 +125,8 @@ class FrameRenderer:
         self.background_noise = self._noise_sigma(self.background)
         self._bank = rng.standard_normal(2 * h * w, dtype=np.float32)
         self._rng = np.random.default_rng(seed + 1)
+        self._edge_sigma = min(camera.blur_px, EDGE_SIGMA_PX)
+        self._rest_sigma = math.sqrt(max(camera.blur_px**2 - self._edge_sigma**2, 0.0))
 
     def _blur(self, image: np.ndarray) -> np.ndarray:
         if self.camera.blur_px <= 0:
@@ -194,24 +203,33 @@ class FrameRenderer:
         for part in parts:  # later parts lie on top of earlier ones
             if not (x0 <= part.x_px < x1 and y0 <= part.y_px < y1):
                 continue
-            cover, mark = _coverage(part, xs, ys)
+            cover, mark = _coverage(part, xs, ys, self._edge_sigma)
             level = c.part_level if part.level is None else part.level
             surface = illumination * np.float32(level)
             if mark is not None:
                 surface += illumination * np.float32(c.mark_level - level) * mark
             scene += cover * (surface - scene)
-        delta = self._blur(scene - support)
+        delta = scene - support
+        if self._rest_sigma > 0:
+            delta = cv2.GaussianBlur(delta, (0, 0), self._rest_sigma, borderType=cv2.BORDER_REFLECT)
         delta *= np.float32(c.exposure)
         return delta
 
 
-def _ramp(distance_inside: np.ndarray) -> np.ndarray:
-    """Coverage of a pixel whose centre lies ``distance_inside`` px inside a straight edge."""
-    return np.clip(distance_inside + np.float32(0.5), 0, 1)
+def _edge(distance_inside: np.ndarray, sigma: float) -> np.ndarray:
+    """A straight edge seen through a Gaussian of σ ``sigma`` px, at pixel centres ``distance_inside`` px
+    inside it: Φ(d/σ) within 4σ of the edge (elsewhere 0 or 1); σ = 0: the pixel's area coverage."""
+    if sigma <= 0:
+        return np.clip(distance_inside + np.float32(0.5), 0, 1)
+    out = (distance_inside > 0).astype(np.float32)
+    band = np.abs(distance_inside) < 4 * sigma
+    out[band] = ndtr(distance_inside[band] / sigma)
+    return out
 
 
-def _coverage(part: PartInImage, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """Pixel coverage of the part and of its mark (None without one) on the grid xs × ys."""
+def _coverage(part: PartInImage, xs: np.ndarray, ys: np.ndarray,
+              sigma: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """The part and its mark (None without one) on the grid xs × ys, pre-blurred by σ ``sigma`` px."""
     cos, sin = np.float32(math.cos(part.angle_rad)), np.float32(math.sin(part.angle_rad))
     dx = (xs - np.float32(part.x_px))[None, :]
     dy = (ys - np.float32(part.y_px))[:, None]
@@ -219,13 +237,13 @@ def _coverage(part: PartInImage, xs: np.ndarray, ys: np.ndarray) -> tuple[np.nda
     v = dy * cos - dx * sin
     if part.disc:
         radius = part.length_px / 2
-        cover = _ramp(np.float32(radius) - np.sqrt(u * u + v * v))
+        cover = _edge(np.float32(radius) - np.sqrt(u * u + v * v), sigma)
         mark_u, mark_r = radius / 2, 2 * MARK_RADIUS * radius
     else:
-        cover = (_ramp(np.float32(part.length_px / 2) - np.abs(u))
-                 * _ramp(np.float32(part.width_px / 2) - np.abs(v)))
+        cover = (_edge(np.float32(part.length_px / 2) - np.abs(u), sigma)
+                 * _edge(np.float32(part.width_px / 2) - np.abs(v), sigma))
         mark_u, mark_r = MARK_OFFSET * part.length_px, MARK_RADIUS * min(part.length_px, part.width_px)
     if not part.mark:
         return cover, None
-    mark = _ramp(np.float32(mark_r) - np.sqrt((u - np.float32(mark_u)) ** 2 + v * v))
+    mark = _edge(np.float32(mark_r) - np.sqrt((u - np.float32(mark_u)) ** 2 + v * v), sigma)
     return cover, mark

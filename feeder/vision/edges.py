@@ -153,7 +153,7 @@ def refine_rectangle(image: np.ndarray, x: float, y: float, angle: float, length
     fit: RectangleFit | None = None
     for half_length, spacing in passes:
         h = half_length if half_length > 0 else float(np.clip(4 * blur + 1.5, 4.0, 20.0))
-        s = np.arange(-h, h + step_px / 2, step_px)
+        s = np.arange(-round(h / step_px), round(h / step_px) + 1) * step_px  # symmetric: 0 in the middle
         c, si = math.cos(angle), math.sin(angle)
         e1, e2 = np.array([c, si]), np.array([-si, c])
         margin = 4 * blur + 2 + (0.1 * max(length, width) if fit is None else 0.0)
@@ -222,7 +222,7 @@ def refine_circle(image: np.ndarray, x: float, y: float, radius: float, min_cont
         count = int(np.clip(2 * math.pi * radius, 32, 2048))
         theta = np.linspace(0, 2 * math.pi, count, endpoint=False)
         nx, ny = np.cos(theta), np.sin(theta)
-        s = np.arange(-h, h + step_px / 2, step_px)
+        s = np.arange(-round(h / step_px), round(h / step_px) + 1) * step_px  # symmetric: 0 in the middle
         r = radius + s[None, :]
         profiles = sample(image, x + r * nx[:, None], y + r * ny[:, None])
         found = crossings(profiles, step_px, min_contrast)

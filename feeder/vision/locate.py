@@ -229,4 +229,4 @@ def _disc(roi: np.ndarray, origin: tuple[int, int], x: float, y: float, radius: 
         period = 2 * math.pi
     diameter = 2 * fit.radius_px
     return Detection(fit.x_px + ox, fit.y_px + oy, wrap_angle(angle, period), _score(fit), diameter, diameter,
-                     fit.edge_rms_px, period)
+                     fit.edge_rms_px, period, disc=True)

@@ -58,6 +58,7 @@ class Detection:
     length_px, width_px: the measured footprint (distance between the fitted sides).
     edge_rms_px: RMS distance of the subpixel edge points from their fitted lines.
     symmetry_rad: the period ``angle_rad`` is reported in (0: a plain disc, angle meaningless).
+    disc: a round part (length_px = width_px = its diameter).
     """
 
     x_px: float
@@ -68,6 +69,7 @@ class Detection:
     width_px: float
     edge_rms_px: float
     symmetry_rad: float
+    disc: bool = False
 
 
 @dataclass(frozen=True)
