@@ -203,12 +203,13 @@ class FrameRenderer:
         for part in parts:  # later parts lie on top of earlier ones
             if not (x0 <= part.x_px < x1 and y0 <= part.y_px < y1):
                 continue
-            cover, mark = _coverage(part, xs, ys, self._edge_sigma)
+            cover = _coverage(part, xs, ys, self._edge_sigma)
             level = c.part_level if part.level is None else part.level
-            surface = illumination * np.float32(level)
-            if mark is not None:
-                surface += illumination * np.float32(c.mark_level - level) * mark
-            scene += cover * (surface - scene)
+            scene += cover * (illumination * np.float32(level) - scene)
+            if part.mark:
+                rows, cols, mark = _mark(part, xs, ys, self._edge_sigma)
+                scene[rows, cols] += (cover[rows, cols] * illumination[rows, cols] * mark
+                                      * np.float32(c.mark_level - level))
         delta = scene - support
         if self._rest_sigma > 0:
             delta = cv2.GaussianBlur(delta, (0, 0), self._rest_sigma, borderType=cv2.BORDER_REFLECT)
@@ -227,23 +228,34 @@ def _edge(distance_inside: np.ndarray, sigma: float) -> np.ndarray:
     return out
 
 
-def _coverage(part: PartInImage, xs: np.ndarray, ys: np.ndarray,
-              sigma: float) -> tuple[np.ndarray, np.ndarray | None]:
-    """The part and its mark (None without one) on the grid xs × ys, pre-blurred by σ ``sigma`` px."""
+def _part_axes(part: PartInImage, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel centres of the grid xs × ys in the part's own axes (u along L, v along W), px."""
     cos, sin = np.float32(math.cos(part.angle_rad)), np.float32(math.sin(part.angle_rad))
     dx = (xs - np.float32(part.x_px))[None, :]
     dy = (ys - np.float32(part.y_px))[:, None]
-    u = dx * cos + dy * sin
-    v = dy * cos - dx * sin
+    return dx * cos + dy * sin, dy * cos - dx * sin
+
+
+def _coverage(part: PartInImage, xs: np.ndarray, ys: np.ndarray, sigma: float) -> np.ndarray:
+    """The part on the grid xs × ys, pre-blurred by σ ``sigma`` px (0..1)."""
+    u, v = _part_axes(part, xs, ys)
     if part.disc:
-        radius = part.length_px / 2
-        cover = _edge(np.float32(radius) - np.sqrt(u * u + v * v), sigma)
-        mark_u, mark_r = radius / 2, 2 * MARK_RADIUS * radius
+        return _edge(np.float32(part.length_px / 2) - np.sqrt(u * u + v * v), sigma)
+    return (_edge(np.float32(part.length_px / 2) - np.abs(u), sigma)
+            * _edge(np.float32(part.width_px / 2) - np.abs(v), sigma))
+
+
+def _mark(part: PartInImage, xs: np.ndarray, ys: np.ndarray, sigma: float) -> tuple[slice, slice, np.ndarray]:
+    """The orientation mark (0..1) on the part of the grid xs × ys around it: (rows, columns, values)."""
+    if part.disc:
+        offset, radius = part.length_px / 4, MARK_RADIUS * part.length_px
     else:
-        cover = (_edge(np.float32(part.length_px / 2) - np.abs(u), sigma)
-                 * _edge(np.float32(part.width_px / 2) - np.abs(v), sigma))
-        mark_u, mark_r = MARK_OFFSET * part.length_px, MARK_RADIUS * min(part.length_px, part.width_px)
-    if not part.mark:
-        return cover, None
-    mark = _edge(np.float32(mark_r) - np.sqrt((u - np.float32(mark_u)) ** 2 + v * v), sigma)
-    return cover, mark
+        offset, radius = MARK_OFFSET * part.length_px, MARK_RADIUS * min(part.length_px, part.width_px)
+    cx = part.x_px + offset * math.cos(part.angle_rad)
+    cy = part.y_px + offset * math.sin(part.angle_rad)
+    reach = radius + 4 * sigma + 1
+    cols = slice(int(np.searchsorted(xs, cx - reach)), int(np.searchsorted(xs, cx + reach)))
+    rows = slice(int(np.searchsorted(ys, cy - reach)), int(np.searchsorted(ys, cy + reach)))
+    dx = (xs[cols] - np.float32(cx))[None, :]
+    dy = (ys[rows] - np.float32(cy))[:, None]
+    return rows, cols, _edge(np.float32(radius) - np.sqrt(dx * dx + dy * dy), sigma)

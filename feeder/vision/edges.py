@@ -98,20 +98,20 @@ def crossings(profiles: np.ndarray, step_px: float, min_contrast: float) -> Cros
 
 
 def fit_offset_line(t: np.ndarray, offset: np.ndarray) -> tuple[float, float, float]:
-    """Line offset = a + b·t by ``cv2.fitLine`` (least squares), refitted without the points
-    further than 3 robust σ (1.4826 × MAD) from the first fit; returns (a, b, RMS residual of the kept)."""
+    """Line offset = a + b·t by ``cv2.fitLine`` (least squares), refitted once without the points
+    further than 3 RMS from the first fit; returns (a, b, RMS residual of the points kept)."""
     points = np.column_stack([t, offset]).astype(np.float32)
     for _ in range(2):
         vx, vy, x0, y0 = cv2.fitLine(points, cv2.DIST_L2, 0, 0.01, 0.01).ravel()
         b = float(vy / vx) if abs(vx) > 1e-9 else 0.0
         a = float(y0 - b * x0)
         residual = points[:, 1] - (a + b * points[:, 0])
-        spread = 3 * 1.4826 * float(np.median(np.abs(residual)))
-        keep = np.abs(residual) <= max(spread, 1e-3)
+        rms = float(np.sqrt(np.mean(residual**2)))
+        keep = np.abs(residual) <= max(3 * rms, 0.05)
         if keep.all() or keep.sum() < 3:
             break
         points = points[keep]
-    return a, b, float(np.sqrt(np.mean(residual**2)))
+    return a, b, rms
 
 
 @dataclass(frozen=True)
@@ -139,20 +139,20 @@ def _profile_plan(half_extent: float, margin: float, spacing: float) -> np.ndarr
 
 
 def refine_rectangle(image: np.ndarray, x: float, y: float, angle: float, length: float, width: float,
-                     min_contrast: float, passes: tuple[tuple[float, float], ...] = ((10.0, 4.0), (0.0, 2.0)),
+                     min_contrast: float, passes: tuple[tuple[float, float], ...] = ((10.0, 8.0), (0.0, 2.0)),
                      step_px: float = 0.5) -> RectangleFit | None:
     """Refine a rough rectangle pose by subpixel line fits on its four sides.
 
     Each pass samples profiles across every side (corners left out by 4σ of the
     blur), fits a line per side, and moves the centre to the mid-lines and the
     angle to the length-weighted mean tilt of the sides.  ``passes`` gives each
-    pass' profile half-length (px; 0 = 4σ of the blur measured in the pass
+    pass' profile half-length (px; 0 = 3σ of the blur measured in the pass
     before + 1.5 px) and the spacing of profiles along a side (px).
     """
     blur = 1.5
     fit: RectangleFit | None = None
     for half_length, spacing in passes:
-        h = half_length if half_length > 0 else float(np.clip(4 * blur + 1.5, 4.0, 20.0))
+        h = half_length if half_length > 0 else float(np.clip(3 * blur + 1.5, 4.0, 20.0))
         s = np.arange(-round(h / step_px), round(h / step_px) + 1) * step_px  # symmetric: 0 in the middle
         c, si = math.cos(angle), math.sin(angle)
         e1, e2 = np.array([c, si]), np.array([-si, c])
@@ -192,12 +192,12 @@ def refine_rectangle(image: np.ndarray, x: float, y: float, angle: float, length
         width += offsets[2] + offsets[3]
         angle += float(np.average(tilts, weights=weights))
         valid = found.valid
-        blur = float(np.median(found.blur_px[valid]))
+        blur = float(np.clip(found.blur_px[valid], 0.3, 10.0).mean())
         fit = RectangleFit(x, y, angle, length, width,
                            edge_rms_px=math.sqrt(sum(square_residuals) / valid.sum()),
                            valid_fraction=float(valid.mean()),
-                           inner_level=float(np.median(found.inner[valid])),
-                           outer_level=float(np.median(found.outer[valid])), blur_px=blur)
+                           inner_level=float(found.inner[valid].mean()),
+                           outer_level=float(found.outer[valid].mean()), blur_px=blur)
     return fit
 
 

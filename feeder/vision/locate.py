@@ -76,7 +76,7 @@ def locate(image: np.ndarray, template: PartTemplate | None = None, polarity: st
     small = _as_uint8(shrunk)
     threshold, _ = cv2.threshold(small, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     if polarity == "auto":
-        polarity = "bright" if float(np.median(small)) < threshold else "dark"
+        polarity = "bright" if 2 * np.count_nonzero(small > threshold) < small.size else "dark"
     elif polarity not in ("bright", "dark"):
         raise ValueError(f"polarity must be auto, bright or dark, got {polarity!r}")
     kind = cv2.THRESH_BINARY if polarity == "bright" else cv2.THRESH_BINARY_INV
