@@ -86,8 +86,13 @@ def _encode(ext: str, image: np.ndarray, params: list[int]) -> bytes:
 class CameraFeed:
     """Renders frames on its own thread and keeps the newest one released."""
 
-    def __init__(self, renderer: FrameRenderer, snapshot: Callable[[], Snapshot], fps: float = 10.0,
-                 latency_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        renderer: FrameRenderer,
+        snapshot: Callable[[], Snapshot],
+        fps: float = 10.0,
+        latency_s: float = 0.0,
+    ) -> None:
         if not fps > 0:
             raise ValueError(f"fps must be positive, got {fps!r}")
         self.renderer = renderer
@@ -121,8 +126,10 @@ class CameraFeed:
     def latest(self, after: int = -1, timeout_s: float = 5.0) -> Published | None:
         """The newest frame with a sequence above ``after`` (None if none within the timeout)."""
         with self._cond:
-            self._cond.wait_for(lambda: self._latest is not None and self._latest.sequence > after
-                                or self._stop.is_set(), timeout_s)
+            self._cond.wait_for(
+                lambda: (self._latest is not None and self._latest.sequence > after) or self._stop.is_set(),
+                timeout_s,
+            )
             latest = self._latest
             return latest if latest is not None and latest.sequence > after else None
 
@@ -179,8 +186,12 @@ class _Handler(BaseHTTPRequestHandler):
                     return
                 sequence = frame.sequence
                 body = frame.jpeg()
-                self.wfile.write(f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n"
-                                 f"X-Timestamp: {frame.truth['time_s']}\r\n\r\n".encode() + body + b"\r\n")
+                self.wfile.write(
+                    f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n"
+                    f"X-Timestamp: {frame.truth['time_s']}\r\n\r\n".encode()
+                    + body
+                    + b"\r\n"
+                )
                 self.wfile.flush()
 
 
@@ -188,8 +199,9 @@ class _Server(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = True
 
-    def __init__(self, address: tuple[str, int], feed: CameraFeed, max_clients: int,
-                 idle_timeout_s: float) -> None:
+    def __init__(
+        self, address: tuple[str, int], feed: CameraFeed, max_clients: int, idle_timeout_s: float
+    ) -> None:
         self.feed = feed
         self.idle_timeout_s = idle_timeout_s
         self.closing = threading.Event()
@@ -215,13 +227,20 @@ class _Server(ThreadingHTTPServer):
 class CameraHttpServer:
     """The camera's HTTP endpoint on 127.0.0.1 (see the module doc)."""
 
-    def __init__(self, feed: CameraFeed, host: str = "127.0.0.1", port: int = 0, max_clients: int = 4,
-                 idle_timeout_s: float = 5.0) -> None:
+    def __init__(
+        self,
+        feed: CameraFeed,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        max_clients: int = 4,
+        idle_timeout_s: float = 5.0,
+    ) -> None:
         check_local(host)
         self.feed = feed
         self._server = _Server((host, port), feed, max_clients, idle_timeout_s)
-        self._thread = threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.1},
-                                        name="camera-http", daemon=True)
+        self._thread = threading.Thread(
+            target=self._server.serve_forever, kwargs={"poll_interval": 0.1}, name="camera-http", daemon=True
+        )
         self._thread.start()
 
     @property
@@ -237,13 +256,15 @@ class CameraHttpServer:
         self._thread.join(timeout=2.0)
 
 
-def serve_world_camera(world: World, port: int, fps: float = 10.0, pixel_size_m: float = 1e-6,
-                       camera: CameraModel | None = None) -> CameraHttpServer:
+def serve_world_camera(
+    world: World, port: int, fps: float = 10.0, pixel_size_m: float = 1e-6, camera: CameraModel | None = None
+) -> CameraHttpServer:
     """The world's camera on http://127.0.0.1:PORT: the plate origin at the image centre, plate
     axes along the image axes, the world's part (``world.config.part``) at its true poses."""
     camera = camera or CameraModel()
-    calibration = CameraCalibration(pixel_size_m, origin_x_px=(camera.width_px - 1) / 2,
-                                    origin_y_px=(camera.height_px - 1) / 2)
+    calibration = CameraCalibration(
+        pixel_size_m, origin_x_px=(camera.width_px - 1) / 2, origin_y_px=(camera.height_px - 1) / 2
+    )
     part = Part.parse(world.config.part)
     length_px, width_px = part.length_m / pixel_size_m, part.width_m / pixel_size_m
 
@@ -254,13 +275,32 @@ def serve_world_camera(world: World, port: int, fps: float = 10.0, pixel_size_m:
             x_px, y_px = calibration.to_image(x_m, y_m)
             angle = calibration.angle_to_image(psi)
             parts.append(PartInImage(x_px, y_px, angle, length_px, width_px))
-            truth.append({"x_m": x_m, "y_m": y_m, "psi_rad": psi, "x_px": x_px, "y_px": y_px,
-                          "angle_rad": angle, "length_px": length_px, "width_px": width_px})
-        return Snapshot(time_s, parts, {"parts": truth, "calibration": calibration.to_dict(),
-                                        "width": camera.width_px, "height": camera.height_px})
+            truth.append(
+                {
+                    "x_m": x_m,
+                    "y_m": y_m,
+                    "psi_rad": psi,
+                    "x_px": x_px,
+                    "y_px": y_px,
+                    "angle_rad": angle,
+                    "length_px": length_px,
+                    "width_px": width_px,
+                }
+            )
+        return Snapshot(
+            time_s,
+            parts,
+            {
+                "parts": truth,
+                "calibration": calibration.to_dict(),
+                "width": camera.width_px,
+                "height": camera.height_px,
+            },
+        )
 
-    return CameraHttpServer(CameraFeed(FrameRenderer(camera, seed=world.config.seed), snapshot, fps),
-                            port=port)
+    return CameraHttpServer(
+        CameraFeed(FrameRenderer(camera, seed=world.config.seed), snapshot, fps), port=port
+    )
 
 
 def free_port() -> int:

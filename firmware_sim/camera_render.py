@@ -35,7 +35,6 @@ from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
-
 from scipy.special import ndtr
 
 from feeder.vision.model import MARK_OFFSET, MARK_RADIUS
@@ -115,8 +114,10 @@ class FrameRenderer:
         h, w = camera.height_px, camera.width_px
         y, x = np.mgrid[0:h, 0:w].astype(np.float32)
         r2 = ((x - (w - 1) / 2) ** 2 + (y - (h - 1) / 2) ** 2) / (((w - 1) / 2) ** 2 + ((h - 1) / 2) ** 2)
-        self.illumination = (1.0 - camera.vignetting * r2 + camera.tilt * (x / (w - 1) - 0.5)).astype(np.float32)
-        grain = rng.standard_normal((h, w)).astype(np.float32)
+        self.illumination = (1.0 - camera.vignetting * r2 + camera.tilt * (x / (w - 1) - 0.5)).astype(
+            np.float32
+        )
+        grain: np.ndarray = rng.standard_normal((h, w)).astype(np.float32)
         if camera.texture_px > 0:
             grain = cv2.GaussianBlur(grain, (0, 0), camera.texture_px)
         grain *= camera.texture / max(float(grain.std()), 1e-12)
@@ -152,14 +153,14 @@ class FrameRenderer:
         c = self.camera
         h, w = c.height_px, c.width_px
         offset = int(self._rng.integers(0, self._bank.size - h * w))
-        deviates = self._bank[offset:offset + h * w].reshape(h, w)
-        image = cv2.multiply(self.background_noise, deviates)
+        deviates = self._bank[offset : offset + h * w].reshape(h, w)
+        image: np.ndarray = cv2.multiply(self.background_noise, deviates)
         cv2.add(image, self.background, dst=image)
         for box in self._boxes(parts):
             y0, y1, x0, x1 = box
             roi = self.background[y0:y1, x0:x1] + self._part_delta(parts, box)
             image[y0:y1, x0:x1] = roi + self._noise_sigma(roi) * deviates[y0:y1, x0:x1]
-        cv2.max(image, 0.0, dst=image)
+        np.maximum(image, np.float32(0), out=image)
         if c.bits == 8:
             return cv2.convertScaleAbs(image, alpha=c.full_scale)
         np.multiply(image, np.float32(c.full_scale), out=image)
@@ -174,8 +175,12 @@ class FrameRenderer:
         boxes: list[list[int]] = []
         for part in parts:
             reach = part.reach_px() + margin
-            box = [max(0, math.floor(part.y_px - reach)), min(c.height_px, math.ceil(part.y_px + reach) + 1),
-                   max(0, math.floor(part.x_px - reach)), min(c.width_px, math.ceil(part.x_px + reach) + 1)]
+            box = [
+                max(0, math.floor(part.y_px - reach)),
+                min(c.height_px, math.ceil(part.y_px + reach) + 1),
+                max(0, math.floor(part.x_px - reach)),
+                min(c.width_px, math.ceil(part.x_px + reach) + 1),
+            ]
             if box[0] >= box[1] or box[2] >= box[3]:
                 continue
             merged = True
@@ -184,8 +189,12 @@ class FrameRenderer:
                 for other in boxes:
                     if box[0] < other[1] and other[0] < box[1] and box[2] < other[3] and other[2] < box[3]:
                         boxes.remove(other)
-                        box = [min(box[0], other[0]), max(box[1], other[1]),
-                               min(box[2], other[2]), max(box[3], other[3])]
+                        box = [
+                            min(box[0], other[0]),
+                            max(box[1], other[1]),
+                            min(box[2], other[2]),
+                            max(box[3], other[3]),
+                        ]
                         merged = True
                         break
             boxes.append(box)
@@ -208,8 +217,9 @@ class FrameRenderer:
             scene += cover * (illumination * np.float32(level) - scene)
             if part.mark:
                 rows, cols, mark = _mark(part, xs, ys, self._edge_sigma)
-                scene[rows, cols] += (cover[rows, cols] * illumination[rows, cols] * mark
-                                      * np.float32(c.mark_level - level))
+                scene[rows, cols] += (
+                    cover[rows, cols] * illumination[rows, cols] * mark * np.float32(c.mark_level - level)
+                )
         delta = scene - support
         if self._rest_sigma > 0:
             delta = cv2.GaussianBlur(delta, (0, 0), self._rest_sigma, borderType=cv2.BORDER_REFLECT)
@@ -241,8 +251,9 @@ def _coverage(part: PartInImage, xs: np.ndarray, ys: np.ndarray, sigma: float) -
     u, v = _part_axes(part, xs, ys)
     if part.disc:
         return _edge(np.float32(part.length_px / 2) - np.sqrt(u * u + v * v), sigma)
-    return (_edge(np.float32(part.length_px / 2) - np.abs(u), sigma)
-            * _edge(np.float32(part.width_px / 2) - np.abs(v), sigma))
+    return _edge(np.float32(part.length_px / 2) - np.abs(u), sigma) * _edge(
+        np.float32(part.width_px / 2) - np.abs(v), sigma
+    )
 
 
 def _mark(part: PartInImage, xs: np.ndarray, ys: np.ndarray, sigma: float) -> tuple[slice, slice, np.ndarray]:

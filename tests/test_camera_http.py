@@ -32,8 +32,18 @@ def _get(url: str) -> bytes:
 
 @pytest.fixture(scope="module")
 def camera_url():
-    sim = Simulator(["--clock", "real", "--camera-http", "0", "--camera-http-fps", "20",
-                     "--camera-pixel-size-m", "0.9e-6"])
+    sim = Simulator(
+        [
+            "--clock",
+            "real",
+            "--camera-http",
+            "0",
+            "--camera-http-fps",
+            "20",
+            "--camera-pixel-size-m",
+            "0.9e-6",
+        ]
+    )
     try:
         yield sim.endpoints["camera_http"]
     finally:

@@ -1,4 +1,4 @@
-"""Host camera sources: folders, video files, a live MJPEG stream (newest frame wins, reconnect), GenICam guard."""
+"""Host camera sources: folders, video files, a live MJPEG stream (newest wins, reconnect), GenICam."""
 
 from __future__ import annotations
 

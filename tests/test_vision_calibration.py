@@ -12,11 +12,17 @@ import pytest
 
 from feeder.cli import main
 from feeder.errors import InputError
-from feeder.vision.calibration import CameraCalibration, axes_from_moves, pixel_size_from_part, rotation_centre
+from feeder.vision.calibration import (
+    CameraCalibration,
+    axes_from_moves,
+    pixel_size_from_part,
+    rotation_centre,
+)
 from firmware_sim.camera_render import CameraModel, FrameRenderer, PartInImage
 
-TRUE = CameraCalibration(pixel_size_m=1.2e-6, rotation_rad=0.3, mirrored=True, origin_x_px=530.5,
-                         origin_y_px=490.25)
+TRUE = CameraCalibration(
+    pixel_size_m=1.2e-6, rotation_rad=0.3, mirrored=True, origin_x_px=530.5, origin_y_px=490.25
+)
 
 
 def test_transform_round_trip_and_angles() -> None:
@@ -71,11 +77,29 @@ def test_calibrate_cli_from_rendered_images(tmp_path: Path, capsys: pytest.Captu
     x0, y0, turn = 80e-6, -40e-6, math.radians(10)
     xt, yt = math.cos(turn) * x0 - math.sin(turn) * y0, math.sin(turn) * x0 + math.cos(turn) * y0
     out = tmp_path / "camera.json"
-    argv = ["vision", "calibrate", "--part", "300x300x50", "--image", image("ref", 0, 0),
-            "--x-move", "100um", image("x0", -50e-6, 0), image("x1", 50e-6, 0),
-            "--y-move", "0.08mm", image("y0", 0, -40e-6), image("y1", 0, 40e-6),
-            "--theta-move", "10deg", image("t0", x0, y0), image("t1", xt, yt, turn),
-            "--out", str(out), "--json"]
+    argv = [
+        "vision",
+        "calibrate",
+        "--part",
+        "300x300x50",
+        "--image",
+        image("ref", 0, 0),
+        "--x-move",
+        "100um",
+        image("x0", -50e-6, 0),
+        image("x1", 50e-6, 0),
+        "--y-move",
+        "0.08mm",
+        image("y0", 0, -40e-6),
+        image("y1", 0, 40e-6),
+        "--theta-move",
+        "10deg",
+        image("t0", x0, y0),
+        image("t1", xt, yt, turn),
+        "--out",
+        str(out),
+        "--json",
+    ]
     assert main(argv) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["pixel_size_from_part_m"] == pytest.approx(1.2e-6, rel=5e-4)
@@ -84,22 +108,57 @@ def test_calibrate_cli_from_rendered_images(tmp_path: Path, capsys: pytest.Captu
     assert report["origin_x_px"] == pytest.approx(TRUE.origin_x_px, abs=0.3)
     assert report["origin_y_px"] == pytest.approx(TRUE.origin_y_px, abs=0.3)
     # locate with that calibration gives plate poses
-    assert main(["vision", "locate", image("check", 30e-6, 20e-6, 0.2), "--calibration", str(out),
-                 "--part", "300x300x50", "--json"]) == 0
+    assert (
+        main(
+            [
+                "vision",
+                "locate",
+                image("check", 30e-6, 20e-6, 0.2),
+                "--calibration",
+                str(out),
+                "--part",
+                "300x300x50",
+                "--json",
+            ]
+        )
+        == 0
+    )
     (part,) = json.loads(capsys.readouterr().out)["parts"]
     assert part["plate_x_m"] == pytest.approx(30e-6, abs=0.5e-6)
     assert part["plate_y_m"] == pytest.approx(20e-6, abs=0.5e-6)
-    assert (part["plate_psi_rad"] - 0.2 + math.pi / 4) % (math.pi / 2) - math.pi / 4 == pytest.approx(0, abs=2e-3)
+    assert (part["plate_psi_rad"] - 0.2 + math.pi / 4) % (math.pi / 2) - math.pi / 4 == pytest.approx(
+        0, abs=2e-3
+    )
 
 
 def test_locate_cli_json_units_plot_and_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     renderer = FrameRenderer(CameraModel(part_level=0.1).with_noise(0.02), seed=5)
     path = tmp_path / "frame.png"
-    cv2.imwrite(str(path), renderer.render([PartInImage(400.4, 600.7, 2.5, 300, 150, mark=True),
-                                            PartInImage(1000, 300, 0.0, 300, 150)]))
+    cv2.imwrite(
+        str(path),
+        renderer.render(
+            [PartInImage(400.4, 600.7, 2.5, 300, 150, mark=True), PartInImage(1000, 300, 0.0, 300, 150)]
+        ),
+    )
     plot = tmp_path / "plot.png"
-    assert main(["vision", "locate", str(path), "--pixel-size", "1µm", "--part", "300x150x50", "--mark",
-                 "--plot", str(plot), "--json"]) == 0
+    assert (
+        main(
+            [
+                "vision",
+                "locate",
+                str(path),
+                "--pixel-size",
+                "1µm",
+                "--part",
+                "300x150x50",
+                "--mark",
+                "--plot",
+                str(plot),
+                "--json",
+            ]
+        )
+        == 0
+    )
     report = json.loads(capsys.readouterr().out)
     assert (report["width"], report["height"], report["polarity"]) == (1024, 1024, "dark")
     (part,) = report["parts"]

@@ -17,14 +17,21 @@ BRIGHT = CameraModel(blur_px=1.5, support_level=0.3, part_level=0.7).with_noise(
 DARK = CameraModel(blur_px=1.5, support_level=0.6, part_level=0.2, mark_level=0.6).with_noise(0.02)
 
 
-def _errors(renderer: FrameRenderer, rng: np.random.Generator, frames: int, template: PartTemplate,
-            period: float, **shape: float) -> tuple[np.ndarray, np.ndarray]:
+def _errors(
+    renderer: FrameRenderer,
+    rng: np.random.Generator,
+    frames: int,
+    template: PartTemplate,
+    period: float,
+    **shape: float,
+) -> tuple[np.ndarray, np.ndarray]:
     centre, angle = [], []
     for _ in range(frames):
         x, y = rng.uniform(250, 774, 2)
         a = rng.uniform(0, 2 * math.pi)
-        image = renderer.render([PartInImage(x, y, a, template.length_px, template.width_px,
-                                             mark=template.mark, **shape)])
+        image = renderer.render(
+            [PartInImage(x, y, a, template.length_px, template.width_px, mark=template.mark, **shape)]
+        )
         result = locate(image, template)
         assert len(result.parts) == 1, result.rejected
         part = result.parts[0]
@@ -47,8 +54,10 @@ def test_rendered_noise_is_two_percent_of_the_contrast() -> None:
 def test_square_accuracy_over_100_frames_both_polarities() -> None:
     """1024², 1 µm/px, 300 µm square, σ 1.5 px blur, 2 % noise, textured support, random poses."""
     rng = np.random.default_rng(15)
-    results = [_errors(FrameRenderer(camera, seed=seed), rng, 50, SQUARE, math.pi / 2)
-               for seed, camera in enumerate((BRIGHT, DARK))]
+    results = [
+        _errors(FrameRenderer(camera, seed=seed), rng, 50, SQUARE, math.pi / 2)
+        for seed, camera in enumerate((BRIGHT, DARK))
+    ]
     centre = np.concatenate([c for c, _ in results])
     angle = np.concatenate([a for _, a in results])
     assert centre.size == 100
@@ -60,8 +69,9 @@ def test_square_accuracy_over_100_frames_both_polarities() -> None:
 def test_orientation_mark_gives_the_angle_modulo_2pi() -> None:
     rng = np.random.default_rng(2)
     for camera in (BRIGHT, DARK):
-        centre, angle = _errors(FrameRenderer(camera, seed=3), rng, 10, PartTemplate(300, 300, mark=True),
-                                2 * math.pi)
+        centre, angle = _errors(
+            FrameRenderer(camera, seed=3), rng, 10, PartTemplate(300, 300, mark=True), 2 * math.pi
+        )
         assert np.max(np.abs(angle)) < 0.1 and math.sqrt(np.mean(centre**2)) <= 0.05
 
 
@@ -72,13 +82,17 @@ def test_rectangles_and_two_parts_in_one_frame() -> None:
     centre, angle = [], []
     for _ in range(10):
         a, b = rng.uniform(0, 2 * math.pi, 2)
-        truth = [PartInImage(280 + rng.uniform(0, 1), 300 + rng.uniform(0, 1), a, 300, 150),
-                 PartInImage(720 + rng.uniform(0, 1), 700 + rng.uniform(0, 1), b, 300, 150)]
+        truth = [
+            PartInImage(280 + rng.uniform(0, 1), 300 + rng.uniform(0, 1), a, 300, 150),
+            PartInImage(720 + rng.uniform(0, 1), 700 + rng.uniform(0, 1), b, 300, 150),
+        ]
         result = locate(renderer.render(truth), rectangle)
         assert len(result.parts) == 2 and not result.rejected
         for part, true in zip(result.parts, truth, strict=True):
             assert 0 <= part.angle_rad < math.pi
-            assert part.length_px == pytest.approx(300, abs=0.3) and part.width_px == pytest.approx(150, abs=0.3)
+            assert part.length_px == pytest.approx(300, abs=0.3) and part.width_px == pytest.approx(
+                150, abs=0.3
+            )
             centre.append(math.hypot(part.x_px - true.x_px, part.y_px - true.y_px))
             angle.append(math.degrees(angle_difference(part.angle_rad, true.angle_rad, math.pi)))
     assert math.sqrt(np.mean(np.square(centre))) <= 0.05
@@ -139,8 +153,9 @@ def test_tracker_keeps_identities_across_frames() -> None:
         by_position = {round(t.detection.x_px / 100): t.track_id for t in tracks}
         ids = ids or by_position
         assert by_position == ids
-    tracks = tracker.update(locate(renderer.render([PartInImage(500, 200, 0, 200, 200)]),
-                                   PartTemplate(200, 200)).parts)
+    tracks = tracker.update(
+        locate(renderer.render([PartInImage(500, 200, 0, 200, 200)]), PartTemplate(200, 200)).parts
+    )
     assert [t.track_id for t in tracks] == [3]
     tracker.update(())
     assert [t.missed for t in tracker.tracks] == [1]  # unseen for one frame: kept

@@ -138,7 +138,8 @@ class FrameSource(ABC):
         with self._cond:
             fresh = self._cond.wait_for(
                 lambda: (self._slot is not None and self._slot.sequence > self._returned) or self._ended,
-                timeout_s)
+                timeout_s,
+            )
             if not fresh or self._slot is None or self._slot.sequence <= self._returned:
                 why = "the recording ended" if self._ended and not self.live else self.error or "no frame"
                 raise CameraLost(f"{self.name}: no frame within {timeout_s:g} s ({why})")
@@ -158,16 +159,22 @@ class FrameSource(ABC):
     def __enter__(self) -> FrameSource:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         self.close()
 
 
 class VideoCaptureSource(FrameSource):
     """A camera index, stream URL or video file through ``cv2.VideoCapture``."""
 
-    def __init__(self, spec: str | int, live: bool | None = None, open_timeout_s: float = 5.0,
-                 max_backoff_s: float = 2.0) -> None:
+    def __init__(
+        self,
+        spec: str | int,
+        live: bool | None = None,
+        open_timeout_s: float = 5.0,
+        max_backoff_s: float = 2.0,
+    ) -> None:
         super().__init__(str(spec), max_backoff_s)
         self.spec = spec
         self.live = live if live is not None else not (isinstance(spec, str) and Path(spec).is_file())
@@ -176,8 +183,12 @@ class VideoCaptureSource(FrameSource):
         self._start()
 
     def _open(self) -> None:
-        params = [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, int(self.open_timeout_s * 1000),
-                  cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(self.open_timeout_s * 1000)]
+        params = [
+            cv2.CAP_PROP_OPEN_TIMEOUT_MSEC,
+            int(self.open_timeout_s * 1000),
+            cv2.CAP_PROP_READ_TIMEOUT_MSEC,
+            int(self.open_timeout_s * 1000),
+        ]
         capture = cv2.VideoCapture(self.spec, cv2.CAP_ANY, params)
         if not capture.isOpened():
             capture.release()
@@ -232,13 +243,19 @@ class ImageFolderSource(FrameSource):
 class GenICamSource(FrameSource):
     """A GenICam camera through a GenTL producer (.cti) with ``harvesters`` (optional extra)."""
 
-    def __init__(self, producer: Path, serial: str | None = None, fetch_timeout_s: float = 1.0,
-                 max_backoff_s: float = 2.0) -> None:
+    def __init__(
+        self,
+        producer: Path,
+        serial: str | None = None,
+        fetch_timeout_s: float = 1.0,
+        max_backoff_s: float = 2.0,
+    ) -> None:
         try:
             from harvesters.core import Harvester
         except ImportError as exc:
-            raise CameraError("GenICam cameras need the optional harvesters package: "
-                              "pip install 'feeder[genicam]'") from exc
+            raise CameraError(
+                "GenICam cameras need the optional harvesters package: pip install 'feeder[genicam]'"
+            ) from exc
         if not Path(producer).is_file():
             raise CameraError(f"{producer}: no such GenTL producer (.cti) file")
         super().__init__(f"genicam:{producer}" + (f"#{serial}" if serial else ""), max_backoff_s)

@@ -108,13 +108,18 @@ def axes_from_moves(plate_moves_m: np.ndarray, image_moves_px: np.ndarray) -> Ax
     fitted = CameraCalibration(1.0 / scale, rotation, mirrored)._matrix()
     residual = image - plate @ fitted.T
     column_scales = np.linalg.norm(a, axis=0)
-    return AxesFit(pixel_size_m=1.0 / scale, rotation_rad=rotation, mirrored=mirrored,
-                   residual_px=float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))),
-                   anisotropy=float(abs(column_scales[0] - column_scales[1]) / column_scales.mean()))
+    return AxesFit(
+        pixel_size_m=1.0 / scale,
+        rotation_rad=rotation,
+        mirrored=mirrored,
+        residual_px=float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))),
+        anisotropy=float(abs(column_scales[0] - column_scales[1]) / column_scales.mean()),
+    )
 
 
-def rotation_centre(before_px: np.ndarray, after_px: np.ndarray, turns_rad: np.ndarray,
-                    mirrored: bool = False) -> tuple[float, float, float]:
+def rotation_centre(
+    before_px: np.ndarray, after_px: np.ndarray, turns_rad: np.ndarray, mirrored: bool = False
+) -> tuple[float, float, float]:
     """The θ centre O in the image from part centres before/after plate turns by ``turns_rad``.
 
     after − O = R(τ)(before − O), τ = the turn in the image (−turn when mirrored), so

@@ -69,7 +69,7 @@ def crossings(profiles: np.ndarray, step_px: float, min_contrast: float) -> Cros
     FIT_SAMPLES samples around it.  A profile whose level difference is below
     ``min_contrast`` or with no crossing is not valid.
     """
-    n, m = profiles.shape
+    m = profiles.shape[1]
     k = max(1, round(LEVEL_PX / step_px) + 1)
     inner = profiles[:, :k].mean(axis=1)
     outer = profiles[:, -k:].mean(axis=1)
@@ -138,9 +138,17 @@ def _profile_plan(half_extent: float, margin: float, spacing: float) -> np.ndarr
     return np.linspace(-reach, reach, count)
 
 
-def refine_rectangle(image: np.ndarray, x: float, y: float, angle: float, length: float, width: float,
-                     min_contrast: float, passes: tuple[tuple[float, float], ...] = ((10.0, 8.0), (0.0, 2.0)),
-                     step_px: float = 0.5) -> RectangleFit | None:
+def refine_rectangle(
+    image: np.ndarray,
+    x: float,
+    y: float,
+    angle: float,
+    length: float,
+    width: float,
+    min_contrast: float,
+    passes: tuple[tuple[float, float], ...] = ((10.0, 8.0), (0.0, 2.0)),
+    step_px: float = 0.5,
+) -> RectangleFit | None:
     """Refine a rough rectangle pose by subpixel line fits on its four sides.
 
     Each pass samples profiles across every side (corners left out by 4σ of the
@@ -157,8 +165,12 @@ def refine_rectangle(image: np.ndarray, x: float, y: float, angle: float, length
         c, si = math.cos(angle), math.sin(angle)
         e1, e2 = np.array([c, si]), np.array([-si, c])
         margin = 4 * blur + 2 + (0.1 * max(length, width) if fit is None else 0.0)
-        sides = [(e1, e2, length / 2, width / 2), (-e1, e2, length / 2, width / 2),
-                 (e2, e1, width / 2, length / 2), (-e2, e1, width / 2, length / 2)]
+        sides = [
+            (e1, e2, length / 2, width / 2),
+            (-e1, e2, length / 2, width / 2),
+            (e2, e1, width / 2, length / 2),
+            (-e2, e1, width / 2, length / 2),
+        ]
         plans = [_profile_plan(extent, margin, spacing) for _, _, _, extent in sides]
         bx, by, nx, ny = [], [], [], []
         for (normal, tangent, distance, _), t in zip(sides, plans, strict=True):
@@ -168,8 +180,11 @@ def refine_rectangle(image: np.ndarray, x: float, y: float, angle: float, length
             ny.append(np.full(t.size, normal[1]))
         base_x, base_y = np.concatenate(bx), np.concatenate(by)
         norm_x, norm_y = np.concatenate(nx), np.concatenate(ny)
-        profiles = sample(image, base_x[:, None] + s[None, :] * norm_x[:, None],
-                          base_y[:, None] + s[None, :] * norm_y[:, None])
+        profiles = sample(
+            image,
+            base_x[:, None] + s[None, :] * norm_x[:, None],
+            base_y[:, None] + s[None, :] * norm_y[:, None],
+        )
         found = crossings(profiles, step_px, min_contrast)
         offsets, tilts, weights, square_residuals, start = [], [], [], [], 0
         for (normal, tangent, _, _), t in zip(sides, plans, strict=True):
@@ -193,11 +208,18 @@ def refine_rectangle(image: np.ndarray, x: float, y: float, angle: float, length
         angle += float(np.average(tilts, weights=weights))
         valid = found.valid
         blur = float(np.clip(found.blur_px[valid], 0.3, 10.0).mean())
-        fit = RectangleFit(x, y, angle, length, width,
-                           edge_rms_px=math.sqrt(sum(square_residuals) / valid.sum()),
-                           valid_fraction=float(valid.mean()),
-                           inner_level=float(found.inner[valid].mean()),
-                           outer_level=float(found.outer[valid].mean()), blur_px=blur)
+        fit = RectangleFit(
+            x,
+            y,
+            angle,
+            length,
+            width,
+            edge_rms_px=math.sqrt(sum(square_residuals) / valid.sum()),
+            valid_fraction=float(valid.mean()),
+            inner_level=float(found.inner[valid].mean()),
+            outer_level=float(found.outer[valid].mean()),
+            blur_px=blur,
+        )
     return fit
 
 
@@ -214,8 +236,15 @@ class CircleFit:
     outer_level: float
 
 
-def refine_circle(image: np.ndarray, x: float, y: float, radius: float, min_contrast: float,
-                  passes: tuple[float, ...] = (10.0, 6.0), step_px: float = 0.5) -> CircleFit | None:
+def refine_circle(
+    image: np.ndarray,
+    x: float,
+    y: float,
+    radius: float,
+    min_contrast: float,
+    passes: tuple[float, ...] = (10.0, 6.0),
+    step_px: float = 0.5,
+) -> CircleFit | None:
     """Refine a rough disc by radial profiles and a total-least-squares circle (scikit-image)."""
     fit: CircleFit | None = None
     for h in passes:
@@ -236,6 +265,13 @@ def refine_circle(image: np.ndarray, x: float, y: float, radius: float, min_cont
             return None
         (x, y), radius = (float(v) for v in model.center), float(model.radius)
         rms = float(np.sqrt(np.mean(model.residuals(points) ** 2)))
-        fit = CircleFit(x, y, radius, rms, float(ok.mean()), float(np.median(found.inner[ok])),
-                        float(np.median(found.outer[ok])))
+        fit = CircleFit(
+            x,
+            y,
+            radius,
+            rms,
+            float(ok.mean()),
+            float(np.median(found.inner[ok])),
+            float(np.median(found.outer[ok])),
+        )
     return fit

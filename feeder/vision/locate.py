@@ -59,7 +59,9 @@ def _shrink_factor(gray: np.ndarray) -> int:
 def _as_uint8(small: np.ndarray) -> np.ndarray:
     if small.dtype == np.uint8:
         return small
-    return cv2.normalize(small.astype(np.float32), None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
+    values = small.astype(np.float32)
+    low, high = float(values.min()), float(values.max())
+    return np.clip((values - low) * (255.0 / max(high - low, 1e-12)) + 0.5, 0, 255).astype(np.uint8)
 
 
 def locate(image: np.ndarray, template: PartTemplate | None = None, polarity: str = "auto") -> LocateResult:
@@ -93,7 +95,10 @@ def locate(image: np.ndarray, template: PartTemplate | None = None, polarity: st
         if area < min_area:
             continue
         result = _one_blob(gray, contour, area, (sx, sy), contrast, template)
-        (parts if isinstance(result, Detection) else rejected).append(result)
+        if isinstance(result, Detection):
+            parts.append(result)
+        else:
+            rejected.append(result)
     parts.sort(key=lambda p: (p.y_px, p.x_px))
     return LocateResult(w, h, tuple(parts), tuple(rejected), polarity)
 
@@ -104,8 +109,14 @@ def _template_area(template: PartTemplate) -> float:
     return template.length_px * template.width_px
 
 
-def _one_blob(gray: np.ndarray, contour: np.ndarray, area: float, scale: tuple[float, float],
-              contrast: float, template: PartTemplate | None) -> Detection | Rejection:
+def _one_blob(
+    gray: np.ndarray,
+    contour: np.ndarray,
+    area: float,
+    scale: tuple[float, float],
+    contrast: float,
+    template: PartTemplate | None,
+) -> Detection | Rejection:
     """Classify, check and refine one blob of the shrunk mask (``contrast``: parts vs support)."""
     sx, sy = scale
     h, w = gray.shape
@@ -118,8 +129,12 @@ def _one_blob(gray: np.ndarray, contour: np.ndarray, area: float, scale: tuple[f
     rw, rh = (rw + 1) * sx, (rh + 1) * sy  # the contour runs through the boundary pixels' centres
     round_blob = abs(rw - rh) <= 0.1 * max(rw, rh) and DISC_FILL[0] <= fill <= DISC_FILL[1]
     if fill < RECTANGLE_FILL and not round_blob:
-        return Rejection(x, y, f"overlapped or touching parts: the blob fills {fill:.2f} of its bounding "
-                               "rectangle (a rectangle 1, a disc 0.79)")
+        return Rejection(
+            x,
+            y,
+            f"overlapped or touching parts: the blob fills {fill:.2f} of its bounding "
+            "rectangle (a rectangle 1, a disc 0.79)",
+        )
     if template is not None:
         problem = _size_problem(template, round_blob, rw, rh, area * sx * sy)
         if problem:
@@ -144,8 +159,10 @@ def _size_problem(template: PartTemplate, round_blob: bool, rw: float, rh: float
     wanted = sorted((template.length_px, template.width_px))
     for got, want in zip(measured, wanted, strict=True):
         if abs(got - want) > max(SIZE_TOLERANCE * want, 8.0):
-            return (f"size {measured[1]:.0f}×{measured[0]:.0f} px does not match the part "
-                    f"{wanted[1]:.0f}×{wanted[0]:.0f} px")
+            return (
+                f"size {measured[1]:.0f}×{measured[0]:.0f} px does not match the part "
+                f"{wanted[1]:.0f}×{wanted[0]:.0f} px"
+            )
     return ""
 
 
@@ -163,16 +180,26 @@ def _edge_problem(fit: RectangleFit | CircleFit | None) -> str:
     return ""
 
 
-def _rectangle(roi: np.ndarray, origin: tuple[int, int], x: float, y: float, angle: float,
-               rw: float, rh: float, contrast: float, template: PartTemplate | None) -> Detection | Rejection:
+def _rectangle(
+    roi: np.ndarray,
+    origin: tuple[int, int],
+    x: float,
+    y: float,
+    angle: float,
+    rw: float,
+    rh: float,
+    contrast: float,
+    template: PartTemplate | None,
+) -> Detection | Rejection:
     fit = refine_rectangle(roi, x, y, angle, rw, rh, min_contrast=0.3 * contrast)
     ox, oy = origin
     problem = _edge_problem(fit)
     if problem or fit is None:
         return Rejection(x + ox, y + oy, problem)
     angle, length, width = fit.angle_rad, fit.length_px, fit.width_px
-    first, second = (template.length_px, template.width_px) if template else (max(length, width),
-                                                                            min(length, width))
+    first, second = (
+        (template.length_px, template.width_px) if template else (max(length, width), min(length, width))
+    )
     if abs(length - second) + abs(width - first) < abs(length - first) + abs(width - second):
         angle, length, width = angle + math.pi / 2, width, length
     square = abs(length - width) <= SQUARE_TOLERANCE * max(length, width)
@@ -182,25 +209,43 @@ def _rectangle(roi: np.ndarray, origin: tuple[int, int], x: float, y: float, ang
     if template is not None and template.mark:
         step = period
         turns = round(2 * math.pi / step)
-        centres = [(fit.x_px + MARK_OFFSET * length * math.cos(angle + k * step),
-                    fit.y_px + MARK_OFFSET * length * math.sin(angle + k * step)) for k in range(turns)]
-        k = _mark_choice(roi, centres, MARK_RADIUS * min(length, width), fit.inner_level,
-                         fit.outer_level)
+        centres = [
+            (
+                fit.x_px + MARK_OFFSET * length * math.cos(angle + k * step),
+                fit.y_px + MARK_OFFSET * length * math.sin(angle + k * step),
+            )
+            for k in range(turns)
+        ]
+        k = _mark_choice(roi, centres, MARK_RADIUS * min(length, width), fit.inner_level, fit.outer_level)
         if k is None:
             return Rejection(fit.x_px + ox, fit.y_px + oy, "ambiguous: the orientation mark cannot be told")
         angle, period = angle + k * step, 2 * math.pi
-    return Detection(fit.x_px + ox, fit.y_px + oy, wrap_angle(angle, period), _score(fit), length, width,
-                     fit.edge_rms_px, period)
+    return Detection(
+        fit.x_px + ox,
+        fit.y_px + oy,
+        wrap_angle(angle, period),
+        _score(fit),
+        length,
+        width,
+        fit.edge_rms_px,
+        period,
+    )
 
 
-def _mark_choice(roi: np.ndarray, centres: list[tuple[float, float]], radius: float, part_level: float,
-                 support_level: float) -> int | None:
+def _mark_choice(
+    roi: np.ndarray,
+    centres: list[tuple[float, float]],
+    radius: float,
+    part_level: float,
+    support_level: float,
+) -> int | None:
     """Which candidate position holds the mark (the largest departure from the part's level)."""
     r = np.linspace(0, 0.6 * radius, 4)[:, None]
     t = np.linspace(0, 2 * math.pi, 12, endpoint=False)[None, :]
     dx, dy = (r * np.cos(t)).ravel(), (r * np.sin(t)).ravel()
-    departures = np.array([abs(float(np.mean(sample(roi, cx + dx, cy + dy))) - part_level)
-                           for cx, cy in centres])
+    departures = np.array(
+        [abs(float(np.mean(sample(roi, cx + dx, cy + dy))) - part_level) for cx, cy in centres]
+    )
     order = np.argsort(departures)[::-1]
     contrast = abs(part_level - support_level)
     best, second = departures[order[0]], departures[order[1]] if len(order) > 1 else 0.0
@@ -209,8 +254,15 @@ def _mark_choice(roi: np.ndarray, centres: list[tuple[float, float]], radius: fl
     return int(order[0])
 
 
-def _disc(roi: np.ndarray, origin: tuple[int, int], x: float, y: float, radius: float, contrast: float,
-          template: PartTemplate | None) -> Detection | Rejection:
+def _disc(
+    roi: np.ndarray,
+    origin: tuple[int, int],
+    x: float,
+    y: float,
+    radius: float,
+    contrast: float,
+    template: PartTemplate | None,
+) -> Detection | Rejection:
     fit = refine_circle(roi, x, y, radius, min_contrast=0.3 * contrast)
     ox, oy = origin
     problem = _edge_problem(fit)
@@ -219,8 +271,9 @@ def _disc(roi: np.ndarray, origin: tuple[int, int], x: float, y: float, radius: 
     angle, period = 0.0, 0.0
     if template is not None and template.mark:
         ring = np.linspace(0, 2 * math.pi, 720, endpoint=False)
-        values = sample(roi, fit.x_px + fit.radius_px / 2 * np.cos(ring),
-                        fit.y_px + fit.radius_px / 2 * np.sin(ring))
+        values = sample(
+            roi, fit.x_px + fit.radius_px / 2 * np.cos(ring), fit.y_px + fit.radius_px / 2 * np.sin(ring)
+        )
         departure = np.abs(values - fit.inner_level)
         if departure.max() < MIN_MARK_CONTRAST * abs(fit.inner_level - fit.outer_level):
             return Rejection(fit.x_px + ox, fit.y_px + oy, "ambiguous: the orientation mark cannot be told")
@@ -228,5 +281,14 @@ def _disc(roi: np.ndarray, origin: tuple[int, int], x: float, y: float, radius: 
         angle = math.atan2(float(np.sum(weight * np.sin(ring))), float(np.sum(weight * np.cos(ring))))
         period = 2 * math.pi
     diameter = 2 * fit.radius_px
-    return Detection(fit.x_px + ox, fit.y_px + oy, wrap_angle(angle, period), _score(fit), diameter, diameter,
-                     fit.edge_rms_px, period, disc=True)
+    return Detection(
+        fit.x_px + ox,
+        fit.y_px + oy,
+        wrap_angle(angle, period),
+        _score(fit),
+        diameter,
+        diameter,
+        fit.edge_rms_px,
+        period,
+        disc=True,
+    )

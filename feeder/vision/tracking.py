@@ -47,7 +47,9 @@ class Tracker:
             new = np.array([[d.x_px, d.y_px] for d in detections])
             cost = np.hypot(old[:, None, 0] - new[None, :, 0], old[:, None, 1] - new[None, :, 1])
             rows, cols = linear_sum_assignment(cost)
-            matched = {int(c): int(r) for r, c in zip(rows, cols, strict=True) if cost[r, c] <= self.max_jump_px}
+            matched = {
+                int(c): int(r) for r, c in zip(rows, cols, strict=True) if cost[r, c] <= self.max_jump_px
+            }
         seen: list[Track] = []
         kept: list[Track] = []
         for j, detection in enumerate(detections):
