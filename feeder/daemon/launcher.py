@@ -22,11 +22,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from feeder.errors import FeederError
+
 PR_SET_PDEATHSIG = 1
 READY_TIMEOUT_S = 30.0
 
 
-class LaunchError(RuntimeError):
+class LaunchError(FeederError, RuntimeError):
     """firmware_sim did not start (exited, or no ready line in time)."""
 
 

@@ -6,8 +6,10 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from types import TracebackType
 
+from feeder.errors import FeederError
 
-class SensorLost(RuntimeError):
+
+class SensorLost(FeederError, RuntimeError):
     """No sample within the timeout, or the sensor's link closed."""
 
 
