@@ -168,9 +168,10 @@ def start_endpoints(args: argparse.Namespace, firmware: Firmware, world: World,
         endpoints["sensor_tcp"] = camera.url
 
     if args.camera_http is not None:
-        from firmware_sim.camera_http import serve_world_camera
+        from firmware_sim.camera_http import serve_world_camera  # OpenCV: the optional vision extra
 
-        http = serve_world_camera(world, args.camera_http, args.camera_http_fps, args.camera_pixel_size_m)
+        http = serve_world_camera(world, args.camera_http, args.camera_http_fps, args.camera_pixel_size_m,
+                                  args.camera_latency_s)
         closers.append(http.close)
         endpoints["camera_http"] = http.url
 

@@ -257,10 +257,16 @@ class CameraHttpServer:
 
 
 def serve_world_camera(
-    world: World, port: int, fps: float = 10.0, pixel_size_m: float = 1e-6, camera: CameraModel | None = None
+    world: World,
+    port: int,
+    fps: float = 10.0,
+    pixel_size_m: float = 1e-6,
+    latency_s: float = 0.0,
+    camera: CameraModel | None = None,
 ) -> CameraHttpServer:
     """The world's camera on http://127.0.0.1:PORT: the plate origin at the image centre, plate
-    axes along the image axes, the world's part (``world.config.part``) at its true poses."""
+    axes along the image axes, the world's part (``world.config.part``) at its true poses, each
+    frame released ``latency_s`` after its exposure."""
     camera = camera or CameraModel()
     calibration = CameraCalibration(
         pixel_size_m, origin_x_px=(camera.width_px - 1) / 2, origin_y_px=(camera.height_px - 1) / 2
@@ -299,7 +305,7 @@ def serve_world_camera(
         )
 
     return CameraHttpServer(
-        CameraFeed(FrameRenderer(camera, seed=world.config.seed), snapshot, fps), port=port
+        CameraFeed(FrameRenderer(camera, seed=world.config.seed), snapshot, fps, latency_s), port=port
     )
 
 
