@@ -18,8 +18,8 @@ from typing import NoReturn
 from feeder.errors import InputError
 
 SUBCOMMANDS: tuple[str, ...] = (
-    "contact", "adhesion", "surface", "friction", "tau", "figures", "control", "waveform", "simulate", "plan",
-    "daemon", "demo",
+    "contact", "adhesion", "surface", "friction", "tau", "figures", "control", "waveform",
+    "simulate", "plan", "daemon", "demo", "vision",
 )
 
 

@@ -25,6 +25,40 @@ def positive_float(text: str) -> float:
     return value
 
 
+_LENGTH_UNITS_M = {"": 1.0, "m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "μm": 1e-6, "nm": 1e-9}
+_ANGLE_UNITS_RAD = {"": 1.0, "rad": 1.0, "deg": math.pi / 180, "°": math.pi / 180}
+_QUANTITY_RE = re.compile(r"^\s*([-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?)\s*([^\d\s.+-]*)\s*$")
+
+
+def _quantity(text: str, units: dict[str, float], what: str, example: str) -> float:
+    match = _QUANTITY_RE.match(text)
+    if match is None or match.group(2) not in units:
+        raise argparse.ArgumentTypeError(
+            f"expected a {what} like {example} (units: {', '.join(u for u in units if u)}), got {text!r}")
+    value = float(match.group(1)) * units[match.group(2)]
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"not a finite {what}: {text!r}")
+    return value
+
+
+def length_m(text: str) -> float:
+    """argparse type: a length with a unit (``150um``, ``1µm``, ``1.2mm``) or in metres (``1e-6``) → m."""
+    return _quantity(text, _LENGTH_UNITS_M, "length", "1.5um")
+
+
+def positive_length_m(text: str) -> float:
+    """argparse type: a positive length (see :func:`length_m`) → m."""
+    value = length_m(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive length, got {text!r}")
+    return value
+
+
+def angle_rad(text: str) -> float:
+    """argparse type: an angle, ``15deg`` or radians (``0.26``, ``0.26rad``) → rad."""
+    return _quantity(text, _ANGLE_UNITS_RAD, "angle", "15deg")
+
+
 def add_part_arguments(
     p: argparse.ArgumentParser, *, part_required: bool = True, example: str = "300x300x50"
 ) -> None:
