@@ -21,7 +21,7 @@ from feeder.plant.plate_motion import sawtooth
 from feeder.plant.stick_slip import Friction
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from test_planar import reference_changes  # noqa: E402
+from test_planar import reference_changes
 
 POSE, STROKE = (2e-3, 0.0, 0.0), (0.0, 0.0, 7e-3)
 
