@@ -196,6 +196,7 @@ class Daemon:
             undo.callback(self.store.close)
             self.interrupted_moves = self.store.interrupt_running_moves()
             amplifier = links.open_amplifier()
+            self._amplifier_generation = getattr(links, "respawns", 0)
             undo.callback(amplifier.close)
             amplifier.ground()
             sensor = links.open_sensor()
@@ -318,9 +319,11 @@ class Daemon:
         for job in queued:
             self._refuse_queued(job, f"{kind} lost: {message}")
         if kind == "amplifier":
-            # ground where the link still allows it, then free the port for the reconnect
-            with contextlib.suppress(Exception):
-                self.loop.amplifier.ground()
+            # ground where the link still allows it (never through a stale simulator pty:
+            # another program may own that path now), then free the port for the reconnect
+            if getattr(self.links, "respawns", 0) == self._amplifier_generation:
+                with contextlib.suppress(Exception):
+                    self.loop.amplifier.ground()
             with contextlib.suppress(Exception):
                 self.loop.amplifier.close()
         thread = threading.Thread(target=self._reconnect, args=(kind, record),
@@ -342,6 +345,7 @@ class Daemon:
                         amp.close()
                         raise
                     self.loop.replace_amplifier(amp)
+                    self._amplifier_generation = getattr(self.links, "respawns", 0)
                 else:
                     self.loop.replace_sensor(self.links.open_sensor())
             except Exception as err:  # any failure to open is retried with backoff
@@ -356,6 +360,9 @@ class Daemon:
             break
         with self._lock:
             self._reconnecting.discard(kind)
+        if getattr(self.links, "respawns", 0) != self._amplifier_generation:
+            # the simulator behind the amplifier link was restarted: that link is stale
+            self.loop.amplifier_lost("firmware_sim was restarted; reopening its new console")
 
     # -- requests ------------------------------------------------------------
     def handle(self, request: Any) -> dict[str, Any]:
@@ -517,7 +524,13 @@ class Daemon:
             "timing": loop.timing(),
             "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
             **self.setup.info,
+            **self._live_links(),
         }
+
+    def _live_links(self) -> dict[str, Any]:
+        """What may change while running (a respawned simulator's pid and endpoints)."""
+        describe = getattr(self.links, "describe", None)
+        return describe() if callable(describe) else {}
 
     # -- socket ----------------------------------------------------------------
     def _accept(self) -> None:
