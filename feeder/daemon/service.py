@@ -52,7 +52,7 @@ from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.daemon.store import Calibration, Store
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSensor
-from feeder.errors import InputError
+from feeder.errors import FeederError, InputError
 
 log = logging.getLogger(__name__)
 
@@ -228,9 +228,9 @@ class Daemon:
         for job in queued:
             self._refuse_queued(job, "daemon shutting down")
         self.loop.shutdown()
-        with contextlib.suppress(Exception):     # a dead link must not stop the shutdown
+        with contextlib.suppress(FeederError, OSError):  # a dead link must not stop the shutdown
             self.loop.amplifier.ground()
-        with contextlib.suppress(Exception):
+        with contextlib.suppress(FeederError, OSError):
             self.loop.amplifier.close()
         if self._server is not None:
             self._server.close()
@@ -322,9 +322,9 @@ class Daemon:
             # ground where the link still allows it (never through a stale simulator pty:
             # another program may own that path now), then free the port for the reconnect
             if getattr(self.links, "respawns", 0) == self._amplifier_generation:
-                with contextlib.suppress(Exception):
+                with contextlib.suppress(FeederError, OSError):
                     self.loop.amplifier.ground()
-            with contextlib.suppress(Exception):
+            with contextlib.suppress(FeederError, OSError):
                 self.loop.amplifier.close()
         thread = threading.Thread(target=self._reconnect, args=(kind, record),
                                   name=f"reconnect-{kind}", daemon=True)
@@ -348,7 +348,10 @@ class Daemon:
                     self._amplifier_generation = getattr(self.links, "respawns", 0)
                 else:
                     self.loop.replace_sensor(self.links.open_sensor())
-            except Exception as err:  # any failure to open is retried with backoff
+            except Exception as err:
+                # stops a link from opening (drivers, python-can, the launcher) is logged and
+                # retried with backoff; the thread must outlive it
+                log.info("%s reconnect attempt %d failed: %s", kind, attempts + 0, err)
                 with self._lock:
                     record["reconnect_attempts"] = attempts
                     record["last_error"] = f"{type(err).__name__}: {err}"
