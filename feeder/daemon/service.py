@@ -351,7 +351,7 @@ class Daemon:
             except Exception as err:
                 # stops a link from opening (drivers, python-can, the launcher) is logged and
                 # retried with backoff; the thread must outlive it
-                log.info("%s reconnect attempt %d failed: %s", kind, attempts + 0, err)
+                log.info("%s reconnect attempt %d failed: %s", kind, attempts, err)
                 with self._lock:
                     record["reconnect_attempts"] = attempts
                     record["last_error"] = f"{type(err).__name__}: {err}"
