@@ -58,8 +58,11 @@ class OneLineParser(argparse.ArgumentParser):
 def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
     """The ``feeder`` parser with the real parsers of ``commands`` (None: all of them);
     every other sub-command is a placeholder carrying only its help line."""
-    wanted = {COMMANDS[c][0] for c in COMMANDS} if commands is None else \
-        {COMMANDS[c][0] for c in commands if c in COMMANDS}
+    wanted = (
+        {COMMANDS[c][0] for c in COMMANDS}
+        if commands is None
+        else {COMMANDS[c][0] for c in commands if c in COMMANDS}
+    )
     parser = OneLineParser(prog="feeder", description=__doc__.splitlines()[0] if __doc__ else None)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     registered: set[str] = set()
@@ -88,8 +91,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{prefix}: error: {err}", file=sys.stderr)
         return 2
     except (DaemonRefused, MoveFailed) as err:
-        print(f"{prefix}: refused: {err}" if isinstance(err, DaemonRefused)
-              else f"{prefix}: failed: {err}", file=sys.stderr)
+        print(
+            f"{prefix}: refused: {err}" if isinstance(err, DaemonRefused) else f"{prefix}: failed: {err}",
+            file=sys.stderr,
+        )
         return 1
     except DaemonUnreachable as err:
         print(f"{prefix}: daemon unreachable: {err}", file=sys.stderr)

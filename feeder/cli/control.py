@@ -24,26 +24,41 @@ from feeder.errors import InputError, MoveFailed
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--socket", type=Path, default=None,
-                        help=f"daemon socket (default {default_socket_path()})")
-    parser.add_argument("--timeout", type=positive_float, default=DEFAULT_TIMEOUT_S,
-                        metavar="SECONDS",
-                        help=f"give up (exit 3) when the daemon does not answer a request or "
-                             f"heartbeat within SECONDS; a move may take longer "
-                             f"(default {DEFAULT_TIMEOUT_S:g})")
+    parser.add_argument(
+        "--socket", type=Path, default=None, help=f"daemon socket (default {default_socket_path()})"
+    )
+    parser.add_argument(
+        "--timeout",
+        type=positive_float,
+        default=DEFAULT_TIMEOUT_S,
+        metavar="SECONDS",
+        help=f"give up (exit 3) when the daemon does not answer a request or "
+        f"heartbeat within SECONDS; a move may take longer "
+        f"(default {DEFAULT_TIMEOUT_S:g})",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     move = subparsers.add_parser("move", help="move the part to TARGET_M (or by --by DELTA_M)")
-    move.add_argument("target_m", nargs="?", type=length, metavar="TARGET_M",
-                      help="absolute target position, m; or with a unit: 150um, 150µm, 1.2mm, "
-                           "20nm (negative: `feeder move -- -100um`)")
-    move.add_argument("--by", type=length, dest="by_m", metavar="DELTA_M",
-                      help="relative move from the current position, m; or with a unit "
-                           "(--by -20um)")
-    move.add_argument("--queue", action="store_true",
-                      help="wait for a running move to finish instead of being refused")
+    move.add_argument(
+        "target_m",
+        nargs="?",
+        type=length,
+        metavar="TARGET_M",
+        help="absolute target position, m; or with a unit: 150um, 150µm, 1.2mm, "
+        "20nm (negative: `feeder move -- -100um`)",
+    )
+    move.add_argument(
+        "--by",
+        type=length,
+        dest="by_m",
+        metavar="DELTA_M",
+        help="relative move from the current position, m; or with a unit (--by -20um)",
+    )
+    move.add_argument(
+        "--queue", action="store_true", help="wait for a running move to finish instead of being refused"
+    )
     move.add_argument("--no-wait", action="store_true", help="return once the move is accepted")
     allow_negative_lengths(move)
     _common(move)
@@ -58,7 +73,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     stop.set_defaults(handler=run_stop)
 
     calibrate = subparsers.add_parser(
-        "calibrate", help="learn the step sizes: bursts forward and back, both waveforms")
+        "calibrate", help="learn the step sizes: bursts forward and back, both waveforms"
+    )
     calibrate.add_argument("--steps", type=int, default=20, help="coarse steps per direction")
     _common(calibrate)
     calibrate.set_defaults(handler=run_calibrate)
@@ -82,14 +98,18 @@ def _um(value: float | None) -> str:
 
 
 def _print_result(result: MoveResult) -> None:
-    print(f"{result.kind} {result.status}: {result.reason}; reached {_um(result.reached_m)}"
-          + ("" if result.target_m is None else
-             f" for target {_um(result.target_m)} (error {_um(result.error_m)})")
-          + f", {result.steps} steps in {result.bursts} bursts, {result.duration_s:.2f} s")
+    print(
+        f"{result.kind} {result.status}: {result.reason}; reached {_um(result.reached_m)}"
+        + (
+            ""
+            if result.target_m is None
+            else f" for target {_um(result.target_m)} (error {_um(result.error_m)})"
+        )
+        + f", {result.steps} steps in {result.bursts} bursts, {result.duration_s:.2f} s"
+    )
 
 
-def _job(args: argparse.Namespace, cmd: str,
-         start: Callable[[Client, bool], MoveResult | Accepted]) -> int:
+def _job(args: argparse.Namespace, cmd: str, start: Callable[[Client, bool], MoveResult | Accepted]) -> int:
     """Run a move or calibration (``start(client, wait)``); 0 when it ends ``done`` (or was
     accepted with ``--no-wait``), 1 with the result printed when it ends otherwise."""
     with _client(args) as client:
@@ -105,8 +125,10 @@ def _job(args: argparse.Namespace, cmd: str,
     elif args.json:
         print_json({"ok": True, "accepted": True, "queue_position": outcome.queue_position})
     else:
-        print(f"{cmd} accepted" + (f" (queue position {outcome.queue_position})"
-                                   if outcome.queue_position else ""))
+        print(
+            f"{cmd} accepted"
+            + (f" (queue position {outcome.queue_position})" if outcome.queue_position else "")
+        )
     return code
 
 
@@ -153,8 +175,10 @@ def run_status(args: argparse.Namespace) -> int:
         print_json(reply)
         return 0
     print(f"state: {status.state}" + (f" ({status.fault})" if status.fault else ""))
-    print(f"position: {_um(status.position_m)} ({status.position_state}; last known "
-          f"{_um(status.last_known_position_m)})")
+    print(
+        f"position: {_um(status.position_m)} ({status.position_state}; last known "
+        f"{_um(status.last_known_position_m)})"
+    )
     if status.target_m is not None:
         print(f"target: {_um(status.target_m)}")
     lo, hi = status.travel_limits_m
@@ -162,13 +186,17 @@ def run_status(args: argparse.Namespace) -> int:
     predicted = reply.get("predicted_steps_m", {})
     for name, est in status.estimates.items():
         mode = name.split("/")[0]
-        print(f"step {name}: {_um(est.step_m)} ± {_um(est.std_m)} after {est.steps} steps"
-              + (f" (predicted {_um(predicted[mode])})" if mode in predicted else ""))
+        print(
+            f"step {name}: {_um(est.step_m)} ± {_um(est.std_m)} after {est.steps} steps"
+            + (f" (predicted {_um(predicted[mode])})" if mode in predicted else "")
+        )
     t = reply.get("timing")
     if t:
-        print(f"loop: {t['rate_hz']:g} Hz, {t['ticks']} ticks, {t['overruns']} overruns, jitter "
-              f"p50 {t['jitter_p50_s'] * 1e3:.3f} ms, p99 {t['jitter_p99_s'] * 1e3:.3f} ms, max "
-              f"{t['jitter_max_s'] * 1e3:.3f} ms")
+        print(
+            f"loop: {t['rate_hz']:g} Hz, {t['ticks']} ticks, {t['overruns']} overruns, jitter "
+            f"p50 {t['jitter_p50_s'] * 1e3:.3f} ms, p99 {t['jitter_p99_s'] * 1e3:.3f} ms, max "
+            f"{t['jitter_max_s'] * 1e3:.3f} ms"
+        )
     if reply.get("interrupted_moves"):
         print(f"interrupted moves (daemon was killed): {reply['interrupted_moves']}")
     return 0
@@ -183,7 +211,9 @@ def run_history(args: argparse.Namespace) -> int:
         print_json({"moves": [m.raw for m in moves]})
         return 0
     for m in moves:
-        print(f"#{m.id:<5} {m.status:<11} target {_um(m.target_m):>14} reached "
-              f"{_um(m.reached_m):>14} error {_um(m.error_m):>11} steps {m.steps:>5}"
-              + (f"  {m.reason}" if m.status != "done" else ""))
+        print(
+            f"#{m.id:<5} {m.status:<11} target {_um(m.target_m):>14} reached "
+            f"{_um(m.reached_m):>14} error {_um(m.error_m):>11} steps {m.steps:>5}"
+            + (f"  {m.reason}" if m.status != "done" else "")
+        )
     return 0

@@ -73,8 +73,9 @@ def check_owned_by_me(path: Path, what: str) -> os.stat_result:
     """``lstat`` of ``path``; raises :class:`PermissionError` unless the current user owns it."""
     info = path.lstat()
     if info.st_uid != os.getuid():
-        raise PermissionError(f"{what} {path} is owned by uid {info.st_uid}, not by this user "
-                              f"(uid {os.getuid()}); refusing it")
+        raise PermissionError(
+            f"{what} {path} is owned by uid {info.st_uid}, not by this user (uid {os.getuid()}); refusing it"
+        )
     return info
 
 
@@ -93,8 +94,13 @@ class LearnedStep:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> LearnedStep:
-        return cls(float(d["step_m"]), float(d["std_m"]), float(d["offset_m"]),
-                   float(d["offset_std_m"]), int(d["steps"]))
+        return cls(
+            float(d["step_m"]),
+            float(d["std_m"]),
+            float(d["offset_m"]),
+            float(d["offset_std_m"]),
+            int(d["steps"]),
+        )
 
 
 def _learned(d: dict[str, Any]) -> dict[str, LearnedStep]:
@@ -136,11 +142,19 @@ class MoveResult:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> MoveResult:
         return cls(
-            kind=str(d["kind"]), status=str(d["status"]), reason=str(d["reason"]),
-            target_m=_opt(d["target_m"]), start_m=_opt(d.get("start_m")),
-            reached_m=_opt(d["reached_m"]), error_m=_opt(d.get("error_m")),
-            steps=int(d["steps"]), bursts=int(d["bursts"]), duration_s=float(d["duration_s"]),
-            estimates=_learned(d.get("estimates") or {}), move_id=d.get("move_id"), raw=d,
+            kind=str(d["kind"]),
+            status=str(d["status"]),
+            reason=str(d["reason"]),
+            target_m=_opt(d["target_m"]),
+            start_m=_opt(d.get("start_m")),
+            reached_m=_opt(d["reached_m"]),
+            error_m=_opt(d.get("error_m")),
+            steps=int(d["steps"]),
+            bursts=int(d["bursts"]),
+            duration_s=float(d["duration_s"]),
+            estimates=_learned(d.get("estimates") or {}),
+            move_id=d.get("move_id"),
+            raw=d,
         )
 
 
@@ -187,13 +201,18 @@ class Status:
         lo, hi = d["travel_limits_m"]
         last = d.get("last_result")
         return cls(
-            state=str(d["state"]), position_m=_opt(d["position_m"]),
+            state=str(d["state"]),
+            position_m=_opt(d["position_m"]),
             position_state=str(d["position_state"]),
             last_known_position_m=_opt(d.get("last_known_position_m")),
-            target_m=_opt(d.get("target_m")), fault=d.get("fault"),
-            queued_moves=int(d.get("queued_moves", 0)), tolerance_m=float(d["tolerance_m"]),
-            travel_limits_m=(float(lo), float(hi)), estimates=_learned(d.get("estimates") or {}),
-            last_result=None if last is None else MoveResult.from_dict(last), raw=d,
+            target_m=_opt(d.get("target_m")),
+            fault=d.get("fault"),
+            queued_moves=int(d.get("queued_moves", 0)),
+            tolerance_m=float(d["tolerance_m"]),
+            travel_limits_m=(float(lo), float(hi)),
+            estimates=_learned(d.get("estimates") or {}),
+            last_result=None if last is None else MoveResult.from_dict(last),
+            raw=d,
         )
 
 
@@ -219,12 +238,20 @@ class MoveRecord:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> MoveRecord:
         return cls(
-            id=int(d["id"]), started_s=float(d["started_s"]), finished_s=_opt(d["finished_s"]),
-            start_m=_opt(d["start_m"]), target_m=float(d["target_m"]),
-            reached_m=_opt(d["reached_m"]), error_m=_opt(d["error_m"]), steps=int(d["steps"]),
-            bursts=int(d["bursts"]), status=str(d["status"]), reason=str(d["reason"]),
+            id=int(d["id"]),
+            started_s=float(d["started_s"]),
+            finished_s=_opt(d["finished_s"]),
+            start_m=_opt(d["start_m"]),
+            target_m=float(d["target_m"]),
+            reached_m=_opt(d["reached_m"]),
+            error_m=_opt(d["error_m"]),
+            steps=int(d["steps"]),
+            bursts=int(d["bursts"]),
+            status=str(d["status"]),
+            reason=str(d["reason"]),
             step_forward_m=_opt(d.get("step_forward_m")),
-            step_backward_m=_opt(d.get("step_backward_m")), raw=d,
+            step_backward_m=_opt(d.get("step_backward_m")),
+            raw=d,
         )
 
 
@@ -238,8 +265,9 @@ class _Connection:
         try:
             info = check_owned_by_me(socket_path, "socket")
         except FileNotFoundError:
-            raise DaemonUnreachable(f"no daemon socket at {socket_path} "
-                                    "(start one with `feeder daemon`)") from None
+            raise DaemonUnreachable(
+                f"no daemon socket at {socket_path} (start one with `feeder daemon`)"
+            ) from None
         except PermissionError as err:
             raise DaemonUnreachable(str(err)) from None
         if not stat.S_ISSOCK(info.st_mode):
@@ -250,8 +278,10 @@ class _Connection:
             self._sock.connect(str(socket_path))
         except TimeoutError:
             self._sock.close()
-            raise DaemonTimeout(f"the daemon at {socket_path} did not accept the connection "
-                                f"within {timeout_s:g} s", timeout_s or 0.0) from None
+            raise DaemonTimeout(
+                f"the daemon at {socket_path} did not accept the connection within {timeout_s:g} s",
+                timeout_s or 0.0,
+            ) from None
         except OSError as err:
             self._sock.close()
             raise DaemonUnreachable(f"no daemon listening on {socket_path}: {err}") from None
@@ -263,8 +293,9 @@ class _Connection:
         try:
             self._sock.sendall(line)
         except TimeoutError:
-            raise DaemonTimeout(f"the daemon did not take the {cmd!r} request within "
-                                f"{timeout_s:g} s", timeout_s or 0.0) from None
+            raise DaemonTimeout(
+                f"the daemon did not take the {cmd!r} request within {timeout_s:g} s", timeout_s or 0.0
+            ) from None
         except OSError as err:
             raise DaemonUnreachable(f"daemon connection failed: {err}") from None
 
@@ -281,15 +312,16 @@ class _Connection:
                 self._sock.settimeout(remaining)
                 chunk = self._sock.recv(65536)
             except TimeoutError:
-                raise DaemonTimeout(f"the daemon did not answer {cmd!r} within {timeout_s:g} s",
-                                    timeout_s or 0.0) from None
+                raise DaemonTimeout(
+                    f"the daemon did not answer {cmd!r} within {timeout_s:g} s", timeout_s or 0.0
+                ) from None
             except OSError as err:
                 raise DaemonUnreachable(f"daemon connection failed: {err}") from None
             if not chunk:
                 raise DaemonUnreachable("the daemon closed the connection")
             self._buffer += chunk
         line = bytes(self._buffer[:end])
-        del self._buffer[:end + 1]
+        del self._buffer[: end + 1]
         try:
             obj = json.loads(line)
         except (json.JSONDecodeError, UnicodeDecodeError):
@@ -314,8 +346,7 @@ class Client:
     thread-safe: one client per thread.
     """
 
-    def __init__(self, socket_path: Path | str | None = None,
-                 timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
+    def __init__(self, socket_path: Path | str | None = None, timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
         if not (math.isfinite(timeout_s) and timeout_s > 0):
             raise InputError("timeout_s", f"must be a positive number of seconds, got {timeout_s!r}")
         self.socket_path = default_socket_path() if socket_path is None else Path(socket_path)
@@ -334,7 +365,7 @@ class Client:
             conn.send(cmd, fields, timeout_s)
             return conn.receive(cmd, timeout_s)
         except DaemonUnreachable:
-            self._drop()        # a late reply would answer the next request
+            self._drop()  # a late reply would answer the next request
             raise
 
     def _connection(self) -> _Connection:
@@ -387,36 +418,49 @@ class Client:
         return _parse("stop", lambda r: StopResult(bool(r["stopped"]), int(r["dequeued"])), reply)
 
     def shutdown(self, *, wait: bool = True, timeout_s: float | None = None) -> None:
-        """Stop the daemon (it grounds the output and closes its links).
+        """Stop the daemon (it stops the move, grounds the output and closes its links).
 
-        With ``wait``, return once its socket is gone (:class:`~feeder.errors.DaemonTimeout`
-        when it is still there after ``timeout_s``).
+        With ``wait``, return once nothing listens on the socket any more (removed, or
+        refusing connections); :class:`~feeder.errors.DaemonTimeout` when it still does
+        after ``timeout_s``.
         """
         timeout = self._timeout(timeout_s)
-        self._call("shutdown", timeout)
+        self._connection()  # nobody listening: DaemonUnreachable
+        try:
+            self._call("shutdown", timeout)
+        except DaemonTimeout:
+            raise
+        except DaemonUnreachable:
+            pass  # it went away before its acknowledgement got out; checked below
         self._drop()
         end = time.monotonic() + timeout
-        while wait and os.path.lexists(self.socket_path):
+        while wait and _listening(self.socket_path):
             if time.monotonic() > end:
-                raise DaemonTimeout(f"the daemon acknowledged the shutdown but its socket "
-                                    f"{self.socket_path} is still there after {timeout:g} s",
-                                    timeout)
+                raise DaemonTimeout(
+                    f"the daemon acknowledged the shutdown but still listens on "
+                    f"{self.socket_path} after {timeout:g} s",
+                    timeout,
+                )
             time.sleep(SHUTDOWN_POLL_S)
 
     @overload
-    def move_to(self, target_m: float, *, queue: bool = ..., wait: Literal[True] = ...,
-                timeout_s: float | None = ...) -> MoveResult: ...
+    def move_to(
+        self, target_m: float, *, queue: bool = ..., wait: Literal[True] = ..., timeout_s: float | None = ...
+    ) -> MoveResult: ...
 
     @overload
-    def move_to(self, target_m: float, *, queue: bool = ..., wait: Literal[False],
-                timeout_s: float | None = ...) -> Accepted: ...
+    def move_to(
+        self, target_m: float, *, queue: bool = ..., wait: Literal[False], timeout_s: float | None = ...
+    ) -> Accepted: ...
 
     @overload
-    def move_to(self, target_m: float, *, queue: bool = ..., wait: bool = ...,
-                timeout_s: float | None = ...) -> MoveResult | Accepted: ...
+    def move_to(
+        self, target_m: float, *, queue: bool = ..., wait: bool = ..., timeout_s: float | None = ...
+    ) -> MoveResult | Accepted: ...
 
-    def move_to(self, target_m: float, *, queue: bool = False, wait: bool = True,
-                timeout_s: float | None = None) -> MoveResult | Accepted:
+    def move_to(
+        self, target_m: float, *, queue: bool = False, wait: bool = True, timeout_s: float | None = None
+    ) -> MoveResult | Accepted:
         """Move the part to ``target_m`` (m).
 
         queue: wait behind a running move instead of being refused.  wait: return the
@@ -424,49 +468,57 @@ class Client:
         end raises :class:`~feeder.errors.MoveFailed`), else :class:`Accepted` once the
         daemon took it.
         """
-        return self._job("move", {"target_m": _metres("target_m", target_m)}, queue, wait,
-                         timeout_s)
+        return self._job("move", {"target_m": _metres("target_m", target_m)}, queue, wait, timeout_s)
 
     @overload
-    def move_by(self, delta_m: float, *, queue: bool = ..., wait: Literal[True] = ...,
-                timeout_s: float | None = ...) -> MoveResult: ...
+    def move_by(
+        self, delta_m: float, *, queue: bool = ..., wait: Literal[True] = ..., timeout_s: float | None = ...
+    ) -> MoveResult: ...
 
     @overload
-    def move_by(self, delta_m: float, *, queue: bool = ..., wait: Literal[False],
-                timeout_s: float | None = ...) -> Accepted: ...
+    def move_by(
+        self, delta_m: float, *, queue: bool = ..., wait: Literal[False], timeout_s: float | None = ...
+    ) -> Accepted: ...
 
     @overload
-    def move_by(self, delta_m: float, *, queue: bool = ..., wait: bool = ...,
-                timeout_s: float | None = ...) -> MoveResult | Accepted: ...
+    def move_by(
+        self, delta_m: float, *, queue: bool = ..., wait: bool = ..., timeout_s: float | None = ...
+    ) -> MoveResult | Accepted: ...
 
-    def move_by(self, delta_m: float, *, queue: bool = False, wait: bool = True,
-                timeout_s: float | None = None) -> MoveResult | Accepted:
+    def move_by(
+        self, delta_m: float, *, queue: bool = False, wait: bool = True, timeout_s: float | None = None
+    ) -> MoveResult | Accepted:
         """Move the part by ``delta_m`` (m) from where it is when the move starts; as
         :meth:`move_to`."""
         return self._job("move", {"by_m": _metres("delta_m", delta_m)}, queue, wait, timeout_s)
 
     @overload
-    def calibrate(self, steps: int = ..., *, queue: bool = ..., wait: Literal[True] = ...,
-                  timeout_s: float | None = ...) -> MoveResult: ...
+    def calibrate(
+        self, steps: int = ..., *, queue: bool = ..., wait: Literal[True] = ..., timeout_s: float | None = ...
+    ) -> MoveResult: ...
 
     @overload
-    def calibrate(self, steps: int = ..., *, queue: bool = ..., wait: Literal[False],
-                  timeout_s: float | None = ...) -> Accepted: ...
+    def calibrate(
+        self, steps: int = ..., *, queue: bool = ..., wait: Literal[False], timeout_s: float | None = ...
+    ) -> Accepted: ...
 
     @overload
-    def calibrate(self, steps: int = ..., *, queue: bool = ..., wait: bool = ...,
-                  timeout_s: float | None = ...) -> MoveResult | Accepted: ...
+    def calibrate(
+        self, steps: int = ..., *, queue: bool = ..., wait: bool = ..., timeout_s: float | None = ...
+    ) -> MoveResult | Accepted: ...
 
-    def calibrate(self, steps: int = 20, *, queue: bool = False, wait: bool = True,
-                  timeout_s: float | None = None) -> MoveResult | Accepted:
+    def calibrate(
+        self, steps: int = 20, *, queue: bool = False, wait: bool = True, timeout_s: float | None = None
+    ) -> MoveResult | Accepted:
         """Learn the step sizes: ``steps`` coarse steps per direction (2–10000), both
         waveforms, forward and back; as :meth:`move_to`."""
         if isinstance(steps, bool) or not isinstance(steps, int) or not 2 <= steps <= 10_000:
             raise InputError("steps", f"must be an integer in [2, 10000], got {steps!r}")
         return self._job("calibrate", {"steps": steps}, queue, wait, timeout_s)
 
-    def _job(self, cmd: str, fields: dict[str, Any], queue: bool, wait: bool,
-             timeout_s: float | None) -> MoveResult | Accepted:
+    def _job(
+        self, cmd: str, fields: dict[str, Any], queue: bool, wait: bool, timeout_s: float | None
+    ) -> MoveResult | Accepted:
         timeout = self._timeout(timeout_s)
         fields = {**fields, "queue": queue, "wait": wait}
         if not wait:
@@ -493,7 +545,7 @@ class Client:
                 try:
                     return conn.receive(cmd, HEARTBEAT_S)
                 except DaemonTimeout:
-                    pass            # silence: the job runs; is the daemon still there?
+                    pass  # silence: the job runs; is the daemon still there?
                 if heartbeat is None:
                     heartbeat = _Connection(self.socket_path, timeout_s)
                 heartbeat.send("status", {}, timeout_s)
@@ -504,6 +556,21 @@ class Client:
         finally:
             if heartbeat is not None:
                 heartbeat.close()
+
+
+def _listening(socket_path: Path) -> bool:
+    """Whether a connection to ``socket_path`` is accepted (or queued) right now."""
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    probe.settimeout(SHUTDOWN_POLL_S)
+    try:
+        probe.connect(str(socket_path))
+    except (FileNotFoundError, ConnectionRefusedError):
+        return False
+    except OSError:  # e.g. a full backlog: somebody is still there
+        return True
+    finally:
+        probe.close()
+    return True
 
 
 def _metres(name: str, value: float) -> float:
@@ -517,5 +584,6 @@ def _parse(cmd: str, parse: Callable[[dict[str, Any]], T], reply: dict[str, Any]
     try:
         return parse(reply)
     except (KeyError, TypeError, ValueError) as err:
-        raise DaemonUnreachable(f"malformed reply to {cmd!r} ({type(err).__name__}: {err}): "
-                                f"{json.dumps(reply)[:200]}") from None
+        raise DaemonUnreachable(
+            f"malformed reply to {cmd!r} ({type(err).__name__}: {err}): {json.dumps(reply)[:200]}"
+        ) from None
