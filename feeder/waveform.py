@@ -153,8 +153,15 @@ class Waveform:
         """The ANC300's 256-point ``setpu``/``setpd`` tables, values 0–255.
 
         ``up`` is this design stepping forward, ``down`` the same design stepping
-        backward (the direction field chooses which one a step burst uses).
+        backward (the direction field chooses which one a step burst uses).  The
+        ``current-limited`` sawtooth is the exact ramp 0, 1, …, 255 (the drop falls
+        in the last 1/256 of the period and the current limit sets the flyback):
+        8-bit rounding of a ramp over 256 points would repeat a value, a slope
+        change that can shake a part loose at low amplitude.
         """
+        if self.flyback_shape == "current-limited":
+            ramp = list(range(ANC300_TABLE_POINTS))
+            return ramp, [255 - v for v in ramp]
         fwd = Waveform(
             frequency_hz=self.frequency_hz,
             amplitude_vpp=self.amplitude_vpp,

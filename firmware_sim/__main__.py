@@ -27,9 +27,10 @@ from types import FrameType
 
 from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
+from feeder.protocol.anc300 import DEFAULT_PASSWORD, DIALECTS
 from firmware_sim.canopen_node import serve_slcan_pty
 from firmware_sim.clock import Clock, RealTimeClock, VirtualClock
-from firmware_sim.console import DEFAULT_PASSWORD, ConsoleSession
+from firmware_sim.console import ConsoleSession
 from firmware_sim.firmware import (
     DEFAULT_DAC_BUFFER_S,
     DEFAULT_LOAD_CAPACITANCE_F,
@@ -57,6 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
                            "is 7230); repeatable; default: pty")
     ends.add_argument("--serial-login", action="store_true",
                       help="ask for the password on the pty too (TCP always asks)")
+    ends.add_argument("--dialect", choices=DIALECTS, default="extended",
+                      help="console verbs: anc300 = only a real ANC300's (every extension "
+                           "verb gets its error reply; what the daemon starts), extended = "
+                           "plus the test and diagnostic extensions (default)")
     ends.add_argument("--password", default=DEFAULT_PASSWORD,
                       help="console password (default %(default)s, as on real units)")
     ends.add_argument("--sensor", metavar="SPEC",
@@ -113,10 +118,15 @@ def add_extra_front_end_arguments(group: argparse._ArgumentGroup) -> None:
 
 
 def _tcp_spec(spec: str, option: str) -> tuple[str, int]:
-    kind, _, rest = spec.partition(":")
+    """``tcp:HOST:PORT`` or ``socket://HOST:PORT`` → (host, port)."""
+    rest = spec.removeprefix("socket://") if spec.startswith("socket://") else ""
+    if not rest:
+        kind, _, rest = spec.partition(":")
+        rest = rest if kind == "tcp" else ""
     host, _, port = rest.rpartition(":")
-    if kind != "tcp" or not host or not port.isdigit():
-        raise InputError(option, f"expected tcp:127.0.0.1:PORT, got {spec!r}")
+    if not host or not port.isdigit():
+        raise InputError(option, f"expected tcp:127.0.0.1:PORT or socket://127.0.0.1:PORT, "
+                         f"got {spec!r}")
     return host, int(port)
 
 
@@ -131,7 +141,8 @@ def start_endpoints(args: argparse.Namespace, firmware: Firmware, world: World,
         return world.true_step(axis)
 
     def session(password: str | None) -> Callable[[], ConsoleSession]:
-        return lambda: ConsoleSession(firmware, password=password, true_step=true_step)
+        return lambda: ConsoleSession(firmware, password=password, true_step=true_step,
+                                      dialect=args.dialect)
 
     for spec in args.console or ["pty"]:
         if spec == "pty":

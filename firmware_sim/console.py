@@ -15,13 +15,13 @@ import re
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from firmware_sim.firmware import (
+from feeder.protocol.anc300 import (
+    BY_NAME,
     PATTERN_POINTS,
-    Axis,
-    Fault,
-    Firmware,
-    FirmwareError,
+    UNKNOWN_COMMAND,
+    verbs_of,
 )
+from firmware_sim.firmware import Axis, Fault, Firmware, FirmwareError
 
 if TYPE_CHECKING:
     from firmware_sim.world import TrueStep
@@ -30,7 +30,6 @@ CRLF = "\r\n"
 PROMPT = "> "
 GREETING = "attocube ANC300 compatible controller (firmware_sim)"
 VERSION_LINES = ("attocube ANC300 controller version 1.1.0 compatible (firmware_sim 0.1.0)",)
-DEFAULT_PASSWORD = "123456"
 MAX_LINE = 4096
 MAX_LOGIN_ATTEMPTS = 3
 INTEGER = re.compile(r"[+-]?[0-9]{1,12}")
@@ -61,12 +60,16 @@ class ConsoleSession:
     true_step: answers the ``simstep`` extension verb (the world's true step).
     wait_timeout_s: longest ``stepw``/``capw`` wait before ERROR (continuous
         motion never ends by itself).
+    dialect: ``anc300`` answers only a real ANC300's verbs (every extension gets
+        its error reply, ``Unknown command``); ``extended`` adds the extensions
+        (:data:`feeder.protocol.anc300.VERBS`).
     """
 
     def __init__(self, firmware: Firmware, password: str | None = None,
                  true_step: TrueStepSource | None = None, max_line: int = MAX_LINE,
-                 wait_timeout_s: float = 600.0) -> None:
+                 wait_timeout_s: float = 600.0, dialect: str = "extended") -> None:
         self.firmware = firmware
+        self.verbs = verbs_of(dialect)
         self.password = password
         self.true_step = true_step
         self.max_line = max_line
@@ -155,6 +158,8 @@ class ConsoleSession:
         if not words:
             return []
         verb, args = words[0].lower(), words[1:]
+        if verb not in self.verbs:
+            raise ConsoleError(UNKNOWN_COMMAND)
         fw = self.firmware
         if verb == "echo":
             _arity(args, 1)
@@ -169,14 +174,15 @@ class ConsoleSession:
             _arity(args, 0)
             return [f"serialnumber = {fw.config.serial_number}"]
         if verb == "help":
-            return [f"{name} {usage}" for name, usage in HELP.items()]
+            return [f"{name} {BY_NAME[name].usage}".rstrip() for name in BY_NAME
+                    if name in self.verbs]
         if verb == "gettick":
             _arity(args, 0)
             return [f"{key[:-2]} = {fixed(value * 1e6, 3)} us" if key.endswith("_s")
                     else f"{key} = {value}" for key, value in fw.tick_summary().items()]
         handler = AXIS_VERBS.get(verb)
         if handler is None:
-            raise ConsoleError("Unknown command")
+            raise ConsoleError(UNKNOWN_COMMAND)
         if not args:
             raise ConsoleError("Missing axis number")
         return handler(self, fw.axis(_integer(args[0], "axis")), args[1:])
@@ -371,17 +377,4 @@ AXIS_VERBS: dict[str, AxisVerb] = {
     "getcnt": ConsoleSession._getcnt, "getst": ConsoleSession._getst,
     "clrf": ConsoleSession._clrf, "injf": ConsoleSession._injf,
     "simstep": ConsoleSession._simstep,
-}
-
-HELP: dict[str, str] = {
-    "echo": "on|off", "ver": "", "getcser": "", "help": "", "gettick": "",
-    "setm": "AXIS gnd|inp|cap|stp|off|stp+|stp-", "getm": "AXIS",
-    "setf": "AXIS HZ", "getf": "AXIS", "setv": "AXIS VOLTS", "getv": "AXIS",
-    "seta": "AXIS VOLTS", "geta": "AXIS", "geto": "AXIS",
-    "stepu": "AXIS [N|c]", "stepd": "AXIS [N|c]", "stop": "AXIS", "stepw": "AXIS",
-    "getc": "AXIS", "capw": "AXIS", "setpu": "AXIS V1..V256", "setpd": "AXIS V1..V256",
-    "getpu": "AXIS", "getpd": "AXIS", "getser": "AXIS",
-    "setfb": "AXIS linear|half-cosine|current-limited [SECONDS]", "getfb": "AXIS",
-    "getcnt": "AXIS", "getst": "AXIS", "clrf": "AXIS",
-    "injf": "AXIS watchdog|host_watchdog|overtemp", "simstep": "AXIS",
 }

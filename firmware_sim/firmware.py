@@ -51,13 +51,17 @@ import numpy as np
 
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.stack import StackParameters
+from feeder.protocol.anc300 import (
+    FAULT_BITS,
+    MODES,
+    PATTERN_MAX,
+    PATTERN_POINTS,
+    STEPPING_MODES,
+    fault_names,
+)
 from feeder.waveform import FLYBACK_SHAPES, Waveform
 from firmware_sim.clock import Clock
 
-MODES = ("gnd", "inp", "cap", "stp", "off", "stp+", "stp-")
-STEPPING_MODES = ("stp", "stp+", "stp-")
-PATTERN_POINTS = 256
-PATTERN_MAX = 255
 WAVETABLE_POINTS = 4096
 DAC_BITS = 16
 DAC_MAX_CODE = (1 << DAC_BITS) - 1
@@ -101,9 +105,7 @@ class Fault(enum.IntFlag):
     OVERTEMP = 0x04
 
 
-def fault_names(word: int) -> tuple[str, ...]:
-    """Names of the bits set in a fault word, lowest bit first."""
-    return tuple(f.name.lower() for f in Fault if f.name is not None and word & f)
+assert {f.name.lower(): int(f) for f in Fault if f.name} == FAULT_BITS, "Fault drifted from the protocol"
 
 
 @dataclass(frozen=True)

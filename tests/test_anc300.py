@@ -15,6 +15,7 @@ import serial.rfc2217
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost, DriveSettings
 from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
+from feeder.waveform import Waveform
 from firmware_sim.console import ConsoleSession
 from firmware_sim.firmware import Firmware
 from firmware_sim.transports import PtyConsole
@@ -36,13 +37,17 @@ def test_driver_configures_steps_waits_and_grounds(sim: Simulator, endpoint: str
                                 flyback_shape="linear", flyback_s=2e-4))
         amp.enable()
         before = amp.status().step_counter
+        start = int(amp.link.value("getcnt 2", "steps"))
         amp.step(-40)
         assert amp.status().moving
         assert amp.wait(5.0)
         status = amp.status()
         assert (status.mode, status.frequency_hz, status.amplitude_v) == ("stp", 400.0, 35.5)
         assert status.step_counter == before - 40 and not status.moving
-        assert amp.link.query("getfb 2") == ["flybackshape = linear", "flyback = 0.000200000 s"]
+        assert status.counted_by == "host"
+        # the firmware counted what the host counted
+        assert int(amp.link.value("getcnt 2", "steps")) - start == -40
+        assert amp.link.query("getfb 2")[0] == "flybackshape = custom"   # tables, not setfb
         amp.run_continuous(forward=True)
         assert not amp.wait(0.05)
         amp.ground()
@@ -56,19 +61,31 @@ def test_driver_configures_steps_waits_and_grounds(sim: Simulator, endpoint: str
             amp.apply(DriveSettings(frequency_hz=100.0, amplitude_v=1e4))
 
 
-def test_plain_anc300_mode_uploads_tables_and_uses_stepw(sim: Simulator) -> None:
+def test_driver_uploads_tables_uses_stepw_and_estimates_a_cut_burst(sim: Simulator) -> None:
     link = Anc300Link(sim.endpoints["console_tcp"], timeout_s=2.0)
-    amp = Anc300Amplifier(link, axis=1, extensions=False)
+    amp = Anc300Amplifier(link, axis=1)
     try:
-        amp.apply(DriveSettings(frequency_hz=200.0, amplitude_v=10.0,
-                                flyback_shape="half-cosine", flyback_s=5e-4))
+        settings = DriveSettings(frequency_hz=200.0, amplitude_v=10.0,
+                                 flyback_shape="half-cosine", flyback_s=5e-4)
+        amp.apply(settings)
         up = [int(v) for v in link.query("getpu 1")]
-        assert len(up) == 256 and max(up) == 255 and up[0] == 0
+        assert up == Waveform(frequency_hz=200.0, amplitude_vpp=1.0, flyback_shape="half-cosine",
+                              flyback_s=5e-4).anc300_tables()[0]
+        start = int(link.value("getcnt 1", "steps"))
         amp.enable()
         amp.step(10)
         assert amp.wait(5.0)
-        assert amp.status().step_counter == 10  # the driver's own count
-        assert link.value("getcnt 1", "steps") != ""
+        assert amp.steps_played() == (10, False)   # the driver's own count
+        assert int(link.value("getcnt 1", "steps")) - start == 10
+        # a burst of 400 steps (2 s) cut after ~0.3 s: the host estimates from time
+        amp.step(400)
+        time.sleep(0.3)
+        amp.stop()
+        played, estimated = amp.steps_played()
+        true = int(link.value("getcnt 1", "steps")) - start
+        assert estimated and amp.status().counted_by == "estimated"
+        assert abs(played - true) <= 4, (played, true)     # 4 periods = 20 ms of link latency
+        assert not amp.status().moving
     finally:
         amp.ground()
         amp.close()

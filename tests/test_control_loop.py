@@ -259,7 +259,8 @@ def test_a_plate_jump_on_a_waveform_change_is_measured_not_learned(world: FakeWo
             assert est[key].displacement_m(3) == pytest.approx(3 * true, abs=0.3e-6)
 
 
-def test_a_failing_position_store_ends_the_move_but_not_the_loop(world: FakeWorld) -> None:
+def test_a_failing_position_store_neither_ends_the_move_nor_stops_the_loop(
+        world: FakeWorld, caplog: pytest.LogCaptureFixture) -> None:
     def broken(position_m: float) -> None:
         raise OSError("disk full")
 
@@ -271,5 +272,27 @@ def test_a_failing_position_store_ends_the_move_but_not_the_loop(world: FakeWorl
         alive = loop.ticks > ticks
     finally:
         loop.shutdown()
-    assert result.status == "fault" and "disk full" in result.reason
+    assert result.status == "done"
     assert alive
+    assert any("disk full" in r.getMessage() for r in caplog.records)
+
+
+def test_slow_commits_stay_off_the_tick(world: FakeWorld) -> None:
+    """Each record write takes 50 ms (a slow disk): the tick never waits for one."""
+    writes: list[float] = []
+
+    def slow(position_m: float) -> None:
+        time.sleep(0.05)
+        writes.append(position_m)
+
+    loop, _, _ = make_loop(world, on_position=slow)
+    try:
+        result = run_job(loop, Job("move", target_m=200e-6))
+        timing = loop.timing()
+    finally:
+        loop.shutdown()
+    assert result.status == "done" and len(writes) >= 3
+    # p99 of the wake-up lateness is the scheduler's, not the disk's: a tick that waited
+    # for one 50 ms write would be an overrun (benchmarks/loop_jitter.py --slow-commit-s
+    # measures the p99 on a quiet machine)
+    assert timing["jitter_p99_s"] < 0.01 and timing["jitter_max_s"] < 0.05, timing

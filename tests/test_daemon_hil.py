@@ -230,11 +230,12 @@ def test_configured_hardware_over_tcp_with_a_password(base: Path) -> None:
     """A config naming the amplifier (TCP console, password) and the camera: no simulator is
     started by the daemon; it drives the one it is pointed at."""
     sim = Simulator(["--console", "tcp:127.0.0.1:0", "--sensor", "tcp:127.0.0.1:0",
-                     "--password", "s3cret", "--seed", "2"])
+                     "--password", "s3cret", "--seed", "2", "--dialect", "anc300"])
     try:
         config = base / "feeder.toml"
         config.write_text(
             f'[amplifier]\nport = "{sim.endpoints["console_tcp"]}"\npassword = "s3cret"\n'
+            'model = "firmware_sim"\n'
             f'[sensor]\naddress = "{sim.endpoints["sensor_tcp"]}"\n')
         daemon = DaemonProcess(base, f"--config={config}")
         try:
@@ -309,6 +310,7 @@ def test_sensor_loss_stops_the_part_and_reconnects(base: Path) -> None:
     try:
         config = base / "feeder.toml"
         config.write_text(f'[amplifier]\nport = "{sim.endpoints["console_pty"]}"\n'
+                          'model = "firmware_sim"\n'
                           f'[sensor]\naddress = "{relay.url}"\n')
         daemon = DaemonProcess(base, f"--config={config}")
         try:

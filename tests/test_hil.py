@@ -80,10 +80,12 @@ def test_n_steps_move_the_part_n_true_steps(
     amp.enable()
     up, down = sim.ready["true"]["step_up_m"], sim.ready["true"]["step_down_m"]
     if isinstance(amp, Anc300Amplifier):
-        # the ready line publishes the same true step for the same waveform
+        # the ready line publishes the true step of the same waveform, played from the
+        # firmware's 4096-point design table; the driver uploads the ANC300's exact
+        # 256-point ramp, which moves the flyback corner by a fraction of a sample
         console_up, console_down = (float(v.split()[2]) for v in amp.link.query("simstep 1")[:2])
-        assert console_up == pytest.approx(up, rel=1e-6)
-        assert console_down == pytest.approx(down, rel=1e-6)
+        assert console_up == pytest.approx(up, rel=1e-3)
+        assert console_down == pytest.approx(down, rel=1e-3)
     amp.step(count // abs(count))  # start from the rest state of this direction
     assert amp.wait(2.0)
     start_m = position(camera)

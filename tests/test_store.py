@@ -136,4 +136,22 @@ def test_a_version_1_database_is_migrated(tmp_path: Path) -> None:
     store.close()
     version = sqlite3.connect(path).execute(
         "SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
-    assert version == "2"
+    assert version == "3"
+
+
+def test_a_version_2_database_gains_the_steps_estimated_mark(tmp_path: Path) -> None:
+    path = tmp_path / "v2.sqlite"
+    store = Store(path)
+    move = store.begin_move(1e-4, 0.0)
+    store.close()
+    conn = sqlite3.connect(path)        # back to version 2: the column did not exist
+    conn.executescript("""
+        ALTER TABLE moves DROP COLUMN steps_estimated;
+        UPDATE meta SET value = '2' WHERE key = 'schema_version';
+    """)
+    conn.close()
+    store = Store(path)
+    store.finish_move(move, status="stopped", reason="stop", reached_m=5e-5, steps=12, bursts=1,
+                      step_forward_m=None, step_backward_m=None, steps_estimated=True)
+    assert store.moves()[0]["steps_estimated"] is True and store.moves()[0]["steps"] == 12
+    store.close()

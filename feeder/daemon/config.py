@@ -8,12 +8,14 @@ drives it exactly as it would real hardware.
 ```toml
 [amplifier]
 transport = "serial"          # "serial" (ANC300 console) or "can" (CANopen)
+model = "anc300"              # the rating the planner plans within: "anc300" (0–150 V,
+                              # ≤ 10 kHz; default for serial) or "firmware_sim" (200 V; CAN)
 port = "/dev/ttyUSB0"         # serial device or pyserial URL (socket://, rfc2217://)
 axis = 1
 timeout_s = 1.0
 password = "123456"           # sent when the console asks (TCP; ANC300 default)
-[amplifier.limits]            # the amplifier's rating, for the planner (AmplifierLimits)
-v_max_v = 200.0
+[amplifier.limits]            # narrows the model's rating (AmplifierLimits); never beyond it
+v_max_v = 120.0
 current_limit_a = 0.55
 max_frequency_hz = 2000.0
 [amplifier.can]               # python-can keyword arguments + node id
@@ -23,7 +25,7 @@ bitrate = 500000
 node_id = 1
 
 [sensor]
-address = "tcp:127.0.0.1:7240"
+address = "socket://127.0.0.1:7240"   # pyserial URL syntax, as for the amplifier
 timeout_s = 1.0
 
 [simulator]                   # only when the daemon starts firmware_sim itself
@@ -62,9 +64,16 @@ from feeder.daemon.control_loop import LoopSettings
 from feeder.errors import InputError
 from feeder.files import read_toml
 from feeder.parts import Part, Support
-from feeder.plant.amplifier import AmplifierLimits
+from feeder.plant.amplifier import (
+    AMPLIFIER_MODELS,
+    AmplifierLimits,
+    amplifier_model,
+    within_rating,
+)
 
 TRANSPORTS = ("serial", "can")
+DEFAULT_MODELS = {"serial": "anc300", "can": "firmware_sim"}
+"""The amplifier model a transport gets when the configuration names none."""
 DEFAULT_PART = "300x300x50"
 
 
@@ -84,11 +93,12 @@ def default_socket_path() -> Path:
 @dataclass(frozen=True)
 class AmplifierConfig:
     transport: str = "serial"
+    model: str = "anc300"
     port: str | None = None
     axis: int = 1
     timeout_s: float = 1.0
     password: str = "123456"
-    limits: AmplifierLimits = field(default_factory=AmplifierLimits)
+    limits: AmplifierLimits = field(default_factory=lambda: AMPLIFIER_MODELS["anc300"])
     can: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -119,10 +129,15 @@ class DaemonConfig:
         return self.state_dir / "feeder.sqlite"
 
     def with_transport(self, transport: str) -> DaemonConfig:
+        """The same configuration over ``transport``; an embedded default also takes that
+        transport's default amplifier model."""
         if transport not in TRANSPORTS:
             raise InputError("--transport", f"expected one of {', '.join(TRANSPORTS)}")
-        return dataclasses.replace(
-            self, amplifier=dataclasses.replace(self.amplifier, transport=transport))
+        amp = dataclasses.replace(self.amplifier, transport=transport)
+        if self.amplifier == AmplifierConfig():
+            model = DEFAULT_MODELS[transport]
+            amp = dataclasses.replace(amp, model=model, limits=AMPLIFIER_MODELS[model])
+        return dataclasses.replace(self, amplifier=amp)
 
 
 def _table(doc: dict[str, Any], name: str, where: str) -> dict[str, Any]:
@@ -172,6 +187,11 @@ def load_config(path: Path | None) -> DaemonConfig:
     axis = amp.get("axis", 1)
     if not isinstance(axis, int) or isinstance(axis, bool) or axis < 1:
         raise InputError(where, f"amplifier.axis must be a positive integer, got {axis!r}")
+    model = str(_string(amp, "model", where, DEFAULT_MODELS[str(transport)]))
+    try:
+        rating = amplifier_model(model)
+    except InputError as err:
+        raise InputError(where, f"amplifier.model: {err.message}") from None
     limits_t = _table(amp, "limits", where)
     known_limits = {f.name for f in dataclasses.fields(AmplifierLimits)}
     for key in limits_t:
@@ -180,17 +200,22 @@ def load_config(path: Path | None) -> DaemonConfig:
                              f"{', '.join(sorted(known_limits))}")
         _number(limits_t, key, where, 0.0)
     try:
-        limits = AmplifierLimits(**{k: float(v) for k, v in limits_t.items()})
+        limits = dataclasses.replace(rating, **{k: float(v) for k, v in limits_t.items()})
+        within_rating(limits, rating, model)
     except InputError as err:
         raise InputError(where, f"amplifier.limits.{err.field}: {err.message}") from None
     amplifier = AmplifierConfig(
-        transport=str(transport), port=_string(amp, "port", where, None), axis=axis,
+        transport=str(transport), model=model, port=_string(amp, "port", where, None), axis=axis,
         timeout_s=_number(amp, "timeout_s", where, 1.0, positive=True),
         password=str(_string(amp, "password", where, "123456")),
         limits=limits, can=dict(can),
     )
 
     sensor = _table(doc, "sensor", where)
+    sensor_address = _string(sensor, "address", where, None)
+    if sensor_address is not None and not sensor_address.startswith("socket://"):
+        raise InputError(where, f"sensor.address must be a socket://HOST:PORT URL (the "
+                         f"amplifier's address syntax), got {sensor_address!r}")
     sim = _table(doc, "simulator", where)
     sim_args = sim.get("args", [])
     if not (isinstance(sim_args, list) and all(isinstance(a, str) for a in sim_args)):
@@ -227,7 +252,7 @@ def load_config(path: Path | None) -> DaemonConfig:
     base = DaemonConfig()
     return DaemonConfig(
         amplifier=amplifier,
-        sensor_address=_string(sensor, "address", where, None),
+        sensor_address=sensor_address,
         sensor_timeout_s=_number(sensor, "timeout_s", where, 1.0, positive=True),
         simulator_args=tuple(sim_args),
         part=part,

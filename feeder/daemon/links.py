@@ -54,6 +54,7 @@ class DriverLinks:
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "transport": self.config.amplifier.transport,
+            "amplifier_model": self.config.amplifier.model,
             "amplifier": self.amplifier_address, "sensor": self.sensor_address,
             "simulated": self.simulator is not None,
         }
@@ -72,7 +73,7 @@ class DriverLinks:
 def simulator_args(config: DaemonConfig) -> list[str]:
     """firmware_sim's command line for this configuration (its world = our part)."""
     limits = config.amplifier.limits
-    args = ["--console", "pty", "--sensor", "tcp:127.0.0.1:0",
+    args = ["--console", "pty", "--dialect", "anc300", "--sensor", "tcp:127.0.0.1:0",
             "--part", config.part.label, "--support", config.support.kind,
             "--v-max", repr(limits.v_max_v), "--current-a", repr(limits.current_limit_a),
             "--slew-v-per-s", repr(limits.slew_rate_v_per_s),

@@ -276,6 +276,7 @@ class Daemon:
                 reached_m=result.reached_m, steps=result.steps, bursts=result.bursts,
                 step_forward_m=est[f"{COARSE}/{FORWARD}"]["step_m"],
                 step_backward_m=est[f"{COARSE}/{BACKWARD}"]["step_m"],
+                steps_estimated=result.steps_estimated,
             )
 
     def _refuse_queued(self, job: Job, reason: str) -> None:
@@ -449,6 +450,7 @@ class Daemon:
         confirmed = loop.position_m is not None
         return {
             "state": state,
+            "loop_state": loop.state,
             "position_m": loop.position_m,
             "position_state": "confirmed" if confirmed else "uncertain",
             "last_known_position_m": None if last_known is None else last_known.position_m,

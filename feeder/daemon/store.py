@@ -17,7 +17,7 @@ from typing import Any
 
 from feeder.errors import FeederError
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (
@@ -47,7 +47,8 @@ CREATE TABLE IF NOT EXISTS moves (
     status TEXT NOT NULL,
     reason TEXT NOT NULL DEFAULT '',
     step_forward_m REAL,
-    step_backward_m REAL
+    step_backward_m REAL,
+    steps_estimated INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS position (
     id INTEGER PRIMARY KEY CHECK (id = 1),
@@ -67,12 +68,21 @@ COMMIT;
 """
 """Version 2 learns a per-burst offset beside the step; old rows get the seed's offset prior."""
 
+_MIGRATE_2_TO_3 = """
+BEGIN IMMEDIATE;
+{alter}
+UPDATE meta SET value = '3' WHERE key = 'schema_version';
+COMMIT;
+"""
+"""Version 3 marks moves whose step count was estimated from time (a stop cut a burst on a
+drive that counts no steps, e.g. the ANC300)."""
+
 CALIBRATION_COLUMNS = ("key, step_m, variance_m2, steps, updated_s, offset_m, offset_variance_m2,"
                        " covariance_m2")
 
 MOVE_COLUMNS = (
     "id", "started_s", "finished_s", "start_m", "target_m", "reached_m", "error_m",
-    "steps", "bursts", "status", "reason", "step_forward_m", "step_backward_m",
+    "steps", "bursts", "status", "reason", "step_forward_m", "step_backward_m", "steps_estimated",
 )
 
 
@@ -124,8 +134,14 @@ class Store:
                 self._set_meta("schema_version", str(SCHEMA_VERSION))
             elif int(version) > SCHEMA_VERSION:
                 raise StoreError(f"{self.path}: schema version {version} is newer than this feeder")
-            elif int(version) == 1:
-                self._conn.executescript(_MIGRATE_1_TO_2)
+            else:
+                if int(version) == 1:
+                    self._conn.executescript(_MIGRATE_1_TO_2)
+                if int(version) <= 2:
+                    columns = {r[1] for r in self._conn.execute("PRAGMA table_info(moves)")}
+                    alter = ("" if "steps_estimated" in columns else "ALTER TABLE moves ADD "
+                             "COLUMN steps_estimated INTEGER NOT NULL DEFAULT 0;")
+                    self._conn.executescript(_MIGRATE_2_TO_3.format(alter=alter))
         except sqlite3.DatabaseError as err:
             raise StoreError(f"{self.path}: {err}") from err
         self.path.chmod(0o600)
@@ -195,15 +211,17 @@ class Store:
         bursts: int,
         step_forward_m: float | None,
         step_backward_m: float | None,
+        steps_estimated: bool = False,
     ) -> None:
         """Close a move: status ``done``/``stopped``/``stalled``/``limit``/``fault``."""
         rows = self._read("SELECT target_m FROM moves WHERE id = ?", (move_id,))
         error = None if reached_m is None or not rows else reached_m - float(rows[0][0])
         self._write(
             "UPDATE moves SET finished_s = ?, reached_m = ?, error_m = ?, steps = ?, bursts = ?,"
-            " status = ?, reason = ?, step_forward_m = ?, step_backward_m = ? WHERE id = ?",
+            " status = ?, reason = ?, step_forward_m = ?, step_backward_m = ?, steps_estimated = ?"
+            " WHERE id = ?",
             (time.time(), reached_m, error, steps, bursts, status, reason,
-             step_forward_m, step_backward_m, move_id),
+             step_forward_m, step_backward_m, int(steps_estimated), move_id),
         )
 
     def interrupt_running_moves(self) -> list[int]:
@@ -224,11 +242,11 @@ class Store:
         rows = self._read(
             f"SELECT {', '.join(MOVE_COLUMNS)} FROM moves ORDER BY id DESC LIMIT ?", (limit,)
         )
-        return [dict(zip(MOVE_COLUMNS, row, strict=True)) for row in reversed(rows)]
+        return [_move_row(row) for row in reversed(rows)]
 
     def move(self, move_id: int) -> dict[str, Any] | None:
         rows = self._read(f"SELECT {', '.join(MOVE_COLUMNS)} FROM moves WHERE id = ?", (move_id,))
-        return dict(zip(MOVE_COLUMNS, rows[0], strict=True)) if rows else None
+        return _move_row(rows[0]) if rows else None
 
     # -- position ---------------------------------------------------------
     def save_position(self, position_m: float) -> None:
@@ -240,3 +258,9 @@ class Store:
     def position(self) -> KnownPosition | None:
         rows = self._read("SELECT position_m, updated_s FROM position WHERE id = 1")
         return KnownPosition(*rows[0]) if rows else None
+
+
+def _move_row(row: tuple[Any, ...]) -> dict[str, Any]:
+    out = dict(zip(MOVE_COLUMNS, row, strict=True))
+    out["steps_estimated"] = bool(out["steps_estimated"])
+    return out

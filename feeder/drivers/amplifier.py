@@ -50,6 +50,10 @@ class AmplifierStatus:
     step_counter: signed count of steps executed since power-up (+ forward).
     moving: a step burst or continuous stepping is in progress.
     fault_word: bit field, 0 = healthy; ``faults`` names the bits that are set.
+    counted_by: who counted ``step_counter``: ``drive`` (the amplifier counts the
+        periods it plays), ``host`` (the driver's count of what it commanded; an
+        ANC300 counts nothing) or ``estimated`` (a stop cut a burst short and the
+        steps played were estimated from the time it ran).
     """
 
     mode: str
@@ -59,6 +63,7 @@ class AmplifierStatus:
     moving: bool
     fault_word: int = 0
     faults: tuple[str, ...] = field(default_factory=tuple)
+    counted_by: str = "drive"
 
 
 class Amplifier(ABC):
@@ -104,6 +109,15 @@ class Amplifier(ABC):
     @abstractmethod
     def status(self) -> AmplifierStatus:
         """Read the axis' state."""
+
+    def steps_played(self) -> tuple[int, bool]:
+        """(signed steps played since the driver started, whether that is an estimate).
+
+        Drives that count steps read their counter; hosts of drives that do not
+        (the ANC300) count what they commanded and estimate a cut burst from time.
+        """
+        status = self.status()
+        return status.step_counter, status.counted_by == "estimated"
 
     @abstractmethod
     def close(self) -> None:

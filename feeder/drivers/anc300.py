@@ -14,14 +14,18 @@ Protocol: docs/anc300-protocol.md.
 - :class:`Anc300Amplifier` is one axis behind a link, implementing
   :class:`~feeder.drivers.amplifier.Amplifier`.
 
-On a real ANC300 pass ``extensions=False``: the flyback is then uploaded as
-256-point ``setpu``/``setpd`` tables (:meth:`feeder.waveform.Waveform.anc300_tables`),
-``wait`` uses ``stepw``, the step counter is the driver's own sum of the
-steps it commanded and ``moving`` is always False (the ANC300 reports neither;
-no fault word either).  Example::
+The driver speaks only a real ANC300's verbs
+(:data:`feeder.protocol.anc300.MOVE_PATH`), so it drives an attocube ANC300
+and firmware_sim alike: the flyback goes up as 256-point ``setpu``/``setpd``
+tables (:meth:`feeder.waveform.Waveform.anc300_tables`, uploaded when they
+change); the end of a burst is N/f after the step command was acknowledged,
+confirmed with ``stepw``; the step counter is the driver's own count of the
+steps it commanded, and after a ``stop`` mid-burst the steps played are
+*estimated* from the time the burst ran (``AmplifierStatus.counted_by`` says
+so): the ANC300 reports neither a counter nor a fault word.  Example::
 
     link = Anc300Link("socket://192.168.1.2:7230", password="123456")
-    with Anc300Amplifier(link, axis=1, extensions=False) as amp:
+    with Anc300Amplifier(link, axis=1) as amp:
         amp.apply(DriveSettings(frequency_hz=100, amplitude_v=40.0))
         amp.enable(); amp.step(10); amp.wait(5.0); amp.ground()
 """
@@ -29,9 +33,11 @@ no fault word either).  Example::
 from __future__ import annotations
 
 import contextlib
+import math
 import re
 import threading
 import time
+from collections.abc import Callable
 
 import serial
 
@@ -42,12 +48,13 @@ from feeder.drivers.amplifier import (
     AmplifierStatus,
     DriveSettings,
 )
+from feeder.protocol.anc300 import DEFAULT_PASSWORD
 from feeder.waveform import Waveform
 
-DEFAULT_PASSWORD = "123456"
 CONNECT_SETTLE_S = 0.05
 """ANC300 clients wait this long after connecting, then flush the greeting."""
-POLL_S = 0.01
+BURST_END_MARGIN_S = 0.002
+"""``moving`` stays True this long past N/f (the burst starts at the DAC's next sample)."""
 _VALUE = re.compile(r"^(\w+) = (\S+)(?: (\S+))?$")
 
 LINK_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError)
@@ -199,15 +206,24 @@ class Anc300Link:
 class Anc300Amplifier(Amplifier):
     """One axis of an ANC300-compatible amplifier behind an :class:`Anc300Link`.
 
-    extensions: use firmware_sim's extension verbs (``setfb``, ``getst``);
-    ``False`` for a real ANC300 (tables, ``stepw``, counted steps).
+    Only a real ANC300's verbs are sent (see the module docstring).  ``clock``
+    is the time base of the host's burst bookkeeping (``time.monotonic``).
     """
 
-    def __init__(self, link: Anc300Link, axis: int = 1, extensions: bool = True) -> None:
+    counts_steps = False
+
+    def __init__(self, link: Anc300Link, axis: int = 1,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.link = link
         self.axis = axis
-        self.extensions = extensions
-        self._commanded_steps = 0
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._counter = 0               # steps commanded (played, once a burst is over)
+        self._tables: tuple[list[int], list[int]] | None = None   # what the device holds
+        self._frequency_hz = 0.0
+        self._burst: tuple[float, int] | None = None   # (start s, signed steps) while it runs
+        self._estimated = False
+        self._continuous = False        # stepu/stepd c: never ends, so never ``stepw``
 
     @classmethod
     def open(cls, url: str, axis: int = 1, **link_options: object) -> Anc300Amplifier:
@@ -217,79 +233,114 @@ class Anc300Amplifier(Amplifier):
     def apply(self, settings: DriveSettings) -> None:
         a = self.axis
         self.link.query(f"setf {a} {settings.frequency_hz:.6f}")
+        self._frequency_hz = settings.frequency_hz
         self.link.query(f"setv {a} {settings.amplitude_v:.6f}")
-        if self.extensions:
-            seconds = settings.flyback_s or 0.0
-            self.link.query(f"setfb {a} {settings.flyback_shape} {seconds:.9f}")
-        else:
-            up, down = Waveform(frequency_hz=settings.frequency_hz, amplitude_vpp=1.0,
-                                flyback_shape=settings.flyback_shape,
-                                flyback_s=settings.flyback_s).anc300_tables()
-            self.link.query(f"setpu {a} " + " ".join(map(str, up)))
-            self.link.query(f"setpd {a} " + " ".join(map(str, down)))
+        tables = Waveform(frequency_hz=settings.frequency_hz, amplitude_vpp=1.0,
+                          flyback_shape=settings.flyback_shape,
+                          flyback_s=settings.flyback_s).anc300_tables()
+        if tables != self._tables:
+            self._tables = None          # unknown until both went through
+            self.link.query(f"setpu {a} " + " ".join(map(str, tables[0])))
+            self.link.query(f"setpd {a} " + " ".join(map(str, tables[1])))
+            self._tables = tables
 
     def step(self, count: int) -> None:
         if count == 0:
             raise AmplifierError("step count 0 refused (stepu 0 runs forever on an ANC300)")
         verb = "stepu" if count > 0 else "stepd"
         self.link.query(f"{verb} {self.axis} {abs(count)}")
-        self._commanded_steps += count
+        with self._lock:
+            self._settle_burst()
+            self._continuous = False
+            self._burst = (self._clock(), count)
+            self._counter += count
+            self._estimated = False
 
     def run_continuous(self, forward: bool) -> None:
         self.link.query(f"{'stepu' if forward else 'stepd'} {self.axis} c")
+        with self._lock:
+            self._cut_burst()
+            self._continuous = True
 
     def stop(self) -> None:
         self.link.query(f"stop {self.axis}")
+        with self._lock:
+            self._cut_burst()
 
     def wait(self, timeout_s: float) -> bool:
-        if not self.extensions:
-            try:
-                self.link.query(f"stepw {self.axis}", timeout_s=timeout_s)
-            except AmplifierLinkLost:
-                return False
-            return True
+        """Sleep until N/f after the burst started, then confirm with ``stepw``."""
         deadline = time.monotonic() + timeout_s
-        while self.status().moving:
-            if time.monotonic() >= deadline:
-                return False
-            time.sleep(POLL_S)
+        with self._lock:
+            remaining = math.inf if self._continuous else self._remaining_s()
+        if remaining > timeout_s:
+            time.sleep(timeout_s)
+            return False
+        time.sleep(max(0.0, remaining))
+        try:
+            self.link.query(f"stepw {self.axis}", timeout_s=max(0.05, deadline - time.monotonic()))
+        except AmplifierLinkLost:
+            return False
+        with self._lock:
+            self._burst = None
         return True
 
     def ground(self) -> None:
         self.link.query(f"setm {self.axis} gnd")
+        with self._lock:
+            self._cut_burst()
 
     def enable(self) -> None:
         self.link.query(f"setm {self.axis} stp")
 
+    def steps_played(self) -> tuple[int, bool]:
+        """(signed steps played since this driver started, estimated?) — no I/O."""
+        with self._lock:
+            self._settle_burst()
+            if self._burst is not None:
+                start, count = self._burst
+                return self._counter - count + self._played(start, count), True
+            return self._counter, self._estimated
+
     def status(self) -> AmplifierStatus:
-        if not self.extensions:
-            return AmplifierStatus(
-                mode=self.link.value(f"getm {self.axis}", "mode"),
-                frequency_hz=float(self.link.value(f"getf {self.axis}", "frequency")),
-                amplitude_v=float(self.link.value(f"getv {self.axis}", "voltage")),
-                step_counter=self._commanded_steps, moving=False)
-        fields: dict[str, str] = {}
-        for line in self.link.query(f"getst {self.axis}"):
-            match = _VALUE.match(line)
-            if match:
-                fields[match.group(1)] = match.group(2)
-        try:
-            faults = fields["faultnames"]
-            return AmplifierStatus(
-                mode=fields["mode"], frequency_hz=float(fields["frequency"]),
-                amplitude_v=float(fields["voltage"]), step_counter=int(fields["steps"]),
-                moving=fields["moving"] == "1", fault_word=int(fields["faults"]),
-                faults=() if faults == "none" else tuple(faults.split(",")))
-        except (KeyError, ValueError) as exc:
-            self.link.close()
-            raise AmplifierLinkLost(f"{self.link.url}: getst: unreadable reply {fields}") from exc
-
-    def __enter__(self) -> Anc300Amplifier:
-        return self
-
-    def clear_faults(self) -> None:
-        """Clear the latched fault word (firmware_sim extension ``clrf``)."""
-        self.link.query(f"clrf {self.axis}")
+        mode = self.link.value(f"getm {self.axis}", "mode")
+        frequency = float(self.link.value(f"getf {self.axis}", "frequency"))
+        amplitude = float(self.link.value(f"getv {self.axis}", "voltage"))
+        counter, estimated = self.steps_played()
+        with self._lock:
+            moving = self._burst is not None or self._continuous
+        return AmplifierStatus(mode=mode, frequency_hz=frequency, amplitude_v=amplitude,
+                               step_counter=counter, moving=moving,
+                               counted_by="estimated" if estimated else "host")
 
     def close(self) -> None:
         self.link.close()
+
+    # -- burst bookkeeping (lock held) -------------------------------------------
+
+    def _remaining_s(self) -> float:
+        if self._burst is None or self._frequency_hz <= 0:
+            return 0.0
+        start, count = self._burst
+        return start + abs(count) / self._frequency_hz + BURST_END_MARGIN_S - self._clock()
+
+    def _played(self, start: float, count: int) -> int:
+        """Steps of a burst played by now, from the time it ran (sign of ``count``)."""
+        if self._frequency_hz <= 0:
+            return 0
+        done = min(abs(count), max(0, math.floor((self._clock() - start) * self._frequency_hz)))
+        return done if count > 0 else -done
+
+    def _settle_burst(self) -> None:
+        """Forget a burst that is over by the clock (all its steps played)."""
+        if self._burst is not None and self._remaining_s() <= 0:
+            self._burst = None
+
+    def _cut_burst(self) -> None:
+        """The output stopped now: keep only the steps played so far (estimated)."""
+        self._continuous = False
+        self._settle_burst()
+        if self._burst is not None:
+            start, count = self._burst
+            self._counter += self._played(start, count) - count
+            self._burst = None
+            self._estimated = True

@@ -8,6 +8,12 @@ a ramp of slope I_max/C: the *current-limited* flyback, t_f ≈ C·ΔV/I_max.
 Defaults (document of record: docs/plant.md): 0–200 V rails (the paper drives
 200 Vpp), 0.55 A peak current and 2 V/µs slew, which is a mid-range
 commercial piezo driver (0.1–1 A class); 1 Hz–2 kHz stepping frequency.
+
+:data:`AMPLIFIER_MODELS` names the ratings a planner plans within: ``anc300``
+(attocube ANC300 with ANM150 stepping modules: 0–150 V, 1 Hz–10 kHz, 256-point
+8-bit waveform tables; its current and slew limits are not published in the
+console, so the mid-range defaults stand until ``[amplifier.limits]`` says
+better) and ``firmware_sim`` (the feeder's own amplifier, the paper's 200 Vpp).
 """
 
 from __future__ import annotations
@@ -129,3 +135,36 @@ class OutputStage:
                 window *= 2
         self.voltage_v = y
         return out
+
+
+AMPLIFIER_MODELS: dict[str, AmplifierLimits] = {
+    "anc300": AmplifierLimits(v_max_v=150.0, max_frequency_hz=10_000.0),
+    "firmware_sim": AmplifierLimits(),
+}
+"""Named amplifier ratings (``[amplifier] model`` in the daemon's configuration)."""
+
+
+def amplifier_model(name: str, field: str = "model") -> AmplifierLimits:
+    """The rating of a named amplifier model; :class:`InputError` names the known ones."""
+    try:
+        return AMPLIFIER_MODELS[name]
+    except KeyError:
+        raise InputError(field, f"unknown amplifier model {name!r}; known: "
+                         f"{', '.join(AMPLIFIER_MODELS)}") from None
+
+
+def within_rating(limits: AmplifierLimits, rating: AmplifierLimits, model: str) -> None:
+    """Refuse ``limits`` that ask more of the amplifier than its model's ``rating`` gives."""
+    checks = (
+        ("v_max_v", limits.v_max_v > rating.v_max_v, rating.v_max_v, "V"),
+        ("v_min_v", limits.v_min_v < rating.v_min_v, rating.v_min_v, "V"),
+        ("max_frequency_hz", limits.max_frequency_hz > rating.max_frequency_hz,
+         rating.max_frequency_hz, "Hz"),
+        ("min_frequency_hz", limits.min_frequency_hz < rating.min_frequency_hz,
+         rating.min_frequency_hz, "Hz"),
+    )
+    for name, beyond, value, unit in checks:
+        if beyond:
+            raise InputError(name, f"{getattr(limits, name):g} {unit} is beyond the {model}'s "
+                             f"rating ({value:g} {unit})")
+

@@ -1,0 +1,172 @@
+"""The I/O half of the loop: amplifier round trips and record writes, off the tick's thread.
+
+:class:`AmplifierExecutor` runs the policy's :class:`~feeder.daemon.policy.Command`s
+on a worker thread, one at a time and in order, and reports each as a
+:class:`~feeder.daemon.policy.Completion`.  A ``stop`` jumps the queue: it
+drops the commands not yet started and goes out next (on a serial link it
+still waits for the one round trip in flight, never for a burst: bursts end
+by the clock, ``stepw`` is only sent once N/f has passed).
+
+:class:`RecordWriter` runs the store's writes (move records, positions,
+calibration) on its own thread in order, so a slow commit never delays a tick.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import sqlite3
+import threading
+import time
+from collections.abc import Callable
+
+from feeder.daemon.policy import Command, Completion, StepMode
+from feeder.drivers.amplifier import Amplifier, AmplifierError, AmplifierLinkLost
+from feeder.errors import FeederError
+
+log = logging.getLogger(__name__)
+
+CLEARABLE_FAULTS = frozenset({"watchdog"})
+"""Latched amplifier faults a new move may clear (transient: the firmware's tick was late)."""
+
+
+class AmplifierExecutor:
+    """Runs amplifier commands on a worker thread; completions come back through :meth:`take`."""
+
+    def __init__(self, amplifier: Amplifier, modes: dict[str, StepMode],
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.amplifier = amplifier
+        self.modes = modes
+        self._clock = clock
+        self._cond = threading.Condition()
+        self._queue: collections.deque[Command] = collections.deque()
+        self._done: list[Completion] = []
+        self._closing = False
+        self._thread = threading.Thread(target=self._run, name="amplifier-executor", daemon=True)
+        self._thread.start()
+
+    def submit(self, command: Command) -> None:
+        """Queue ``command``; a ``stop`` drops what is queued and goes first."""
+        with self._cond:
+            if command.kind == "stop":
+                self._queue.clear()
+                self._queue.appendleft(command)
+            else:
+                self._queue.append(command)
+            self._cond.notify()
+
+    def take(self) -> list[Completion]:
+        """Completions since the last call, in order."""
+        with self._cond:
+            out, self._done = self._done, []
+        return out
+
+    def replace(self, amplifier: Amplifier) -> None:
+        """Use a new link (after a reconnect); queued commands are dropped."""
+        with self._cond:
+            self._queue.clear()
+            self.amplifier = amplifier
+
+    def close(self) -> None:
+        with self._cond:
+            self._closing = True
+            self._queue.clear()
+            self._cond.notify()
+        self._thread.join(timeout=5.0)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._queue or self._closing)
+                if self._closing:
+                    return
+                command = self._queue.popleft()
+                amplifier = self.amplifier
+            completion = self._execute(amplifier, command)
+            with self._cond:
+                self._done.append(completion)
+
+    def _execute(self, amp: Amplifier, command: Command) -> Completion:
+        try:
+            counter: int | None = None
+            estimated = False
+            if command.kind == "enable":
+                self._enable(amp)
+            elif command.kind == "apply":
+                amp.apply(self.modes[command.mode].settings)
+            elif command.kind == "step":
+                counter = amp.steps_played()[0]
+                amp.step(command.steps)
+            elif command.kind == "confirm_end":
+                if not amp.wait(command.timeout_s):
+                    raise AmplifierError("the amplifier did not finish the burst in time")
+            elif command.kind == "stop":
+                amp.stop()
+                counter, estimated = amp.steps_played()
+            else:
+                raise ValueError(f"unknown command {command.kind!r}")
+            return Completion(command, self._clock(), counter=counter, estimated=estimated)
+        except AmplifierLinkLost as err:
+            return Completion(command, self._clock(), error=str(err), link_lost=True)
+        except AmplifierError as err:
+            return Completion(command, self._clock(), error=str(err))
+        except Exception as err:
+            # an unforeseen way is reported as a lost link (grounded, reconnected), never lost
+            log.exception("amplifier command %s failed unexpectedly", command.kind)
+            return Completion(command, self._clock(), error=f"{type(err).__name__}: {err}",
+                              link_lost=True)
+
+    @staticmethod
+    def _enable(amp: Amplifier) -> None:
+        """Leave ground.  A latched watchdog fault (a late firmware tick) is cleared, as the
+        new command is the user's; any other fault is reported."""
+        status = amp.status()
+        if status.fault_word:
+            clear = getattr(amp, "clear_faults", None)
+            others = set(status.faults) - CLEARABLE_FAULTS
+            if clear is None or others or not status.faults:
+                names = ", ".join(status.faults) or hex(status.fault_word)
+                raise AmplifierError(f"amplifier fault latched: {names}")
+            clear()
+        amp.enable()
+
+
+class RecordWriter:
+    """Runs record writes (SQLite) in order on one thread; :meth:`put` never blocks."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._queue: collections.deque[Callable[[], None]] = collections.deque()
+        self._closing = False
+        self._thread = threading.Thread(target=self._run, name="record-writer", daemon=True)
+        self._thread.start()
+
+    def put(self, write: Callable[[], None]) -> None:
+        with self._cond:
+            self._queue.append(write)
+            self._cond.notify()
+
+    def flush(self, timeout_s: float = 10.0) -> bool:
+        """Wait until everything queued so far is written; False on timeout."""
+        done = threading.Event()
+        self.put(done.set)
+        return done.wait(timeout_s)
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Write what is queued, then stop."""
+        with self._cond:
+            self._closing = True
+            self._cond.notify()
+        self._thread.join(timeout=timeout_s)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._queue or self._closing)
+                if not self._queue:
+                    return
+                write = self._queue.popleft()
+            try:
+                write()
+            except (FeederError, sqlite3.Error, OSError) as err:
+                log.error("writing the record failed: %s", err)

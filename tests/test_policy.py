@@ -1,0 +1,259 @@
+"""The loop's policy as a pure state machine: every transition, a fake clock, no I/O, no sleeps."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import pytest
+
+from feeder.daemon.policy import (
+    COARSE,
+    FINE,
+    Command,
+    Completion,
+    Fault,
+    Finished,
+    Job,
+    LoopSettings,
+    Output,
+    Policy,
+    SavePosition,
+    Started,
+    StepMode,
+)
+from feeder.drivers.amplifier import DriveSettings
+
+MODES = {
+    COARSE: StepMode(COARSE, DriveSettings(1000.0, 100.0), 3.0e-6, (2.8e-6, 3.2e-6)),
+    FINE: StepMode(FINE, DriveSettings(1000.0, 40.0), 0.8e-6, (0.7e-6, 0.9e-6)),
+}
+SETTINGS = LoopSettings(rate_hz=100.0, tolerance_m=1e-6, min_position_m=-1e-3,
+                        max_position_m=1e-3, settle_s=0.02, average_samples=3,
+                        sensor_noise_m=0.05e-6, hold_timeout_s=1.0)
+DT = 0.01
+
+
+@dataclass
+class Rig:
+    """A policy, a fake clock and a part that sits still unless told otherwise."""
+
+    policy: Policy = field(default_factory=lambda: Policy(MODES, SETTINGS))
+    now: float = 0.0
+    position_m: float = 0.0
+    outputs: list[Output] = field(default_factory=list)
+
+    def tick(self, sample: bool = True) -> list[Output]:
+        self.now += DT
+        if sample:
+            self.policy.on_sample(self.position_m, self.now)
+        out = self.policy.tick(self.now)
+        for o in out:
+            if isinstance(o, Started):
+                o.job.recorded = True
+        self.outputs += out
+        return out
+
+    def commands(self) -> list[Command]:
+        return [o for o in self.outputs if isinstance(o, Command)]
+
+    def complete(self, command: Command, **kw: object) -> None:
+        self.policy.on_completion(Completion(command, self.now, **kw))  # type: ignore[arg-type]
+
+    def run_until_command(self, kind: str, limit: int = 200) -> Command:
+        for _ in range(limit):
+            for o in self.tick():
+                if isinstance(o, Command) and o.kind == kind:
+                    return o
+        raise AssertionError(f"no {kind} command; outputs {self.outputs}")
+
+    def finished(self) -> Finished:
+        done = [o for o in self.outputs if isinstance(o, Finished)]
+        assert len(done) == 1, self.outputs
+        return done[0]
+
+
+def start_move(rig: Rig, target_m: float) -> Job:
+    job = Job("move", target_m=target_m)
+    assert rig.policy.submit(job, rig.now) is None
+    return job
+
+
+def to_first_burst(rig: Rig, target_m: float = 100e-6) -> tuple[Job, Command]:
+    """idle → moving (enable, apply) → a step command in flight."""
+    job = start_move(rig, target_m)
+    assert rig.policy.state == "moving"                     # the output is grounded
+    enable = rig.run_until_command("enable")
+    rig.complete(enable)
+    assert rig.policy.state == "settling"                   # leaving ground: measure again
+    apply = rig.run_until_command("apply")
+    assert apply.mode == COARSE
+    rig.complete(apply)
+    assert rig.policy.state == "settling"
+    step = rig.run_until_command("step")
+    assert step.steps > 0 and rig.policy.state == "moving"
+    return job, step
+
+
+def test_a_move_goes_idle_moving_settling_and_back_to_idle_done() -> None:
+    rig = Rig()
+    assert rig.policy.state == "idle"
+    job, step = to_first_burst(rig, 30e-6)
+    rig.complete(step, counter=0)
+    # the burst plays for steps/f; no confirmation before that
+    burst_s = step.steps / 1000.0
+    while rig.now < burst_s - DT:
+        assert not [o for o in rig.tick() if isinstance(o, Command)]
+    rig.position_m = step.steps * 3.0e-6
+    confirm = rig.run_until_command("confirm_end")
+    rig.complete(confirm)
+    assert rig.policy.state == "settling"
+    while rig.policy.job is not None:       # fine steps until within tolerance
+        out = rig.tick()
+        for o in out:
+            if isinstance(o, Command):
+                if o.kind == "step":
+                    rig.position_m += o.steps * (3.0e-6 if rig.policy._applied == COARSE
+                                                 else 0.8e-6)
+                rig.complete(o, counter=0)
+        assert rig.now < 10
+    result = rig.finished().result
+    assert result.status == "done" and abs(result.error_m or 1) <= 1e-6
+    assert rig.policy.state == "idle" and job.result is None   # the loop sets it, not the policy
+    assert any(isinstance(o, SavePosition) for o in rig.outputs)
+
+
+def test_target_outside_travel_is_refused_and_nothing_is_commanded() -> None:
+    rig = Rig()
+    reason = rig.policy.submit(Job("move", target_m=2e-3), rig.now)
+    assert reason is not None and "travel limits" in reason
+    rig.tick()
+    assert rig.policy.state == "idle" and not rig.commands()
+
+
+def test_stop_while_settling_holds_until_the_part_reads_settled() -> None:
+    rig = Rig()
+    to_first_burst(rig)
+    rig.policy.request_stop("operator")
+    out = rig.tick()
+    stop = [o for o in out if isinstance(o, Command)]
+    assert [c.kind for c in stop] == ["stop"]           # a step was in flight: stop it
+    rig.complete(stop[0], counter=0)
+    assert rig.policy.state == "holding"
+    # the part still drifts: no result while the readings disagree
+    for k in range(10):
+        rig.position_m = 10e-6 + k * 2e-6
+        rig.tick()
+    assert not any(isinstance(o, Finished) for o in rig.outputs)
+    rig.position_m = 40e-6
+    for _ in range(6):
+        rig.tick()
+    result = rig.finished().result
+    assert result.status == "stopped" and result.reason == "operator"
+    assert result.reached_m == pytest.approx(40e-6)
+    assert rig.policy.state == "idle"
+
+
+def test_stop_when_nothing_plays_holds_without_a_stop_command() -> None:
+    rig = Rig()
+    start_move(rig, 50e-6)
+    enable = rig.run_until_command("enable")
+    rig.complete(enable)
+    rig.policy.request_stop()
+    for _ in range(6):
+        rig.tick()
+    assert [c.kind for c in rig.commands()] == ["enable"]
+    assert rig.finished().result.status == "stopped"
+
+
+def test_stop_mid_burst_counts_the_steps_actually_played() -> None:
+    rig = Rig()
+    _job, step = to_first_burst(rig, 900e-6)
+    rig.complete(step, counter=1000)
+    rig.tick()
+    rig.policy.request_stop()
+    stop = next(o for o in rig.tick() if isinstance(o, Command))
+    rig.complete(stop, counter=1000 + 12, estimated=True)
+    for _ in range(6):
+        rig.tick()
+    result = rig.finished().result
+    assert result.steps == 12 and result.steps_estimated and result.bursts == 1
+
+
+def test_hold_times_out_when_the_part_never_settles() -> None:
+    rig = Rig()
+    to_first_burst(rig)
+    rig.policy.request_stop()
+    stop = next(o for o in rig.tick() if isinstance(o, Command))
+    rig.complete(stop, counter=0)
+    for k in range(int(SETTINGS.hold_timeout_s / DT) + 5):
+        rig.position_m = k * 5e-6
+        rig.tick()
+    result = rig.finished().result
+    assert result.status == "stopped" and "did not settle" in result.reason
+
+
+def test_fault_while_moving_ends_the_job_and_refuses_the_next() -> None:
+    rig = Rig()
+    _, step = to_first_burst(rig)
+    rig.complete(step, error="/dev/pts/3: stepu: timeout", link_lost=True)
+    out = rig.tick()
+    assert rig.policy.state == "fault"
+    faults = [o for o in rig.outputs if isinstance(o, Fault)]
+    assert faults and faults[0].link == "amplifier"
+    assert rig.finished().result.status == "fault"
+    assert not [o for o in out if isinstance(o, Command)]
+    refused = rig.policy.submit(Job("move", target_m=0.0), rig.now)
+    assert refused is not None and "fault" in refused
+    rig.policy.link_restored()
+    assert rig.policy.state == "idle"
+    assert rig.policy.submit(Job("move", target_m=0.0), rig.now) is None
+
+
+def test_an_amplifier_refusal_ends_the_job_and_checks_the_output_next_time() -> None:
+    rig = Rig()
+    _, step = to_first_burst(rig)
+    rig.complete(step, error="Axis in wrong mode")
+    rig.tick()
+    assert rig.finished().result.status == "fault"
+    assert rig.policy.state == "idle"
+    start_move(rig, 0.0)
+    assert rig.run_until_command("enable").kind == "enable"
+
+
+def test_sensor_loss_stops_the_output_and_faults() -> None:
+    rig = Rig()
+    to_first_burst(rig)
+    rig.policy.on_sensor_lost("camera gone")
+    rig.tick(sample=False)
+    assert [o.kind for o in rig.outputs if isinstance(o, Command)][-1] == "stop"
+    assert rig.policy.state == "fault" and rig.policy.position_m is None
+    assert rig.finished().result.status == "fault"
+    assert "sensor lost" in rig.finished().result.reason
+    rig.policy.sensor_restored()
+    assert rig.policy.state == "idle" and rig.policy.position_m is None
+
+
+def test_part_seen_outside_limits_mid_burst_stops_and_ends_as_limit() -> None:
+    rig = Rig(policy=Policy(MODES, replace(SETTINGS, max_position_m=120e-6)))
+    _, step = to_first_burst(rig, 110e-6)
+    rig.complete(step, counter=0)
+    rig.position_m = 130e-6
+    stop = rig.run_until_command("stop")
+    rig.complete(stop, counter=5)
+    for _ in range(6):
+        rig.tick()
+    result = rig.finished().result
+    assert result.status == "limit" and result.reached_m == pytest.approx(130e-6)
+
+
+def test_no_step_before_the_record_is_written() -> None:
+    rig = Rig()
+    job = Job("move", target_m=100e-6)
+    assert rig.policy.submit(job, rig.now) is None
+    for _ in range(20):
+        rig.now += DT
+        rig.policy.on_sample(0.0, rig.now)
+        assert not [o for o in rig.policy.tick(rig.now) if isinstance(o, Command)]
+    assert rig.policy.state == "moving"
+    job.recorded = True
+    assert rig.run_until_command("enable").kind == "enable"
