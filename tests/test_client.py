@@ -103,6 +103,7 @@ def test_typed_moves_status_history_and_calibration(daemon) -> None:
     assert first.steps > 0 and first.move_id == 1 and first.duration_s > 0
     assert second.target_m == pytest.approx(first.reached_m - 50e-6, abs=0.5e-6)
     assert status.state == "idle" and status.position_state == "confirmed"
+    assert status.loop_state == "idle"
     assert status.position_m == pytest.approx(100e-6, abs=1.5e-6)
     assert status.travel_limits_m == (-1e-3, 1e-3) and status.tolerance_m == 1e-6
     assert status.last_result is not None and status.last_result.target_m == second.target_m
@@ -111,6 +112,7 @@ def test_typed_moves_status_history_and_calibration(daemon) -> None:
     assert [m.target_m for m in history] == [150e-6, second.target_m]
     assert [m.status for m in history] == ["done", "done"]
     assert history[0].steps == first.steps and history[0].reached_m == first.reached_m
+    assert not first.steps_estimated and not any(m.steps_estimated for m in history)
     assert calibrated.kind == "calibrate" and calibrated.done
     assert calibrated.estimates["coarse/forward"].steps >= first.estimates["coarse/forward"].steps + 8
 

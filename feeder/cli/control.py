@@ -105,7 +105,8 @@ def _print_result(result: MoveResult) -> None:
             if result.target_m is None
             else f" for target {_um(result.target_m)} (error {_um(result.error_m)})"
         )
-        + f", {result.steps} steps in {result.bursts} bursts, {result.duration_s:.2f} s"
+        + f", {result.steps} steps{' (estimated)' if result.steps_estimated else ''} in "
+        f"{result.bursts} bursts, {result.duration_s:.2f} s"
     )
 
 
@@ -214,6 +215,7 @@ def run_history(args: argparse.Namespace) -> int:
         print(
             f"#{m.id:<5} {m.status:<11} target {_um(m.target_m):>14} reached "
             f"{_um(m.reached_m):>14} error {_um(m.error_m):>11} steps {m.steps:>5}"
+            + (" (estimated)" if m.steps_estimated else "")
             + (f"  {m.reason}" if m.status != "done" else "")
         )
     return 0

@@ -117,8 +117,9 @@ class MoveResult:
 
     status: ``done``, ``stopped``, ``stalled``, ``limit``, ``oscillating``,
     ``unreachable``, ``fault`` or ``refused``; ``reason`` in words.  Positions in m,
-    ``duration_s`` in s; ``estimates`` the learned steps after it.  ``raw`` is the
-    daemon's object as it came (fields added later are there).
+    ``duration_s`` in s; ``estimates`` the learned steps after it; ``steps_estimated``:
+    a burst was cut short and its steps estimated from time.  ``raw`` is the daemon's
+    object as it came (fields added later are there).
     """
 
     kind: str
@@ -133,7 +134,8 @@ class MoveResult:
     duration_s: float
     estimates: dict[str, LearnedStep]
     move_id: int | None
-    raw: dict[str, Any] = field(repr=False, compare=False)
+    steps_estimated: bool = False
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def done(self) -> bool:
@@ -154,6 +156,7 @@ class MoveResult:
             duration_s=float(d["duration_s"]),
             estimates=_learned(d.get("estimates") or {}),
             move_id=d.get("move_id"),
+            steps_estimated=bool(d.get("steps_estimated", False)),
             raw=d,
         )
 
@@ -178,7 +181,9 @@ class StopResult:
 
 @dataclass(frozen=True)
 class Status:
-    """The daemon's state (``idle``, ``moving``, ``calibrating``, ``fault``, ...), m and s.
+    """The daemon's state (``idle``, ``moving``, ``calibrating``, ``fault``, ...), m and s;
+    ``loop_state`` the control policy's (``idle``, ``moving``, ``settling``, ``holding``,
+    ``fault``) where the daemon reports it.
 
     ``raw`` holds the whole reply (timing, waveforms, transport, ...).
     """
@@ -194,7 +199,8 @@ class Status:
     travel_limits_m: tuple[float, float]
     estimates: dict[str, LearnedStep]
     last_result: MoveResult | None
-    raw: dict[str, Any] = field(repr=False, compare=False)
+    loop_state: str | None = None
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Status:
@@ -212,6 +218,7 @@ class Status:
             travel_limits_m=(float(lo), float(hi)),
             estimates=_learned(d.get("estimates") or {}),
             last_result=None if last is None else MoveResult.from_dict(last),
+            loop_state=d.get("loop_state"),
             raw=d,
         )
 
@@ -233,7 +240,8 @@ class MoveRecord:
     reason: str
     step_forward_m: float | None
     step_backward_m: float | None
-    raw: dict[str, Any] = field(repr=False, compare=False)
+    steps_estimated: bool = False
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> MoveRecord:
@@ -251,6 +259,7 @@ class MoveRecord:
             reason=str(d["reason"]),
             step_forward_m=_opt(d.get("step_forward_m")),
             step_backward_m=_opt(d.get("step_backward_m")),
+            steps_estimated=bool(d.get("steps_estimated", False)),
             raw=d,
         )
 
