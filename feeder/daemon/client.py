@@ -52,7 +52,7 @@ MAX_LINE_BYTES = 64 * 1024
 MAX_REPLY_BYTES = 64 * MAX_LINE_BYTES
 """Longest reply line the client reads (histories and traces are long)."""
 DEFAULT_TIMEOUT_S = 10.0
-HEARTBEAT_S = 0.5
+HEARTBEAT_S = 0.25
 """Silence on a waiting move after which the client checks that the daemon still answers."""
 SHUTDOWN_POLL_S = 0.02
 
