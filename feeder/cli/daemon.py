@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import logging
 import signal
 import sys
 import threading
@@ -31,7 +32,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="extra firmware_sim argument (repeatable; e.g. --sim-arg=--seed=3)")
     parser.add_argument("--json", action="store_true",
                         help="print the ready object (socket, endpoints, ...) as JSON")
+    parser.add_argument("--log-level", choices=LOG_LEVELS, default="info",
+                        help="log to stderr and to daemon.log in the state directory "
+                             "(default %(default)s)")
     parser.set_defaults(handler=run)
+
+
+LOG_LEVELS = ("debug", "info", "warning", "error")
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+def setup_logging(level: str, log_file: Path) -> None:
+    """The daemon logs to stderr and to ``log_file`` (appended, owner-only)."""
+    log_file.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr),
+                                       logging.FileHandler(log_file, encoding="utf-8")]
+    log_file.chmod(0o600)
+    logging.basicConfig(level=level.upper(), format=LOG_FORMAT, handlers=handlers, force=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -45,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     if args.sim_arg:
         config = dataclasses.replace(config, simulator_args=(*config.simulator_args,
                                                              *args.sim_arg))
+    setup_logging(args.log_level, config.state_dir / "daemon.log")
     try:
         running = start_daemon(config)
     except (AmplifierError, SensorLost, StoreError, LaunchError) as err:

@@ -24,6 +24,8 @@ import contextlib
 import dataclasses
 import fcntl
 import json
+import logging
+import math
 import os
 import socket
 import stat
@@ -51,6 +53,8 @@ from feeder.daemon.store import Calibration, Store
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import InputError
+
+log = logging.getLogger(__name__)
 
 MAX_CLIENTS = 32
 CALIBRATION_STEPS = 20
@@ -268,6 +272,9 @@ class Daemon:
             job.record_id = self.store.begin_move(job.target_m, self.loop.position_m)
 
     def _record_end(self, job: Job, result: JobResult) -> None:
+        log.info("%s %s: %s (target %s m, reached %s m, %d steps in %d bursts)", job.kind,
+                 result.status, result.reason, result.target_m, result.reached_m, result.steps,
+                 result.bursts)
         self._save_estimates()
         if job.record_id is not None:
             est = result.estimates
@@ -296,6 +303,7 @@ class Daemon:
 
     # -- faults ----------------------------------------------------------------
     def _on_fault(self, kind: str, message: str) -> None:
+        log.error("%s link lost: %s; output grounded, reconnecting", kind, message)
         record: dict[str, Any] = {"link": kind, "message": message, "time_s": time.time()}
         with self._lock:
             self._faults.append(record)
@@ -341,6 +349,7 @@ class Daemon:
                 continue
             with self._lock:
                 record["reconnected_after_attempts"] = attempts
+            log.info("%s link restored after %d attempts", kind, attempts)
             break
         with self._lock:
             self._reconnecting.discard(kind)
@@ -366,10 +375,13 @@ class Daemon:
         value = request.get(key)
         if value is None:
             return None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value \
-                or abs(value) == float("inf"):
-            raise ValueError(f"{key} must be a finite number of metres, got {value!r}")
-        return float(value)
+        try:
+            number = float(value) if not isinstance(value, bool) else math.nan
+        except (TypeError, ValueError, OverflowError):
+            number = math.nan
+        if not isinstance(value, (int, float)) or not math.isfinite(number):
+            raise ValueError(f"{key} must be a finite number of metres, got {_brief(value)}")
+        return number
 
     def _run_job(self, job: Job, request: dict[str, Any]) -> dict[str, Any]:
         queue = request.get("queue") is True
@@ -407,10 +419,39 @@ class Daemon:
         steps = request.get("steps", CALIBRATION_STEPS)
         if not isinstance(steps, int) or isinstance(steps, bool) or not 2 <= steps <= 10_000:
             return {"ok": False, "error": f"steps must be an integer in [2, 10000], got {steps!r}"}
+        allowed = self._calibration_room()
+        if isinstance(allowed, str):
+            return {"ok": False, "error": allowed}
+        limited = steps > allowed
+        steps = min(steps, allowed)
         fine_steps = max(2, round(steps * self.setup.modes[COARSE].predicted_step_m
                                   / self.setup.modes[FINE].predicted_step_m / 4))
-        return self._run_job(self._new_job("calibrate", None, None,
-                                           calibration_bursts(steps, fine_steps)), request)
+        reply = self._run_job(self._new_job("calibrate", None, None,
+                                            calibration_bursts(steps, fine_steps)), request)
+        if limited:
+            reply["note"] = (f"calibration limited to {steps} coarse steps per direction by the "
+                             "travel left on either side of the part")
+        reply["calibration_steps"] = steps
+        return reply
+
+    def _calibration_room(self) -> int | str:
+        """The most coarse steps per direction a calibration may take from where the part is:
+        its bursts go forward first and come back (the excursion, with a pessimistic step
+        and 25 % margin, must fit before the upper limit; the return's asymmetry, 25 % of
+        it, behind).  A reason string when there is no room or no position."""
+        x = self.loop.position_m
+        if x is None:
+            return "position uncertain: calibration needs a sensor reading first"
+        s = self.loop.settings
+        est = self.loop.estimates()[f"{COARSE}/{FORWARD}"]
+        step_high = max(est.step_m + 2 * math.sqrt(est.variance_m2),
+                        self.setup.modes[COARSE].predicted_band_m[1])
+        ahead, behind = s.max_position_m - x, x - s.min_position_m
+        allowed = math.floor(min(ahead / 1.25, behind / 0.25) / step_high) - 1
+        if allowed < 2:
+            return (f"no room to calibrate: the part at {x:.6g} m is {ahead:.3g} m from the "
+                    f"upper and {behind:.3g} m from the lower travel limit; move it inwards")
+        return allowed
 
     def _cmd_stop(self, request: dict[str, Any]) -> dict[str, Any]:
         with self._lock:
@@ -517,8 +558,11 @@ class Daemon:
                     continue
                 try:
                     request = json.loads(line)
-                except (json.JSONDecodeError, UnicodeDecodeError) as err:
-                    self._send(conn, {"ok": False, "error": f"malformed request: {err}"})
+                except (ValueError, RecursionError) as err:
+                    # not JSON, not UTF-8, an integer past Python's digit limit, or nested
+                    # deeper than the parser's recursion allows
+                    self._send(conn, {"ok": False, "error": "malformed request: "
+                                      f"{type(err).__name__}: {str(err)[:200]}"})
                     continue
                 self._send(conn, self._safe_handle(request))
         except OSError:
@@ -533,5 +577,15 @@ class Daemon:
             reply = self.handle(request)
             json.dumps(reply, allow_nan=False, default=str)
             return reply
-        except ValueError as err:     # NaN in a reply, bad value
-            return {"ok": False, "error": f"cannot answer: {err}"}
+        except (ValueError, TypeError, OverflowError, RecursionError) as err:
+            # a value no handler expected (NaN in a reply, an integer too large for a float)
+            return {"ok": False, "error": f"cannot answer: {type(err).__name__}: {str(err)[:200]}"}
+
+
+def _brief(value: Any) -> str:
+    """``repr`` of a request value, cut short (a 4000-digit integer is no error message)."""
+    try:
+        text = repr(value)
+    except ValueError:      # an integer beyond the digit limit of str()
+        return f"<{type(value).__name__} too large to print>"
+    return text if len(text) <= 40 else text[:37] + "..."
