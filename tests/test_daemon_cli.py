@@ -4,6 +4,7 @@ a light start (no numpy for ``--help`` and ``status``)."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import shutil
@@ -22,7 +23,7 @@ from test_daemon_service import start, wait_for
 
 from feeder import Client
 from feeder.cli import COMMANDS, build_parser, main
-from feeder.cli.arguments import parse_length
+from feeder.cli.arguments import length_m
 from feeder.daemon.service import Daemon
 
 pytestmark = pytest.mark.timeout(60)
@@ -177,7 +178,7 @@ def test_shutdown(daemon, capsys) -> None:
     assert main(["shutdown", "--socket", sock]) == 3
 
 
-def test_parse_length() -> None:
+def test_lengths_with_units() -> None:
     cases = {
         "150um": 150e-6,
         "150µm": 150e-6,
@@ -192,7 +193,7 @@ def test_parse_length() -> None:
         " 7.5e2nm ": 750e-9,
         "0um": 0.0,
     }
-    assert {text: parse_length(text) for text in cases} == cases
+    assert {text: length_m(text) for text in cases} == cases
     for bad in (
         "",
         "um",
@@ -206,8 +207,8 @@ def test_parse_length() -> None:
         "1,5mm",
         "5 UM",
     ):
-        with pytest.raises(ValueError, match="length"):
-            parse_length(bad)
+        with pytest.raises(argparse.ArgumentTypeError, match="length"):
+            length_m(bad)
 
 
 # -- a daemon in its own process: SIGSTOP must not hang the CLI -------------------------

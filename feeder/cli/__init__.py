@@ -30,6 +30,7 @@ from feeder.errors import DaemonRefused, DaemonUnreachable, InputError, MoveFail
 #: sub-command → (module in this package, one-line help), in ``feeder --help`` order
 COMMANDS: dict[str, tuple[str, str]] = {
     "contact": ("contact", "real contact area and breakaway force of a part"),
+    "adhesion": ("adhesion", "single-asperity adhesion: Hertz, DMT, JKR, Maugis–Dugdale"),
     "surface": ("surface", "summit statistics of AFM scans, GW surface TOML"),
     "friction": ("friction", "static-friction peaks of force curves (CSV)"),
     "tau": ("tau", "shear strength τ = F/A_r from friction forces or force curves"),
@@ -45,6 +46,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "plan": ("plan", "plan a move: waveform, steps, predicted step and band"),
     "daemon": ("daemon", "run the control daemon (no config: on a simulated amplifier)"),
     "demo": ("demo", "closed-loop positioning on a simulated amplifier"),
+    "vision": ("vision", "pose of parts from camera images, camera frames, calibration"),
 }
 
 

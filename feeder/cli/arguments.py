@@ -20,50 +20,6 @@ from feeder.parts import SILICON_DENSITY_KG_M3, Part, Support
 if TYPE_CHECKING:
     from feeder.surface.parameters import SurfaceParameters
 
-#: length units of :func:`parse_length`: unit → power of ten of a metre (no unit: metres)
-LENGTH_UNITS: dict[str, int] = {"m": 0, "mm": -3, "um": -6, "µm": -6, "μm": -6, "nm": -9}
-_UNIT = "|".join(LENGTH_UNITS)
-_DIGITS = r"(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
-_LENGTH = re.compile(rf"\s*([-+]?{_DIGITS})\s*({_UNIT})?\s*")
-#: a negative number with an optional length unit: argparse takes it as a value, not an option
-NEGATIVE_LENGTH = re.compile(rf"^-{_DIGITS}\s*(?:{_UNIT})?$")
-
-
-def parse_length(text: str) -> float:
-    """A length in metres from ``150um``, ``150µm``, ``1.2mm``, ``-20 nm`` or ``3e-4`` (metres).
-
-    Scaled in decimal, so ``150um`` is exactly the float ``150e-6``.  Raises
-    :class:`ValueError` naming the accepted units.
-    """
-    match = _LENGTH.fullmatch(text)
-    if match is None:
-        raise ValueError(f"expected a length such as 150um, 1.2mm or 3e-4 (metres; units "
-                         f"{', '.join(LENGTH_UNITS)}), got {text!r}")
-    try:
-        value = float(Decimal(match.group(1)).scaleb(LENGTH_UNITS[match.group(2) or "m"]))
-    except DecimalException:        # exponent beyond decimal's range
-        value = math.inf
-    if not math.isfinite(value):
-        raise ValueError(f"expected a finite length, got {text!r}")
-    return value
-
-
-def length(text: str) -> float:
-    """argparse type: a length in metres, with an optional unit (:func:`parse_length`)."""
-    try:
-        return parse_length(text)
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(str(err)) from None
-
-
-def allow_negative_lengths(parser: argparse.ArgumentParser) -> None:
-    """Let ``-100um`` and ``-1e-4`` be values (``--by -20um``, ``move -100um``), not options.
-
-    argparse itself only knows ``-1`` and ``-.5``; the parser must have no option that looks
-    like a negative number.
-    """
-    parser._negative_number_matcher = NEGATIVE_LENGTH
-
 
 def positive_float(text: str) -> float:
     """argparse type: a positive finite number."""
@@ -76,6 +32,43 @@ def positive_float(text: str) -> float:
     return value
 
 
+_LENGTH_UNITS_M = {"": 1.0, "m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "μm": 1e-6, "nm": 1e-9}
+_ANGLE_UNITS_RAD = {"": 1.0, "rad": 1.0, "deg": math.pi / 180, "°": math.pi / 180}
+_QUANTITY_RE = re.compile(r"^\s*([-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?)\s*([^\d\s.+-]*)\s*$")
+
+
+def _quantity(text: str, units: dict[str, float], what: str, example: str) -> float:
+    match = _QUANTITY_RE.match(text)
+    if match is None or match.group(2) not in units:
+        raise argparse.ArgumentTypeError(
+            f"expected a {what} like {example} (units: {', '.join(u for u in units if u)}), got {text!r}")
+    try:        # in decimal, so 150um is exactly the float 150e-6
+        value = float(Decimal(match.group(1)) * Decimal(repr(units[match.group(2)])))
+    except DecimalException:        # an exponent beyond decimal's range
+        value = math.inf
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"not a finite {what}: {text!r}")
+    return value
+
+
+def length_m(text: str) -> float:
+    """argparse type: a length with a unit (``150um``, ``1µm``, ``1.2mm``) or in metres (``1e-6``) → m."""
+    return _quantity(text, _LENGTH_UNITS_M, "length", "1.5um")
+
+
+def positive_length_m(text: str) -> float:
+    """argparse type: a positive length (see :func:`length_m`) → m."""
+    value = length_m(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive length, got {text!r}")
+    return value
+
+
+def angle_rad(text: str) -> float:
+    """argparse type: an angle, ``15deg`` or radians (``0.26``, ``0.26rad``) → rad."""
+    return _quantity(text, _ANGLE_UNITS_RAD, "angle", "15deg")
+
+
 def add_part_arguments(
     p: argparse.ArgumentParser, *, part_required: bool = True, example: str = "300x300x50"
 ) -> None:
@@ -86,19 +79,22 @@ def add_part_arguments(
     p.add_argument("--density", type=positive_float, default=SILICON_DENSITY_KG_M3,
                    help=f"part density in kg/m³ (default silicon, {SILICON_DENSITY_KG_M3:g})")
     p.add_argument("--adhesion-work", type=float, metavar="J_M2",
-                   help="work of adhesion w in J/m² for DMT adhesion per summit (default: the "
-                        "surface file's, else 0 as in the paper; silicon in air ≈ 0.1)")
+                   help="work of adhesion w in J/m² for Maugis–Dugdale adhesion per summit (default: "
+                        "the surface file's, else 0 as in the paper); τ is then the one fitted with w")
 
 
 def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
-    """``--tau`` (and ``--tau-band``)."""
+    """``--tau``, ``--tau-adhesion-work`` (and ``--tau-band``); None = the τ fitted with the surface's w."""
     from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
 
-    p.add_argument("--tau", type=positive_float, default=DEFAULT_TAU_PA,
-                   help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})")
+    p.add_argument("--tau", type=positive_float,
+                   help=f"interfacial shear strength in Pa (default: the paper's, {DEFAULT_TAU_PA:g} "
+                        "at w = 0, fitted again with the surface's w when it has one)")
+    p.add_argument("--tau-adhesion-work", type=float, metavar="J_M2",
+                   help="the w the given --tau was fitted with (default 0); must equal the contact's w")
     if band:
-        p.add_argument("--tau-band", type=float, default=DEFAULT_TAU_BAND_PA,
-                       help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})")
+        p.add_argument("--tau-band", type=float,
+                       help=f"± band of τ in Pa (default {DEFAULT_TAU_BAND_PA / DEFAULT_TAU_PA:.3g}·τ)")
 
 
 def surface_from(args: argparse.Namespace) -> SurfaceParameters:
@@ -117,3 +113,24 @@ def surface_from(args: argparse.Namespace) -> SurfaceParameters:
 def part_from(args: argparse.Namespace) -> tuple[Part, Support, SurfaceParameters]:
     """Part, support and surface from :func:`add_part_arguments`' options."""
     return Part.parse(args.part, density_kg_m3=args.density), Support.parse(args.support), surface_from(args)
+
+
+def pose(text: str) -> tuple[float, float, float]:
+    """argparse type: ``X,Y,PSI`` (m, m, rad), finite numbers."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,PSI in m, m, rad, got {text!r}") from None
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,PSI, got {text!r}")
+    return values[0], values[1], values[2]
+
+
+def allow_negative_values(p: argparse.ArgumentParser) -> None:
+    """Let option values start with a minus sign (``--pose -1e-3,0,0``, ``--stroke-rad -0.01``).
+
+    argparse takes ``-1e-3,0,0`` for an option unless it looks like a plain
+    negative number; this parser has no options that look like numbers, so any
+    argument starting with ``-`` and a digit is a value.
+    """
+    p._negative_number_matcher = re.compile(r"^-\.?\d")

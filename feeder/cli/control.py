@@ -11,7 +11,7 @@ import argparse
 from collections.abc import Callable
 from pathlib import Path
 
-from feeder.cli.arguments import allow_negative_lengths, length, positive_float
+from feeder.cli.arguments import allow_negative_values, length_m, positive_float
 from feeder.cli.output import print_json
 from feeder.daemon.client import (
     DEFAULT_TIMEOUT_S,
@@ -44,14 +44,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     move.add_argument(
         "target_m",
         nargs="?",
-        type=length,
+        type=length_m,
         metavar="TARGET_M",
         help="absolute target position, m; or with a unit: 150um, 150µm, 1.2mm, "
         "20nm (negative: `feeder move -- -100um`)",
     )
     move.add_argument(
         "--by",
-        type=length,
+        type=length_m,
         dest="by_m",
         metavar="DELTA_M",
         help="relative move from the current position, m; or with a unit (--by -20um)",
@@ -60,7 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--queue", action="store_true", help="wait for a running move to finish instead of being refused"
     )
     move.add_argument("--no-wait", action="store_true", help="return once the move is accepted")
-    allow_negative_lengths(move)
+    allow_negative_values(move)
     _common(move)
     move.set_defaults(handler=run_move)
 

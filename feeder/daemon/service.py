@@ -57,6 +57,9 @@ from feeder.errors import InputError
 log = logging.getLogger(__name__)
 
 MAX_CLIENTS = 32
+LISTEN_BACKLOG = 128
+"""Connections the kernel holds before accept: bursts of short-lived clients must not find
+the socket full (a client's non-blocking connect then fails at once)."""
 CALIBRATION_STEPS = 20
 BACKOFF_FIRST_S = 0.2
 BACKOFF_MAX_S = 5.0
@@ -134,7 +137,7 @@ def bind_socket(socket_path: Path) -> socket.socket:
     finally:
         os.umask(old_umask)
     os.chmod(socket_path, 0o600)
-    sock.listen(MAX_CLIENTS)
+    sock.listen(LISTEN_BACKLOG)
     return sock
 
 
@@ -501,6 +504,8 @@ class Daemon:
             "reconnecting": reconnecting,
             "faults": faults,
             "queued_moves": queued,
+            "store_unwritable": loop.writer.unwritable,
+            "pending_records": loop.writer.pending(),
             "interrupted_moves": self.interrupted_moves,
             "tolerance_m": loop.settings.tolerance_m,
             "travel_limits_m": [loop.settings.min_position_m, loop.settings.max_position_m],
