@@ -293,6 +293,6 @@ def test_slow_commits_stay_off_the_tick(world: FakeWorld) -> None:
         loop.shutdown()
     assert result.status == "done" and len(writes) >= 3
     # p99 of the wake-up lateness is the scheduler's, not the disk's: a tick that waited
-    # for one 50 ms write would be an overrun (benchmarks/loop_jitter.py --slow-commit-s
-    # measures the p99 on a quiet machine)
+    # for one 50 ms write would be an overrun (benchmarks/loop_jitter.py
+    # (slow_commit_*) measures the p99 on a quiet machine)
     assert timing["jitter_p99_s"] < 0.01 and timing["jitter_max_s"] < 0.05, timing

@@ -123,6 +123,7 @@ def test_three_moves_through_a_proxy_that_passes_only_real_anc300_verbs(base: Pa
         proxy.close()
         sim.stop()
     assert_within_tolerance(replies, tolerance)
+    assert "move done" in (base / "state" / "daemon.log").read_text()
     assert proxy.refused == []
     assert set(proxy.forwarded) <= MOVE_PATH
     assert {"setpu", "setpd", "stepu", "stepd", "stepw", "setm"} <= set(proxy.forwarded)
