@@ -19,7 +19,7 @@ from feeder.errors import InputError
 
 SUBCOMMANDS: tuple[str, ...] = (
     "contact", "surface", "friction", "tau", "figures", "control", "waveform", "simulate", "plan",
-    "daemon", "demo",
+    "daemon", "demo", "sweep",
 )
 
 
