@@ -17,7 +17,7 @@ from pathlib import Path
 
 BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "loop_jitter", "summits",
                                "console_rtt", "tick_jitter", "sdo_rtt", "pdo_rate",
-                               "stickslip", "plant_realtime")
+                               "stickslip", "plant_realtime", "sweep_scaling")
 
 
 def main(argv: list[str] | None = None) -> int:
