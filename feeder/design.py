@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import minimize
 
-from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA, contact
+from feeder.contact.breakaway import ContactResult, contact
 from feeder.errors import InputError
 from feeder.parts import FLAT, Part, Support
 from feeder.planner import RISE_PER_FLYBACK, StepPrediction, flyback_time_s, plant_step
@@ -85,17 +85,24 @@ class DesignProblem:
     support: Support = FLAT
     surface: SurfaceParameters = DEFAULT_SURFACE
     surface_label: str = "embedded"
-    tau_pa: float = DEFAULT_TAU_PA
-    tau_band_pa: float = DEFAULT_TAU_BAND_PA
+    tau_pa: float | None = None
+    tau_band_pa: float | None = None
     kinetic_ratio: float = DEFAULT_KINETIC_RATIO
     amplifier_model: str = "firmware_sim"
     amplifier: AmplifierLimits = field(default_factory=lambda: AMPLIFIER_MODELS["firmware_sim"])
     stack: StackParameters = field(default_factory=StackParameters)
+    tau_adhesion_work_j_m2: float | None = None
+    """The w a given τ was fitted with (None: τ is the one fitted with the surface's w, see contact)."""
+
+    def contact(self) -> ContactResult:
+        """The contact model's result (τ resolved with the surface's w)."""
+        return contact(self.part, support=self.support, surface=self.surface, tau_pa=self.tau_pa,
+                       tau_band_pa=self.tau_band_pa,
+                       tau_adhesion_work_j_m2=self.tau_adhesion_work_j_m2)  # fmt: skip
 
     def breakaway_accel_m_s2(self) -> tuple[float, tuple[float, float]]:
         """a_s = τ·A_r/m and its band (m/s²) from the contact model."""
-        result = contact(self.part, support=self.support, surface=self.surface, tau_pa=self.tau_pa,
-                         tau_band_pa=self.tau_band_pa)  # fmt: skip
+        result = self.contact()
         return result.breakaway_accel_m_s2, result.breakaway_accel_band_m_s2
 
     def step_m(self, waveform: Waveform, static_accel_m_s2: float, kinetic_ratio: float) -> float:
@@ -115,15 +122,17 @@ class DesignProblem:
 
     def prediction_table(self, prediction: StepPrediction, written_by: str) -> dict[str, Any]:
         """The ``[prediction]`` table of a design file."""
-        a_s, band = self.breakaway_accel_m_s2()
+        result = self.contact()
+        a_s, band = result.breakaway_accel_m_s2, result.breakaway_accel_band_m_s2
         return {
             "written_by": written_by,
             "part": self.part.label,
             "density_kg_m3": self.part.density_kg_m3,
             "support": self.support.kind,
             "surface": self.surface_label,
-            "tau_pa": self.tau_pa,
-            "tau_band_pa": self.tau_band_pa,
+            "tau_pa": result.tau_pa,
+            "tau_band_pa": result.tau_band_pa,
+            "tau_adhesion_work_j_m2": result.tau_adhesion_work_j_m2,
             "adhesion_work_j_m2": self.surface.adhesion_work_j_m2,
             "kinetic_ratio": self.kinetic_ratio,
             "breakaway_accel_m_s2": a_s,

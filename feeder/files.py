@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
@@ -16,10 +17,19 @@ from typing import Any
 
 from feeder.errors import InputError
 
+MAX_TEXT_BYTES = 16 * 2**20
+"""Largest TOML file read (a device such as /dev/zero or a huge file is refused up front)."""
+
 
 def read_toml(path: Path) -> dict[str, Any]:
     """Parse a TOML file; a missing, unreadable or malformed file is an InputError naming it."""
     try:
+        info = Path(path).stat()
+        if not stat.S_ISREG(info.st_mode):
+            raise InputError(str(path), "not a regular file")
+        if info.st_size > MAX_TEXT_BYTES:
+            raise InputError(str(path), f"larger than {MAX_TEXT_BYTES // 2**20} MiB; not a "
+                             "configuration file")
         return tomllib.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise InputError(str(path), "no such file") from None
@@ -65,6 +75,16 @@ def write_text(path: Path, text: str) -> None:
     tmp = _temporary(path)
     tmp.write_text(text, encoding="utf-8")
     tmp.replace(path)
+
+
+def write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (temporary file, then rename)."""
+    tmp = _temporary(path)
+    try:
+        tmp.write_bytes(data)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def save_figure(fig: Any, path: Path, dpi: int = 120) -> None:

@@ -7,8 +7,8 @@ Square silicon parts, 50 µm thick, on the flat support.  Without adhesion the
 nominal pressure ρ·g·t is the same for every size, so a_break and the step are
 the same for every size: a flat line, and the model says so.  DMT adhesion adds
 a pull that scales with the nominal area, as the weight does at a fixed
-thickness: a_break rises (more real area for the same mass) and the step
-shrinks, but again equally for every side length.
+thickness, and τ is the one fitted with that w to the paper's forces: the
+τ–w pair keeps a_break, so the step stays (flat in size again).
 """
 
 from __future__ import annotations

@@ -53,13 +53,15 @@ def run(args: argparse.Namespace) -> int:
         model, amplifier = f"{model} (modified)", replace(amplifier, **overrides)
     result = plan(part, support, surface, args.tau, amplifier, args.distance_m,
                   tau_band_pa=args.tau_band, kinetic_ratio=args.kinetic_ratio,
-                  margin=args.margin, frequency_hz=args.frequency_hz)  # fmt: skip
+                  tau_adhesion_work_j_m2=args.tau_adhesion_work, margin=args.margin,
+                  frequency_hz=args.frequency_hz)  # fmt: skip
     out = {"part": part.label, "support": support.kind, **result.to_json()}
     if args.out:
         from feeder.design import DesignProblem, write_design
 
         problem = DesignProblem(part, support, surface, str(args.surface or "embedded"), args.tau,
-                                args.tau_band, args.kinetic_ratio, model, amplifier)  # fmt: skip
+                                args.tau_band, args.kinetic_ratio, model, amplifier,
+                                tau_adhesion_work_j_m2=args.tau_adhesion_work)  # fmt: skip
         prediction = StepPrediction(result.predicted_step_m, result.predicted_step_band_m)
         moves = {"distance_m": result.distance_m, "steps": result.steps, "duration_s": result.duration_s,
                  "predicted_distance_m": result.predicted_distance_m,

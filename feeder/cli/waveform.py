@@ -214,7 +214,8 @@ def run_design(args: argparse.Namespace) -> int:
     if not args.kinetic_ratio <= 1:
         raise InputError("--kinetic-ratio", f"must lie in (0, 1], got {args.kinetic_ratio}")
     problem = DesignProblem(part, support, surface, str(args.surface or "embedded"), args.tau,
-                            args.tau_band, args.kinetic_ratio, model, limits)  # fmt: skip
+                            args.tau_band, args.kinetic_ratio, model, limits,
+                            tau_adhesion_work_j_m2=args.tau_adhesion_work)  # fmt: skip
 
     def progress(message: str) -> None:
         print(f"design: {message}", file=sys.stderr, flush=True)
