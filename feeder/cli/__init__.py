@@ -47,6 +47,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "daemon": ("daemon", "run the control daemon (no config: on a simulated amplifier)"),
     "demo": ("demo", "closed-loop positioning on a simulated amplifier"),
     "vision": ("vision", "pose of parts from camera images, camera frames, calibration"),
+    "sweep": ("sweep", "parameter sweep on Dask (local cluster or a scheduler), to Parquet"),
 }
 
 

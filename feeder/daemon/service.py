@@ -452,6 +452,9 @@ class Daemon:
         its bursts go forward first and come back (the excursion, with a pessimistic step
         and 25 % margin, must fit before the upper limit; the return's asymmetry, 25 % of
         it, behind).  A reason string when there is no room or no position."""
+        deadline = time.monotonic() + self.setup.sensor_timeout_s
+        while self.loop.position_m is None and time.monotonic() < deadline:
+            time.sleep(0.01)    # just started: the first frame is on its way
         x = self.loop.position_m
         if x is None:
             return "position uncertain: calibration needs a sensor reading first"
