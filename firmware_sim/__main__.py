@@ -38,7 +38,7 @@ from feeder.plant.amplifier import AmplifierLimits
 from feeder.protocol.anc300 import DEFAULT_PASSWORD, DIALECTS
 from firmware_sim.canopen_node import serve_slcan_pty
 from firmware_sim.clock import Clock, RealTimeClock, VirtualClock
-from firmware_sim.console import ConsoleSession
+from firmware_sim.console import ConsoleSession, LoginThrottle
 from firmware_sim.firmware import (
     DEFAULT_DAC_BUFFER_S,
     DEFAULT_LOAD_CAPACITANCE_F,
@@ -50,6 +50,7 @@ from firmware_sim.firmware import (
 from firmware_sim.transports import (
     LineBroadcastServer,
     PtyConsole,
+    SessionFactory,
     TcpConsoleServer,
     check_local,
 )
@@ -60,8 +61,8 @@ VIRTUAL_TICKS_PER_YIELD = 10
 SLOTS = FirmwareConfig().slots
 MAX_TICK_HZ = 10_000.0
 MAX_SAMPLE_RATE_HZ = 1e6
-MAX_DAC_BUFFER_SAMPLES = 1e6
-"""Per axis: --dac-buffer-s × --sample-rate-hz (memory and start-up time)."""
+MAX_DAC_BUFFER_SAMPLES = 200_000
+"""Per axis: --dac-buffer-s × --sample-rate-hz, and one tick's samples (memory, tick time)."""
 MAX_DELAY_S = 10.0
 MAX_WATCHDOG_S = 3600.0
 MAX_CAMERA_RATE_HZ = 10_000.0
@@ -226,9 +227,10 @@ def check_options(args: argparse.Namespace) -> None:
     if ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
         raise InputError("--sample-rate-hz", f"must be a whole multiple of --tick-hz "
                          f"({args.tick_hz:g}), got {args.sample_rate_hz:g}")
-    if args.dac_buffer_s * args.sample_rate_hz > MAX_DAC_BUFFER_SAMPLES:
-        raise InputError("--dac-buffer-s", f"{args.dac_buffer_s:g} s at {args.sample_rate_hz:g} "
-                         f"Hz is more than {MAX_DAC_BUFFER_SAMPLES:g} samples")
+    if max(args.dac_buffer_s * args.sample_rate_hz, ratio) > MAX_DAC_BUFFER_SAMPLES:
+        option = "--dac-buffer-s" if ratio <= MAX_DAC_BUFFER_SAMPLES else "--tick-hz"
+        raise InputError(option, f"the DAC buffer (--dac-buffer-s × --sample-rate-hz, at least "
+                         f"one tick) would exceed {MAX_DAC_BUFFER_SAMPLES:g} samples")
     if args.max_frequency_hz >= args.sample_rate_hz / 2:
         raise InputError("--max-frequency-hz", f"must be below half the DAC rate "
                          f"({args.sample_rate_hz / 2:g} Hz), got {args.max_frequency_hz:g}")
@@ -260,9 +262,12 @@ def start_endpoints(args: argparse.Namespace, firmware: Firmware, world: World,
             return None
         return world.true_step(axis)
 
-    def session(password: str | None) -> Callable[[], ConsoleSession]:
-        return lambda: ConsoleSession(firmware, password=password, true_step=true_step,
-                                      dialect=args.dialect)
+    throttle = LoginThrottle()  # one per program: a source's tries are paced on every port
+
+    def session(password: str | None) -> SessionFactory:
+        return lambda source: ConsoleSession(firmware, password=password, true_step=true_step,
+                                             dialect=args.dialect, throttle=throttle,
+                                             source=source)
 
     for spec in args.console or ["pty"]:
         if spec == "pty":
@@ -294,35 +299,43 @@ def start_extra_front_ends(args: argparse.Namespace, firmware: Firmware,
         closers.append(close_can)
 
 
+def build(args: argparse.Namespace) -> tuple[Firmware, World, TrueStep]:
+    """The firmware and the world the options describe, and the plant's true step at the
+    reference settings; raises :class:`InputError` (or ValueError/FirmwareError) on bad input."""
+    check_options(args)
+    amplifier = AmplifierLimits(v_max_v=args.v_max, slew_rate_v_per_s=args.slew_v_per_s,
+                                current_limit_a=args.current_a,
+                                max_frequency_hz=args.max_frequency_hz)
+    config = FirmwareConfig(axes=args.axes, tick_hz=args.tick_hz,
+                            sample_rate_hz=args.sample_rate_hz,
+                            dac_buffer_s=args.dac_buffer_s, watchdog_s=args.watchdog_s,
+                            host_watchdog_s=args.host_watchdog_s, amplifier=amplifier,
+                            load_capacitance_f=args.load_capacitance_f)
+    firmware = Firmware(config)
+    world = World(WorldConfig(
+        part=args.part, support=args.support, tau_pa=args.tau_pa, tau_offset=args.tau_offset,
+        kinetic_ratio=args.kinetic_ratio, scatter=args.scatter, seed=args.seed,
+        plant_axis=args.plant_axis,
+        camera=CameraConfig(args.camera_rate_hz, args.camera_noise_m,
+                            args.camera_latency_s)), config)
+    world.attach(firmware)
+    reference = firmware.axis(args.plant_axis)
+    reference.set_amplitude(amplifier.max_amplitude_vpp)
+    step = world.true_step(reference)
+    reference.set_amplitude(0.0)
+    return firmware, world, step
+
+
 def main(argv: list[str] | None = None) -> int:
     for signum in SHUTDOWN_SIGNALS:  # while starting up, a signal ends the program at once
         signal.signal(signum, signal.SIG_DFL)
     args = build_parser().parse_args(argv)
     try:
-        check_options(args)
-        amplifier = AmplifierLimits(v_max_v=args.v_max, slew_rate_v_per_s=args.slew_v_per_s,
-                                    current_limit_a=args.current_a,
-                                    max_frequency_hz=args.max_frequency_hz)
-        config = FirmwareConfig(axes=args.axes, tick_hz=args.tick_hz,
-                                sample_rate_hz=args.sample_rate_hz,
-                                dac_buffer_s=args.dac_buffer_s, watchdog_s=args.watchdog_s,
-                                host_watchdog_s=args.host_watchdog_s, amplifier=amplifier,
-                                load_capacitance_f=args.load_capacitance_f)
-        firmware = Firmware(config)
-        world = World(WorldConfig(
-            part=args.part, support=args.support, tau_pa=args.tau_pa, tau_offset=args.tau_offset,
-            kinetic_ratio=args.kinetic_ratio, scatter=args.scatter, seed=args.seed,
-            plant_axis=args.plant_axis,
-            camera=CameraConfig(args.camera_rate_hz, args.camera_noise_m,
-                                args.camera_latency_s)), config)
-        world.attach(firmware)
-        reference = firmware.axis(args.plant_axis)
-        reference.set_amplitude(amplifier.max_amplitude_vpp)
-        step = world.true_step(reference)
-        reference.set_amplitude(0.0)
+        firmware, world, step = build(args)
     except (InputError, ValueError, FirmwareError) as exc:
         print(f"firmware_sim: error: {exc}", file=sys.stderr)
         return 2
+    amplifier = firmware.config.amplifier
 
     wakeup = _catch_shutdown_signals()
     closers: list[Callable[[], None]] = []
