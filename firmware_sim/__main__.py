@@ -70,6 +70,7 @@ MIN_TAU_PA = 1e6
 MAX_TAU_PA = 1e12
 MAX_SEED = 2**63 - 1
 MAX_PASSWORD_CHARS = 64
+CANOPEN_MAX_NODE_ID = 127
 SHUTDOWN_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 STOP_JOIN_S = 0.5
 """How long the main thread waits for the tick thread to finish its tick."""
@@ -95,7 +96,8 @@ def in_range(lo: float, hi: float, *, lo_open: bool = False,
         except ValueError:
             kind = "an integer" if integer else "a number"
             raise argparse.ArgumentTypeError(f"expected {kind} in {interval}, got {text!r}") from None
-        if not (math.isfinite(value) and (lo < value if lo_open else lo <= value) and value <= hi):
+        if not ((integer or math.isfinite(value))  # an int past a float's range stays an int
+                and (lo < value if lo_open else lo <= value) and value <= hi):
             raise argparse.ArgumentTypeError(f"must be in {interval}, got {text!r}")
         return value
 
@@ -200,7 +202,7 @@ def add_extra_front_end_arguments(group: argparse._ArgumentGroup) -> None:
     group.add_argument("--can", choices=("slcan-pty",),
                        help="CANopen: one node per axis behind an emulated SLCAN adapter on a "
                             "pty (endpoint slcan_pty; docs/canopen.md)")
-    add_number(group, "--can-node-id-base", 1, 127, integer=True, default=1,
+    add_number(group, "--can-node-id-base", 1, CANOPEN_MAX_NODE_ID, integer=True, default=1,
                help="CANopen node id of axis 1 (axis n gets base + n - 1)")
 
 
@@ -240,6 +242,10 @@ def check_options(args: argparse.Namespace) -> None:
     if args.plant_axis > args.axes:
         raise InputError("--plant-axis", f"must be one of the {args.axes} configured axes, "
                          f"got {args.plant_axis}")
+    last_node = args.can_node_id_base + args.axes - 1
+    if args.can and last_node > CANOPEN_MAX_NODE_ID:
+        raise InputError("--can-node-id-base", f"node ids {args.can_node_id_base}..{last_node} "
+                         f"leave CANopen's 1..{CANOPEN_MAX_NODE_ID}")
     password = args.password
     if not (0 < len(password) <= MAX_PASSWORD_CHARS and password.isascii()
             and password.isprintable() and password == password.strip()):
@@ -326,15 +332,20 @@ def build(args: argparse.Namespace) -> tuple[Firmware, World, TrueStep]:
     return firmware, world, step
 
 
+def prepare(argv: list[str] | None) -> tuple[argparse.Namespace, Firmware, World, TrueStep]:
+    """Parse, check and :func:`build`; bad input exits 2 with one line naming the option."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return (args, *build(args))
+    except (InputError, ValueError, FirmwareError) as exc:
+        parser.error(str(exc))
+
+
 def main(argv: list[str] | None = None) -> int:
     for signum in SHUTDOWN_SIGNALS:  # while starting up, a signal ends the program at once
         signal.signal(signum, signal.SIG_DFL)
-    args = build_parser().parse_args(argv)
-    try:
-        firmware, world, step = build(args)
-    except (InputError, ValueError, FirmwareError) as exc:
-        print(f"firmware_sim: error: {exc}", file=sys.stderr)
-        return 2
+    args, firmware, world, step = prepare(argv)
     amplifier = firmware.config.amplifier
 
     wakeup = _catch_shutdown_signals()

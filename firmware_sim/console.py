@@ -38,7 +38,7 @@ MAX_LINE = 4096
 MAX_LOGIN_ATTEMPTS = 3
 MIN_LOGIN_INTERVAL_S = 0.2
 """Password tries from one source are evaluated at least this far apart (≤ 5 tries/s) ..."""
-MAX_LOGIN_INTERVAL_S = 2.0
+MAX_LOGIN_INTERVAL_S = 1.0
 """... and the spacing doubles with every failed try, up to this."""
 FORGET_FAILURES_S = 60.0
 """A source with no try for this long starts afresh."""
