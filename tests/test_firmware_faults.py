@@ -369,7 +369,8 @@ def test_password_guessing_is_paced_per_source_across_reconnects(
     tries = [t for t in failures if t <= begun]
     assert len(tries) / (begun - started) <= 5.0, (len(tries), begun - started)
     gaps = [b - a for a, b in itertools.pairwise(tries)]
-    assert gaps[-1] >= 0.8 * MAX_LOGIN_INTERVAL_S > 2 * gaps[0]  # the delay grows per failure
+    # the delay grows per failure (tries queued earlier keep the spacing of their time)
+    assert gaps[-1] >= 0.6 * MAX_LOGIN_INTERVAL_S and gaps[-1] > 2 * gaps[0], gaps
     assert max(answers) < 0.5               # the logged-in session never waited
     assert operator_login_s < (guessers + 1) * MAX_LOGIN_INTERVAL_S + 0.5
     operator.close()
