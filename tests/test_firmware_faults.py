@@ -13,6 +13,7 @@ import itertools
 import os
 import signal
 import socket
+import subprocess
 import sys
 import threading
 import time
@@ -272,6 +273,43 @@ def test_floods_on_both_ports_neither_fault_the_tick_nor_lock_out_and_sigterm_en
     assert "faults = 0" in status, status           # no watchdog fault: the tick never waited
     assert b'"position_m"' in frames
     assert sim.process.returncode == 0 and exit_s < 1.0, exit_s
+
+
+STUCK_TICK = """
+import os
+import sys
+from firmware_sim import __main__ as program
+
+def stuck(firmware, clock, stop):  # what a negative camera rate once did: a tick that never ends
+    firmware.run(clock, max_ticks=200)
+    with firmware.lock:  # ... holding the firmware's lock: no orderly shutdown can finish
+        while True:
+            pass
+
+program.run_ticks = stuck
+status = program.main(sys.argv[1:])
+os._exit(status)
+"""
+
+
+@pytest.mark.timeout(120)
+def test_sigterm_ends_it_within_1_s_even_with_the_tick_stuck(tmp_path: Path) -> None:
+    script = tmp_path / "stuck.py"
+    script.write_text(STUCK_TICK)
+    proc = subprocess.Popen([sys.executable, str(script), "--sensor", "tcp:127.0.0.1:0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and '"ready": true' in proc.stdout.readline()
+        time.sleep(0.5)                   # 200 ticks: stuck by now
+        started = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=10)
+        exit_s = time.monotonic() - started
+    finally:
+        proc.kill()
+        proc.wait()
+    assert exit_s < 1.0, exit_s
+    assert proc.returncode == -signal.SIGALRM  # the backstop, not the orderly path
 
 
 @pytest.mark.timeout(120)
