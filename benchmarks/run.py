@@ -15,9 +15,10 @@ import json
 import sys
 from pathlib import Path
 
-BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "loop_jitter", "summits",
+BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "gw_md_solve", "loop_jitter", "summits",
                                "console_rtt", "tick_jitter", "sdo_rtt", "pdo_rate",
-                               "stickslip", "plant_realtime")
+                               "stickslip", "plant_realtime", "planar_period", "vision_locate",
+                               "vision_render", "cli_start", "sweep_scaling")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -5,7 +5,7 @@ API for other agents (feeder/daemon)
 ::
 
     from feeder.planner import plan, predict_step, Plan, StepPrediction
-    p = plan(part, support=FLAT, surface=DEFAULT_SURFACE, tau_pa=22.18e9,
+    p = plan(part, support=FLAT, surface=DEFAULT_SURFACE, tau_pa=None,  # None: τ fitted with w
              amplifier=AmplifierLimits(), distance_m=500e-6)       # InputError if impossible
     p.waveform()            # feeder.waveform.Waveform to send (current-limited flyback)
     p.frequency_hz, p.amplitude_vpp, p.flyback_s, p.flyback_shape, p.direction, p.steps,
@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import brentq
 
-from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA, contact
+from feeder.contact.breakaway import contact
 from feeder.errors import InputError
 from feeder.parts import FLAT, Part, Support
 from feeder.plant.amplifier import AmplifierLimits
@@ -143,14 +143,20 @@ def predict_step(
     part: Part,
     support: Support = FLAT,
     surface: SurfaceParameters = DEFAULT_SURFACE,
-    tau_pa: float = DEFAULT_TAU_PA,
-    tau_band_pa: float = DEFAULT_TAU_BAND_PA,
+    tau_pa: float | None = None,
+    tau_band_pa: float | None = None,
     kinetic_ratio: float = DEFAULT_KINETIC_RATIO,
     amplifier: AmplifierLimits | None = None,
     stack: StackParameters | None = None,
+    *,
+    tau_adhesion_work_j_m2: float | None = None,
 ) -> StepPrediction:
-    """Step of ``waveform`` for this part (plant model), with the τ and F_k/F_s band."""
-    result = contact(part, support=support, surface=surface, tau_pa=tau_pa, tau_band_pa=tau_band_pa)
+    """Step of ``waveform`` for this part (plant model), with the τ and F_k/F_s band.
+
+    τ and w are a pair (:func:`feeder.contact.breakaway.contact`): None = the τ fitted
+    with the surface's w."""
+    result = contact(part, support=support, surface=surface, tau_pa=tau_pa, tau_band_pa=tau_band_pa,
+                     tau_adhesion_work_j_m2=tau_adhesion_work_j_m2)
     return _prediction(waveform, result.breakaway_accel_m_s2, result.breakaway_accel_band_m_s2,
                        kinetic_ratio, amplifier, stack)  # fmt: skip
 
@@ -205,24 +211,29 @@ def plan(
     part: Part,
     support: Support = FLAT,
     surface: SurfaceParameters = DEFAULT_SURFACE,
-    tau_pa: float = DEFAULT_TAU_PA,
+    tau_pa: float | None = None,
     amplifier: AmplifierLimits | None = None,
     distance_m: float = 0.0,
     *,
-    tau_band_pa: float = DEFAULT_TAU_BAND_PA,
+    tau_band_pa: float | None = None,
+    tau_adhesion_work_j_m2: float | None = None,
     kinetic_ratio: float = DEFAULT_KINETIC_RATIO,
     stack: StackParameters | None = None,
     margin: float = DEFAULT_MARGIN,
     frequency_hz: float | None = None,
 ) -> Plan:
-    """Plan a move of ``distance_m`` (signed: + forward); :class:`InputError` says why not."""
+    """Plan a move of ``distance_m`` (signed: + forward); :class:`InputError` says why not.
+
+    ``tau_pa`` None: the τ fitted with the surface's w; a given τ must come with the w it
+    was fitted with (``tau_adhesion_work_j_m2``, default 0), else InputError."""
     amplifier = amplifier or AmplifierLimits()
     stack = stack or StackParameters()
     if not (math.isfinite(distance_m) and distance_m != 0):
         raise InputError("distance_m", f"must be a non-zero finite distance, got {distance_m!r}")
     if not (math.isfinite(margin) and margin >= 1):
         raise InputError("margin", f"must be a number ≥ 1, got {margin!r}")
-    result = contact(part, support=support, surface=surface, tau_pa=tau_pa, tau_band_pa=tau_band_pa)
+    result = contact(part, support=support, surface=surface, tau_pa=tau_pa, tau_band_pa=tau_band_pa,
+                     tau_adhesion_work_j_m2=tau_adhesion_work_j_m2)
     a_s = result.breakaway_accel_m_s2
     a_lo, a_hi = result.breakaway_accel_band_m_s2
 

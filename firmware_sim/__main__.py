@@ -5,7 +5,7 @@ and the endpoints, prints ONE JSON line on stdout::
 
     {"ready": true, "pid": 1234, "clock": "real",
      "endpoints": {"console_pty": "/dev/pts/7", "console_tcp": "socket://127.0.0.1:7230",
-                   "sensor_tcp": "socket://127.0.0.1:40123"},
+                   "sensor_tcp": "socket://127.0.0.1:40123", "camera_http": "http://127.0.0.1:8080"},
      "true": {"tau_pa": ..., "step_up_m": ..., "step_down_m": ..., "step_scatter": ..., ...}}
 
 and runs until SIGINT/SIGTERM (then grounds every axis, closes the endpoints,
@@ -143,6 +143,11 @@ def build_parser() -> argparse.ArgumentParser:
                       help="console password (default %(default)s, as on real units)")
     ends.add_argument("--sensor", metavar="SPEC",
                       help="camera frame stream, tcp:127.0.0.1:PORT (JSON lines)")
+    ends.add_argument("--camera-http", type=int, metavar="PORT",
+                      help="microscope camera on http://127.0.0.1:PORT (0 = any free port): "
+                           "/video.mjpg, /frame.png, /truth.json (endpoint camera_http)")
+    ends.add_argument("--camera-http-fps", type=float, default=10.0, help="its frame rate")
+    ends.add_argument("--camera-pixel-size-m", type=float, default=1e-6, help="its pixel size")
     add_extra_front_end_arguments(ends)
 
     fw = parser.add_argument_group("firmware")
@@ -293,6 +298,14 @@ def start_endpoints(args: argparse.Namespace, firmware: Firmware, world: World,
         closers.append(camera.close)
         world.publish = camera.publish
         endpoints["sensor_tcp"] = camera.url
+
+    if args.camera_http is not None:
+        from firmware_sim.camera_http import serve_world_camera  # OpenCV: the optional vision extra
+
+        http = serve_world_camera(world, args.camera_http, args.camera_http_fps, args.camera_pixel_size_m,
+                                  args.camera_latency_s)
+        closers.append(http.close)
+        endpoints["camera_http"] = http.url
 
     start_extra_front_ends(args, firmware, closers, endpoints)
     return endpoints

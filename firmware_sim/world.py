@@ -97,6 +97,7 @@ class World:
         self.friction = Friction(result.breakaway_accel_m_s2, config.kinetic_ratio)
         self.plant = self._plant(config.scatter, config.seed)
         self.position_m = self.plant.part_position_m
+        self.time_s = 0.0
         self.publish = publish
         self._rng = np.random.default_rng(config.seed + 1)
         self._next_frame = 0
@@ -131,11 +132,17 @@ class World:
             self._next_frame += 1
 
     def _on_tick(self, now_s: float) -> None:
+        self.time_s = now_s
         while self._pending and self._pending[0][0] <= now_s + 1e-9:
             _, seq, t, position = heapq.heappop(self._pending)
             if self.publish is not None:
                 line = json.dumps({"seq": seq, "time_s": t, "position_m": position})
                 self.publish(line.encode() + b"\n")
+
+    def part_poses(self) -> list[tuple[float, float, float]]:
+        """The parts' true poses (x, y, ψ) in the plate frame (m, m, rad): the plant is 1-D
+        for now, so one part at (position, 0, 0)."""
+        return [(self.position_m, 0.0, 0.0)]
 
     def true_step(self, axis: Axis) -> TrueStep:
         """The plant's true step for ``axis``' current settings, measured, not predicted.

@@ -2,14 +2,26 @@
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
+from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from feeder.daemon.config import DaemonConfig, default_socket_path, default_state_dir, load_config
+from feeder.daemon.config import (
+    SECTIONS,
+    DaemonConfig,
+    default_socket_path,
+    default_state_dir,
+    load_config,
+)
 from feeder.daemon.links import open_links, simulator_args
 from feeder.errors import InputError
 
@@ -125,3 +137,75 @@ def test_feeder_daemon_with_a_bad_config_exits_2_in_one_line(tmp_path: Path) -> 
                           env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "rate_hz" in done.stderr
+
+
+@pytest.mark.parametrize(("text", "words"), [
+    ('[amplifier]\nprot = "/dev/ttyUSB0"\n', "did you mean amplifier.port"),
+    ('[amplfier]\nport = "/dev/ttyUSB0"\n', "did you mean [amplifier]"),
+    ('[amplifier]\ntransport = "can"\n[amplifier.can]\ninterface = "slcan"\nchanel = "/dev/x"\n',
+     "is 'chanel' meant to be 'channel'"),
+    ("[amplifier]\naxis = " + "9" * 400 + "\n", "amplifier.axis = a huge integer"),
+    ("[control]\nrate_hz = " + "1" * 400 + "\n", "control.rate_hz"),
+    ("[control]\nrate_hz = 1e-9\n", "control.rate_hz = 1e-09 is outside"),
+    ("[control]\naverage_samples = 1000000000\n", "control.average_samples"),
+    ("[sensor]\ntimeout_s = nan\n", "sensor.timeout_s must be a finite number"),
+    ('[sensor]\naddress = "tcp:127.0.0.1:7240"\n', "socket://"),
+    ('[amplifier]\nmodel = "anc300"\n[amplifier.limits]\nv_max_v = 200.0\n',
+     "beyond the anc300's rating"),
+])
+def test_misspelt_or_out_of_range_keys_are_refused_by_name(tmp_path: Path, text: str,
+                                                           words: str) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(InputError) as err:
+        load_config(path)
+    assert words in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_a_device_is_not_read_as_a_configuration() -> None:
+    with pytest.raises(InputError, match="/dev/zero: not a regular file"):
+        load_config(Path("/dev/zero"))
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return "nan" if value != value else ("inf" if value == math.inf else
+                                              "-inf" if value == -math.inf else repr(value))
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, int):
+        return str(value)
+    return json.dumps(value)
+
+
+def _toml(doc: dict[str, dict[str, Any]]) -> str:
+    """A TOML document of tables of scalars (a wrong value is the loader's to refuse)."""
+    return "".join(f"[{name}]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in table.items())
+                   for name, table in doc.items())
+
+
+_SCALARS = st.one_of(st.integers(min_value=-10**500, max_value=10**500), st.floats(),
+                     st.text(max_size=12), st.booleans(), st.lists(st.integers(), max_size=3))
+
+
+@given(st.dictionaries(
+    st.sampled_from([*SECTIONS, "amplifer", "x"]),
+    st.dictionaries(st.sampled_from(sorted({k for keys in SECTIONS.values() for k in keys}
+                                           | {"chanel", "interface", "v_max_v"})),
+                    _SCALARS, max_size=6),
+    max_size=4))
+@settings(max_examples=300, deadline=1000, suppress_health_check=[HealthCheck.too_slow])
+def test_fuzzed_configurations_load_or_fail_in_one_line(doc: dict[str, Any]) -> None:
+    """Any document of the schema's shape with any values: a config or an InputError."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "fuzz.toml"
+        path.write_text(_toml(doc), encoding="utf-8")
+        try:
+            config = load_config(path)
+        except InputError as err:
+            assert "\n" not in str(err)
+        else:
+            assert isinstance(config, DaemonConfig)

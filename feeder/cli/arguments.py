@@ -1,16 +1,24 @@
-"""Argument types and option groups shared by the sub-commands."""
+"""Argument types and option groups shared by the sub-commands.
+
+Light to import (``feeder --help`` and ``feeder status`` load it): the physics
+modules are imported inside the functions that need them.
+"""
 
 from __future__ import annotations
 
 import argparse
 import math
+import re
 from dataclasses import replace
+from decimal import Decimal, DecimalException
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
 from feeder.errors import InputError
 from feeder.parts import SILICON_DENSITY_KG_M3, Part, Support
-from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters, load_surface
+
+if TYPE_CHECKING:
+    from feeder.surface.parameters import SurfaceParameters
 
 
 def positive_float(text: str) -> float:
@@ -24,6 +32,43 @@ def positive_float(text: str) -> float:
     return value
 
 
+_LENGTH_UNITS_M = {"": 1.0, "m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "μm": 1e-6, "nm": 1e-9}
+_ANGLE_UNITS_RAD = {"": 1.0, "rad": 1.0, "deg": math.pi / 180, "°": math.pi / 180}
+_QUANTITY_RE = re.compile(r"^\s*([-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?)\s*([^\d\s.+-]*)\s*$")
+
+
+def _quantity(text: str, units: dict[str, float], what: str, example: str) -> float:
+    match = _QUANTITY_RE.match(text)
+    if match is None or match.group(2) not in units:
+        raise argparse.ArgumentTypeError(
+            f"expected a {what} like {example} (units: {', '.join(u for u in units if u)}), got {text!r}")
+    try:        # in decimal, so 150um is exactly the float 150e-6
+        value = float(Decimal(match.group(1)) * Decimal(repr(units[match.group(2)])))
+    except DecimalException:        # an exponent beyond decimal's range
+        value = math.inf
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"not a finite {what}: {text!r}")
+    return value
+
+
+def length_m(text: str) -> float:
+    """argparse type: a length with a unit (``150um``, ``1µm``, ``1.2mm``) or in metres (``1e-6``) → m."""
+    return _quantity(text, _LENGTH_UNITS_M, "length", "1.5um")
+
+
+def positive_length_m(text: str) -> float:
+    """argparse type: a positive length (see :func:`length_m`) → m."""
+    value = length_m(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive length, got {text!r}")
+    return value
+
+
+def angle_rad(text: str) -> float:
+    """argparse type: an angle, ``15deg`` or radians (``0.26``, ``0.26rad``) → rad."""
+    return _quantity(text, _ANGLE_UNITS_RAD, "angle", "15deg")
+
+
 def add_part_arguments(
     p: argparse.ArgumentParser, *, part_required: bool = True, example: str = "300x300x50"
 ) -> None:
@@ -34,21 +79,28 @@ def add_part_arguments(
     p.add_argument("--density", type=positive_float, default=SILICON_DENSITY_KG_M3,
                    help=f"part density in kg/m³ (default silicon, {SILICON_DENSITY_KG_M3:g})")
     p.add_argument("--adhesion-work", type=float, metavar="J_M2",
-                   help="work of adhesion w in J/m² for DMT adhesion per summit (default: the "
-                        "surface file's, else 0 as in the paper; silicon in air ≈ 0.1)")
+                   help="work of adhesion w in J/m² for Maugis–Dugdale adhesion per summit (default: "
+                        "the surface file's, else 0 as in the paper); τ is then the one fitted with w")
 
 
 def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
-    """``--tau`` (and ``--tau-band``)."""
-    p.add_argument("--tau", type=positive_float, default=DEFAULT_TAU_PA,
-                   help=f"interfacial shear strength in Pa (default {DEFAULT_TAU_PA:g})")
+    """``--tau``, ``--tau-adhesion-work`` (and ``--tau-band``); None = the τ fitted with the surface's w."""
+    from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
+
+    p.add_argument("--tau", type=positive_float,
+                   help=f"interfacial shear strength in Pa (default: the paper's, {DEFAULT_TAU_PA:g} "
+                        "at w = 0, fitted again with the surface's w when it has one)")
+    p.add_argument("--tau-adhesion-work", type=float, metavar="J_M2",
+                   help="the w the given --tau was fitted with (default 0); must equal the contact's w")
     if band:
-        p.add_argument("--tau-band", type=float, default=DEFAULT_TAU_BAND_PA,
-                       help=f"± uncertainty of τ in Pa (default {DEFAULT_TAU_BAND_PA:g})")
+        p.add_argument("--tau-band", type=float,
+                       help=f"± band of τ in Pa (default {DEFAULT_TAU_BAND_PA / DEFAULT_TAU_PA:.3g}·τ)")
 
 
 def surface_from(args: argparse.Namespace) -> SurfaceParameters:
     """The ``--surface`` file (or the embedded default), with ``--adhesion-work`` applied."""
+    from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
+
     surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
     if getattr(args, "adhesion_work", None) is None:
         return surface
@@ -61,3 +113,24 @@ def surface_from(args: argparse.Namespace) -> SurfaceParameters:
 def part_from(args: argparse.Namespace) -> tuple[Part, Support, SurfaceParameters]:
     """Part, support and surface from :func:`add_part_arguments`' options."""
     return Part.parse(args.part, density_kg_m3=args.density), Support.parse(args.support), surface_from(args)
+
+
+def pose(text: str) -> tuple[float, float, float]:
+    """argparse type: ``X,Y,PSI`` (m, m, rad), finite numbers."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,PSI in m, m, rad, got {text!r}") from None
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,PSI, got {text!r}")
+    return values[0], values[1], values[2]
+
+
+def allow_negative_values(p: argparse.ArgumentParser) -> None:
+    """Let option values start with a minus sign (``--pose -1e-3,0,0``, ``--stroke-rad -0.01``).
+
+    argparse takes ``-1e-3,0,0`` for an option unless it looks like a plain
+    negative number; this parser has no options that look like numbers, so any
+    argument starting with ``-`` and a digit is a value.
+    """
+    p._negative_number_matcher = re.compile(r"^-\.?\d")

@@ -32,11 +32,12 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.placements <= 1_000_000:
         raise InputError("--placements", f"must be between 0 and 1000000, got {args.placements}")
     if args.table:
-        return _table(surface_from(args), args.tau, args.tau_band, args.placements, args.json)
+        return _table(surface_from(args), args, args.placements, args.json)
     if not args.part:
         raise InputError("--part", "required (LxWxT in µm, e.g. 300x300x50), or use --table")
     part, support, surface = part_from(args)
-    result = contact(part, support, surface, args.tau, args.tau_band, args.placements)
+    result = contact(part, support, surface, args.tau, args.tau_band, args.placements,
+                     tau_adhesion_work_j_m2=args.tau_adhesion_work)
     if args.json:
         print_json(result.to_json())
     else:
@@ -55,7 +56,12 @@ def _print_result(r: ContactResult) -> None:
     if r.real_area_band_m2 is not None:
         print(f"  A_r of placements {r.real_area_band_m2[0]:.5g} – {r.real_area_band_m2[1]:.5g} m²"
               f" (68 %, mean {r.real_area_sampled_mean_m2:.5g})")
-    print(f"  τ                 {r.tau_pa / 1e9:.2f} ± {r.tau_band_pa / 1e9:.2f} GPa")
+    print(f"  τ                 {r.tau_pa / 1e9:.4g} ± {r.tau_band_pa / 1e9:.3g} GPa ({r.tau_source})")
+    print(f"  plasticity index  {r.plasticity_index:.3g}")
+    if r.summit_tabor is not None:
+        print(f"  adhesion          {r.adhesion_n:.4g} N pull, {r.attracted_summits:.4g} summits attracted "
+              f"out of contact, Maugis λ {r.summit_tabor:.3g} per summit, Fuller–Tabor θ "
+              f"{r.adhesion_parameter:.3g}")
     print(f"  breakaway force   {r.breakaway_force_n * 1e6:.4g} µN  [{lo * 1e6:.4g}, {hi * 1e6:.4g}]")
     print(f"  breakaway accel   {r.breakaway_accel_m_s2:.4g} m/s²  [{alo:.4g}, {ahi:.4g}]"
           f"  ({r.breakaway_accel_m_s2 / 9.81:.3g} g)")
@@ -63,15 +69,16 @@ def _print_result(r: ContactResult) -> None:
         print(f"  warning: {w}")
 
 
-def _table(
-    surface: SurfaceParameters, tau: float, tau_band: float, placements: int, as_json: bool
-) -> int:
+def _table(surface: SurfaceParameters, args: argparse.Namespace, placements: int, as_json: bool) -> int:
     rows: list[dict[str, Any]] = []
     warnings: list[str] = []
+    tau = tau_band = 0.0
     for label, paper in PAPER_ROWS.items():
         part = Part.parse(label)
         for kind in ("flat", "grooved"):
-            r = contact(part, Support(kind), surface, tau, tau_band, placements)
+            r = contact(part, Support(kind), surface, args.tau, args.tau_band, placements,
+                        tau_adhesion_work_j_m2=args.tau_adhesion_work)
+            tau, tau_band = r.tau_pa, r.tau_band_pa
             paper_area = paper.real_area_flat_m2 if kind == "flat" else paper.real_area_grooved_m2
             rows.append({
                 "part": label,

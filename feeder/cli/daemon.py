@@ -15,7 +15,7 @@ from feeder.cli.output import print_json
 from feeder.daemon.config import TRANSPORTS, load_config
 from feeder.daemon.launcher import LaunchError
 from feeder.daemon.runner import start_daemon
-from feeder.daemon.store import StoreError
+from feeder.daemon.store import StoreError, move_aside
 from feeder.drivers.amplifier import AmplifierError
 from feeder.drivers.sensor import SensorLost
 
@@ -32,6 +32,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="extra firmware_sim argument (repeatable; e.g. --sim-arg=--seed=3)")
     parser.add_argument("--json", action="store_true",
                         help="print the ready object (socket, endpoints, ...) as JSON")
+    parser.add_argument("--reset-state", action="store_true",
+                        help="move the state database aside (renamed NAME.TIMESTAMP.bak) and "
+                             "start with a fresh one: calibration and history start empty")
     parser.add_argument("--log-level", choices=LOG_LEVELS, default="info",
                         help="log to stderr and to daemon.log in the state directory "
                              "(default %(default)s)")
@@ -63,9 +66,16 @@ def run(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, simulator_args=(*config.simulator_args,
                                                              *args.sim_arg))
     setup_logging(args.log_level, config.state_dir / "daemon.log")
+    if args.reset_state:
+        moved = move_aside(config.database_path)
+        if moved is not None:
+            logging.getLogger(__name__).warning("state database moved aside to %s", moved)
     try:
         running = start_daemon(config)
-    except (AmplifierError, SensorLost, StoreError, LaunchError) as err:
+    except StoreError as err:      # the state file is not ours: bad input, left untouched
+        print(f"feeder daemon: error: {err}", file=sys.stderr)
+        return 2
+    except (AmplifierError, SensorLost, LaunchError) as err:
         print(f"feeder daemon: error: {err}", file=sys.stderr)
         return 1
     stop = threading.Event()

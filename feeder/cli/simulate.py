@@ -10,15 +10,25 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.arguments import add_part_arguments, add_tau_arguments, part_from, positive_float
+from feeder.cli.arguments import (
+    add_part_arguments,
+    add_tau_arguments,
+    allow_negative_values,
+    part_from,
+    pose,
+    positive_float,
+)
 from feeder.cli.output import print_json
-from feeder.cli.waveform import load_checked
+from feeder.cli.waveform import file_amplifier, load_checked
 from feeder.contact.breakaway import contact
 from feeder.errors import InputError
 from feeder.files import save_figure
+from feeder.parts import Part
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.ideal_plate import linear_flyback_step, sawtooth_motion
+from feeder.plant.planar import PlanarPart, simulate
 from feeder.plant.plant import run_waveform
+from feeder.plant.plate_motion import AXES, sawtooth
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, StickSlip
 from feeder.waveform import DIRECTIONS
@@ -26,25 +36,75 @@ from feeder.waveform import DIRECTIONS
 
 def register(sub: Any) -> None:
     p = sub.add_parser("simulate", help="simulate a part stepping on the plate")
+    allow_negative_values(p)
     add_part_arguments(p, example="500x500x50")
     add_tau_arguments(p, band=False)
-    p.add_argument("--kinetic-ratio", type=positive_float, default=DEFAULT_KINETIC_RATIO,
-                   help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})")
+    p.add_argument(
+        "--kinetic-ratio",
+        type=positive_float,
+        default=DEFAULT_KINETIC_RATIO,
+        help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})",
+    )
     p.add_argument("--waveform", type=Path, help="waveform TOML (full plant, or --ideal)")
     p.add_argument("--periods", type=int, default=20, help="periods to simulate (default 20)")
-    p.add_argument("--scatter", type=float, default=0.0,
-                   help="relative step-to-step scatter of a_s (plant only, default 0)")
+    p.add_argument(
+        "--scatter",
+        type=float,
+        default=0.0,
+        help="relative step-to-step scatter of a_s (plant only, default 0)",
+    )
     p.add_argument("--seed", type=int, help="seed for --scatter")
-    p.add_argument("--ideal", action="store_true",
-                   help="ideal plate: follows the sawtooth exactly (no amplifier, no stack)")
+    p.add_argument(
+        "--ideal",
+        action="store_true",
+        help="ideal plate: follows the sawtooth exactly (no amplifier, no stack)",
+    )
     p.add_argument("--stroke-m", type=positive_float, help="ideal plate: stroke S in m")
     p.add_argument("--frequency-hz", type=positive_float, help="ideal plate: frequency")
     p.add_argument("--flyback-s", type=positive_float, help="ideal plate: flyback duration")
-    p.add_argument("--flyback-shape", default="linear", choices=("linear", "half-cosine"),
-                   help="ideal plate: flyback shape (default linear)")
-    p.add_argument("--direction", default="forward", choices=DIRECTIONS,
-                   help="ideal plate: direction (default forward)")
-    p.add_argument("--plot", type=Path, metavar="PNG", help="plot part and plate position")
+    p.add_argument(
+        "--flyback-shape",
+        default="linear",
+        choices=("linear", "half-cosine"),
+        help="ideal plate: flyback shape (default linear)",
+    )
+    p.add_argument(
+        "--direction", default="forward", choices=DIRECTIONS, help="ideal plate: direction (default forward)"
+    )
+    p.add_argument(
+        "--axis",
+        default="x",
+        choices=AXES,
+        help="driven plate axis: x, y or theta about O (default x; theta needs --ideal)",
+    )
+    p.add_argument(
+        "--pose",
+        type=pose,
+        default=(0.0, 0.0, 0.0),
+        metavar="X,Y,PSI",
+        help="part pose in the plate frame, origin at O: m, m, rad (default 0,0,0)",
+    )
+    p.add_argument("--stroke-rad", type=positive_float, help="ideal plate, --axis theta: stroke in rad")
+    p.add_argument(
+        "--part-shape",
+        default="rectangle",
+        choices=("rectangle", "disc"),
+        help="footprint for --axis theta: rectangle LxW or disc of diameter L (default rectangle)",
+    )
+    p.add_argument(
+        "--map",
+        type=Path,
+        metavar="PNG",
+        help="ideal plate: quiver plot of the per-period pose change over a grid of poses",
+    )
+    p.add_argument(
+        "--map-extent-m",
+        type=positive_float,
+        default=2.5e-3,
+        help="--map: grid half-width around O in m (default 2.5e-3)",
+    )
+    p.add_argument("--map-points", type=int, default=11, help="--map: grid points per side (default 11)")
+    p.add_argument("--plot", type=Path, metavar="PNG", help="plot part and plate position (x or y)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
 
@@ -56,78 +116,201 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--kinetic-ratio", f"must lie in (0, 1], got {args.kinetic_ratio}")
     if not (math.isfinite(args.scatter) and args.scatter >= 0):
         raise InputError("--scatter", f"must be a non-negative number, got {args.scatter}")
+    if args.axis == "theta" and not args.ideal:
+        raise InputError("--axis", "theta needs --ideal (the streaming plant drives x or y)")
+    if args.map is not None and not args.ideal:
+        raise InputError("--map", "needs --ideal")
+    if not 2 <= args.map_points <= 41:
+        raise InputError("--map-points", f"must be 2–41, got {args.map_points}")
+    if args.axis == "theta" and args.plot:
+        raise InputError("--plot", "traces are for --axis x or y; use --map for theta")
     part, support, surface = part_from(args)
     result = contact(part, support, surface, args.tau)
     friction = Friction(result.breakaway_accel_m_s2, args.kinetic_ratio)
     out: dict[str, Any] = {"part": part.label, "support": args.support,
                            "breakaway_accel_m_s2": friction.static_accel_m_s2,
-                           "kinetic_accel_m_s2": friction.kinetic_accel_m_s2}  # fmt: skip
-    if args.ideal:
-        steps, slip_fraction, time, part_x, plate_x, extra = _ideal(args, friction)
+                           "kinetic_accel_m_s2": friction.kinetic_accel_m_s2,
+                           "axis": args.axis}  # fmt: skip
+    plot = None
+    if args.axis == "theta":
+        steps, slip_fraction, poses, extra = _theta(args, part, friction)
     else:
-        if args.waveform is None:
-            raise InputError("--waveform", "required unless --ideal")
-        if args.scatter > 0 and args.seed is None:
-            args.seed = 0
-        waveform = load_checked(args.waveform, AmplifierLimits())
-        if not args.json:
-            print(f"simulating {args.periods} periods at 100 kS/s ...", file=sys.stderr)
-        run_ = run_waveform(friction, waveform, args.periods, scatter=args.scatter, seed=args.seed)
-        steps, slip_fraction = run_.steps_m, run_.slip_fraction
-        time, part_x, plate_x = run_.time_s, run_.part_position_m, run_.plate_position_m
-        extra = {"model": "plant", "waveform": str(args.waveform)}
+        if args.ideal:
+            steps, slip_fraction, time, part_x, plate_x, extra = _ideal(args, friction)
+        else:
+            if args.waveform is None:
+                raise InputError("--waveform", "required unless --ideal")
+            if args.scatter > 0 and args.seed is None:
+                args.seed = 0
+            amplifier = file_amplifier(args.waveform)  # a design file's [amplifier], else the default
+            waveform = load_checked(args.waveform, amplifier)
+            if not args.json:
+                print(f"simulating {args.periods} periods at 100 kS/s ...", file=sys.stderr)
+            run_ = run_waveform(friction, waveform, args.periods, amplifier, scatter=args.scatter,
+                                seed=args.seed)  # fmt: skip
+            steps, slip_fraction = run_.steps_m, run_.slip_fraction
+            time, part_x, plate_x = run_.time_s, run_.part_position_m, run_.plate_position_m
+            extra = {"model": "plant", "waveform": str(args.waveform)}
+        plot = (time, part_x, plate_x)
+        # a translation moves the part along the driven axis of the plate, whatever its ψ
+        poses = np.tile(np.asarray(args.pose, dtype=float), (steps.size, 1))
+        poses[:, 0 if args.axis == "x" else 1] += np.cumsum(steps)
     out.update(extra)
-    out.update({
-        "step_mean_m": float(np.mean(steps)),
-        "step_std_m": float(np.std(steps, ddof=1)) if steps.size > 1 else 0.0,
-        "net_displacement_m": float(np.sum(steps)),
-        "periods": int(steps.size),
-        "slip_fraction": slip_fraction,
-        "steps_m": steps,
-        "warnings": list(result.warnings),
-    })
-    if args.plot:
-        _plot(time, part_x, plate_x, args.plot)
+    steady = steps[1:] if steps.size > 1 else steps  # the first period starts from the initial state
+    out.update(
+        {
+            "step_mean_m": float(np.mean(steady)),
+            "step_std_m": float(np.std(steady, ddof=1)) if steady.size > 1 else 0.0,
+            "first_step_m": float(steps[0]),
+            "net_displacement_m": float(np.sum(steps)),
+            "periods": int(steps.size),
+            "slip_fraction": slip_fraction,
+            "steps_m": steps,
+            "pose_start": list(args.pose),
+            "poses": poses,
+            "warnings": list(result.warnings),
+        }
+    )
+    if args.axis == "theta":
+        turns = np.diff(np.concatenate(([args.pose[2]], poses[:, 2])))
+        out["turns_rad"] = turns
+        out["turn_mean_rad"] = float(np.mean(turns[1:] if turns.size > 1 else turns))
+    if args.plot and plot is not None:
+        _plot(*plot, args.plot)
         out["plot"] = str(args.plot)
+    if args.map is not None:
+        out["map_pose_changes"] = _map(args, part, friction)
+        out["map"] = str(args.map)
     if args.json:
         print_json(out)
     else:
-        print(f"part {part.label} µm, a_s {friction.static_accel_m_s2:.4g} m/s², "
-              f"a_k {friction.kinetic_accel_m_s2:.4g} m/s² ({out['model']})")
-        print(f"  step   {out['step_mean_m'] * 1e6:.4f} ± {out['step_std_m'] * 1e6:.4f} µm "
-              f"over {out['periods']} periods")
-        print(f"  net    {out['net_displacement_m'] * 1e6:.4f} µm, slipping "
-              f"{100 * slip_fraction:.2f} % of the time")
+        print(
+            f"part {part.label} µm, a_s {friction.static_accel_m_s2:.4g} m/s², "
+            f"a_k {friction.kinetic_accel_m_s2:.4g} m/s² ({out['model']}, axis {args.axis})"
+        )
+        print(
+            f"  step   {out['step_mean_m'] * 1e6:.4f} ± {out['step_std_m'] * 1e6:.4f} µm "
+            f"(steady state; first period {out['first_step_m'] * 1e6:.4f} µm) "
+            f"over {out['periods']} periods"
+        )
+        if "turn_mean_rad" in out:
+            print(f"  turn   {out['turn_mean_rad'] * 1e3:.4f} mrad per period")
+        print(f"  pose   {' '.join(f'{v:.6g}' for v in poses[-1])} (m, m, rad) after the last period")
+        print(
+            f"  net    {out['net_displacement_m'] * 1e6:.4f} µm, slipping "
+            f"{100 * slip_fraction:.2f} % of the time"
+        )
         if "closed_form_step_m" in out:
             print(f"  closed form {out['closed_form_step_m'] * 1e6:.6f} µm")
     return 0
 
 
-def _ideal(args: argparse.Namespace, friction: Friction) -> tuple[
-        np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:  # fmt: skip
-    """Ideal plate from --stroke-m/--frequency-hz/--flyback-s, or from --waveform."""
-    direction = args.direction
-    shape = args.flyback_shape
+def _sawtooth_parameters(args: argparse.Namespace, stroke: float | None) -> tuple[
+        float, float, float, str, str]:  # fmt: skip
+    """(stroke, frequency, flyback, flyback shape, direction) of the ideal plate.
+
+    From --waveform (stroke = stack gain × amplitude, or ``stroke`` when given;
+    a current-limited flyback becomes the linear ramp the amplifier makes, with
+    the swing it reaches) or from --stroke-m/--stroke-rad, --frequency-hz, --flyback-s.
+    """
+    stroke_flag = "--stroke-rad" if args.axis == "theta" else "--stroke-m"
     if args.waveform is not None:
         amplifier, stack = AmplifierLimits(), StackParameters()
         waveform = load_checked(args.waveform, amplifier)
-        stroke = stack.gain_m_per_v * waveform.amplitude_vpp
+        full = stroke if stroke is not None else stack.gain_m_per_v * waveform.amplitude_vpp
         frequency, direction = waveform.frequency_hz, waveform.direction
         if waveform.flyback_shape == "current-limited":
             t_f, fraction = amplifier.current_limited_flyback(
                 waveform.amplitude_vpp, frequency, stack.capacitance_f)  # fmt: skip
-            flyback, stroke, shape = float(t_f), stroke * float(fraction), "linear"
-        else:
-            flyback, shape = waveform.command_flyback_s, waveform.flyback_shape
-    else:
-        for name in ("stroke_m", "frequency_hz", "flyback_s"):
-            if getattr(args, name) is None:
-                raise InputError(f"--{name.replace('_', '-')}", "required with --ideal (or give --waveform)")
-        stroke, frequency, flyback = args.stroke_m, args.frequency_hz, args.flyback_s
-        if flyback >= 1.0 / frequency:
-            raise InputError(
-                "--flyback-s", f"{flyback:g} s is not shorter than the period {1 / frequency:g} s"
-            )
+            return full * float(fraction), frequency, float(t_f), "linear", direction
+        return full, frequency, waveform.command_flyback_s, waveform.flyback_shape, direction
+    for name, flag in ((stroke, stroke_flag), (args.frequency_hz, "--frequency-hz"),
+                       (args.flyback_s, "--flyback-s")):  # fmt: skip
+        if name is None:
+            raise InputError(flag, "required with --ideal (or give --waveform)")
+    assert stroke is not None
+    if args.flyback_s >= 1.0 / args.frequency_hz:
+        raise InputError(
+            "--flyback-s", f"{args.flyback_s:g} s is not shorter than the period {1 / args.frequency_hz:g} s"
+        )
+    return stroke, args.frequency_hz, args.flyback_s, args.flyback_shape, args.direction
+
+
+def _strokes(args: argparse.Namespace) -> tuple[tuple[float, float, float], float, float, str]:
+    """Signed (S_x, S_y, S_θ), frequency, flyback, shape for the driven axis."""
+    if args.axis == "theta" and args.stroke_rad is None:
+        raise InputError("--stroke-rad", "required with --axis theta")
+    stroke, frequency, flyback, shape, direction = _sawtooth_parameters(
+        args, args.stroke_rad if args.axis == "theta" else args.stroke_m)  # fmt: skip
+    signed = stroke if direction == "forward" else -stroke
+    strokes = [0.0, 0.0, 0.0]
+    strokes[AXES.index(args.axis)] = signed
+    return (strokes[0], strokes[1], strokes[2]), frequency, flyback, shape
+
+
+def _theta(args: argparse.Namespace, part: Part, friction: Friction) -> tuple[
+        np.ndarray, float, np.ndarray, dict[str, Any]]:  # fmt: skip
+    """The planar solver on one part: per-period distance moved, slip fraction, poses, extra keys."""
+    strokes, frequency, flyback, shape = _strokes(args)
+    planar = PlanarPart.from_part(part, friction, args.pose, args.part_shape)
+    run_ = simulate([planar], sawtooth(strokes, frequency, flyback, shape, args.periods))
+    steps = np.hypot(run_.changes[0, :, 0], run_.changes[0, :, 1])
+    extra: dict[str, Any] = {
+        "model": "ideal-planar",
+        "stroke_rad": strokes[2],
+        "frequency_hz": frequency,
+        "flyback_s": flyback,
+        "flyback_shape": shape,
+        "part_shape": args.part_shape,
+    }
+    return steps, float(run_.slip_fraction[0]), run_.poses[0], extra
+
+
+def _map(args: argparse.Namespace, part: Part, friction: Friction) -> list[list[float]]:
+    """Steady-state pose change (second period) at each grid pose; draws the quiver plot."""
+    strokes, frequency, flyback, shape = _strokes(args)
+    motion = sawtooth(strokes, frequency, flyback, shape, 2)
+    grid = np.linspace(-args.map_extent_m, args.map_extent_m, args.map_points)
+    rows = []
+    for y in grid:
+        for x in grid:
+            planar = PlanarPart.from_part(part, friction, (float(x), float(y), args.pose[2]),
+                                          args.part_shape)  # fmt: skip
+            dx, dy, dpsi = simulate([planar], motion).changes[0, -1]
+            rows.append([float(x), float(y), float(dx), float(dy), float(dpsi)])
+    _quiver(np.array(rows), args, args.map)
+    return rows
+
+
+def _quiver(rows: np.ndarray, args: argparse.Namespace, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x, y, dx, dy, dpsi = rows.T
+    fig, ax = plt.subplots(figsize=(6.4, 5.4))
+    quiver = ax.quiver(x * 1e3, y * 1e3, dx * 1e6, dy * 1e6, dpsi * 1e3, cmap="coolwarm",
+                       angles="xy", pivot="mid")  # fmt: skip
+    fig.colorbar(quiver, ax=ax, label="turn per period Δψ (mrad)")
+    moved = np.hypot(dx, dy)
+    if moved.max() > 0:
+        ax.quiverkey(quiver, 0.75, -0.13, float(moved.max() * 1e6),
+                     f"{moved.max() * 1e6:.3g} µm/period", labelpos="E")  # fmt: skip
+    ax.plot([0], [0], "k+", ms=12)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_aspect("equal")
+    ax.set_title(f"{args.part} µm, ψ = {args.pose[2]:g} rad, axis {args.axis}: pose change per period",
+                 fontsize=9)  # fmt: skip
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def _ideal(args: argparse.Namespace, friction: Friction) -> tuple[
+        np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:  # fmt: skip
+    """Ideal plate from --stroke-m/--frequency-hz/--flyback-s, or from --waveform (x or y axis)."""
+    stroke, frequency, flyback, shape, direction = _sawtooth_parameters(args, args.stroke_m)
     sign = 1.0 if direction == "forward" else -1.0
     motion = sawtooth_motion(stroke, frequency, flyback, shape, args.periods, sign)
     solver = StickSlip(friction)
@@ -138,8 +321,14 @@ def _ideal(args: argparse.Namespace, friction: Friction) -> tuple[
     time = np.concatenate(([0.0], ends))
     plate = np.concatenate(([sign * stroke], motion.position_m[0]))
     part_x = plate + np.concatenate(([0.0], rel))
-    extra: dict[str, Any] = {"model": "ideal", "stroke_m": stroke, "frequency_hz": frequency,
-                             "flyback_s": flyback, "flyback_shape": shape, "direction": direction}
+    extra: dict[str, Any] = {
+        "model": "ideal",
+        "stroke_m": stroke,
+        "frequency_hz": frequency,
+        "flyback_s": flyback,
+        "flyback_shape": shape,
+        "direction": direction,
+    }
     if shape == "linear":
         extra["closed_form_step_m"] = sign * float(linear_flyback_step(
             stroke, 1.0 / frequency - flyback, flyback, friction.kinetic_accel_m_s2))  # fmt: skip

@@ -20,9 +20,13 @@ from feeder.surface.statistics import (
     SurfaceStatistics,
     equivalent_surface,
     find_summits,
+    low_pass,
     remove_plane,
     surface_statistics,
 )
+
+NOISE_FRACTION_WARNING = 0.1
+"""Warn when the summit density exceeds this fraction of pure pixel noise's (summits closer than ~3 px)."""
 
 NOTES = (
     "heights are measured from the least-squares mean plane of each scan",
@@ -43,6 +47,9 @@ def register(sub: Any) -> None:
     p.add_argument("--youngs-modulus", type=positive_float, default=169e9,
                    help="Young's modulus of both bodies in Pa (default silicon, 169e9)")
     p.add_argument("--poisson", type=float, default=0.28, help="Poisson ratio (default 0.28)")
+    p.add_argument("--cutoff-wavelength", type=positive_float, metavar="M",
+                   help="Gaussian low-pass (ISO 16610-61, 50 %% at this wavelength in m) before the "
+                        "statistics; the unfiltered figures are reported beside")
     p.add_argument("--out", type=Path, help="write the surface TOML read by `feeder contact --surface`")
     p.add_argument("--plot", type=Path, help="PNG of the height map(s) with the summits marked")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -56,6 +63,10 @@ def run(args: argparse.Namespace) -> int:
         if target is not None and (target.is_dir() or not target.parent.is_dir()):
             raise InputError(flag, f"cannot write {target}: a directory, or its directory does not exist")
     maps = [read_height_map(p, args.channel, args.pixel_size, args.height_unit) for p in args.scans]
+    unfiltered = [surface_statistics(m) for m in maps] if args.cutoff_wavelength else []
+    if args.cutoff_wavelength:
+        maps = [dataclasses.replace(m, heights_m=low_pass(remove_plane(m.heights_m), m.pixel_size_m,
+                                                           args.cutoff_wavelength)) for m in maps]
     stats = [surface_statistics(m) for m in maps]
     for s in stats:
         if s.summit_count == 0 or not np.isfinite(s.mean_summit_radius_m):
@@ -65,6 +76,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         surface = equivalent_surface(stats[0], stats[1], args.youngs_modulus, args.poisson)
     report = _report(stats, surface)
+    report["warnings"] = _resolution_warnings(stats, args.cutoff_wavelength)
+    if unfiltered:
+        report["cutoff_wavelength_m"] = args.cutoff_wavelength
+        report["unfiltered"] = [
+            {key: getattr(u, key) for key in ("sq_m", "summit_density_per_m2", "mean_summit_radius_m",
+                                              "noise_summit_fraction")}
+            for u in unfiltered
+        ]
     if args.plot is not None:
         _plot(maps, args.plot)
         report["plot"] = str(args.plot)
@@ -76,6 +95,19 @@ def run(args: argparse.Namespace) -> int:
     else:
         _print_report(report)
     return 0
+
+
+def _resolution_warnings(stats: list[SurfaceStatistics], cutoff: float | None) -> list[str]:
+    out = []
+    for s in stats:
+        if s.noise_summit_fraction > NOISE_FRACTION_WARNING:
+            out.append(
+                f"{s.source}: summit density {s.summit_density_per_m2 * 1e-12:.4g} µm⁻² is "
+                f"{s.noise_summit_fraction:.2f} of what pure pixel noise gives (1/(9 px²)): the summits "
+                "are mostly pixel noise, not asperities"
+                + ("" if cutoff else "; try --cutoff-wavelength (e.g. 5 pixels)")
+            )
+    return out
 
 
 def _scan_json(s: SurfaceStatistics) -> dict[str, Any]:
@@ -132,6 +164,8 @@ def _print_report(report: dict[str, Any]) -> None:
             print(f"wrote {report[key]}")
     for note in report["notes"]:
         print(f"note: {note}")
+    for warning in report["warnings"]:
+        print(f"warning: {warning}")
 
 
 def _plot(maps: list[HeightMap], path: Path) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -12,13 +13,19 @@ from feeder.cli.friction import add_curve_options, analyse_files
 from feeder.cli.output import print_json
 from feeder.contact.asperity_sampling import DEFAULT_PLACEMENTS
 from feeder.contact.breakaway import contact
+from feeder.contact.tau_pair import ADHESION_WORK_REL_BAND
 from feeder.errors import InputError
 from feeder.friction.shear_strength import shear_strength
+from feeder.paper import TAU_MEAN_PA, TAU_SPREAD_PA
 
 BAND_NOTE = (
-    "tau band = tau * sqrt((s_F/mean F)^2 + (dA/A_r)^2), s_F the sample std of the forces (ddof 1), "
-    "dA/A_r the relative real-area band (--area-band; by default the half-width of the A_r interval "
-    "of 68 % of random placements of the part, sampled summit by summit)"
+    "tau band = tau * sqrt(scatter^2 + (dA/A_r)^2), each source counted once: scatter = s_F/mean F "
+    "(sample std, ddof 1) of two or more forces, which already holds the placement-to-placement "
+    "scatter of A_r (every measurement is a placement); for one force, the predicted scatter of one "
+    "placement (68 % interval of placements sampled summit by summit, w = 0) or the paper's relative "
+    "spread 3.15/22.18 (w > 0). dA/A_r = the model's real-area uncertainty: the half-width of A_r over "
+    "the w band (--adhesion-work-band, default ±8.64 % of w, the band that maps the measured "
+    "grooved/flat ratio 0.70-0.78), or --area-band; 0 with --real-area and no --area-band"
 )
 
 
@@ -30,8 +37,10 @@ def register(sub: Any) -> None:
     p.add_argument("--real-area", type=positive_float,
                    help="use this real contact area in m² instead of the GW model")
     p.add_argument("--area-band", type=float,
-                   help="relative half-width of the real-area band, e.g. 0.1 (default: from "
-                        "placements sampled summit by summit; 0 with --real-area)")
+                   help="relative half-width of the model's real-area band, e.g. 0.1 (default: A_r over "
+                        "the w band; 0 with --real-area)")
+    p.add_argument("--adhesion-work-band", type=float, metavar="J_M2",
+                   help=f"± uncertainty of --adhesion-work (default {ADHESION_WORK_REL_BAND:g} w)")
     add_curve_options(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
@@ -69,14 +78,32 @@ def run(args: argparse.Namespace) -> int:
     part, support, surface = part_from(args)
     forces, sources = _forces(args)
     given_area = args.real_area is not None
-    model = contact(part, support, surface, placements=0 if given_area else DEFAULT_PLACEMENTS)
+    w = surface.adhesion_work_j_m2
+    model = contact(part, support, surface, placements=0 if given_area or w else DEFAULT_PLACEMENTS)
     area = args.real_area if given_area else model.real_area_m2
+    w_band = ADHESION_WORK_REL_BAND * w if args.adhesion_work_band is None else args.adhesion_work_band
+    if not (math.isfinite(w_band) and (w_band == 0 or 0 < w_band < w)):
+        raise InputError("--adhesion-work-band", f"must be ≥ 0 and below w, got {w_band!r}")
+    area_ends = (area, area)
+    if not given_area and w_band > 0:
+        area_ends = tuple(  # type: ignore[assignment]
+            contact(part, support, replace(surface, adhesion_work_j_m2=w + sign * w_band)).real_area_m2
+            for sign in (-1.0, 1.0)
+        )
     area_band = args.area_band
     if area_band is None:
-        lo, hi = model.real_area_band_m2 or (area, area)
-        area_band = (hi - lo) / (hi + lo)
-    result = shear_strength(forces, area, area_band)
-    checked = contact(part, support, surface, result.tau_pa, min(result.tau_band_pa, 0.999 * result.tau_pa))
+        area_band = 0.0 if given_area else abs(area_ends[1] - area_ends[0]) / (area_ends[1] + area_ends[0])
+    scatter_source = "force spread"
+    single_scatter = 0.0
+    if len(forces) == 1 and not given_area:
+        if model.real_area_band_m2 is not None:
+            lo, hi = model.real_area_band_m2
+            single_scatter, scatter_source = (hi - lo) / (hi + lo), "placement sampling"
+        else:
+            single_scatter, scatter_source = TAU_SPREAD_PA / TAU_MEAN_PA, "paper's relative spread"
+    result = shear_strength(forces, area, area_band, single_scatter)
+    checked = contact(part, support, surface, result.tau_pa, min(result.tau_band_pa, 0.999 * result.tau_pa),
+                      tau_adhesion_work_j_m2=w)
     report: dict[str, Any] = {
         "tau_pa": result.tau_pa,
         "tau_band_pa": result.tau_band_pa,
@@ -92,7 +119,11 @@ def run(args: argparse.Namespace) -> int:
             "force_sources": sources,
             "real_area_source": "--real-area" if args.real_area is not None else "GW model",
             "area_band": area_band,
+            "adhesion_work_j_m2": w,
+            "adhesion_work_band_j_m2": w_band,
+            "scatter_source": scatter_source,
         },
+        "tau_adhesion_work_j_m2": w,
         "model_real_area_m2": model.real_area_m2,
         "separation_m": model.separation_m,
         "contacts": model.contacts,

@@ -1,7 +1,9 @@
 """Breakaway force F = τ·A_r and acceleration a = F/m of a part on its support (paper eq. 7).
 
-The separation d is found from the part's weight (eq. 10), A_r from eq. 11.
-τ carries its uncertainty band (paper: 22.18 ± 3.15 GPa) into bands on F and a.
+The separation d is found from the part's weight (eq. 10), A_r from eq. 11 (with
+Maugis–Dugdale summits when w > 0).  τ comes paired with the w it was fitted with
+(:mod:`feeder.contact.tau_pair`; paper: 22.18 ± 3.15 GPa at w = 0) and carries its
+band into bands on F and a.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import numpy as np
 
 from feeder.contact.asperity_sampling import sample_contact
 from feeder.contact.greenwood_williamson import GreenwoodWilliamson
+from feeder.contact.tau_pair import tau_pair
 from feeder.errors import InputError
 from feeder.paper import GROOVED_AREA_RATIO, GROOVED_FRICTION_RATIO, TAU_MEAN_PA, TAU_SPREAD_PA
 from feeder.parts import FLAT, Part, Support
@@ -23,10 +26,10 @@ DEFAULT_TAU_PA = TAU_MEAN_PA
 DEFAULT_TAU_BAND_PA = TAU_SPREAD_PA
 IDEAL_SHEAR_STRENGTH_PA = 9.6e9
 """Silicon's ideal shear strength, G{111}/2π ≈ 9.6 GPa (range quoted 6–10 GPa)."""
-EQUILIBRIUM_SPACING_M = 0.3e-9
-"""Interatomic equilibrium spacing z0 in Tabor's parameter."""
 MIN_CONTACTS = 10.0
 """Below this many contacting asperities GW's statistical averaging is unreliable."""
+ELASTIC_PLASTICITY_INDEX = 0.6
+PLASTIC_PLASTICITY_INDEX = 1.0
 
 
 @dataclass(frozen=True)
@@ -53,7 +56,16 @@ class ContactResult:
     real_area_sampled_mean_m2: float | None = None
     adhesion_work_j_m2: float = 0.0
     adhesion_n: float = 0.0
-    """DMT adhesive pull of the contacting summits (N); 0 without adhesion."""
+    """Adhesive pull of the summits, in and out of contact (N); 0 without adhesion."""
+    tau_adhesion_work_j_m2: float = 0.0
+    tau_source: str = ""
+    plasticity_index: float = 0.0
+    attracted_summits: float = 0.0
+    """Summits out of contact within the adhesive range, pulling."""
+    summit_tabor: float | None = None
+    """Maugis' λ of one summit (None without adhesion)."""
+    adhesion_parameter: float | None = None
+    """Fuller–Tabor's θ = E*σ^{3/2}/(w R^{1/2}) (None without adhesion)."""
 
     def to_json(self) -> dict[str, Any]:
         """The ``feeder contact --json`` object (unit in every key)."""
@@ -76,15 +88,20 @@ class ContactResult:
             "real_area_sampled_mean_m2": self.real_area_sampled_mean_m2,
             "adhesion_work_j_m2": self.adhesion_work_j_m2,
             "adhesion_force_N": self.adhesion_n,
+            "tau_adhesion_work_j_m2": self.tau_adhesion_work_j_m2,
+            "tau_source": self.tau_source,
+            "attracted_summits": self.attracted_summits,
+            "summit_tabor": self.summit_tabor,
+            "adhesion_parameter": self.adhesion_parameter,
+            "plasticity_index": self.plasticity_index,
             "warnings": list(self.warnings),
         }
 
 
-def tabor_parameter(surface: SurfaceParameters) -> float:
-    """Tabor's μ = (R w² / (E*² z0³))^{1/3}, z0 = 0.3 nm: DMT holds for μ ≲ 0.1, JKR above ~5."""
+def adhesion_parameter(surface: SurfaceParameters) -> float:
+    """Fuller & Tabor's θ = E*·σ^{3/2}/(w·R^{1/2}) (1975): adhesion matters when θ ≲ 10."""
     s = surface
-    return float((s.summit_radius_m * s.adhesion_work_j_m2**2
-                  / (s.effective_modulus_pa**2 * EQUILIBRIUM_SPACING_M**3)) ** (1 / 3))
+    return s.effective_modulus_pa * s.sigma_m**1.5 / (s.adhesion_work_j_m2 * math.sqrt(s.summit_radius_m))
 
 
 def _warnings(
@@ -93,7 +110,19 @@ def _warnings(
 ) -> list[str]:
     out = []
     w = surface.adhesion_work_j_m2
-    hint = "" if w else " (--adhesion-work adds DMT adhesion; w ≈ 0.1 J/m² for silicon in air)"
+    hint = "" if w else " (--adhesion-work adds Maugis–Dugdale adhesion; silicon in air: w ≈ 0.02–0.1 J/m²)"
+    psi = surface.plasticity_index
+    if psi > PLASTIC_PLASTICITY_INDEX:
+        out.append(
+            f"plasticity index ψ = {psi:.2f} > {PLASTIC_PLASTICITY_INDEX:g}: most summits yield; the "
+            "elastic (Hertz/GW) model no longer holds"
+        )
+    elif psi > ELASTIC_PLASTICITY_INDEX:
+        out.append(
+            f"plasticity index ψ = {psi:.2f} > {ELASTIC_PLASTICITY_INDEX:g} (E*/H·√(σ/R), H = "
+            f"{surface.hardness_pa / 1e9:.3g} GPa): part of the summits yield; the elastic model is "
+            "borderline (elastic below 0.6, mostly plastic above 1)"
+        )
     if contacts < MIN_CONTACTS:
         out.append(
             f"only {contacts:.2g} asperities in contact (< {MIN_CONTACTS:g}): Greenwood–Williamson "
@@ -104,33 +133,28 @@ def _warnings(
             f"τ = {tau_pa / 1e9:.2f} GPa exceeds silicon's ideal shear strength (≈ 6–10 GPa, "
             + ("G{111}/2π ≈ 9.6 GPa): the model neglects adhesion, so A_r is underestimated and τ "
                "absorbs the difference" + hint if not w else
-               f"G{{111}}/2π ≈ 9.6 GPa), even with adhesion w = {w:g} J/m²; re-estimate τ from the "
-               "measured forces with the same w (feeder tau --adhesion-work)")
+               f"G{{111}}/2π ≈ 9.6 GPa), even with adhesion w = {w:g} J/m²")
         )
-    if w:
-        mu = tabor_parameter(surface)
-        if adhesion_n > part.weight_n:
-            out.append(
-                f"DMT adhesion ({adhesion_n:.3g} N) exceeds the part's weight ({part.weight_n:.3g} N): "
-                "the contact is adhesion-dominated"
-            )
-        if mu > 0.1:
-            out.append(f"Tabor parameter {mu:.2g} > 0.1: DMT is only approximate (JKR above ~5)")
+    if w and adhesion_n > part.weight_n:
+        out.append(
+            f"adhesion ({adhesion_n:.3g} N) exceeds the part's weight ({part.weight_n:.3g} N): the "
+            "contact is adhesion-dominated and A_r scales with the nominal area, not the weight"
+        )
     if support.kind == "grooved":
         flat = GreenwoodWilliamson(surface, FLAT.nominal_area_m2(part))
         ratio = real_area_m2 / float(flat.real_area_m2(flat.separation_m(part.weight_n)))
         if w:
             out.append(
-                f"grooved/flat real-area ratio is {ratio:.3f} with DMT adhesion w = {w:g} J/m² "
-                f"(measured friction ratio {GROOVED_FRICTION_RATIO}): the adhesive load scales "
-                "with the nominal area"
+                f"grooved/flat real-area ratio is {ratio:.3f} with Maugis–Dugdale adhesion "
+                f"w = {w:g} J/m² (measured friction ratio {GROOVED_FRICTION_RATIO}; feeder adhesion "
+                "fit finds the w that gives it)"
             )
         else:
             out.append(
                 f"grooved/flat real-area ratio is {ratio:.3f} in this model, not the paper's "
                 f"{GROOVED_AREA_RATIO}: halving the summits at the same load barely changes A_r in "
                 "GW/Hertz; the measured friction ratio "
-                f"{GROOVED_FRICTION_RATIO} needs adhesion (DMT), whose load scales with nominal area"
+                f"{GROOVED_FRICTION_RATIO} needs adhesion, whose load scales with nominal area"
                 + hint
             )
     return out
@@ -140,20 +164,23 @@ def contact(
     part: Part,
     support: Support = FLAT,
     surface: SurfaceParameters = DEFAULT_SURFACE,
-    tau_pa: float = DEFAULT_TAU_PA,
-    tau_band_pa: float = DEFAULT_TAU_BAND_PA,
+    tau_pa: float | None = None,
+    tau_band_pa: float | None = None,
     placements: int = 0,
+    *,
+    tau_adhesion_work_j_m2: float | None = None,
 ) -> ContactResult:
     """Separation, real area and breakaway force/acceleration of ``part`` resting on ``support``.
 
+    τ and w are a pair (:func:`feeder.contact.tau_pair.tau_pair`): without ``tau_pa``
+    the τ fitted with the surface's w is used; a given ``tau_pa`` is fitted with
+    ``tau_adhesion_work_j_m2`` (default 0) and refused if that is not the surface's w.
     ``placements`` > 0 also samples that many random placements summit by summit
     (:mod:`feeder.contact.asperity_sampling`, ~0.1 s for 2000) for the A_r band
     (without adhesion only: the sampling balances Hertz loads).
     """
-    if not (math.isfinite(tau_pa) and tau_pa > 0):
-        raise InputError("--tau", f"must be a positive number of pascals, got {tau_pa!r}")
-    if not (math.isfinite(tau_band_pa) and 0 <= tau_band_pa < tau_pa):
-        raise InputError("--tau-band", f"must be ≥ 0 and below τ, got {tau_band_pa!r}")
+    pair = tau_pair(surface, tau_pa, tau_band_pa, tau_adhesion_work_j_m2)
+    tau_pa, tau_band_pa = pair.tau_pa, pair.tau_band_pa
     gw = GreenwoodWilliamson(surface, support.nominal_area_m2(part))
     try:
         separation = float(gw.separation_m(part.weight_n))
@@ -197,4 +224,10 @@ def contact(
         real_area_sampled_mean_m2=sampled_mean,
         adhesion_work_j_m2=surface.adhesion_work_j_m2,
         adhesion_n=adhesion,
+        tau_adhesion_work_j_m2=pair.adhesion_work_j_m2,
+        tau_source=pair.source,
+        plasticity_index=surface.plasticity_index,
+        attracted_summits=float(gw.attracted(separation)),
+        summit_tabor=gw.summit_law.sphere.tabor if gw.summit_law else None,
+        adhesion_parameter=adhesion_parameter(surface) if surface.adhesion_work_j_m2 else None,
     )

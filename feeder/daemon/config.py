@@ -54,6 +54,7 @@ socket = "/run/user/1000/feeder/feeder.sock"
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import os
 from dataclasses import dataclass, field
@@ -147,14 +148,72 @@ def _table(doc: dict[str, Any], name: str, where: str) -> dict[str, Any]:
     return value
 
 
+SECTIONS: dict[str, frozenset[str]] = {
+    "amplifier": frozenset({"transport", "model", "port", "axis", "timeout_s", "password",
+                            "limits", "can"}),
+    "sensor": frozenset({"address", "timeout_s"}),
+    "simulator": frozenset({"args"}),
+    "part": frozenset({"size", "support", "surface", "tau_pa"}),
+    "control": frozenset(f.name for f in dataclasses.fields(LoopSettings)),
+    "state": frozenset({"dir", "socket"}),
+}
+"""The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
+``[amplifier.can]``: python-can keyword arguments plus ``node_id`` and ``heartbeat_s``)."""
+
+RANGES: dict[str, tuple[float, float]] = {
+    "rate_hz": (1.0, 1000.0), "tolerance_m": (1e-9, 1e-3), "settle_s": (0.0, 10.0),
+    "average_samples": (1, 1000), "max_burst_steps": (1, 100_000), "stall_fraction": (0.0, 1.0),
+    "stall_bursts": (1, 1000), "max_reversals": (1, 1000), "max_bursts": (1, 100_000),
+    "burst_grace_s": (0.0, 60.0), "sensor_noise_m": (0.0, 1e-3),
+    "step_scatter_fraction": (0.0, 1.0), "forgetting": (0.5, 1.0), "position_save_s": (0.0, 3600.0),
+    "hold_timeout_s": (0.0, 60.0), "timeout_s": (1e-3, 60.0), "axis": (1, 7), "node_id": (1, 127),
+    "heartbeat_s": (0.01, 10.0), "min_position_m": (-1.0, 1.0), "max_position_m": (-1.0, 1.0),
+}
+"""Accepted ranges of numeric keys (a value outside is refused, not clipped)."""
+
+
+def check_keys(table: dict[str, Any], known: frozenset[str] | set[str], where: str,
+               prefix: str) -> None:
+    """Refuse an unknown key, naming the nearest known one."""
+    for key in table:
+        if key not in known:
+            near = difflib.get_close_matches(str(key), sorted(known), n=1)
+            hint = (f"; did you mean {prefix}{near[0]}?" if near
+                    else f"; known: {', '.join(sorted(known))}")
+            raise InputError(where, f"unknown key {prefix}{key}{hint}")
+
+
 def _number(table: dict[str, Any], key: str, where: str, default: float,
-            positive: bool = False) -> float:
+            positive: bool = False, section: str = "") -> float:
+    """``table[key]`` as a finite float within :data:`RANGES`; errors name ``section + key``."""
+    name = section + key
     value = table.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InputError(where, f"{key} must be a finite number, got {value!r}")
-    if positive and value <= 0:
-        raise InputError(where, f"{key} must be positive, got {value!r}")
-    return float(value)
+    try:
+        number = math.nan if isinstance(value, bool) else float(value)
+    except (TypeError, ValueError, OverflowError):
+        number = math.nan
+    if not math.isfinite(number):
+        shown = value if isinstance(value, (str, float, bool)) else type(value).__name__
+        raise InputError(where, f"{name} must be a finite number, got {shown!r}")
+    if positive and number <= 0:
+        raise InputError(where, f"{name} must be positive, got {number!r}")
+    low, high = RANGES.get(key, (-math.inf, math.inf))
+    if not low <= number <= high:
+        raise InputError(where, f"{name} = {number:g} is outside [{low:g}, {high:g}]")
+    return number
+
+
+def _integer(table: dict[str, Any], key: str, where: str, default: int, section: str = "") -> int:
+    """``table[key]`` as an integer within :data:`RANGES`; errors name ``section + key``."""
+    name = section + key
+    value = table.get(key, default)
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise InputError(where, f"{name} must be an integer, got {type(value).__name__}")
+    low, high = RANGES.get(key, (1, math.inf))
+    if not low <= value <= high:
+        shown = value if abs(value) < 10**12 else "a huge integer"
+        raise InputError(where, f"{name} = {shown} is outside [{low:g}, {high:g}]")
+    return value
 
 
 def _string(table: dict[str, Any], key: str, where: str, default: str | None) -> str | None:
@@ -174,31 +233,39 @@ def load_config(path: Path | None) -> DaemonConfig:
         return DaemonConfig()
     where = str(path)
     doc = read_toml(path)
-    known = {"amplifier", "sensor", "simulator", "part", "control", "state"}
-    unknown = sorted(set(doc) - known)
-    if unknown:
-        raise InputError(where, f"unknown section [{unknown[0]}]; known: {', '.join(sorted(known))}")
+    for name in doc:
+        if name not in SECTIONS:
+            near = difflib.get_close_matches(str(name), sorted(SECTIONS), n=1)
+            hint = f"; did you mean [{near[0]}]?" if near else f"; known: {', '.join(SECTIONS)}"
+            raise InputError(where, f"unknown section [{name}]{hint}")
+        check_keys(_table(doc, name, where), SECTIONS[name], where, f"{name}.")
 
     amp = _table(doc, "amplifier", where)
     transport = _string(amp, "transport", where, "serial")
     if transport not in TRANSPORTS:
         raise InputError(where, f"amplifier.transport must be one of {', '.join(TRANSPORTS)}")
     can = _table(amp, "can", where)
-    axis = amp.get("axis", 1)
-    if not isinstance(axis, int) or isinstance(axis, bool) or axis < 1:
-        raise InputError(where, f"amplifier.axis must be a positive integer, got {axis!r}")
+    axis = _integer(amp, "axis", where, 1, "amplifier.")
+    if "node_id" in can:
+        _integer(can, "node_id", where, 1, "amplifier.can.")
+    if "heartbeat_s" in can:
+        _number(can, "heartbeat_s", where, 0.25, positive=True, section="amplifier.can.")
+    if set(can) - {"node_id", "heartbeat_s"} and "channel" not in can:
+        # python-can keywords without the adapter: a misspelt channel must never fall back
+        # to the simulator
+        near = difflib.get_close_matches("channel", [str(k) for k in can], n=1)
+        raise InputError(where, "amplifier.can names a bus but no channel"
+                         + (f" (is {near[0]!r} meant to be 'channel'?)" if near else ""))
     model = str(_string(amp, "model", where, DEFAULT_MODELS[str(transport)]))
     try:
         rating = amplifier_model(model)
     except InputError as err:
         raise InputError(where, f"amplifier.model: {err.message}") from None
     limits_t = _table(amp, "limits", where)
-    known_limits = {f.name for f in dataclasses.fields(AmplifierLimits)}
+    check_keys(limits_t, {f.name for f in dataclasses.fields(AmplifierLimits)}, where,
+               "amplifier.limits.")
     for key in limits_t:
-        if key not in known_limits:
-            raise InputError(where, f"unknown key amplifier.limits.{key}; known: "
-                             f"{', '.join(sorted(known_limits))}")
-        _number(limits_t, key, where, 0.0)
+        _number(limits_t, key, where, 0.0, section="amplifier.limits.")
     try:
         limits = dataclasses.replace(rating, **{k: float(v) for k, v in limits_t.items()})
         within_rating(limits, rating, model)
@@ -206,7 +273,7 @@ def load_config(path: Path | None) -> DaemonConfig:
         raise InputError(where, f"amplifier.limits.{err.field}: {err.message}") from None
     amplifier = AmplifierConfig(
         transport=str(transport), model=model, port=_string(amp, "port", where, None), axis=axis,
-        timeout_s=_number(amp, "timeout_s", where, 1.0, positive=True),
+        timeout_s=_number(amp, "timeout_s", where, 1.0, positive=True, section="amplifier."),
         password=str(_string(amp, "password", where, "123456")),
         limits=limits, can=dict(can),
     )
@@ -225,7 +292,7 @@ def load_config(path: Path | None) -> DaemonConfig:
     part = Part.parse(str(_string(part_t, "size", where, DEFAULT_PART)))
     support = Support.parse(str(_string(part_t, "support", where, "flat")))
     tau = part_t.get("tau_pa")
-    tau_pa = None if tau is None else _number(part_t, "tau_pa", where, 0.0, positive=True)
+    tau_pa = None if tau is None else _number(part_t, "tau_pa", where, 0.0, positive=True, section="part.")
 
     control = _table(doc, "control", where)
     defaults = DaemonConfig().loop
@@ -234,16 +301,11 @@ def load_config(path: Path | None) -> DaemonConfig:
         if f.name in control:
             default = getattr(defaults, f.name)
             if isinstance(default, int):
-                value = control[f.name]
-                if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                    raise InputError(where, f"control.{f.name} must be a positive integer")
-                loop_fields[f.name] = value
+                loop_fields[f.name] = _integer(control, f.name, where, default, "control.")
             else:
                 loop_fields[f.name] = _number(control, f.name, where, default,
-                                              positive="position" not in f.name)
-    unknown_keys = sorted(set(control) - {f.name for f in dataclasses.fields(LoopSettings)})
-    if unknown_keys:
-        raise InputError(where, f"unknown key control.{unknown_keys[0]}")
+                                              positive="position" not in f.name,
+                                              section="control.")
     loop = dataclasses.replace(defaults, **loop_fields)
     if not loop.min_position_m < loop.max_position_m:
         raise InputError(where, "control.min_position_m must be below control.max_position_m")
@@ -253,7 +315,7 @@ def load_config(path: Path | None) -> DaemonConfig:
     return DaemonConfig(
         amplifier=amplifier,
         sensor_address=sensor_address,
-        sensor_timeout_s=_number(sensor, "timeout_s", where, 1.0, positive=True),
+        sensor_timeout_s=_number(sensor, "timeout_s", where, 1.0, positive=True, section="sensor."),
         simulator_args=tuple(sim_args),
         part=part,
         support=support,

@@ -126,7 +126,8 @@ class ControlLoop:
         self._sensor_timeout_s = sensor_timeout_s
         self.policy = Policy(modes, settings, estimates)
         self.executor = AmplifierExecutor(amplifier, modes, clock)
-        self.writer = RecordWriter()
+        self.writer = RecordWriter(on_unwritable=self._store_unwritable,
+                                   on_writable=self._store_writable)
         self._feed = SensorFeed(sensor, sensor_timeout_s, clock)
         self.on_position = on_position
         self.on_fault = on_fault
@@ -206,6 +207,13 @@ class ControlLoop:
         with self._lock:
             return self.policy.request_stop(reason)
 
+    def amplifier_lost(self, message: str) -> None:
+        """Declare the amplifier link lost (the job ends, ``on_fault`` reconnects)."""
+        with self._lock:
+            self.policy.on_link_lost(message)
+            outputs = self.policy.tick(self._clock())
+        self._dispatch(outputs)
+
     def replace_amplifier(self, amplifier: Amplifier) -> None:
         """After a reconnect: use the new link and leave the fault state (no move resumes)."""
         self.executor.replace(amplifier)
@@ -283,6 +291,9 @@ class ControlLoop:
             elif isinstance(out, Started):
                 self.writer.put(functools.partial(self._record_start, out.job))
             elif isinstance(out, Finished):
+                if self.writer.unwritable is not None:    # the caller learns now; the
+                    out.job.result = out.result             # record follows when it can
+                    out.job.done.set()
                 self.writer.put(functools.partial(self._record_end, out.job, out.result))
             elif isinstance(out, SavePosition):
                 if self.on_position is not None:
@@ -292,6 +303,16 @@ class ControlLoop:
                 if self.on_fault is not None:   # it grounds and reconnects: not on the tick
                     threading.Thread(target=self.on_fault, args=(out.link, out.message),
                                      name="on-fault", daemon=True).start()
+
+    def _store_unwritable(self, message: str) -> None:
+        """The state store cannot be written: end the move, refuse moves until it can."""
+        with self._lock:
+            self.policy.store_unwritable = f"state store unwritable: {message}"
+            self.policy.request_stop(self.policy.store_unwritable)
+
+    def _store_writable(self) -> None:
+        with self._lock:
+            self.policy.store_unwritable = None
 
     @staticmethod
     def _record_start(job: Job) -> None:

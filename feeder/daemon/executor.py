@@ -132,9 +132,22 @@ class AmplifierExecutor:
 
 
 class RecordWriter:
-    """Runs record writes (SQLite) in order on one thread; :meth:`put` never blocks."""
+    """Runs record writes (SQLite) in order on one thread; :meth:`put` never blocks.
 
-    def __init__(self) -> None:
+    A write that fails because the store cannot be written (disk full, I/O
+    error) stays at the head of the queue and is retried every ``retry_s``;
+    what comes after it waits in memory, in order, so nothing is lost or
+    reordered.  ``on_unwritable(message)`` is called when such an outage
+    starts and ``on_writable()`` when it ends.
+    """
+
+    def __init__(self, retry_s: float = 1.0,
+                 on_unwritable: Callable[[str], None] | None = None,
+                 on_writable: Callable[[], None] | None = None) -> None:
+        self.retry_s = retry_s
+        self.on_unwritable = on_unwritable
+        self.on_writable = on_writable
+        self.unwritable: str | None = None
         self._cond = threading.Condition()
         self._queue: collections.deque[Callable[[], None]] = collections.deque()
         self._closing = False
@@ -146,6 +159,11 @@ class RecordWriter:
             self._queue.append(write)
             self._cond.notify()
 
+    def pending(self) -> int:
+        """Writes queued (in memory), including one being retried."""
+        with self._cond:
+            return len(self._queue)
+
     def flush(self, timeout_s: float = 10.0) -> bool:
         """Wait until everything queued so far is written; False on timeout."""
         done = threading.Event()
@@ -153,11 +171,15 @@ class RecordWriter:
         return done.wait(timeout_s)
 
     def close(self, timeout_s: float = 10.0) -> None:
-        """Write what is queued, then stop."""
+        """Write what is queued (retrying for at most ``timeout_s``), then stop."""
         with self._cond:
             self._closing = True
             self._cond.notify()
         self._thread.join(timeout=timeout_s)
+        left = self.pending()
+        if left:
+            log.error("%d record writes could not be made before shutdown: %s", left,
+                      self.unwritable)
 
     def _run(self) -> None:
         while True:
@@ -165,8 +187,30 @@ class RecordWriter:
                 self._cond.wait_for(lambda: self._queue or self._closing)
                 if not self._queue:
                     return
-                write = self._queue.popleft()
+                write = self._queue[0]
             try:
                 write()
             except (FeederError, sqlite3.Error, OSError) as err:
-                log.error("writing the record failed: %s", err)
+                self._outage(str(err))
+                with self._cond:
+                    if self._closing:
+                        self._cond.wait(self.retry_s)
+                        if self._closing and self.unwritable is not None:
+                            return      # give up at shutdown; close() logs what is left
+                    else:
+                        self._cond.wait(self.retry_s)
+                continue
+            with self._cond:
+                self._queue.popleft()
+            if self.unwritable is not None:
+                log.warning("the state store is writable again")
+                self.unwritable = None
+                if self.on_writable is not None:
+                    self.on_writable()
+
+    def _outage(self, message: str) -> None:
+        if self.unwritable is None:
+            log.error("state store unwritable: %s; holding records in memory", message)
+            self.unwritable = message
+            if self.on_unwritable is not None:
+                self.on_unwritable(message)

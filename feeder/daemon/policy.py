@@ -295,6 +295,7 @@ class Policy:
         self.position_m: float | None = None
         self.fault: str | None = None
         self.sensor_lost: str | None = None
+        self.store_unwritable: str | None = None   # set by the loop while records cannot be written
         self.last_result: JobResult | None = None
         self._stop_reason: str | None = None
         self._pending: Command | None = None      # sent, not yet completed
@@ -319,6 +320,8 @@ class Policy:
             return f"in fault state: {self.fault}"
         if self.sensor_lost is not None:
             return f"sensor lost: {self.sensor_lost}"
+        if self.store_unwritable is not None:
+            return self.store_unwritable
         if self.job is not None:
             return f"a {self.job.kind} is in progress"
         if job.by_m is not None:
@@ -410,6 +413,11 @@ class Policy:
                 self._burst = None
             if self.job is not None and self._finish_as is not None:
                 self._enter_holding(done.at_s)
+
+    def on_link_lost(self, message: str) -> None:
+        """The amplifier link is known to be gone (e.g. the simulator behind it restarted)."""
+        if self.fault is None:
+            self._link_lost(message)
 
     def link_restored(self) -> None:
         """A new amplifier link (grounded): leave the fault state; no move resumes."""

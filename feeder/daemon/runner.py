@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from feeder.contact.breakaway import DEFAULT_TAU_PA
+from feeder.contact.tau_pair import tau_pair
 from feeder.daemon.config import DaemonConfig
 from feeder.daemon.links import DriverLinks, open_links
 from feeder.daemon.service import Daemon, DaemonSetup
 from feeder.daemon.step_modes import calibration_key, plan_step_modes
+from feeder.errors import InputError
 from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
 
 
@@ -32,9 +33,12 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
     socket path, :class:`~feeder.daemon.store.StoreError` for a bad database.
     """
     surface = DEFAULT_SURFACE if config.surface_path is None else load_surface(config.surface_path)
-    tau = DEFAULT_TAU_PA if config.tau_pa is None else config.tau_pa
-    modes = plan_step_modes(config.part, config.support, surface, tau, config.amplifier.limits,
-                            config.loop.tolerance_m)
+    try:    # τ comes with the w it was fitted with: a given τ counts as fitted at w = 0
+        pair = tau_pair(surface, config.tau_pa)
+    except InputError as err:
+        raise InputError("part.tau_pa", err.message) from None
+    modes = plan_step_modes(config.part, config.support, surface, config.tau_pa,
+                            config.amplifier.limits, config.loop.tolerance_m)
     config.state_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     links = open_links(config, log_path=config.state_dir / "firmware_sim.log")
     try:
@@ -43,7 +47,8 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
             socket_path=config.socket_path,
             calibration_key=calibration_key(config.part, config.support, modes),
             info={"part": config.part.label, "support": config.support.kind,
-                  "tau_nominal_pa": tau, **links.describe()},
+                  "tau_nominal_pa": pair.tau_pa, "tau_source": pair.source,
+                  "adhesion_work_j_m2": pair.adhesion_work_j_m2, **links.describe()},
             sensor_timeout_s=config.sensor_timeout_s,
         )
         daemon = Daemon(links, setup)

@@ -25,6 +25,7 @@ import dataclasses
 import fcntl
 import json
 import logging
+import math
 import os
 import socket
 import stat
@@ -51,11 +52,14 @@ from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.daemon.store import Calibration, Store
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSensor
-from feeder.errors import InputError
+from feeder.errors import FeederError, InputError
 
 log = logging.getLogger(__name__)
 
 MAX_CLIENTS = 32
+LISTEN_BACKLOG = 128
+"""Connections the kernel holds before accept: bursts of short-lived clients must not find
+the socket full (a client's non-blocking connect then fails at once)."""
 CALIBRATION_STEPS = 20
 BACKOFF_FIRST_S = 0.2
 BACKOFF_MAX_S = 5.0
@@ -133,7 +137,7 @@ def bind_socket(socket_path: Path) -> socket.socket:
     finally:
         os.umask(old_umask)
     os.chmod(socket_path, 0o600)
-    sock.listen(MAX_CLIENTS)
+    sock.listen(LISTEN_BACKLOG)
     return sock
 
 
@@ -192,6 +196,7 @@ class Daemon:
             undo.callback(self.store.close)
             self.interrupted_moves = self.store.interrupt_running_moves()
             amplifier = links.open_amplifier()
+            self._amplifier_generation = getattr(links, "respawns", 0)
             undo.callback(amplifier.close)
             amplifier.ground()
             sensor = links.open_sensor()
@@ -223,9 +228,9 @@ class Daemon:
         for job in queued:
             self._refuse_queued(job, "daemon shutting down")
         self.loop.shutdown()
-        with contextlib.suppress(Exception):     # a dead link must not stop the shutdown
+        with contextlib.suppress(FeederError, OSError):  # a dead link must not stop the shutdown
             self.loop.amplifier.ground()
-        with contextlib.suppress(Exception):
+        with contextlib.suppress(FeederError, OSError):
             self.loop.amplifier.close()
         if self._server is not None:
             self._server.close()
@@ -314,10 +319,12 @@ class Daemon:
         for job in queued:
             self._refuse_queued(job, f"{kind} lost: {message}")
         if kind == "amplifier":
-            # ground where the link still allows it, then free the port for the reconnect
-            with contextlib.suppress(Exception):
-                self.loop.amplifier.ground()
-            with contextlib.suppress(Exception):
+            # ground where the link still allows it (never through a stale simulator pty:
+            # another program may own that path now), then free the port for the reconnect
+            if getattr(self.links, "respawns", 0) == self._amplifier_generation:
+                with contextlib.suppress(FeederError, OSError):
+                    self.loop.amplifier.ground()
+            with contextlib.suppress(FeederError, OSError):
                 self.loop.amplifier.close()
         thread = threading.Thread(target=self._reconnect, args=(kind, record),
                                   name=f"reconnect-{kind}", daemon=True)
@@ -338,9 +345,13 @@ class Daemon:
                         amp.close()
                         raise
                     self.loop.replace_amplifier(amp)
+                    self._amplifier_generation = getattr(self.links, "respawns", 0)
                 else:
                     self.loop.replace_sensor(self.links.open_sensor())
-            except Exception as err:  # any failure to open is retried with backoff
+            except Exception as err:
+                # stops a link from opening (drivers, python-can, the launcher) is logged and
+                # retried with backoff; the thread must outlive it
+                log.info("%s reconnect attempt %d failed: %s", kind, attempts, err)
                 with self._lock:
                     record["reconnect_attempts"] = attempts
                     record["last_error"] = f"{type(err).__name__}: {err}"
@@ -352,6 +363,9 @@ class Daemon:
             break
         with self._lock:
             self._reconnecting.discard(kind)
+        if getattr(self.links, "respawns", 0) != self._amplifier_generation:
+            # the simulator behind the amplifier link was restarted: that link is stale
+            self.loop.amplifier_lost("firmware_sim was restarted; reopening its new console")
 
     # -- requests ------------------------------------------------------------
     def handle(self, request: Any) -> dict[str, Any]:
@@ -374,10 +388,13 @@ class Daemon:
         value = request.get(key)
         if value is None:
             return None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value \
-                or abs(value) == float("inf"):
-            raise ValueError(f"{key} must be a finite number of metres, got {value!r}")
-        return float(value)
+        try:
+            number = float(value) if not isinstance(value, bool) else math.nan
+        except (TypeError, ValueError, OverflowError):
+            number = math.nan
+        if not isinstance(value, (int, float)) or not math.isfinite(number):
+            raise ValueError(f"{key} must be a finite number of metres, got {_brief(value)}")
+        return number
 
     def _run_job(self, job: Job, request: dict[str, Any]) -> dict[str, Any]:
         queue = request.get("queue") is True
@@ -415,10 +432,42 @@ class Daemon:
         steps = request.get("steps", CALIBRATION_STEPS)
         if not isinstance(steps, int) or isinstance(steps, bool) or not 2 <= steps <= 10_000:
             return {"ok": False, "error": f"steps must be an integer in [2, 10000], got {steps!r}"}
+        allowed = self._calibration_room()
+        if isinstance(allowed, str):
+            return {"ok": False, "error": allowed}
+        limited = steps > allowed
+        steps = min(steps, allowed)
         fine_steps = max(2, round(steps * self.setup.modes[COARSE].predicted_step_m
                                   / self.setup.modes[FINE].predicted_step_m / 4))
-        return self._run_job(self._new_job("calibrate", None, None,
-                                           calibration_bursts(steps, fine_steps)), request)
+        reply = self._run_job(self._new_job("calibrate", None, None,
+                                            calibration_bursts(steps, fine_steps)), request)
+        if limited:
+            reply["note"] = (f"calibration limited to {steps} coarse steps per direction by the "
+                             "travel left on either side of the part")
+        reply["calibration_steps"] = steps
+        return reply
+
+    def _calibration_room(self) -> int | str:
+        """The most coarse steps per direction a calibration may take from where the part is:
+        its bursts go forward first and come back (the excursion, with a pessimistic step
+        and 25 % margin, must fit before the upper limit; the return's asymmetry, 25 % of
+        it, behind).  A reason string when there is no room or no position."""
+        deadline = time.monotonic() + self.setup.sensor_timeout_s
+        while self.loop.position_m is None and time.monotonic() < deadline:
+            time.sleep(0.01)    # just started: the first frame is on its way
+        x = self.loop.position_m
+        if x is None:
+            return "position uncertain: calibration needs a sensor reading first"
+        s = self.loop.settings
+        est = self.loop.estimates()[f"{COARSE}/{FORWARD}"]
+        step_high = max(est.step_m + 2 * math.sqrt(est.variance_m2),
+                        self.setup.modes[COARSE].predicted_band_m[1])
+        ahead, behind = s.max_position_m - x, x - s.min_position_m
+        allowed = math.floor(min(ahead / 1.25, behind / 0.25) / step_high) - 1
+        if allowed < 2:
+            return (f"no room to calibrate: the part at {x:.6g} m is {ahead:.3g} m from the "
+                    f"upper and {behind:.3g} m from the lower travel limit; move it inwards")
+        return allowed
 
     def _cmd_stop(self, request: dict[str, Any]) -> dict[str, Any]:
         with self._lock:
@@ -468,6 +517,8 @@ class Daemon:
             "reconnecting": reconnecting,
             "faults": faults,
             "queued_moves": queued,
+            "store_unwritable": loop.writer.unwritable,
+            "pending_records": loop.writer.pending(),
             "interrupted_moves": self.interrupted_moves,
             "tolerance_m": loop.settings.tolerance_m,
             "travel_limits_m": [loop.settings.min_position_m, loop.settings.max_position_m],
@@ -479,7 +530,13 @@ class Daemon:
             "timing": loop.timing(),
             "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
             **self.setup.info,
+            **self._live_links(),
         }
+
+    def _live_links(self) -> dict[str, Any]:
+        """What may change while running (a respawned simulator's pid and endpoints)."""
+        describe = getattr(self.links, "describe", None)
+        return describe() if callable(describe) else {}
 
     # -- socket ----------------------------------------------------------------
     def _accept(self) -> None:
@@ -525,8 +582,11 @@ class Daemon:
                     continue
                 try:
                     request = json.loads(line)
-                except (json.JSONDecodeError, UnicodeDecodeError) as err:
-                    self._send(conn, {"ok": False, "error": f"malformed request: {err}"})
+                except (ValueError, RecursionError) as err:
+                    # not JSON, not UTF-8, an integer past Python's digit limit, or nested
+                    # deeper than the parser's recursion allows
+                    self._send(conn, {"ok": False, "error": "malformed request: "
+                                      f"{type(err).__name__}: {str(err)[:200]}"})
                     continue
                 self._send(conn, self._safe_handle(request))
         except OSError:
@@ -541,5 +601,15 @@ class Daemon:
             reply = self.handle(request)
             json.dumps(reply, allow_nan=False, default=str)
             return reply
-        except ValueError as err:     # NaN in a reply, bad value
-            return {"ok": False, "error": f"cannot answer: {err}"}
+        except (ValueError, TypeError, OverflowError, RecursionError) as err:
+            # a value no handler expected (NaN in a reply, an integer too large for a float)
+            return {"ok": False, "error": f"cannot answer: {type(err).__name__}: {str(err)[:200]}"}
+
+
+def _brief(value: Any) -> str:
+    """``repr`` of a request value, cut short (a 4000-digit integer is no error message)."""
+    try:
+        text = repr(value)
+    except ValueError:      # an integer beyond the digit limit of str()
+        return f"<{type(value).__name__} too large to print>"
+    return text if len(text) <= 40 else text[:37] + "..."

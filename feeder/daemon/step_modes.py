@@ -31,7 +31,7 @@ def plan_step_modes(
     part: Part,
     support: Support,
     surface: SurfaceParameters,
-    tau_pa: float,
+    tau_pa: float | None,
     amplifier: AmplifierLimits,
     tolerance_m: float,
 ) -> dict[str, StepMode]:

@@ -119,15 +119,22 @@ class Store:
         self.path = Path(path)
         self.path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         self._lock = threading.Lock()
+        existed = self.path.exists()
+        if existed:
+            check_state_file(self.path)
         try:
             self._conn = sqlite3.connect(
                 str(self.path), timeout=10.0, isolation_level=None, check_same_thread=False
             )
-            self._conn.execute("PRAGMA journal_mode=WAL")
-            self._conn.execute("PRAGMA synchronous=FULL")
             ok = self._conn.execute("PRAGMA quick_check").fetchone()[0]
             if ok != "ok":
                 raise StoreError(f"{self.path}: integrity check failed: {ok}")
+            if existed and self._foreign():
+                raise StoreError(f"{self.path}: not a feeder state database (no schema "
+                                 "version); refusing to touch it (feeder daemon --reset-state "
+                                 "moves it aside)")
+            self._conn.execute("PRAGMA journal_mode=WAL")     # writes the header: ours only
+            self._conn.execute("PRAGMA synchronous=FULL")
             self._conn.executescript("BEGIN IMMEDIATE;" + _SCHEMA + "COMMIT;")
             version = self._meta("schema_version")
             if version is None:
@@ -145,6 +152,17 @@ class Store:
         except sqlite3.DatabaseError as err:
             raise StoreError(f"{self.path}: {err}") from err
         self.path.chmod(0o600)
+
+    def _foreign(self) -> bool:
+        """Tables, but no feeder schema version among them: another program's database."""
+        tables = {r[0] for r in self._conn.execute(
+            "SELECT name FROM sqlite_master WHERE type = 'table'")}
+        if not tables:
+            return False            # a fresh, empty database: ours to set up
+        if "meta" not in tables:
+            return True
+        return self._conn.execute(
+            "SELECT count(*) FROM meta WHERE key = 'schema_version'").fetchone()[0] == 0
 
     # -- plumbing ---------------------------------------------------------
     def _write(self, sql: str, params: tuple[Any, ...] = ()) -> sqlite3.Cursor:
@@ -264,3 +282,37 @@ def _move_row(row: tuple[Any, ...]) -> dict[str, Any]:
     out = dict(zip(MOVE_COLUMNS, row, strict=True))
     out["steps_estimated"] = bool(out["steps_estimated"])
     return out
+
+
+SQLITE_HEADER = b"SQLite format 3\x00"
+
+
+def check_state_file(path: Path) -> None:
+    """Refuse a state file that is not an SQLite database (empty, truncated, foreign), with
+    :class:`StoreError` naming it; the file is left untouched."""
+    try:
+        with open(path, "rb") as handle:
+            header = handle.read(100)
+    except OSError as err:
+        raise StoreError(f"{path}: cannot read: {err}") from None
+    if not header:
+        raise StoreError(f"{path}: empty file (a truncated state database?); refusing to start "
+                         "(feeder daemon --reset-state moves it aside)")
+    if not header.startswith(SQLITE_HEADER) or len(header) < 100:
+        raise StoreError(f"{path}: not an SQLite database; refusing to start (feeder daemon "
+                         "--reset-state moves it aside)")
+
+
+def move_aside(path: Path) -> Path | None:
+    """Rename the state database (and its WAL/SHM files) to ``NAME.YYYYmmddTHHMMSS.bak``;
+    returns the new name, or None when there was nothing to move."""
+    if not path.exists():
+        return None
+    stamp = time.strftime("%Y%m%dT%H%M%S")
+    target = path.with_name(f"{path.name}.{stamp}.bak")
+    for suffix in ("-wal", "-shm"):
+        side = path.with_name(path.name + suffix)
+        if side.exists():
+            side.replace(target.with_name(target.name + suffix))
+    path.replace(target)
+    return target

@@ -36,9 +36,12 @@ class ShearStrength:
 
 
 def shear_strength(
-    forces_n: Sequence[float], real_area_m2: float, real_area_rel_band: float = 0.0
+    forces_n: Sequence[float], real_area_m2: float, real_area_rel_band: float = 0.0,
+    single_force_rel_scatter: float = 0.0,
 ) -> ShearStrength:
-    """τ = mean(F)/A_r and its band from the force spread and the real-area band."""
+    """τ = mean(F)/A_r and its band from the force spread and the real-area band.
+
+    With one force the spread is unknown: ``single_force_rel_scatter`` stands for it."""
     forces = np.asarray(forces_n, dtype=float)
     if forces.size == 0 or not np.all(np.isfinite(forces) & (forces > 0)):
         raise InputError("--force", "need at least one positive, finite force in newtons")
@@ -49,7 +52,8 @@ def shear_strength(
     mean = float(forces.mean())
     spread = float(forces.std(ddof=1)) if forces.size > 1 else 0.0
     tau = mean / real_area_m2
-    relative = math.hypot(spread / mean, real_area_rel_band)
+    scatter = spread / mean if forces.size > 1 else single_force_rel_scatter
+    relative = math.hypot(scatter, real_area_rel_band)
     return ShearStrength(
         tau_pa=tau,
         tau_band_pa=tau * relative,

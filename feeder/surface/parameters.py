@@ -11,7 +11,9 @@ File format (also written by ``feeder surface --out``)::
     [material]          # applies to both bodies
     youngs_modulus_pa = 169e9
     poisson_ratio = 0.28
-    # adhesion_work_j_m2 = 0.1   (optional; DMT adhesion per asperity, default 0)
+    # adhesion_work_j_m2 = 0.1   (optional; Maugis–Dugdale adhesion per summit, default 0)
+    # adhesion_range_m = 0.2913e-9   (optional; Dugdale range h0 = w/sigma0, default 0.971 z0)
+    # hardness_pa = 12e9   (optional; for the plasticity index, default silicon)
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ from feeder.errors import InputError
 from feeder.files import read_toml, write_text
 
 Z_MAX_SIGMAS = 10.0
+SILICON_HARDNESS_PA = 12e9
+"""Silicon's indentation hardness, 11–13 GPa (nanoindentation of (100) Si)."""
+DEFAULT_ADHESION_RANGE_M = 0.971 * 0.3e-9
+"""Dugdale range h₀ = 0.971·z₀ (z₀ = 0.3 nm): σ₀h₀ = w with σ₀ = 1.03·w/z₀ (Maugis 1992)."""
 
 
 @dataclass(frozen=True)
@@ -34,7 +40,10 @@ class SurfaceParameters:
     summit_density_per_m2: η; mean_summit_height_m: μ; z_max_m: highest summit
     (default μ + 10σ); youngs_modulus_pa, poisson_ratio: both bodies;
     adhesion_work_j_m2: work of adhesion w of the interface (J/m²; 0 = the
-    paper's adhesion-free model), used as DMT adhesion 2πwR per contacting summit.
+    paper's adhesion-free model), used as Maugis–Dugdale adhesion per summit
+    (:mod:`feeder.contact.gw_maugis_dugdale`); adhesion_range_m: its Dugdale range
+    h₀ = w/σ₀ (default 0.971·z₀, z₀ = 0.3 nm, Maugis' match to Lennard-Jones);
+    hardness_pa: indentation hardness H of the softer body (plasticity index).
     """
 
     sigma_m: float
@@ -45,9 +54,12 @@ class SurfaceParameters:
     poisson_ratio: float = 0.28
     z_max_m: float | None = None
     adhesion_work_j_m2: float = 0.0
+    adhesion_range_m: float = DEFAULT_ADHESION_RANGE_M
+    hardness_pa: float = SILICON_HARDNESS_PA
 
     def __post_init__(self) -> None:
-        for name in ("sigma_m", "summit_radius_m", "summit_density_per_m2", "youngs_modulus_pa"):
+        positive = ("sigma_m", "summit_radius_m", "summit_density_per_m2", "youngs_modulus_pa", "hardness_pa")
+        for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise InputError(name, f"must be a positive number, got {value!r}")
@@ -57,6 +69,8 @@ class SurfaceParameters:
             raise InputError("poisson_ratio", f"must lie in (-1, 0.5), got {self.poisson_ratio!r}")
         if not (math.isfinite(self.adhesion_work_j_m2) and self.adhesion_work_j_m2 >= 0):
             raise InputError("adhesion_work_j_m2", f"must be ≥ 0, got {self.adhesion_work_j_m2!r}")
+        if not (math.isfinite(self.adhesion_range_m) and self.adhesion_range_m > 0):
+            raise InputError("adhesion_range_m", f"must be a positive length, got {self.adhesion_range_m!r}")
         if self.z_max_m is not None and not (
             math.isfinite(self.z_max_m) and self.z_max_m > self.mean_summit_height_m
         ):
@@ -68,6 +82,11 @@ class SurfaceParameters:
         if self.z_max_m is not None:
             return self.z_max_m
         return self.mean_summit_height_m + Z_MAX_SIGMAS * self.sigma_m
+
+    @property
+    def plasticity_index(self) -> float:
+        """ψ = (E*/H)·√(σ/R) (Greenwood & Williamson 1966): < 0.6 elastic, > 1 mostly plastic."""
+        return self.effective_modulus_pa / self.hardness_pa * math.sqrt(self.sigma_m / self.summit_radius_m)
 
     @property
     def effective_modulus_pa(self) -> float:
@@ -92,6 +111,10 @@ class SurfaceParameters:
         ]
         if self.adhesion_work_j_m2:
             lines.append(f"adhesion_work_j_m2 = {self.adhesion_work_j_m2!r}")
+        if self.adhesion_range_m != DEFAULT_ADHESION_RANGE_M:
+            lines.append(f"adhesion_range_m = {self.adhesion_range_m!r}")
+        if self.hardness_pa != SILICON_HARDNESS_PA:
+            lines.append(f"hardness_pa = {self.hardness_pa!r}")
         lines.append("")
         return "\n".join(lines)
 
@@ -110,7 +133,9 @@ DEFAULT_SURFACE = SurfaceParameters(
 
 _REQUIRED_KEYS = ("sigma_m", "summit_radius_m", "summit_density_per_m2", "mean_summit_height_m")
 _SURFACE_KEYS = (*_REQUIRED_KEYS, "z_max_m")
-_MATERIAL_KEYS = ("youngs_modulus_pa", "poisson_ratio", "adhesion_work_j_m2")
+_MATERIAL_KEYS = (
+    "youngs_modulus_pa", "poisson_ratio", "adhesion_work_j_m2", "adhesion_range_m", "hardness_pa",
+)
 
 
 def load_surface(path: Path) -> SurfaceParameters:
