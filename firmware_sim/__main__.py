@@ -113,12 +113,12 @@ def _interval(lo: float, hi: float, lo_open: bool, integer: bool) -> str:
 
 def add_number(group: argparse._ArgumentGroup, flag: str, lo: float, hi: float, *,
                default: float | None, help: str = "", lo_open: bool = False,
-               integer: bool = False) -> None:
+               integer: bool = False, metavar: str | None = None) -> None:
     """An option taking a number in a stated range; the range goes into ``--help``."""
     interval = _interval(lo, hi, lo_open, integer)
     shown = "" if default is None else f", default {default:g}"
     group.add_argument(flag, type=in_range(lo, hi, lo_open=lo_open, integer=integer),
-                       default=default, metavar="N" if integer else "X",
+                       default=default, metavar=metavar or ("N" if integer else "X"),
                        help=f"{help} (in {interval}{shown})".strip())
 
 
@@ -143,11 +143,12 @@ def build_parser() -> argparse.ArgumentParser:
                       help="console password (default %(default)s, as on real units)")
     ends.add_argument("--sensor", metavar="SPEC",
                       help="camera frame stream, tcp:127.0.0.1:PORT (JSON lines)")
-    ends.add_argument("--camera-http", type=int, metavar="PORT",
-                      help="microscope camera on http://127.0.0.1:PORT (0 = any free port): "
-                           "/video.mjpg, /frame.png, /truth.json (endpoint camera_http)")
-    ends.add_argument("--camera-http-fps", type=float, default=10.0, help="its frame rate")
-    ends.add_argument("--camera-pixel-size-m", type=float, default=1e-6, help="its pixel size")
+    add_number(ends, "--camera-http", 0, 65535, integer=True, default=None, metavar="PORT",
+               help="microscope camera on http://127.0.0.1:PORT (0 = any free port): "
+                    "/video.mjpg, /frame.png, /truth.json (endpoint camera_http)")
+    add_number(ends, "--camera-http-fps", 0, 100, lo_open=True, default=10.0,
+               help="its frame rate, Hz")
+    add_number(ends, "--camera-pixel-size-m", 1e-9, 1e-3, default=1e-6, help="its pixel size, m")
     add_extra_front_end_arguments(ends)
 
     fw = parser.add_argument_group("firmware")

@@ -125,6 +125,9 @@ def assert_refused(argv: list[str], option: str) -> None:
     (["--part", "banana"], "--part"),
     (["--support", "velvet"], "--support"),
     (["--dialect", "anc400"], "--dialect"),
+    (["--camera-http", "70000"], "--camera-http"),
+    (["--camera-http-fps", "0"], "--camera-http-fps"),
+    (["--camera-pixel-size-m", "nan"], "--camera-pixel-size-m"),
 ])
 def test_bad_option_is_one_line_naming_it_and_exit_2(argv: list[str], option: str) -> None:
     assert_refused(argv, option)
@@ -148,7 +151,8 @@ OPTIONS = ["--tick-hz", "--sample-rate-hz", "--dac-buffer-s", "--watchdog-s", "-
            "--load-capacitance-f", "--part", "--support", "--tau-pa", "--tau-offset",
            "--kinetic-ratio", "--scatter", "--seed", "--plant-axis", "--camera-rate-hz",
            "--camera-noise-m", "--camera-latency-s", "--axes", "--console", "--sensor",
-           "--password", "--dialect", "--clock", "--can-node-id-base"]
+           "--password", "--dialect", "--clock", "--can-node-id-base", "--camera-http-fps",
+           "--camera-pixel-size-m"]
 
 
 @st.composite
