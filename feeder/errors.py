@@ -78,3 +78,14 @@ class DaemonTimeout(DaemonUnreachable):
     def __init__(self, message: str, timeout_s: float) -> None:
         super().__init__(message)
         self.timeout_s = timeout_s
+
+
+MEMORY_BUDGET_BYTES = 2 * 2**30
+"""The memory a single command may ask for (2 GiB); larger sizes are refused up front."""
+
+
+def check_memory_budget(field: str, nbytes: float) -> None:
+    """Refuse (InputError naming ``field``) a request that needs more than :data:`MEMORY_BUDGET_BYTES`."""
+    if not nbytes <= MEMORY_BUDGET_BYTES:
+        raise InputError(field, f"needs ~{nbytes / 2**30:.3g} GiB, more than the "
+                                f"{MEMORY_BUDGET_BYTES // 2**30} GiB memory budget")

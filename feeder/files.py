@@ -72,17 +72,18 @@ def _temporary(path: Path) -> Path:
 
 def write_text(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` atomically (temporary file, then rename)."""
-    tmp = _temporary(path)
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
+    write_bytes(path, text.encode("utf-8"))
 
 
 def write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (temporary file, then rename)."""
+    """Write ``data`` to ``path`` atomically (temporary file, then rename); an OSError
+    (no such directory, a directory in the way, disk full) is an InputError naming the file."""
     tmp = _temporary(path)
     try:
         tmp.write_bytes(data)
         tmp.replace(path)
+    except OSError as err:
+        raise InputError(str(path), f"cannot write: {err.strerror or err}") from None
     finally:
         tmp.unlink(missing_ok=True)
 
@@ -95,6 +96,8 @@ def save_figure(fig: Any, path: Path, dpi: int = 120) -> None:
     try:
         fig.savefig(tmp, dpi=dpi, format="png")
         tmp.replace(path)
+    except OSError as err:
+        raise InputError(str(path), f"cannot write: {err.strerror or err}") from None
     finally:
         plt.close(fig)
         tmp.unlink(missing_ok=True)

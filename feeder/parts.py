@@ -11,6 +11,13 @@ from feeder.errors import InputError
 SILICON_DENSITY_KG_M3 = 2330.0
 GRAVITY_M_S2 = 9.81
 
+PART_SIDE_RANGE_UM = (1.0, 100e3)
+"""Accepted length and width of a part in µm (1 µm–100 mm)."""
+PART_THICKNESS_RANGE_UM = (1.0, 10e3)
+"""Accepted thickness of a part in µm (1 µm–10 mm)."""
+DENSITY_RANGE_KG_M3 = (1.0, 1e5)
+"""Accepted part density in kg/m³."""
+
 _NUMBER = r"(\d+(?:\.\d*)?|\.\d+)"
 _PART_RE = re.compile(rf"^\s*{_NUMBER}\s*[x×]\s*{_NUMBER}\s*[x×]\s*{_NUMBER}\s*$", re.IGNORECASE)
 
@@ -38,10 +45,14 @@ class Part:
             raise InputError(
                 "--part", f"expected LxWxT in µm with positive numbers (e.g. 300x300x50), got {text!r}"
             )
-        length, width, thickness = (float(g) * 1e-6 for g in match.groups())
-        if min(length, width, thickness) <= 0:
-            raise InputError("--part", f"dimensions must be positive, got {text!r}")
-        return cls(length, width, thickness, density_kg_m3)
+        length, width, thickness = (float(g) for g in match.groups())
+        low, high = PART_SIDE_RANGE_UM
+        if not (low <= length <= high and low <= width <= high):
+            raise InputError("--part", f"length and width must be {low:g}–{high:g} µm, got {text!r}")
+        low, high = PART_THICKNESS_RANGE_UM
+        if not low <= thickness <= high:
+            raise InputError("--part", f"thickness must be {low:g}–{high:g} µm, got {text!r}")
+        return cls(length * 1e-6, width * 1e-6, thickness * 1e-6, density_kg_m3)
 
     @property
     def label(self) -> str:

@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.arguments import add_part_arguments, part_from, positive_float
+from feeder.cli.arguments import add_part_arguments, output_path, part_from, positive_float
 from feeder.cli.output import print_json
 from feeder.contact.adhesion_fit import RATIO_BAND, AdhesionFit, fit_adhesion_work
 from feeder.contact.adhesion_sphere import DEFAULT_RANGE_M, MODELS, SphereContact
@@ -51,7 +51,7 @@ def register(sub: Any) -> None:
     what.add_argument("--load", type=float, metavar="N", help="contact radius and approach at this load")
     what.add_argument("--curve", action="store_true", help="the load–radius–approach curve")
     s.add_argument("--max-load", type=positive_float, metavar="N", help="top of --curve (default 10 πwR)")
-    s.add_argument("--plot", type=Path, metavar="PNG", help="plot the curve (implies --curve)")
+    s.add_argument("--plot", type=output_path, metavar="PNG", help="plot the curve (implies --curve)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.set_defaults(handler=run)
     f = kinds.add_parser("fit", help="the w that gives the measured grooved/flat ratio (GW-MD)")
@@ -70,7 +70,7 @@ def register(sub: Any) -> None:
         metavar=("LO", "HI"),
         help=f"ratio band mapped to a w band (default {RATIO_BAND[0]} {RATIO_BAND[1]})",
     )
-    f.add_argument("--plot", type=Path, metavar="PNG", help="ratio against w")
+    f.add_argument("--plot", type=output_path, metavar="PNG", help="ratio against w")
     f.add_argument("--json", action="store_true", help="print one JSON object")
     f.set_defaults(handler=run_fit, part="300x300x50")
 

@@ -9,13 +9,21 @@ from __future__ import annotations
 import argparse
 import math
 import re
+from collections.abc import Callable
 from dataclasses import replace
 from decimal import Decimal, DecimalException
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from feeder.errors import InputError
-from feeder.parts import SILICON_DENSITY_KG_M3, Part, Support
+from feeder.parts import (
+    DENSITY_RANGE_KG_M3,
+    PART_SIDE_RANGE_UM,
+    PART_THICKNESS_RANGE_UM,
+    SILICON_DENSITY_KG_M3,
+    Part,
+    Support,
+)
 
 if TYPE_CHECKING:
     from feeder.surface.parameters import SurfaceParameters
@@ -30,6 +38,62 @@ def positive_float(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
     return value
+
+
+def float_in(low: float, high: float) -> Callable[[str], float]:
+    """argparse type: a finite number in [``low``, ``high``]."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text[:40]!r}") from None
+        if not low <= value <= high:  # NaN fails too
+            raise argparse.ArgumentTypeError(f"must be from {low:g} to {high:g}, got {text[:40]!r}")
+        return value
+
+    return parse
+
+
+def int_in(low: int, high: int) -> Callable[[str], int]:
+    """argparse type: an integer in [``low``, ``high``] (a 400-digit number is refused, not parsed)."""
+
+    def parse(text: str) -> int:
+        digits = text.strip().lstrip("+-")
+        if not digits.isascii() or not digits.isdigit() or len(digits) > 30:
+            raise argparse.ArgumentTypeError(f"expected an integer from {low} to {high}, got {text[:40]!r}")
+        value = int(text)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be from {low} to {high}, got {value}")
+        return value
+
+    return parse
+
+
+def output_path(text: str) -> Path:
+    """argparse type: a file to write: a name, in a directory that exists, not a directory itself."""
+    path = Path(text)
+    if not text or not path.name:
+        raise argparse.ArgumentTypeError(f"expected a file name, got {text!r}")
+    if len(path.name.encode()) > 200:
+        raise argparse.ArgumentTypeError(f"file name longer than 200 bytes: {text[:40]!r}...")
+    if not path.parent.is_dir():
+        raise argparse.ArgumentTypeError(f"no such directory: {str(path.parent)!r}")
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"is a directory: {text!r}")
+    return path
+
+
+def input_path(text: str) -> Path:
+    """argparse type: a file to read: a regular file that exists (not a device such as /dev/zero)."""
+    path = Path(text)
+    try:
+        if not path.is_file():
+            raise argparse.ArgumentTypeError(
+                f"no such file: {text[:80]!r}" if not path.exists() else f"not a regular file: {text!r}")
+    except OSError as err:  # e.g. a name too long
+        raise argparse.ArgumentTypeError(f"cannot read {text[:40]!r}: {err.strerror}") from None
+    return path
 
 
 _LENGTH_UNITS_M = {"": 1.0, "m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "μm": 1e-6, "nm": 1e-9}
@@ -73,11 +137,15 @@ def add_part_arguments(
     p: argparse.ArgumentParser, *, part_required: bool = True, example: str = "300x300x50"
 ) -> None:
     """``--part``, ``--support``, ``--surface`` and ``--density``."""
-    p.add_argument("--part", required=part_required, help=f"LxWxT in µm, e.g. {example}")
+    p.add_argument("--part", required=part_required,
+                   help=f"LxWxT in µm, e.g. {example}; sides {PART_SIDE_RANGE_UM[0]:g} µm–"
+                        f"{PART_SIDE_RANGE_UM[1]:g} µm, thickness {PART_THICKNESS_RANGE_UM[0]:g} µm–"
+                        f"{PART_THICKNESS_RANGE_UM[1]:g} µm")
     p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
-    p.add_argument("--surface", type=Path, help="surface TOML (default: the embedded surface)")
-    p.add_argument("--density", type=positive_float, default=SILICON_DENSITY_KG_M3,
-                   help=f"part density in kg/m³ (default silicon, {SILICON_DENSITY_KG_M3:g})")
+    p.add_argument("--surface", type=input_path, help="surface TOML (default: the embedded surface)")
+    p.add_argument("--density", type=float_in(*DENSITY_RANGE_KG_M3), default=SILICON_DENSITY_KG_M3,
+                   help=f"part density in kg/m³, {DENSITY_RANGE_KG_M3[0]:g}–{DENSITY_RANGE_KG_M3[1]:g} "
+                        f"(default silicon, {SILICON_DENSITY_KG_M3:g})")
     p.add_argument("--adhesion-work", type=float, metavar="J_M2",
                    help="work of adhesion w in J/m² for Maugis–Dugdale adhesion per summit (default: "
                         "the surface file's, else 0 as in the paper); τ is then the one fitted with w")

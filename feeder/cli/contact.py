@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from feeder.cli.arguments import add_part_arguments, add_tau_arguments, part_from, surface_from
+from feeder.cli.arguments import add_part_arguments, add_tau_arguments, int_in, part_from, surface_from
 from feeder.cli.output import print_json
 from feeder.contact.asperity_sampling import DEFAULT_PLACEMENTS
 from feeder.contact.breakaway import MIN_CONTACTS, ContactResult, contact
@@ -19,9 +19,9 @@ def register(sub: Any) -> None:
     p = sub.add_parser("contact", help="real contact area and breakaway force of a part")
     add_part_arguments(p, part_required=False)
     add_tau_arguments(p)
-    p.add_argument("--placements", type=int, default=DEFAULT_PLACEMENTS,
-                   help="random placements sampled summit by summit for the A_r band "
-                        f"(default {DEFAULT_PLACEMENTS}; 0 skips)")
+    p.add_argument("--placements", type=int_in(0, 10**6), default=DEFAULT_PLACEMENTS,
+                   help="random placements sampled summit by summit for the A_r band, 0–1e6 "
+                        f"(default {DEFAULT_PLACEMENTS}; 0 skips; within the 2 GiB memory budget)")
     p.add_argument("--table", action="store_true",
                    help="paper-style table: four parts × two supports, model vs paper")
     p.add_argument("--json", action="store_true", help="print one JSON object")

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.arguments import positive_float
+from feeder.cli.arguments import input_path, output_path, positive_float
 from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure
@@ -37,10 +37,10 @@ def analyse_files(paths: list[Path], args: argparse.Namespace) -> list[tuple[For
 
 def register(sub: Any) -> None:
     p = sub.add_parser("friction", help="static-friction peaks of force curves (CSV)")
-    p.add_argument("curves", nargs="+", type=Path, metavar="CURVE.csv",
+    p.add_argument("curves", nargs="+", type=input_path, metavar="CURVE.csv",
                    help="force curves: displacement_m and deflection_m or force_n columns")
     add_curve_options(p)
-    p.add_argument("--plot", type=Path, help="PNG of the curves with onset, peak and sliding level")
+    p.add_argument("--plot", type=output_path, help="PNG of the curves with onset, peak and sliding level")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
 

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
-from feeder.cli.arguments import add_part_arguments, add_tau_arguments, part_from, positive_float
+from feeder.cli.arguments import add_part_arguments, add_tau_arguments, output_path, part_from, positive_float
 from feeder.cli.output import print_json
 from feeder.planner import DEFAULT_MARGIN, StepPrediction, plan
 from feeder.plant.amplifier import AmplifierLimits, resolve_amplifier
@@ -36,7 +35,7 @@ def register(sub: Any) -> None:
                    help=f"amplifier peak current (default {_DEFAULT_AMPLIFIER.current_limit_a:g} A)")
     p.add_argument("--max-frequency-hz", type=positive_float,
                    help=f"amplifier's highest frequency (default {_DEFAULT_AMPLIFIER.max_frequency_hz:g} Hz)")
-    p.add_argument("--out", type=Path, metavar="TOML",
+    p.add_argument("--out", type=output_path, metavar="TOML",
                    help="write the waveform with the prediction it was planned with (a design file)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)

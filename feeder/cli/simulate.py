@@ -14,6 +14,9 @@ from feeder.cli.arguments import (
     add_part_arguments,
     add_tau_arguments,
     allow_negative_values,
+    input_path,
+    int_in,
+    output_path,
     part_from,
     pose,
     positive_float,
@@ -21,17 +24,20 @@ from feeder.cli.arguments import (
 from feeder.cli.output import print_json
 from feeder.cli.waveform import file_amplifier, load_checked
 from feeder.contact.breakaway import contact
-from feeder.errors import InputError
+from feeder.errors import InputError, check_memory_budget
 from feeder.files import save_figure
 from feeder.parts import Part
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.ideal_plate import linear_flyback_step, sawtooth_motion
 from feeder.plant.planar import PlanarPart, simulate
-from feeder.plant.plant import run_waveform
+from feeder.plant.plant import DEFAULT_SAMPLE_RATE_HZ, run_waveform
 from feeder.plant.plate_motion import AXES, sawtooth
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, StickSlip
 from feeder.waveform import DIRECTIONS
+
+MAX_PERIODS = 10**6
+_BYTES_PER_SAMPLE = 64  # the plant's traces and temporaries, 8 float64 per sample
 
 
 def register(sub: Any) -> None:
@@ -45,15 +51,17 @@ def register(sub: Any) -> None:
         default=DEFAULT_KINETIC_RATIO,
         help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})",
     )
-    p.add_argument("--waveform", type=Path, help="waveform TOML (full plant, or --ideal)")
-    p.add_argument("--periods", type=int, default=20, help="periods to simulate (default 20)")
+    p.add_argument("--waveform", type=input_path, help="waveform TOML (full plant, or --ideal)")
+    p.add_argument("--periods", type=int_in(1, MAX_PERIODS), default=20,
+                   help=f"periods to simulate, 1–{MAX_PERIODS:.0e} (default 20; the plant's traces must "
+                        "also fit the 2 GiB memory budget)")
     p.add_argument(
         "--scatter",
         type=float,
         default=0.0,
         help="relative step-to-step scatter of a_s (plant only, default 0)",
     )
-    p.add_argument("--seed", type=int, help="seed for --scatter")
+    p.add_argument("--seed", type=int_in(0, 2**63 - 1), help="seed for --scatter (non-negative)")
     p.add_argument(
         "--ideal",
         action="store_true",
@@ -93,7 +101,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument(
         "--map",
-        type=Path,
+        type=output_path,
         metavar="PNG",
         help="ideal plate: quiver plot of the per-period pose change over a grid of poses",
     )
@@ -104,14 +112,12 @@ def register(sub: Any) -> None:
         help="--map: grid half-width around O in m (default 2.5e-3)",
     )
     p.add_argument("--map-points", type=int, default=11, help="--map: grid points per side (default 11)")
-    p.add_argument("--plot", type=Path, metavar="PNG", help="plot part and plate position (x or y)")
+    p.add_argument("--plot", type=output_path, metavar="PNG", help="plot part and plate position (x or y)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.periods < 1:
-        raise InputError("--periods", f"must be at least 1, got {args.periods}")
     if not args.kinetic_ratio <= 1:
         raise InputError("--kinetic-ratio", f"must lie in (0, 1], got {args.kinetic_ratio}")
     if not (math.isfinite(args.scatter) and args.scatter >= 0):
@@ -144,6 +150,8 @@ def run(args: argparse.Namespace) -> int:
                 args.seed = 0
             amplifier = file_amplifier(args.waveform)  # a design file's [amplifier], else the default
             waveform = load_checked(args.waveform, amplifier)
+            samples = (args.periods + 1) * round(DEFAULT_SAMPLE_RATE_HZ / waveform.frequency_hz)
+            check_memory_budget("--periods", samples * _BYTES_PER_SAMPLE)
             if not args.json:
                 print(f"simulating {args.periods} periods at 100 kS/s ...", file=sys.stderr)
             run_ = run_waveform(friction, waveform, args.periods, amplifier, scatter=args.scatter,

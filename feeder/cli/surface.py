@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.arguments import positive_float
+from feeder.cli.arguments import input_path, output_path, positive_float
 from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure
@@ -38,7 +38,7 @@ NOTES = (
 
 def register(sub: Any) -> None:
     p = sub.add_parser("surface", help="summit statistics of AFM scans, GW surface TOML")
-    p.add_argument("scans", nargs="+", type=Path, metavar="SCAN",
+    p.add_argument("scans", nargs="+", type=input_path, metavar="SCAN",
                    help="one scan (rough surface on a smooth plane) or two (both bodies)")
     p.add_argument("--channel", help="channel index or name (default: the file's height channel)")
     p.add_argument("--pixel-size", type=positive_float,
@@ -50,8 +50,9 @@ def register(sub: Any) -> None:
     p.add_argument("--cutoff-wavelength", type=positive_float, metavar="M",
                    help="Gaussian low-pass (ISO 16610-61, 50 %% at this wavelength in m) before the "
                         "statistics; the unfiltered figures are reported beside")
-    p.add_argument("--out", type=Path, help="write the surface TOML read by `feeder contact --surface`")
-    p.add_argument("--plot", type=Path, help="PNG of the height map(s) with the summits marked")
+    p.add_argument("--out", type=output_path,
+                   help="write the surface TOML read by `feeder contact --surface`")
+    p.add_argument("--plot", type=output_path, help="PNG of the height map(s) with the summits marked")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
 

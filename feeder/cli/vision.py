@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.arguments import angle_rad, length_m, positive_length_m
+from feeder.cli.arguments import angle_rad, input_path, length_m, output_path, positive_length_m
 from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure, write_bytes, write_text
@@ -31,7 +31,8 @@ def register(sub: Any) -> None:
     vision = p.add_subparsers(dest="vision_command", required=True, parser_class=type(p))
 
     locate = vision.add_parser("locate", help="every part's centre and angle in one image")
-    locate.add_argument("image", type=Path, metavar="IMAGE", help="PNG/TIFF/JPEG, grey or colour, 8/16 bit")
+    locate.add_argument("image", type=input_path, metavar="IMAGE",
+                        help="PNG/TIFF/JPEG, grey or colour, 8/16 bit")
     locate.add_argument(
         "--pixel-size",
         type=positive_length_m,
@@ -48,9 +49,9 @@ def register(sub: Any) -> None:
         help="parts brighter or darker than the support (default: auto)",
     )
     locate.add_argument(
-        "--calibration", type=Path, help="JSON of `feeder vision calibrate`: adds plate poses"
+        "--calibration", type=input_path, help="JSON of `feeder vision calibrate`: adds plate poses"
     )
-    locate.add_argument("--plot", type=Path, help="PNG of the image with the outlines found")
+    locate.add_argument("--plot", type=output_path, help="PNG of the image with the outlines found")
     locate.add_argument("--json", action="store_true", help="print one JSON object")
     locate.set_defaults(handler=run_locate)
 
@@ -60,7 +61,7 @@ def register(sub: Any) -> None:
         metavar="URL",
         help="stream URL, camera index, video file, image folder or genicam:PRODUCER.cti[#SERIAL]",
     )
-    grab.add_argument("--out", type=Path, required=True, help="PNG to write (lossless)")
+    grab.add_argument("--out", type=output_path, required=True, help="PNG to write (lossless)")
     grab.add_argument("--timeout-s", type=float, default=10.0, help="wait this long for a frame")
     grab.add_argument("--json", action="store_true", help="print one JSON object")
     grab.set_defaults(handler=run_grab)
@@ -69,7 +70,7 @@ def register(sub: Any) -> None:
     cal.add_argument("--part", help="LxWxT in µm of the part in the images")
     cal.add_argument(
         "--image",
-        type=Path,
+        type=input_path,
         action="append",
         default=[],
         help="an image of the part (repeatable): pixel size from its known size",
@@ -91,7 +92,8 @@ def register(sub: Any) -> None:
         metavar=("ANGLE", "BEFORE", "AFTER"),
         help="images before and after a plate turn, e.g. 5deg (repeatable): the θ centre",
     )
-    cal.add_argument("--out", type=Path, help="write the calibration JSON (read by `locate --calibration`)")
+    cal.add_argument("--out", type=output_path,
+                     help="write the calibration JSON (read by `locate --calibration`)")
     cal.add_argument("--json", action="store_true", help="print one JSON object")
     cal.set_defaults(handler=run_calibrate)
 

@@ -11,10 +11,18 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.arguments import add_part_arguments, add_tau_arguments, part_from, positive_float
+from feeder.cli.arguments import (
+    add_part_arguments,
+    add_tau_arguments,
+    input_path,
+    int_in,
+    output_path,
+    part_from,
+    positive_float,
+)
 from feeder.cli.output import print_json
 from feeder.errors import InputError
-from feeder.files import save_figure
+from feeder.files import save_figure, write_text
 from feeder.plant.amplifier import AmplifierLimits, OutputStage, limits_from_table
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
@@ -28,23 +36,25 @@ from feeder.waveform import (
 )
 
 PLOT_SAMPLE_RATE_HZ = 100e3
+MAX_DAC_POINTS = 2**20
 
 
 def register(sub: Any) -> None:
     p = sub.add_parser("waveform", help="show a waveform file or export its tables")
     actions = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     show = actions.add_parser("show", help="fields, derived timing, amplifier checks")
-    show.add_argument("file", type=Path, help="waveform TOML")
-    show.add_argument("--plot", type=Path, metavar="PNG", help="plot two periods to this PNG")
+    show.add_argument("file", type=input_path, help="waveform TOML")
+    show.add_argument("--plot", type=output_path, metavar="PNG", help="plot two periods to this PNG")
     show.add_argument("--json", action="store_true", help="print one JSON object")
     show.set_defaults(handler=run)
     export = actions.add_parser("export", help="ANC300 256-point tables or a CSV DAC table")
-    export.add_argument("file", type=Path, help="waveform TOML")
+    export.add_argument("file", type=input_path, help="waveform TOML")
     export.add_argument("--format", required=True, choices=("anc300", "csv"))
-    export.add_argument("--points", type=int, default=DEFAULT_DAC_POINTS,
-                        help=f"CSV table length (default {DEFAULT_DAC_POINTS})")
-    export.add_argument("--axis", type=int, default=1, help="ANC300 axis for setpu/setpd (default 1)")
-    export.add_argument("--out", type=Path, help="write here (atomically) instead of stdout")
+    export.add_argument("--points", type=int_in(4, MAX_DAC_POINTS), default=DEFAULT_DAC_POINTS,
+                        help=f"CSV table length, 4–{MAX_DAC_POINTS} (default {DEFAULT_DAC_POINTS})")
+    export.add_argument("--axis", type=int_in(1, 7), default=1,
+                        help="ANC300 axis 1–7 for setpu/setpd (default 1)")
+    export.add_argument("--out", type=output_path, help="write here (atomically) instead of stdout")
     export.add_argument("--json", action="store_true", help="print one JSON object")
     export.set_defaults(handler=run)
     design = actions.add_parser(
@@ -62,7 +72,7 @@ def register(sub: Any) -> None:
     design.add_argument("--shapes", default=",".join(FLYBACK_SHAPES),
                         help=f"flyback shapes to search, comma-separated (default all: "
                              f"{','.join(FLYBACK_SHAPES)})")
-    design.add_argument("--out", type=Path, required=True, help="design file (TOML) to write")
+    design.add_argument("--out", type=output_path, required=True, help="design file (TOML) to write")
     design.add_argument("--json", action="store_true", help="print one JSON object")
     design.set_defaults(handler=run_design)
 
@@ -148,8 +158,6 @@ def _export(args: argparse.Namespace, waveform: Waveform) -> int:
         text = "\n".join(lines) + "\n"
         obj: dict[str, Any] = {"format": "anc300", "points": len(up), "up": up, "down": down}
     else:
-        if args.points < 4:
-            raise InputError("--points", f"a table needs at least 4 points, got {args.points}")
         phase = np.arange(args.points) / args.points
         shape = waveform.table(args.points)
         codes = waveform.dac_table(args.points)
@@ -161,9 +169,7 @@ def _export(args: argparse.Namespace, waveform: Waveform) -> int:
         text = buf.getvalue()
         obj = {"format": "csv", "points": args.points, "dac_bits": DEFAULT_DAC_BITS}
     if args.out:
-        tmp = args.out.with_name(args.out.name + ".tmp")
-        tmp.write_text(text, encoding="utf-8")
-        tmp.replace(args.out)
+        write_text(args.out, text)
         obj["path"] = str(args.out)
         if args.json:
             print_json(obj)

@@ -23,10 +23,12 @@ from scipy.special import ndtri
 
 from feeder.contact.gaussian_integrals import gaussian_integral
 from feeder.contact.greenwood_williamson import GreenwoodWilliamson
+from feeder.errors import check_memory_budget
 from feeder.surface.parameters import SurfaceParameters
 
 DEFAULT_PLACEMENTS = 2000
 _TOP_SUMMITS = 64
+_BYTES_PER_HEIGHT = 48  # float64 heights, gaps and temporaries per summit drawn
 """Summits drawn per placement beyond 4× the GW contact count (more never touch)."""
 _BISECTIONS = 80
 
@@ -81,13 +83,15 @@ def sample_contact(
     """A_r and contact count of ``placements`` random placements carrying ``load_n`` (N).
 
     Deterministic for a given ``seed``.  Raises ``ArithmeticError`` if the load
-    needs more than the highest summits drawn (a load far above a part's weight).
+    needs more than the highest summits drawn (a load far above a part's weight),
+    InputError (``placements``) if the draw would exceed the 2 GiB memory budget.
     """
     rng = np.random.default_rng(seed)
     gw = GreenwoodWilliamson(surface, nominal_area_m2)
     expected = float(gw.contacts(gw.separation_m(load_n)))
     summits = gw.summits
     count = int(min(max(summits, 1.0), _TOP_SUMMITS + math.ceil(4 * expected)))
+    check_memory_budget("placements", placements * (count + 1) * _BYTES_PER_HEIGHT)
     z = _top_heights(surface, summits, count, placements, rng)
     hertz = 4.0 / 3.0 * surface.effective_modulus_pa * math.sqrt(surface.summit_radius_m)
     target = load_n / hertz  # Σ (z_k − d)^{3/2}, m^{3/2}

@@ -196,7 +196,13 @@ def contact(
     band_m2: tuple[float, float] | None = None
     sampled_mean: float | None = None
     if placements > 0 and not surface.adhesion_work_j_m2:  # the sampling is Hertz-only
-        sampled = sample_contact(surface, gw.nominal_area_m2, part.weight_n, placements)
+        try:
+            sampled = sample_contact(surface, gw.nominal_area_m2, part.weight_n, placements)
+        except InputError as err:
+            raise InputError("--placements", f"{err.message} (this part, {placements} placements; "
+                                             "0 skips the sampling)") from None
+        except ArithmeticError as err:
+            raise InputError("--part", f"cannot place this part summit by summit: {err}") from None
         band_m2, sampled_mean = sampled.band_m2(), float(np.mean(sampled.real_area_m2))
         if contacts < MIN_CONTACTS:
             warnings.append(

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from feeder.errors import InputError
+from feeder.files import write_text
 from feeder.friction.cantilevers import cantilever_stiffness
 
 DISPLACEMENT = "displacement_m"
@@ -160,9 +161,7 @@ def write_force_curve(
     lines = [f"# {key} = {value}" for key, value in metadata.items()]
     lines.append(f"{DISPLACEMENT},{DEFLECTION}")
     lines += [f"{x:.6e},{d:.6e}" for x, d in zip(displacement_m, deflection_m, strict=True)]
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    tmp.replace(path)
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def _moving_average(values: np.ndarray, window: int) -> np.ndarray:
