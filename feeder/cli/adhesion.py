@@ -8,7 +8,15 @@ import math
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.arguments import add_part_arguments, output_path, part_from, positive_float
+from feeder.cli.arguments import (
+    ADHESION_WORK_HELP,
+    add_part_arguments,
+    adhesion_work,
+    float_in,
+    output_path,
+    part_from,
+    positive_float,
+)
 from feeder.cli.output import print_json
 from feeder.contact.adhesion_fit import RATIO_BAND, AdhesionFit, fit_adhesion_work
 from feeder.contact.adhesion_sphere import DEFAULT_RANGE_M, MODELS, SphereContact
@@ -24,33 +32,37 @@ def register(sub: Any) -> None:
     p = sub.add_parser("adhesion", help="single-asperity adhesion: Hertz, DMT, JKR, Maugis–Dugdale")
     kinds = p.add_subparsers(dest="geometry", required=True, parser_class=type(p))
     s = kinds.add_parser("sphere", help="a sphere on a flat")
-    s.add_argument("--radius", type=positive_float, required=True, metavar="M", help="sphere radius R in m")
+    s.add_argument("--radius", type=float_in(1e-10, 1.0), required=True, metavar="M",
+                   help="sphere radius R in m, 0.1 nm–1 m")
     s.add_argument(
         "--modulus",
-        type=positive_float,
+        type=float_in(1e3, 1e13),
         required=True,
         metavar="PA",
-        help="reduced modulus E* in Pa (1/E* = (1−ν1²)/E1 + (1−ν2²)/E2)",
+        help="reduced modulus E* in Pa, 1 kPa–10 TPa (1/E* = (1−ν1²)/E1 + (1−ν2²)/E2)",
     )
-    s.add_argument("--adhesion-work", type=float, required=True, metavar="J_M2", help="work of adhesion w")
+    s.add_argument("--adhesion-work", type=adhesion_work, required=True, metavar="J_M2",
+                   help=f"work of adhesion w, {ADHESION_WORK_HELP}")
     scale = s.add_mutually_exclusive_group()
     scale.add_argument(
         "--tabor",
-        type=float,
+        type=float_in(1e-3, 1e3),
         metavar="L",
-        help="Maugis' λ = 2σ₀(R/(πwK²))^(1/3), K = 4E*/3 (not Tabor's μ ≈ λ/1.16)",
+        help="0.001–1000: Maugis' λ = 2σ₀(R/(πwK²))^(1/3), K = 4E*/3 (not Tabor's μ ≈ λ/1.16)",
     )
     scale.add_argument(
         "--range",
-        type=float,
+        type=float_in(1e-12, 1e-6),
         metavar="M",
-        help=f"Dugdale range h₀ = w/σ₀ in m (default {DEFAULT_RANGE_M:g} = 0.971 z₀)",
+        help=f"Dugdale range h₀ = w/σ₀ in m, 1 pm–1 µm (default {DEFAULT_RANGE_M:g} = 0.971 z₀)",
     )
     s.add_argument("--model", choices=MODELS, default="maugis-dugdale", help="default maugis-dugdale")
     what = s.add_mutually_exclusive_group()
-    what.add_argument("--load", type=float, metavar="N", help="contact radius and approach at this load")
+    what.add_argument("--load", type=float_in(-1e6, 1e6), metavar="N",
+                      help="contact radius and approach at this load (|load| ≤ 1e6 N)")
     what.add_argument("--curve", action="store_true", help="the load–radius–approach curve")
-    s.add_argument("--max-load", type=positive_float, metavar="N", help="top of --curve (default 10 πwR)")
+    s.add_argument("--max-load", type=float_in(1e-15, 1e6), metavar="N",
+                   help="top of --curve, 1e-15–1e6 N (default 10 πwR)")
     s.add_argument("--plot", type=output_path, metavar="PNG", help="plot the curve (implies --curve)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.set_defaults(handler=run)

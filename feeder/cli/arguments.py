@@ -55,6 +55,18 @@ def float_in(low: float, high: float) -> Callable[[str], float]:
     return parse
 
 
+ADHESION_WORK_RANGE_J_M2 = (1e-6, 10.0)
+ADHESION_WORK_HELP = "0 or 1e-06–10"
+
+
+def adhesion_work(text: str) -> float:
+    """argparse type: a work of adhesion in J/m², 0 or 1 µJ/m²–10 J/m²."""
+    value = float_in(0.0, ADHESION_WORK_RANGE_J_M2[1])(text)
+    if 0 < value < ADHESION_WORK_RANGE_J_M2[0]:
+        raise argparse.ArgumentTypeError(f"must be 0 or {ADHESION_WORK_HELP} J/m², got {text[:40]!r}")
+    return value
+
+
 def int_in(low: int, high: int) -> Callable[[str], int]:
     """argparse type: an integer in [``low``, ``high``] (a 400-digit number is refused, not parsed)."""
 
@@ -146,8 +158,9 @@ def add_part_arguments(
     p.add_argument("--density", type=float_in(*DENSITY_RANGE_KG_M3), default=SILICON_DENSITY_KG_M3,
                    help=f"part density in kg/m³, {DENSITY_RANGE_KG_M3[0]:g}–{DENSITY_RANGE_KG_M3[1]:g} "
                         f"(default silicon, {SILICON_DENSITY_KG_M3:g})")
-    p.add_argument("--adhesion-work", type=float, metavar="J_M2",
-                   help="work of adhesion w in J/m² for Maugis–Dugdale adhesion per summit (default: "
+    p.add_argument("--adhesion-work", type=adhesion_work, metavar="J_M2",
+                   help=f"work of adhesion w in J/m², {ADHESION_WORK_HELP}, for Maugis–Dugdale adhesion per "
+                        "summit (default: "
                         "the surface file's, else 0 as in the paper); τ is then the one fitted with w")
 
 
@@ -158,7 +171,7 @@ def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
     p.add_argument("--tau", type=positive_float,
                    help=f"interfacial shear strength in Pa (default: the paper's, {DEFAULT_TAU_PA:g} "
                         "at w = 0, fitted again with the surface's w when it has one)")
-    p.add_argument("--tau-adhesion-work", type=float, metavar="J_M2",
+    p.add_argument("--tau-adhesion-work", type=adhesion_work, metavar="J_M2",
                    help="the w the given --tau was fitted with (default 0); must equal the contact's w")
     if band:
         p.add_argument("--tau-band", type=float,

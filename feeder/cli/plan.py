@@ -6,7 +6,14 @@ import argparse
 from dataclasses import replace
 from typing import Any
 
-from feeder.cli.arguments import add_part_arguments, add_tau_arguments, output_path, part_from, positive_float
+from feeder.cli.arguments import (
+    add_part_arguments,
+    add_tau_arguments,
+    float_in,
+    output_path,
+    part_from,
+    positive_float,
+)
 from feeder.cli.output import print_json
 from feeder.planner import DEFAULT_MARGIN, StepPrediction, plan
 from feeder.plant.amplifier import AmplifierLimits, resolve_amplifier
@@ -25,16 +32,19 @@ def register(sub: Any) -> None:
                    help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})")
     p.add_argument("--margin", type=positive_float, default=DEFAULT_MARGIN,
                    help=f"k in the acceleration margins (default {DEFAULT_MARGIN})")
-    p.add_argument("--frequency-hz", type=positive_float, help="fix the frequency (default: chosen)")
+    p.add_argument("--frequency-hz", type=float_in(1e-3, 1e6),
+                   help="fix the frequency, 1 mHz–1 MHz (default: chosen)")
     p.add_argument("--amplifier", default=None,
                    help="amplifier model (anc300, paper = firmware_sim) or a TOML file of its limits; "
                         "the three options below override its values (default: firmware_sim)")
-    p.add_argument("--max-voltage-v", type=positive_float,
-                   help=f"amplifier rail (default {_DEFAULT_AMPLIFIER.v_max_v:g} V)")
-    p.add_argument("--current-limit-a", type=positive_float,
-                   help=f"amplifier peak current (default {_DEFAULT_AMPLIFIER.current_limit_a:g} A)")
-    p.add_argument("--max-frequency-hz", type=positive_float,
-                   help=f"amplifier's highest frequency (default {_DEFAULT_AMPLIFIER.max_frequency_hz:g} Hz)")
+    p.add_argument("--max-voltage-v", type=float_in(1e-3, 1e4),
+                   help=f"amplifier rail, 1 mV–10 kV (default {_DEFAULT_AMPLIFIER.v_max_v:g} V)")
+    p.add_argument("--current-limit-a", type=float_in(1e-6, 1e3),
+                   help=f"amplifier peak current, 1 µA–1 kA "
+                        f"(default {_DEFAULT_AMPLIFIER.current_limit_a:g} A)")
+    p.add_argument("--max-frequency-hz", type=float_in(1e-3, 1e6),
+                   help=f"amplifier's highest frequency, 1 mHz–1 MHz "
+                        f"(default {_DEFAULT_AMPLIFIER.max_frequency_hz:g} Hz)")
     p.add_argument("--out", type=output_path, metavar="TOML",
                    help="write the waveform with the prediction it was planned with (a design file)")
     p.add_argument("--json", action="store_true", help="print one JSON object")

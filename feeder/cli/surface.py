@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.arguments import input_path, output_path, positive_float
+from feeder.cli.arguments import float_in, input_path, output_path
 from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure
@@ -41,14 +41,16 @@ def register(sub: Any) -> None:
     p.add_argument("scans", nargs="+", type=input_path, metavar="SCAN",
                    help="one scan (rough surface on a smooth plane) or two (both bodies)")
     p.add_argument("--channel", help="channel index or name (default: the file's height channel)")
-    p.add_argument("--pixel-size", type=positive_float,
-                   help="pixel size in m, for plain .npy/.txt/.csv height maps")
+    p.add_argument("--pixel-size", type=float_in(1e-12, 1e-2),
+                   help="pixel size in m, 1 pm–10 mm, for plain .npy/.txt/.csv height maps")
     p.add_argument("--height-unit", default="m", help="unit of plain height maps (m, um, nm, ...)")
-    p.add_argument("--youngs-modulus", type=positive_float, default=169e9,
-                   help="Young's modulus of both bodies in Pa (default silicon, 169e9)")
-    p.add_argument("--poisson", type=float, default=0.28, help="Poisson ratio (default 0.28)")
-    p.add_argument("--cutoff-wavelength", type=positive_float, metavar="M",
-                   help="Gaussian low-pass (ISO 16610-61, 50 %% at this wavelength in m) before the "
+    p.add_argument("--youngs-modulus", type=float_in(1e3, 1e13), default=169e9,
+                   help="Young's modulus of both bodies in Pa, 1 kPa–10 TPa (default silicon, 169e9)")
+    p.add_argument("--poisson", type=float_in(-1.0, 0.5), default=0.28,
+                   help="Poisson ratio, −1–0.5 (default 0.28)")
+    p.add_argument("--cutoff-wavelength", type=float_in(1e-10, 1.0), metavar="M",
+                   help="Gaussian low-pass (ISO 16610-61, 50 %% at this wavelength in m, 0.1 nm–1 m) "
+                        "before the "
                         "statistics; the unfiltered figures are reported beside")
     p.add_argument("--out", type=output_path,
                    help="write the surface TOML read by `feeder contact --surface`")
