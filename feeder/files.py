@@ -21,8 +21,9 @@ MAX_TEXT_BYTES = 16 * 2**20
 """Largest TOML file read (a device such as /dev/zero or a huge file is refused up front)."""
 
 
-def read_toml(path: Path) -> dict[str, Any]:
-    """Parse a TOML file; a missing, unreadable or malformed file is an InputError naming it."""
+def read_text(path: Path) -> str:
+    """A small UTF-8 text file; a missing, unreadable, non-regular (/dev/zero) or huge file
+    (over :data:`MAX_TEXT_BYTES`) is an InputError naming it."""
     try:
         info = Path(path).stat()
         if not stat.S_ISREG(info.st_mode):
@@ -30,11 +31,17 @@ def read_toml(path: Path) -> dict[str, Any]:
         if info.st_size > MAX_TEXT_BYTES:
             raise InputError(str(path), f"larger than {MAX_TEXT_BYTES // 2**20} MiB; not a "
                              "configuration file")
-        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        return Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(str(path), "no such file") from None
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(str(path), f"cannot read: {err}") from None
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    """Parse a TOML file; a missing, unreadable or malformed file is an InputError naming it."""
+    try:
+        return tomllib.loads(read_text(path))
     except tomllib.TOMLDecodeError as err:
         raise InputError(str(path), f"not valid TOML: {err}") from None
 

@@ -140,6 +140,18 @@ def positive_length_m(text: str) -> float:
     return value
 
 
+def length_in(low_m: float, high_m: float) -> Callable[[str], float]:
+    """argparse type: a length (see :func:`length_m`) in [``low_m``, ``high_m``] → m."""
+
+    def parse(text: str) -> float:
+        value = length_m(text)
+        if not low_m <= value <= high_m:
+            raise argparse.ArgumentTypeError(f"must be from {low_m:g} m to {high_m:g} m, got {text[:40]!r}")
+        return value
+
+    return parse
+
+
 def angle_rad(text: str) -> float:
     """argparse type: an angle, ``15deg`` or radians (``0.26``, ``0.26rad``) → rad."""
     return _quantity(text, _ANGLE_UNITS_RAD, "angle", "15deg")

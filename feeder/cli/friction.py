@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.arguments import input_path, output_path, positive_float
+from feeder.cli.arguments import float_in, input_path, output_path
 from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure
@@ -23,7 +23,8 @@ from feeder.friction.force_curves import (
 def add_curve_options(p: argparse.ArgumentParser) -> None:
     """Cantilever and analysis options shared with ``feeder tau``."""
     p.add_argument("--cantilever", help=f"preset for deflection curves: {', '.join(CANTILEVERS)}")
-    p.add_argument("--stiffness", type=positive_float, help="cantilever stiffness in N/m (wins over presets)")
+    p.add_argument("--stiffness", type=float_in(1e-4, 1e4),
+                   help="cantilever stiffness in N/m, 1e-4–1e4 (wins over presets)")
     p.add_argument("--baseline-fraction", type=float, default=0.2,
                    help="leading fraction of samples taken as free-approach baseline (default 0.2)")
 

@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.arguments import angle_rad, input_path, length_m, output_path, positive_length_m
+from feeder.cli.arguments import angle_rad, input_path, length_in, length_m, output_path
 from feeder.cli.output import print_json
 from feeder.errors import InputError
-from feeder.files import save_figure, write_bytes, write_text
+from feeder.files import read_text, save_figure, write_bytes, write_text
 from feeder.parts import Part
 from feeder.vision.calibration import (
     CameraCalibration,
@@ -35,9 +35,9 @@ def register(sub: Any) -> None:
                         help="PNG/TIFF/JPEG, grey or colour, 8/16 bit")
     locate.add_argument(
         "--pixel-size",
-        type=positive_length_m,
+        type=length_in(1e-9, 1e-2),
         metavar="LENGTH",
-        help="pixel size on the plate, e.g. 1um, 1µm or 1e-6 (adds x_m, y_m)",
+        help="pixel size on the plate, 1 nm–10 mm, e.g. 1um, 1µm or 1e-6 (adds x_m, y_m)",
     )
     locate.add_argument("--part", help="LxWxT in µm (needs --pixel-size): refuse other sizes; angle of L")
     locate.add_argument("--disc", action="store_true", help="round parts (--part's L is the diameter)")
@@ -127,7 +127,7 @@ def _template(args: argparse.Namespace) -> PartTemplate | None:
 
 def _load_calibration(path: Path) -> CameraCalibration:
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(read_text(path))
         return CameraCalibration(
             float(data["pixel_size_m"]),
             float(data["rotation_rad"]),

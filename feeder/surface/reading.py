@@ -22,16 +22,20 @@ Every problem is an :class:`~feeder.errors.InputError` naming the file.
 from __future__ import annotations
 
 import math
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from feeder.errors import InputError
+from feeder.errors import InputError, check_memory_budget
 
 PLAIN_SUFFIXES = (".npy", ".txt", ".csv", ".dat")
 NPY_MAGIC = b"\x93NUMPY"
+_WORKING_COPIES = 8  # a scan file's bytes × this: the float64 maps and temporaries of the statistics
 
 LENGTH_UNITS_M = {
     "m": 1.0,
@@ -80,6 +84,7 @@ def read_height_map(
     """
     if not path.is_file():
         raise InputError(str(path), "no such file")
+    check_memory_budget(str(path), path.stat().st_size * _WORKING_COPIES)
     if path.suffix.lower() in PLAIN_SUFFIXES:
         heights = _read_plain(path)
         if pixel_size_m is None:
@@ -115,8 +120,9 @@ def _read_plain(path: Path) -> np.ndarray:
 
 def _read_instrument(path: Path, channel: str | None) -> HeightMap:
     try:
-        from SurfaceTopography import open_topography
-        from SurfaceTopography.Support.UnitConversion import get_unit_conversion_factor
+        with _quiet_import():
+            from SurfaceTopography import open_topography
+            from SurfaceTopography.Support.UnitConversion import get_unit_conversion_factor
     except ImportError:
         raise InputError(
             str(path), "reading instrument files needs the 'afm' extra (pip install 'feeder[afm]')"
@@ -172,8 +178,17 @@ def _choose_channel(reader: Any, path: Path, channel: str | None) -> Any:
     raise InputError(str(path), "no channel with heights (length unit) in this file")
 
 
+@contextmanager
+def _quiet_import() -> Iterator[None]:
+    """Imports of SurfaceTopography without its "Could not import mpi4py" warning (we run serial)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Could not import mpi4py")
+        yield
+
+
 def _length_unit_names() -> set[str]:
-    from SurfaceTopography.Support.UnitConversion import length_units
+    with _quiet_import():
+        from SurfaceTopography.Support.UnitConversion import length_units
 
     return set(length_units)
 
