@@ -46,6 +46,17 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise InputError(str(path), f"not valid TOML: {err}") from None
 
 
+def toml_number(field: str, value: Any) -> float:
+    """A number read from TOML as a float; a bool, a string or an integer beyond float range
+    (400 digits) is an InputError naming ``field``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(field, f"must be a number, got {value!r}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise InputError(field, f"number out of range ({len(str(abs(value)))} digits)") from None
+
+
 def _toml_value(key: str, value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -74,6 +85,16 @@ def toml_tables(tables: Mapping[str, Mapping[str, Any]]) -> str:
 
 
 def _temporary(path: Path) -> Path:
+    """The temporary beside ``path``; refuses to replace anything but a regular file (a device
+    such as /dev/zero, a directory, a socket): the rename would put a file in its place."""
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    except OSError as err:
+        raise InputError(str(path), f"cannot write: {err.strerror or err}") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise InputError(str(path), "cannot write: exists and is not a regular file")
     return path.with_name(f".{path.name}.{os.getpid()}.tmp")
 
 

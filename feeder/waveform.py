@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from feeder.errors import InputError
-from feeder.files import read_toml, toml_tables, write_text
+from feeder.files import read_toml, toml_number, toml_tables, write_text
 
 SHAPES = ("sawtooth",)
 FLYBACK_SHAPES = ("linear", "half-cosine", "current-limited")
@@ -241,9 +241,7 @@ def load_waveform(path: Path | str) -> Waveform:
     for key, value in table.items():
         field = f"{path}: [waveform].{key}"
         if key in _NUMBER_KEYS:
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise InputError(field, f"must be a number, got {value!r}")
-            values[key] = float(value)
+            values[key] = toml_number(field, value)
         elif key in _TEXT_KEYS:
             if not isinstance(value, str):
                 raise InputError(field, f"must be a string, got {value!r}")

@@ -93,6 +93,8 @@ def output_path(text: str) -> Path:
         raise argparse.ArgumentTypeError(f"no such directory: {str(path.parent)!r}")
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"is a directory: {text!r}")
+    if path.exists() and not path.is_file():
+        raise argparse.ArgumentTypeError(f"exists and is not a regular file: {text!r}")
     return path
 
 

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from feeder.errors import InputError
-from feeder.files import read_toml
+from feeder.files import read_toml, toml_number
 from feeder.waveform import Waveform
 
 
@@ -200,9 +200,7 @@ def limits_from_table(table: Mapping[str, Any], where: str) -> AmplifierLimits:
             continue
         if key not in LIMIT_FIELDS:
             raise InputError(f"{where}{key}", f"unknown field; known: model, {', '.join(LIMIT_FIELDS)}")
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(f"{where}{key}", f"must be a number, got {value!r}")
-        values[key] = float(value)
+        values[key] = toml_number(f"{where}{key}", value)
     try:
         return AmplifierLimits(**{**asdict(base), **values})
     except InputError as err:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from feeder.errors import InputError
-from feeder.files import read_toml, write_text
+from feeder.files import read_toml, toml_number, write_text
 
 Z_MAX_SIGMAS = 10.0
 SILICON_HARDNESS_PA = 12e9
@@ -153,9 +153,7 @@ def load_surface(path: Path) -> SurfaceParameters:
         for key, value in table.items():
             if key not in allowed:
                 raise InputError(f"{path}: [{name}].{key}", "unknown field")
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise InputError(f"{path}: [{name}].{key}", f"must be a number, got {value!r}")
-            values[key] = float(value)
+            values[key] = toml_number(f"{path}: [{name}].{key}", value)
     for key in _REQUIRED_KEYS:
         if key not in values:
             raise InputError(f"{path}: [surface].{key}", "missing")
