@@ -25,8 +25,9 @@ _DEFAULT_AMPLIFIER = AmplifierLimits()
 def register(sub: Any) -> None:
     p = sub.add_parser("plan", help="plan a move: waveform, steps, predicted step and band")
     add_part_arguments(p)
-    p.add_argument("--distance-m", type=float, required=True,
-                   help="wanted displacement in m; negative: backward (write --distance-m=-20e-6)")
+    p.add_argument("--distance-m", type=float_in(-1.0, 1.0), required=True,
+                   help="wanted displacement in m, at most 1 m either way; negative: backward "
+                        "(write --distance-m=-20e-6)")
     add_tau_arguments(p)
     p.add_argument("--kinetic-ratio", type=positive_float, default=DEFAULT_KINETIC_RATIO,
                    help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})")

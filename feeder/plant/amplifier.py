@@ -228,9 +228,13 @@ def resolve_amplifier(spec: str, field: str = "--amplifier") -> tuple[str, Ampli
     if name in AMPLIFIER_MODELS:
         return name, AMPLIFIER_MODELS[name]
     path = Path(spec)
-    if path.suffix.lower() != ".toml" and not path.exists():
+    try:
+        exists = path.exists()
+    except OSError:  # e.g. a name too long
+        exists = False
+    if path.suffix.lower() != ".toml" and not exists:
         known = ", ".join([*AMPLIFIER_MODELS, *AMPLIFIER_ALIASES])
-        raise InputError(field, f"{spec!r} is neither a known amplifier ({known}) nor a TOML file")
+        raise InputError(field, f"{spec[:80]!r} is neither a known amplifier ({known}) nor a TOML file")
     return str(path), load_amplifier(path)
 
 
