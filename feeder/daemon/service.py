@@ -529,6 +529,7 @@ class Daemon:
             "reconnecting": reconnecting,
             "faults": faults,
             "queued_moves": queued,
+            "camera_calibration": self.store.camera_calibration(),
             "store_unwritable": loop.writer.unwritable,
             "pending_records": loop.writer.pending(),
             "interrupted_moves": self.interrupted_moves,
