@@ -184,8 +184,10 @@ def test_locate_cli_json_units_plot_and_bad_input(tmp_path: Path, capsys: pytest
     assert usage.value.code == 2 and "--pixel-size" in capsys.readouterr().err
     assert main(["vision", "locate", str(path), "--part", "300x300x50"]) == 2
     assert "--part: needs --pixel-size" in capsys.readouterr().err
-    assert main(["vision", "locate", str(tmp_path / "missing.png")]) == 2
-    assert "missing.png: no such file" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as usage:  # checked by the argument's type
+        main(["vision", "locate", str(tmp_path / "missing.png")])
+    err = capsys.readouterr().err
+    assert usage.value.code == 2 and "no such file: " in err and "missing.png" in err
 
 
 def test_grab_cli_writes_a_png(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
