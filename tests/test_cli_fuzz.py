@@ -232,13 +232,21 @@ def test_calibration_json_from_a_device_is_refused(image: str) -> None:
     assert_refused(["vision", "locate", image, "--calibration", "/dev/zero"], "--calibration")
 
 
-def test_singular_fit_is_one_line(image: str) -> None:
-    """Axis moves that do not span the plate (x and y moves between the same two images)."""
-    argv = ["vision", "calibrate", "--part", "300x300x50", "--x-move", "100um", image, image,
-            "--y-move", "100um", image, image]  # fmt: skip
-    ran = run_cli(argv)
-    assert_clean(ran, argv)
-    assert ran.code == 2
+def test_singular_fit_is_one_line(tmp_path: Path) -> None:
+    """Axis moves whose images did not move: the least-squares fit is singular (was ZeroDivisionError)."""
+    import cv2
+
+    from firmware_sim.camera_render import CameraModel, FrameRenderer, PartInImage
+
+    frame = FrameRenderer(CameraModel().with_noise(0.02), seed=4).render(
+        [PartInImage(530.0, 490.0, 0.3, 250.0, 250.0)]
+    )
+    still = str(tmp_path / "still.png")
+    cv2.imwrite(still, frame)
+    argv = ["vision", "calibrate", "--part", "300x300x50", "--x-move", "100um", still, still,
+            "--y-move", "100um", still, still]  # fmt: skip
+    ran = assert_refused(argv, "moves", "singular", "--x-move")
+    assert "Traceback" not in ran.err
 
 
 def test_points_beyond_the_budget_are_refused_up_front() -> None:

@@ -99,8 +99,15 @@ def axes_from_moves(plate_moves_m: np.ndarray, image_moves_px: np.ndarray) -> Ax
         raise InputError("moves", "need at least two plate moves, each with its image move")
     if np.linalg.matrix_rank(plate, tol=1e-3 * float(np.max(np.abs(plate)))) < 2:
         raise InputError("moves", "the plate moves must span both axes (move x and y)")
-    solution, *_ = np.linalg.lstsq(plate, image, rcond=None)
-    a = solution.T  # image = a @ plate
+    try:
+        solution, *_ = np.linalg.lstsq(plate, image, rcond=None)
+        a = solution.T  # image = a @ plate
+        spread = np.linalg.svd(a, compute_uv=False)
+    except np.linalg.LinAlgError as err:
+        raise InputError("moves", f"the axis fit failed: {err}") from None
+    if not spread[-1] > 1e-6 * spread[0]:  # also 0 and NaN
+        raise InputError("moves", "the axis fit is singular: the part did not move in the images, "
+                                  "or moved along one line for both axes (--x-move, --y-move)")
     mirrored = bool(np.linalg.det(a) < 0)
     b = a @ np.diag([1.0, -1.0]) if mirrored else a
     rotation = math.atan2(b[1, 0] - b[0, 1], b[0, 0] + b[1, 1])
