@@ -27,6 +27,7 @@ from types import FrameType
 
 from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
+from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
 from feeder.protocol.anc300 import DEFAULT_PASSWORD, DIALECTS
 from firmware_sim.canopen_node import serve_slcan_pty
 from firmware_sim.clock import Clock, RealTimeClock, VirtualClock
@@ -39,7 +40,7 @@ from firmware_sim.firmware import (
     FirmwareConfig,
 )
 from firmware_sim.transports import LineBroadcastServer, PtyConsole, TcpConsoleServer
-from firmware_sim.world import CameraConfig, TrueStep, World, WorldConfig
+from firmware_sim.world import PLANTS, CameraConfig, TrueStep, World, WorldConfig, parse_poses
 
 REFERENCE_FREQUENCY_HZ = 100.0
 VIRTUAL_TICKS_PER_YIELD = 10
@@ -107,6 +108,14 @@ def build_parser() -> argparse.ArgumentParser:
                        help="step-to-step relative scatter of the static friction")
     world.add_argument("--seed", type=int, default=0)
     world.add_argument("--plant-axis", type=int, default=1, help="axis wired to the stack")
+    world.add_argument("--plant", choices=PLANTS, default="line",
+                       help="line: one stack on --plant-axis (default); planar: axes 1-3 drive the "
+                            "plate's x, y and θ, parts at --parts")
+    world.add_argument("--parts", metavar="X,Y,PSI;...", default="0,0,0",
+                       help="planar: the parts' poses in the plate frame (m, m, rad; origin at "
+                            "the rotation centre O), ';' between parts (default %(default)s)")
+    world.add_argument("--lever-arm-m", type=float, default=DEFAULT_LEVER_ARM_M,
+                       help="planar: radius about O at which the θ stack turns the plate")
     world.add_argument("--camera-rate-hz", type=float, default=100.0)
     world.add_argument("--camera-noise-m", type=float, default=50e-9)
     world.add_argument("--camera-latency-s", type=float, default=0.010)
@@ -202,7 +211,8 @@ def main(argv: list[str] | None = None) -> int:
         world = World(WorldConfig(
             part=args.part, support=args.support, tau_pa=args.tau_pa, tau_offset=args.tau_offset,
             kinetic_ratio=args.kinetic_ratio, scatter=args.scatter, seed=args.seed,
-            plant_axis=args.plant_axis,
+            plant_axis=args.plant_axis, plant=args.plant, poses=parse_poses(args.parts),
+            lever_arm_m=args.lever_arm_m,
             camera=CameraConfig(args.camera_rate_hz, args.camera_noise_m,
                                 args.camera_latency_s)), config)
         firmware.axis(args.plant_axis)

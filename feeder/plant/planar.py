@@ -46,6 +46,8 @@ _SEED_TIME_S = 1e-12
 _STOP = 1e-10
 """A slip ends when the twist has fallen below this fraction of its value at the start."""
 _BREAKAWAY_SAMPLES = 16
+_ROUNDING = 1e-14
+"""A twist this small relative to the part's lab velocity is rounding: it has vanished."""
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
 
 
@@ -299,12 +301,16 @@ class _PartState:
 
         Friction jumps where the twist passes zero, so no step may cross it: a
         step that reverses the twist is dropped and the integration restarts
-        with its end at 0.9 of the linearly predicted time to zero, until the
-        twist is below the stop threshold.
+        with its end at 0.9 of the linearly predicted time to zero (halved
+        while no step fits), until the twist is below the stop threshold or
+        its predicted time to zero below the time resolution (a twist at the
+        rounding floor of the velocities).
         """
         bound = t_end
         previous = twist(t, y)
+        factor = 0.9
         for _ in range(1000):
+            begin = t
             stepper = DOP853(rhs, t, y, bound, rtol=1e-10, atol=_ATOL)
             reversed_ = False
             while stepper.status == "running":
@@ -316,7 +322,8 @@ class _PartState:
                     reversed_ = True
                     break
                 t, y, previous = stepper.t, stepper.y, now
-                if math.sqrt(self._dot(now, now)) <= self._stop:
+                floor = _ROUNDING * math.sqrt(self._dot((y[3], y[4], y[5]), (y[3], y[4], y[5])))
+                if math.sqrt(self._dot(now, now)) <= max(self._stop, floor):
                     return t, y, True
             if not reversed_ and t >= t_end:
                 return t, y, False
@@ -324,7 +331,10 @@ class _PartState:
             to_zero = -self._dot(previous, d) / self._dot(d, d)
             if not to_zero > 0:
                 return t, y, True
-            bound = min(t_end, t + 0.9 * to_zero)
+            factor = 0.9 if t > begin else 0.5 * factor  # no step fitted: aim shorter
+            if factor * to_zero <= 1e-15 * t_end:  # it vanishes within the time resolution
+                return t, y, True
+            bound = min(t_end, t + factor * to_zero)
         raise RuntimeError("planar stick-slip: the twist does not vanish")
 
     def _settle(self, seg: Segment, plate: _Plate, tau: float) -> None:
@@ -424,11 +434,14 @@ class PlanarStickSlip:
 
         Returns the parts' lab-frame poses (parts, n, 3) at each sample.
         """
+        v = np.asarray(velocity, dtype=float)
         out = []
-        for seg in sampled(velocity, self._plate.velocity, sample_rate_hz):
+        for seg, end in zip(sampled(v, self._plate.velocity, sample_rate_hz), v.T.tolist(), strict=True):
             for state in self._states:
                 state.run(seg, self._plate)
             self._plate.finish(seg)
+            # the sample itself, not v₀ + a·dt (which rounds differently): no corner at the next one
+            self._plate.velocity = (end[0], end[1], end[2])
             self.elapsed_s += seg.duration_s
             out.append(self.lab_poses())
         return np.array(out, dtype=float).reshape(len(out), len(self._states), 3).transpose(1, 0, 2)
