@@ -19,7 +19,7 @@ BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "gw_md_solve", "loop_jitte
                                "console_rtt", "tick_jitter", "sdo_rtt", "pdo_rate",
                                "stickslip", "stickslip_half_cosine", "plant_realtime",
                                "plant_realtime_1ms", "planar_period", "vision_locate",
-                               "vision_render")
+                               "vision_render", "cli_start", "sweep_scaling")
 
 
 def main(argv: list[str] | None = None) -> int:

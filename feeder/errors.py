@@ -2,10 +2,21 @@
 
 Catch ``FeederError`` to handle anything this package reports; the subclasses
 say what kind of trouble it is.  Drivers add theirs (``AmplifierError``,
-``SensorLost``) under the same root.
+``SensorLost``) under the same root.  Talking to the daemon (:class:`DaemonError`):
+
+- :class:`DaemonRefused` (exit 1): the daemon said no, with its reason;
+- :class:`MoveFailed` (exit 1), :class:`MoveFaulted`: the move ran and did not end ``done``;
+- :class:`DaemonUnreachable` (exit 3), :class:`DaemonTimeout`: nobody answers in time.
+
+:class:`InputError` is exit code 2.
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from feeder.daemon.client import MoveResult
 
 
 class FeederError(Exception):
@@ -22,3 +33,48 @@ class InputError(FeederError, ValueError):
         super().__init__(f"{field}: {message}")
         self.field = field
         self.message = message
+
+
+class DaemonError(FeederError):
+    """Something about a request to the control daemon (see :mod:`feeder.daemon.client`)."""
+
+
+class DaemonRefused(DaemonError):
+    """The daemon refused the request; ``reason`` is its own words.
+
+    ``result`` is the job's result when a queued move was refused later (by a stop, a
+    fault or a shutdown), else None.  CLI exit code 1.
+    """
+
+    def __init__(self, reason: str, result: MoveResult | None = None) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.result = result
+
+
+class MoveFailed(DaemonError):
+    """A move or calibration ran and ended other than ``done`` (stopped, stalled, limit,
+    oscillating, unreachable, fault); ``result`` says where the part is.  CLI exit code 1."""
+
+    def __init__(self, result: MoveResult) -> None:
+        super().__init__(f"{result.kind} {result.status}: {result.reason}")
+        self.result = result
+
+
+class MoveFaulted(MoveFailed):
+    """A move ended with ``fault``: the amplifier or sensor link was lost (the daemon grounds
+    the output and reconnects by itself)."""
+
+
+class DaemonUnreachable(DaemonError):
+    """No daemon answers on the socket: not running, wrong path, wrong owner, connection
+    closed, or a reply that is not the daemon's protocol.  CLI exit code 3."""
+
+
+class DaemonTimeout(DaemonUnreachable):
+    """The daemon did not answer (a reply, an acknowledgement or a heartbeat) within
+    ``timeout_s``: stopped, hung or overloaded.  CLI exit code 3."""
+
+    def __init__(self, message: str, timeout_s: float) -> None:
+        super().__init__(message)
+        self.timeout_s = timeout_s

@@ -6,9 +6,12 @@ writer goes through a temporary file and a rename, so nothing is half-written.
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import stat
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +37,33 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise InputError(str(path), f"cannot read: {err}") from None
     except tomllib.TOMLDecodeError as err:
         raise InputError(str(path), f"not valid TOML: {err}") from None
+
+
+def _toml_value(key: str, value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"{key}: TOML files here hold finite numbers only, got {value!r}")
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)  # a JSON string is a TOML basic string
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(key, v) for v in value) + "]"
+    raise TypeError(f"{key}: cannot write {type(value).__name__} to TOML")
+
+
+def toml_tables(tables: Mapping[str, Mapping[str, Any]]) -> str:
+    """TOML text of flat tables of numbers, strings, booleans and lists of them (None skipped)."""
+    blocks = []
+    for name, values in tables.items():
+        lines = [f"[{name}]"]
+        lines += [f"{key} = {_toml_value(key, value)}" for key, value in values.items()
+                  if value is not None]  # fmt: skip
+        blocks.append("\n".join(lines) + "\n")
+    return "\n".join(blocks)
 
 
 def _temporary(path: Path) -> Path:

@@ -24,18 +24,28 @@ TOML file::
     flyback_shape = "current-limited"   # or "linear", "half-cosine"
     flyback_s = 1.0e-4                  # for linear / half-cosine
     direction = "forward"               # or "backward"
+
+A *design file* is a waveform file with more tables beside ``[waveform]``
+(``feeder plan --out``, ``feeder waveform design --out``): ``[amplifier]`` (the
+limits it was designed within, see :func:`feeder.plant.amplifier.load_amplifier`),
+``[stack]``, ``[prediction]`` (part, support, τ, w, predicted step and band) and
+``[design]`` / ``[margins]``.  :func:`load_waveform` reads only ``[waveform]``,
+so every reader of waveform files plays a design file;
+:func:`read_waveform_tables` returns the other tables.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from feeder.errors import InputError
-from feeder.files import read_toml, write_text
+from feeder.files import read_toml, toml_tables, write_text
 
 SHAPES = ("sawtooth",)
 FLYBACK_SHAPES = ("linear", "half-cosine", "current-limited")
@@ -190,6 +200,25 @@ class Waveform:
     def write_toml(self, path: Path) -> None:
         """Write atomically (temporary file, then rename)."""
         write_text(path, self.to_toml())
+
+
+def write_waveform_file(
+    path: Path | str, waveform: Waveform, tables: Mapping[str, Mapping[str, Any]], comment: str = ""
+) -> None:
+    """Write a design file atomically: ``[waveform]`` then ``tables`` (flat; None values skipped).
+
+    ``comment`` lines go first as TOML comments.
+    """
+    if "waveform" in tables:
+        raise ValueError("tables: [waveform] is written from the Waveform itself")
+    head = "".join(f"# {line}\n" for line in comment.splitlines())
+    write_text(Path(path), head + waveform.to_toml() + "\n" + toml_tables(tables))
+
+
+def read_waveform_tables(path: Path | str) -> dict[str, dict[str, Any]]:
+    """The tables of a waveform file other than ``[waveform]`` (empty for a plain waveform file)."""
+    data = read_toml(Path(path))
+    return {k: v for k, v in data.items() if k != "waveform" and isinstance(v, dict)}
 
 
 _NUMBER_KEYS = ("frequency_hz", "amplitude_vpp", "offset_v", "flyback_s")

@@ -1,10 +1,19 @@
 """One firmware axis as a CANopen (CiA 301) node: the CAN front end of the amplifier.
 
 The node is the ``canopen`` package's :class:`canopen.LocalNode` (object
-dictionary from ``feeder_amplifier.eds``, SDO server, NMT slave, heartbeat
-producer, EMCY producer) with the amplifier behind its read/write hooks.  It
-calls the same :class:`firmware_sim.firmware.Axis` API as the ANC300 console:
-one amplifier, two front ends.
+dictionary from the EDS in :mod:`feeder.protocol.eds`, NMT slave, heartbeat
+producer, EMCY producer) with the amplifier behind its read/write hooks and
+objects addressed by their EDS names.  It calls the same
+:class:`firmware_sim.firmware.Axis` API as the ANC300 console: one amplifier,
+two front ends.
+
+Frames are handled when they arrive, in the thread that delivers them: on a
+:class:`~firmware_sim.can_wire.CanWire` (``serve_slcan_pty``) that is the
+adapter's pty thread, like a CAN receive interrupt; on any other python-can bus
+the network's receive thread.  Each SDO request, NMT command, SYNC and RPDO is
+handled whole under the firmware's lock, so it sees (and leaves) one consistent
+state between two ticks, and every write goes through the axis' limits and
+safety state machine.
 
 What this module adds to ``LocalNode``:
 
@@ -13,9 +22,10 @@ What this module adds to ``LocalNode``:
   codes when the firmware's own limit is tighter (e.g. a lower amplitude rating),
   0x06040043 when they conflict with another setting (flyback longer than half
   a period), 0x08000022 when the axis' state forbids them (stepping while
-  grounded or in fault).  A refused write changes nothing.  (Read-only
-  0x06010002, write-only 0x06010001 and unknown objects 0x06020000 come from
-  ``LocalNode`` itself.)
+  grounded or in fault).  A refused write changes nothing.  Unknown objects
+  (0x06020000), sub-indices (0x06090011), read-only (0x06010002) and write-only
+  (0x06010001) objects and client aborts follow CiA 301
+  (:mod:`firmware_sim.sdo_server`).
 - NMT: SDO served in PRE-OPERATIONAL and OPERATIONAL only; PDOs in OPERATIONAL
   only; any state but OPERATIONAL stops the axis; reset node / reset
   communication restore the EDS defaults (reset node also grounds the axis),
@@ -36,30 +46,23 @@ What this module adds to ``LocalNode``:
 
 from __future__ import annotations
 
-import os
 import re
 import struct
+import sys
 import threading
 import time
 import zlib
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import can
 import canopen
-from canopen.objectdictionary import ODVariable
+from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
 
-from feeder.drivers.canopen import (
-    MODES,
-    SHAPE_CODES,
-    STATUS_FAULT,
-    STATUS_MOVING,
-    STATUS_REFUSED,
-    STATUS_STEPPING_MODE,
-)
 from feeder.errors import InputError
+from feeder.protocol.eds import MODES, SHAPE_CODES, bit_mask, object_dictionary
+from firmware_sim.can_wire import CanWire, WireBus
 from firmware_sim.firmware import (
     FLYBACK_SHAPES,
     STEPPING_MODES,
@@ -69,9 +72,8 @@ from firmware_sim.firmware import (
     FirmwareError,
     LimitError,
 )
+from firmware_sim.sdo_server import SdoServer
 from firmware_sim.slcan import SlcanPty
-
-EDS_PATH = Path(__file__).with_name("feeder_amplifier.eds")
 
 NMT_OPERATIONAL = 5
 NMT_PRE_OPERATIONAL = 127
@@ -94,11 +96,41 @@ ERROR_REGISTER_BITS = {Fault.WATCHDOG: 0x80, Fault.HOST_WATCHDOG: 0x10, Fault.OV
 """Object 0x1001 bits besides bit 0 (generic): manufacturer, communication, temperature."""
 
 TIMED_SHAPES = ("linear", "half-cosine")
-"""Flyback shapes that use object 0x2003; the others keep it only for later."""
+"""Flyback shapes that use ``Flyback time``; the others keep it only for later."""
 
-LIMIT_FIELDS = {0x2000: "frequency", 0x2001: "voltage", 0x2003: "flyback", 0x2006: "offset",
-                0x2010: "steps"}
+LIMIT_FIELDS = {
+    "Frequency": "frequency",
+    "Amplitude": "voltage",
+    "Flyback time": "flyback",
+    "Offset": "offset",
+    "Step command": "steps",
+}
 """The firmware's name (``LimitError.field``) of the value each object sets."""
+
+INTERRUPT_LATENCY_S = 100e-6
+"""Longest wait of an arriving frame's thread for the interpreter (``sys.setswitchinterval``;
+Python's default of 5 ms would let a busy tick delay an SDO answer by milliseconds)."""
+
+IDLE_POLL_S = 0.01
+"""How often a node without event-driven PDOs to send (not OPERATIONAL, or TPDO1 on
+SYNC) samples its axis for EMCY and the heartbeat consumer."""
+
+TPDO1 = "TPDO1 communication parameter"
+CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
+LIVE_OBJECTS = (
+    "Error register",
+    "Frequency",
+    "Amplitude",
+    "Flyback shape",
+    "Mode",
+    "Offset",
+    "Step counter",
+    "Output voltage",
+    "Fault word",
+    "Status word",
+    "Command acknowledge",
+)
+"""Objects whose value is the axis' (or the node's) present state, read when asked."""
 
 
 def error_register(fault_word: int) -> int:
@@ -121,25 +153,35 @@ def serial_number_u32(serial: str) -> int:
 class CanopenNode:
     """Axis ``axis`` of ``firmware`` as CANopen node ``node_id`` on ``bus``.
 
+    ``bus``: an endpoint of a :class:`~firmware_sim.can_wire.CanWire` (frames
+    handled in the sender's thread) or any python-can bus (a receive thread).
+    ``od``: the object dictionary (default: the packaged EDS).
     ``start()`` boots the node (boot-up message, PRE-OPERATIONAL, heartbeat);
     ``close()`` stops it and shuts the bus down.  ``poll_s`` is how often the
-    node samples the axis for TPDO1 and EMCY.
+    node samples the axis for event-driven TPDO1 and EMCY.
     """
 
-    def __init__(self, firmware: Firmware, axis: int, node_id: int, bus: can.BusABC,
-                 eds: str | Path = EDS_PATH, poll_s: float = 0.001) -> None:
+    def __init__(
+        self,
+        firmware: Firmware,
+        axis: int,
+        node_id: int,
+        bus: can.BusABC,
+        od: ObjectDictionary | None = None,
+        poll_s: float = 0.001,
+    ) -> None:
         self.firmware = firmware
         self.axis = firmware.axis(axis)
         self.node_id = node_id
         self.poll_s = poll_s
-        self.local = canopen.LocalNode(node_id, str(eds))
+        self.local = canopen.LocalNode(node_id, od if od is not None else object_dictionary(node_id))
+        self.local.sdo = SdoServer(self.local)
         self.network = canopen.Network(bus)
         self.network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
         self._tpdo_lock = threading.Lock()
         self._wake = threading.Event()
         self._stopping = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True,
-                                        name=f"canopen-node-{node_id}")
+        self._thread = threading.Thread(target=self._run, daemon=True, name=f"canopen-node-{node_id}")
         self._ack = 0
         self._refused = False
         self._last_command = 0
@@ -149,19 +191,30 @@ class CanopenNode:
         self._tpdo_type = 255
         self._inhibit_s = 0.0
         self._event_timer_s = 0.0
-        self._consumer_id = 0            # host whose heartbeat is consumed; 0 = none
+        self._consumer_id = 0  # host whose heartbeat is consumed; 0 = none
         self._consumer_timeout_s = 0.0
         self._consumer_seen: float | None = None
-        self._writers: dict[int, Callable[[int], None]] = {
-            0x2000: lambda v: self.axis.set_frequency(v / 1000),
-            0x2001: lambda v: self.axis.set_amplitude(v / 1000),
-            0x2002: self._write_flyback_shape,
-            0x2003: self._write_flyback_time,
-            0x2005: lambda v: self.axis.set_mode(MODES[v]),
-            0x2006: lambda v: self.axis.set_offset(v / 1000),
-            0x2010: self._write_step_command,
-            0x2011: self._write_continuous,
-            0x2016: lambda v: self.axis.clear_faults(),
+        self._writers: dict[str, Callable[[int], None]] = {
+            "Frequency": lambda v: self.axis.set_frequency(v / 1000),
+            "Amplitude": lambda v: self.axis.set_amplitude(v / 1000),
+            "Flyback shape": self._write_flyback_shape,
+            "Flyback time": self._write_flyback_time,
+            "Mode": lambda v: self.axis.set_mode(MODES[v]),
+            "Offset": lambda v: self.axis.set_offset(v / 1000),
+            "Step command": self._write_step_command,
+            "Continuous": self._write_continuous,
+            "Fault reset": lambda v: self.axis.clear_faults(),
+            f"{TPDO1}.Transmission type": self._write_tpdo_type,
+            f"{TPDO1}.Inhibit time": lambda v: setattr(self, "_inhibit_s", v * 100e-6),
+            f"{TPDO1}.Event timer": lambda v: setattr(self, "_event_timer_s", v / 1000),
+            CONSUMER_HEARTBEAT: self._write_consumer_heartbeat,
+        }
+        od_ = self.local.object_dictionary
+        for name in (*self._writers, *LIVE_OBJECTS, "Amplitude limit", "Identity object"):
+            od_[name]  # a name the EDS lacks fails here, not on the first request
+        self._status_mask = {
+            name: bit_mask(od_, "Status word", name)
+            for name in ("moving", "stepping mode", "fault", "refused")
         }
 
     @property
@@ -173,7 +226,6 @@ class CanopenNode:
 
     def start(self) -> CanopenNode:
         local, network = self.local, self.network
-        network.connect()
         network.add_node(local)
         network.unsubscribe(local.sdo.rx_cobid, local.sdo.on_request)
         network.subscribe(local.sdo.rx_cobid, self._on_sdo)
@@ -184,9 +236,18 @@ class CanopenNode:
         local.add_write_callback(self._on_write)
         local.tpdo.read(from_od=True)
         local.rpdo.read(from_od=True)
-        self._tpdo = local.tpdo[1]
+        tpdo = local.tpdo[1]
+        self._tpdo_cob_id = tpdo.cob_id
+        # TPDO1's layout from its mapping (byte-aligned, as in the EDS): packed with
+        # struct, not through canopen's PDO variables, on every SYNC / change
+        self._tpdo_layout = [(v.od.qualname, v.od.STRUCT_TYPES[v.od.data_type]) for v in tpdo.map]
         self._rpdo = local.rpdo[1]
         self._rpdo.add_callback(self._on_rpdo)
+        bus = network.bus
+        if isinstance(bus, WireBus):  # frames handled in the sender's thread, as they arrive
+            bus.receiver = lambda m: network.notify(m.arbitration_id, m.data, m.timestamp)
+        else:
+            network.connect()
         self._boot(reset_application=False)
         self._thread.start()
         return self
@@ -216,36 +277,38 @@ class CanopenNode:
             self.axis.ground()
             self._flyback_ns = 0
             self._last_command = 0
-        self._tpdo_type = self._default(0x1800, 2)
-        self._inhibit_s = self._default(0x1800, 3) * 100e-6
-        self._event_timer_s = self._default(0x1800, 5) / 1000
+        self._tpdo_type = self._default(f"{TPDO1}.Transmission type")
+        self._inhibit_s = self._default(f"{TPDO1}.Inhibit time") * 100e-6
+        self._event_timer_s = self._default(f"{TPDO1}.Event timer") / 1000
         self._sync_count = 0
         self._consume_heartbeat(0, 0.0)
         self.local.nmt.send_command(0x81)  # state INITIALISING: boot-up message
         self.local.nmt.send_command(NMT_ENTER_PRE_OPERATIONAL)  # starts the heartbeat
 
-    def _default(self, index: int, subindex: int) -> int:
+    def _default(self, name: str) -> int:
         """An object's DefaultValue from the EDS."""
-        variable = self.local.object_dictionary.get_variable(index, subindex)
-        assert variable is not None and isinstance(variable.default, int)
+        variable = self.local.object_dictionary[name]
+        assert isinstance(variable, ODVariable) and isinstance(variable.default, int)
         return variable.default
 
-    # -- CAN services -----------------------------------------------------------
+    # -- CAN services (each handled whole under the firmware's lock) -------------
 
     def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if self.nmt_state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL) and len(data) == 8:
-            self.firmware.host_activity()
-            self.local.sdo.on_request(can_id, data, timestamp)
+            with self.firmware.lock:
+                self.firmware.host_activity()
+                self.local.sdo.on_request(can_id, data, timestamp)
+            self._wake.set()
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if len(data) < 2 or data[1] not in (0, self.node_id) \
-                or data[0] not in canopen.nmt.COMMAND_TO_STATE:
+        if len(data) < 2 or data[1] not in (0, self.node_id) or data[0] not in canopen.nmt.COMMAND_TO_STATE:
             return
-        if canopen.nmt.COMMAND_TO_STATE[data[0]] != NMT_OPERATIONAL:
-            self.axis.stop()  # before the heartbeat announces the new state
-        self.local.nmt.on_command(can_id, data, timestamp)
-        if data[0] in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
-            self._boot(reset_application=data[0] == NMT_RESET_NODE)
+        with self.firmware.lock:
+            if canopen.nmt.COMMAND_TO_STATE[data[0]] != NMT_OPERATIONAL:
+                self.axis.stop()  # before the heartbeat announces the new state
+            self.local.nmt.on_command(can_id, data, timestamp)
+            if data[0] in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
+                self._boot(reset_application=data[0] == NMT_RESET_NODE)
         self._wake.set()
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
@@ -261,56 +324,58 @@ class CanopenNode:
         if len(pdo.data) * 8 < pdo.length:
             self.local.emcy.send(EMCY_PDO_LENGTH, error_register(self._fault_reported))
             return
-        self.firmware.host_activity()
-        count = int(pdo["Step command"].raw)
-        try:
-            self._write_step_command(count)
-            self._refused = False
-        except FirmwareError:
-            self._refused = True
-        self._ack = int(pdo["Command sequence"].raw)
+        with self.firmware.lock:
+            self.firmware.host_activity()
+            count = int(pdo["Step command"].raw)
+            try:
+                self._write_step_command(count)
+                self._refused = False
+            except FirmwareError:
+                self._refused = True
+            self._ack = int(pdo["Command sequence"].raw)
         self._wake.set()
 
     # -- object dictionary hooks ------------------------------------------------
 
     def _on_read(self, index: int, subindex: int, od: ODVariable) -> int | None:
-        if index == 0x1018 and subindex == 4:
+        name = od.qualname
+        if name == "Identity object.Serial number":
             return serial_number_u32(self.firmware.config.serial_number)
-        if index == 0x2020:
+        if name == "Amplitude limit":
             return round(self.firmware.config.amplifier.max_amplitude_vpp * 1000)
-        if index == 0x2003:
+        if name == "Flyback time":
             status = self.axis.status()
             if status.flyback_shape in TIMED_SHAPES:  # set here or on the console
                 return round(status.flyback_s * 1e9)
             return self._flyback_ns
-        if index == 0x2010:
+        if name == "Step command":
             return self._last_command
-        if index in (0x1001, 0x2000, 0x2001, 0x2002, 0x2005, 0x2006, 0x2012, 0x2013, 0x2014,
-                     0x2015, 0x2019):
-            return self._live_value(index, self.axis.status())
+        if name in LIVE_OBJECTS:
+            return self._live_value(name, self.axis.status())
         return None
 
-    def _live_value(self, index: int, status: AxisStatus) -> int:
-        """Value of an object that mirrors the axis' state."""
-        if index == 0x1001:
+    def _live_value(self, name: str, status: AxisStatus) -> int:
+        """Value of an object that mirrors the axis' (or the node's) present state."""
+        if name == "Error register":
             return error_register(status.fault_word)
-        if index == 0x2015:
-            word = STATUS_MOVING if status.moving else 0
-            word |= STATUS_STEPPING_MODE if status.mode in STEPPING_MODES else 0
-            word |= STATUS_FAULT if status.fault_word else 0
-            return word | (STATUS_REFUSED if self._refused else 0)
-        if index == 0x2019:
+        if name == "Status word":
+            bits = self._status_mask
+            word = bits["moving"] if status.moving else 0
+            word |= bits["stepping mode"] if status.mode in STEPPING_MODES else 0
+            word |= bits["fault"] if status.fault_word else 0
+            return word | (bits["refused"] if self._refused else 0)
+        if name == "Command acknowledge":
             return self._ack
         return {
-            0x2000: round(status.frequency_hz * 1000),
-            0x2001: round(status.amplitude_v * 1000),
-            0x2002: SHAPE_CODES.index(status.flyback_shape),
-            0x2005: MODES.index(status.mode),
-            0x2006: round(status.offset_v * 1000),
-            0x2012: status.step_counter,
-            0x2013: round(status.output_v * 1000),
-            0x2014: status.fault_word,
-        }[index]
+            "Frequency": lambda: round(status.frequency_hz * 1000),
+            "Amplitude": lambda: round(status.amplitude_v * 1000),
+            "Flyback shape": lambda: SHAPE_CODES.index(status.flyback_shape),
+            "Mode": lambda: MODES.index(status.mode),
+            "Offset": lambda: round(status.offset_v * 1000),
+            "Step counter": lambda: status.step_counter,
+            "Output voltage": lambda: round(status.output_v * 1000),
+            "Fault word": lambda: status.fault_word,
+        }[name]()
 
     def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
         value = od.decode_raw(data)
@@ -320,40 +385,30 @@ class CanopenNode:
             raise SdoAbortedError(ABORT_TOO_LOW)
         if od.max is not None and value > od.max:
             raise SdoAbortedError(ABORT_TOO_HIGH)
-        if index == 0x1800:
-            self._write_tpdo_parameter(subindex, value)
-            return
-        if index == 0x1016:
-            producer, milliseconds = value >> 16 & 0xFF, value & 0xFFFF
-            if value >> 23 or (milliseconds and not 1 <= producer <= 127):
-                raise SdoAbortedError(ABORT_RANGE)
-            self._consume_heartbeat(producer if milliseconds else 0, milliseconds / 1000)
-            return
-        writer = self._writers.get(index)
+        writer = self._writers.get(od.qualname)
         if writer is None:
             return
         try:
             writer(value)
         except LimitError as exc:
-            if exc.field != LIMIT_FIELDS.get(index):
+            if exc.field != LIMIT_FIELDS.get(od.qualname):
                 raise SdoAbortedError(ABORT_INCOMPATIBLE) from exc
-            raise SdoAbortedError(ABORT_TOO_HIGH if exc.value > exc.hi else ABORT_TOO_LOW) \
-                from exc
+            raise SdoAbortedError(ABORT_TOO_HIGH if exc.value > exc.hi else ABORT_TOO_LOW) from exc
         except FirmwareError as exc:
             raise SdoAbortedError(ABORT_DEVICE_STATE) from exc
-        finally:
-            self._wake.set()
 
-    def _write_tpdo_parameter(self, subindex: int, value: int) -> None:
-        if subindex == 2:
-            if 240 < value < 254:
-                raise SdoAbortedError(ABORT_RANGE)
-            self._tpdo_type = value
-            self._sync_count = 0
-        elif subindex == 3:
-            self._inhibit_s = value * 100e-6
-        elif subindex == 5:
-            self._event_timer_s = value / 1000
+    def _write_tpdo_type(self, value: int) -> None:
+        if 240 < value < 254:
+            raise SdoAbortedError(ABORT_RANGE)
+        self._tpdo_type = value
+        self._sync_count = 0
+
+    def _write_consumer_heartbeat(self, value: int) -> None:
+        """0x1016:1 = producer id << 16 | ms; 0 ms switches the consumer off."""
+        producer, milliseconds = value >> 16 & 0xFF, value & 0xFFFF
+        if value >> 23 or (milliseconds and not 1 <= producer <= 127):
+            raise SdoAbortedError(ABORT_RANGE)
+        self._consume_heartbeat(producer if milliseconds else 0, milliseconds / 1000)
 
     def _consume_heartbeat(self, producer: int, timeout_s: float) -> None:
         """Watch node ``producer``'s heartbeat (0 = nobody)."""
@@ -393,15 +448,12 @@ class CanopenNode:
     # -- TPDO1 and EMCY ---------------------------------------------------------
 
     def _pack_tpdo(self, status: AxisStatus) -> bytes:
-        """Fill TPDO1 from ``status`` per its mapping (call with ``_tpdo_lock`` held)."""
-        for variable in self._tpdo.map:
-            variable.set_data(variable.od.encode_raw(self._live_value(variable.index, status)))
-        return bytes(self._tpdo.data)
+        """TPDO1's data for ``status``, per its mapping."""
+        return b"".join(layout.pack(self._live_value(name, status)) for name, layout in self._tpdo_layout)
 
     def _send_tpdo(self, status: AxisStatus) -> None:
         with self._tpdo_lock:
-            self._pack_tpdo(status)
-            self._tpdo.transmit()
+            self.network.send_message(self._tpdo_cob_id, self._pack_tpdo(status))
 
     def _report_faults(self, fault_word: int) -> None:
         new = fault_word & ~self._fault_reported
@@ -415,11 +467,13 @@ class CanopenNode:
         self._fault_reported = fault_word
 
     def _run(self) -> None:
-        """Sample the axis every ``poll_s``: EMCY on fault changes, TPDO1 when due."""
+        """Sample the axis every ``poll_s`` (every :data:`IDLE_POLL_S` while no PDOs
+        flow): EMCY on fault changes, TPDO1 when due."""
         last_data: bytes | None = None
         last_sent = 0.0
         while not self._stopping.is_set():
-            self._wake.wait(self.poll_s)
+            pdos_flow = self.nmt_state == NMT_OPERATIONAL and self._tpdo_type >= 254
+            self._wake.wait(self.poll_s if pdos_flow else max(self.poll_s, IDLE_POLL_S))
             self._wake.clear()
             status = self.axis.status()
             seen = self._consumer_seen
@@ -429,8 +483,7 @@ class CanopenNode:
                     self.axis.inject_fault(Fault.HOST_WATCHDOG)
                     status = self.axis.status()
             state = self.nmt_state
-            if state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL) \
-                    and status.fault_word != self._fault_reported:
+            if state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL) and status.fault_word != self._fault_reported:
                 self._report_faults(status.fault_word)
             if state != NMT_OPERATIONAL or self._tpdo_type < 254:
                 last_data = None
@@ -441,22 +494,32 @@ class CanopenNode:
                 changed = data != last_data and now - last_sent >= self._inhibit_s
                 timer_due = self._event_timer_s > 0 and now - last_sent >= self._event_timer_s
                 if changed or timer_due:
-                    self._tpdo.transmit()
+                    self.network.send_message(self._tpdo_cob_id, data)
                     last_data, last_sent = data, now
 
 
 def serve_slcan_pty(firmware: Firmware, node_id_base: int = 1) -> tuple[str, Callable[[], None]]:
     """Every configured axis as a node (id = ``node_id_base`` + axis − 1) behind an
-    emulated SLCAN adapter; returns the pty path and a function that stops it all."""
+    emulated SLCAN adapter on one :class:`CanWire`; returns the pty path and a
+    function that stops it all.
+
+    Sets the interpreter's switch interval to :data:`INTERRUPT_LATENCY_S`: the
+    thread a frame arrives in then gets the interpreter from the busy tick
+    thread within that time, as an interrupt preempts a firmware's main loop.
+    """
     if not 1 <= node_id_base <= 128 - max(firmware.axis_numbers):
-        raise InputError("--can-node-id-base",
-                         f"node ids {node_id_base}..{node_id_base + max(firmware.axis_numbers) - 1}"
-                         " leave CANopen's 1..127")
-    channel = f"firmware_sim-can-{os.getpid()}-{id(firmware):x}"
-    adapter = SlcanPty(can.Bus(interface="virtual", channel=channel)).start()
-    nodes = [CanopenNode(firmware, axis, node_id_base + axis - 1,
-                         can.Bus(interface="virtual", channel=channel)).start()
-             for axis in firmware.axis_numbers]
+        raise InputError(
+            "--can-node-id-base",
+            f"node ids {node_id_base}..{node_id_base + max(firmware.axis_numbers) - 1}"
+            " leave CANopen's 1..127",
+        )
+    sys.setswitchinterval(INTERRUPT_LATENCY_S)
+    wire = CanWire()
+    adapter = SlcanPty(wire.bus()).start()
+    nodes = [
+        CanopenNode(firmware, axis, node_id_base + axis - 1, wire.bus()).start()
+        for axis in firmware.axis_numbers
+    ]
 
     def close() -> None:
         for node in nodes:

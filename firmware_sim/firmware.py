@@ -106,6 +106,8 @@ class Fault(enum.IntFlag):
 
 
 assert {f.name.lower(): int(f) for f in Fault if f.name} == FAULT_BITS, "Fault drifted from the protocol"
+REARMABLE_FAULTS = int(Fault.WATCHDOG | Fault.HOST_WATCHDOG)
+"""Faults a stepping ``setm`` clears (the stall is over once the host commands again)."""
 
 
 @dataclass(frozen=True)
@@ -237,11 +239,16 @@ class Axis:
         """Select ``gnd``, ``inp``, ``cap``, ``stp``, ``off``, ``stp+`` or ``stp-``.
 
         Leaving a stepping mode stops any motion; ``cap`` measures the load
-        capacitance for 0.1 s and then returns to ``gnd``.
+        capacitance for 0.1 s and then returns to ``gnd``.  Selecting a stepping
+        mode re-arms an axis grounded by a watchdog (a transient stall: the host's
+        explicit command is the reset, so a host speaking only a real ANC300's
+        verbs can recover); any other latched fault still refuses it.
         """
         with self._fw.lock:
             if mode not in MODES:
                 raise FirmwareError("Unknown mode")
+            if mode in STEPPING_MODES and not self._fault_word & ~REARMABLE_FAULTS:
+                self._fault_word = 0
             if mode != "gnd" and self._fault_word:
                 raise FirmwareError("Axis in fault state")
             if mode == "cap":

@@ -6,8 +6,10 @@ adapter::
     can.Bus(interface="slcan", channel=PTY_PATH, bitrate=500000, sleep_after_open=0)
 
 and every frame it sends comes out on the adapter's CAN side, a python-can bus
-(in ``firmware_sim`` a ``virtual`` channel shared with the CANopen node).  Frames
-seen on the CAN side go to the host while the channel is open.
+(in ``firmware_sim`` an endpoint of :class:`~firmware_sim.can_wire.CanWire`, the
+segment the CANopen nodes share, where a node answers in the thread that
+delivered the request).  Frames seen on the CAN side go to the host while the
+channel is open.
 
 Protocol (Lawicel CANUSB / CAN232 ASCII, the subset python-can and common tools
 use); every command ends in CR (LF is accepted too), replies end in CR, errors
@@ -22,7 +24,8 @@ command         meaning                                    reply
 ``C``           close (idempotent; drops queued output)    CR
 ``tiiildd..``   send standard frame, ``T`` extended        ``z`` / ``Z`` CR
 ``riiil``       send remote frame, ``R`` extended          ``z`` / ``Z`` CR
-``F``           status flags (bit 3 = data overrun)        ``Fxx`` CR
+``F``           status flags (bit 3 data overrun,          ``Fxx`` CR
+                bit 7 bus error: a frame could not be sent)
 ``V`` ``v`` ``N``  hardware/software version, serial number  ``V1013`` ...
 ``Zn``          time stamps off/on (ms, 4 hex digits)      CR
 ``Mxxxxxxxx``   acceptance code / ``m`` mask (ignored)     CR
@@ -52,15 +55,27 @@ import tty
 
 import can
 
+from firmware_sim.can_wire import WireBus
+
 OK = b"\r"
 ERROR = b"\a"
 MAX_LINE_BYTES = 32
 MAX_QUEUED_BYTES = 65536
 FLAG_DATA_OVERRUN = 0x08
+FLAG_BUS_ERROR = 0x80
 HARDWARE_VERSION = "10"
 SOFTWARE_VERSION = "13"
-BITRATES = {0: 10_000, 1: 20_000, 2: 50_000, 3: 100_000, 4: 125_000,
-            5: 250_000, 6: 500_000, 7: 800_000, 8: 1_000_000}
+BITRATES = {
+    0: 10_000,
+    1: 20_000,
+    2: 50_000,
+    3: 100_000,
+    4: 125_000,
+    5: 250_000,
+    6: 500_000,
+    7: 800_000,
+    8: 1_000_000,
+}
 _HEX = frozenset(b"0123456789ABCDEFabcdef")
 
 
@@ -90,14 +105,38 @@ class SlcanAdapter:
         self._start = time.monotonic()
 
     def handle_line(self, line: bytes) -> bytes:
-        """Execute one command (without its CR); the reply to write back."""
-        if not line:
-            return b""
-        if len(line) > MAX_LINE_BYTES or not line.isascii():
+        """Execute one command (without its CR), sending its frame if it is one; the reply."""
+        reply, frame = self.command(line)
+        if frame is not None and not self.send(frame):
             return ERROR
+        return reply
+
+    def command(self, line: bytes) -> tuple[bytes, can.Message | None]:
+        """Execute one command (without its CR) but leave the sending to the caller:
+        the reply, and the frame to send if the line is a valid transmit command."""
+        if not line:
+            return b"", None
+        if len(line) > MAX_LINE_BYTES or not line.isascii():
+            return ERROR, None
         verb, arg = line[:1], line[1:]
         if verb in b"tTrR":
-            return self._transmit(verb, arg)
+            frame = self._frame(verb, arg)
+            if frame is None:
+                return ERROR, None
+            return (b"Z\r" if frame.is_extended_id else b"z\r"), frame
+        return self._setting(verb, arg), None
+
+    def send(self, frame: can.Message) -> bool:
+        """Put ``frame`` on the CAN side; False (and the bus-error flag) if that failed."""
+        try:
+            self.bus.send(frame, timeout=0.1)
+        except can.CanError:
+            self.flags |= FLAG_BUS_ERROR
+            return False
+        return True
+
+    def _setting(self, verb: bytes, arg: bytes) -> bytes:
+        """The reply to any command but a transmit."""
         if verb in (b"O", b"L"):
             if self.is_open or arg:
                 return ERROR
@@ -131,33 +170,30 @@ class SlcanAdapter:
             return f"N{self.serial_number}\r".encode()
         return ERROR
 
-    def _transmit(self, verb: bytes, arg: bytes) -> bytes:
+    def _frame(self, verb: bytes, arg: bytes) -> can.Message | None:
+        """The frame a transmit command asks for; None if the line is malformed or
+        the channel is not open for sending."""
         extended = verb in b"TR"
         remote = verb in b"rR"
         id_digits = 8 if extended else 3
         can_id = _hex_value(arg[:id_digits])
-        dlc = _hex_value(arg[id_digits:id_digits + 1])
-        if (can_id is None or dlc is None or dlc > 8
-                or can_id > (0x1FFFFFFF if extended else 0x7FF)):
-            return ERROR
-        payload = arg[id_digits + 1:]
+        dlc = _hex_value(arg[id_digits : id_digits + 1])
+        if can_id is None or dlc is None or dlc > 8 or can_id > (0x1FFFFFFF if extended else 0x7FF):
+            return None
+        payload = arg[id_digits + 1 :]
         if remote:
             if payload:
-                return ERROR
+                return None
             data = b""
         else:
             if len(payload) != 2 * dlc or (payload and _hex_value(payload) is None):
-                return ERROR
+                return None
             data = bytes.fromhex(payload.decode())
         if not self.is_open or self.listen_only:
-            return ERROR
-        message = can.Message(arbitration_id=can_id, is_extended_id=extended,
-                              is_remote_frame=remote, dlc=dlc, data=data)
-        try:
-            self.bus.send(message, timeout=0.1)
-        except can.CanError:
-            return ERROR
-        return b"Z\r" if extended else b"z\r"
+            return None
+        return can.Message(
+            arbitration_id=can_id, is_extended_id=extended, is_remote_frame=remote, dlc=dlc, data=data
+        )
 
     def frame_line(self, message: can.Message) -> bytes | None:
         """The line announcing ``message`` to the host; None while closed or for
@@ -179,9 +215,16 @@ class SlcanAdapter:
 class SlcanPty:
     """:class:`SlcanAdapter` served on a pty; :attr:`path` is what the host opens.
 
-    Two threads: one reads command lines from the pty, one forwards frames from
-    the CAN side (``bus``, owned: :meth:`close` shuts it down).  The slave end
-    stays open here too, so hosts may come and go.
+    One thread reads command lines from the pty and sends their frames on the
+    CAN side (``bus``, owned: :meth:`close` shuts it down).  Frames from the CAN
+    side go to the host as they arrive: on a :class:`~firmware_sim.can_wire.WireBus`
+    in the sending endpoint's thread (a node's answer leaves in the same thread
+    that delivered the request), on any other python-can bus through a second
+    thread that receives them.  The slave end stays open here too, so hosts may
+    come and go.
+
+    Locking: one lock guards the adapter's state and the output queue; it is
+    never held while a frame is sent, so a frame's receivers may answer at once.
     """
 
     def __init__(self, bus: can.BusABC, serial_number: str = "FS01") -> None:
@@ -191,12 +234,15 @@ class SlcanPty:
         os.set_blocking(self._master, False)
         self.path = os.ttyname(self._slave)
         self._wake_r, self._wake_w = os.pipe()
-        self._lock = threading.Lock()           # the output queue
-        self._session_lock = threading.Lock()   # commands vs. frames: open/close is atomic
+        self._lock = threading.RLock()  # adapter state and output queue
         self._queued = bytearray()
+        self._pty_thread: int | None = None
         self._stopping = threading.Event()
-        self._threads = [threading.Thread(target=self._serve_pty, name="slcan-pty", daemon=True),
-                         threading.Thread(target=self._forward_bus, name="slcan-bus", daemon=True)]
+        self._threads = [threading.Thread(target=self._serve_pty, name="slcan-pty", daemon=True)]
+        if isinstance(bus, WireBus):
+            bus.receiver = self._forward
+        else:
+            self._threads.append(threading.Thread(target=self._receive_bus, name="slcan-bus", daemon=True))
 
     def start(self) -> SlcanPty:
         for thread in self._threads:
@@ -204,16 +250,18 @@ class SlcanPty:
         return self
 
     def close(self) -> None:
-        """Stop both threads, shut the CAN side down and release the pty."""
+        """Stop the threads, shut the CAN side down and release the pty."""
         self._stopping.set()
         os.write(self._wake_w, b"x")
         for thread in self._threads:
             if thread.is_alive():
                 thread.join(timeout=2.0)
         self.adapter.bus.shutdown()
-        for fd in (self._master, self._slave, self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+        with self._lock:
+            for fd in (self._master, self._slave, self._wake_r, self._wake_w):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+            self._queued.clear()
 
     def __enter__(self) -> SlcanPty:
         return self.start()
@@ -223,16 +271,22 @@ class SlcanPty:
 
     def _write(self, data: bytes) -> None:
         """Queue ``data`` for the host; dropped, with the overrun flag set, when
-        the host has not read the last :data:`MAX_QUEUED_BYTES`."""
+        the host has not read the last :data:`MAX_QUEUED_BYTES`.  Written to the
+        pty at once, except from the pty thread, which writes all it queued
+        for a chunk of input in one go (a request's ``z`` and its answer
+        reach the host together, as from an adapter's USB packet)."""
         with self._lock:
+            if self._stopping.is_set():
+                return
             if len(self._queued) + len(data) > MAX_QUEUED_BYTES:
                 self.adapter.flags |= FLAG_DATA_OVERRUN
                 return
             was_empty = not self._queued
             self._queued += data
-            self._flush_locked()
-            if was_empty and self._queued:
-                os.write(self._wake_w, b"w")
+            if threading.get_ident() != self._pty_thread:
+                self._flush_locked()
+                if was_empty and self._queued:
+                    os.write(self._wake_w, b"w")  # the pty thread waits for room on the pty
 
     def _flush_locked(self) -> None:
         while self._queued:
@@ -247,20 +301,38 @@ class SlcanPty:
                 raise
             del self._queued[:written]
 
-    def _discard_output(self) -> None:
-        """Drop what the host has not read yet (on ``C``: a new session starts clean)."""
+    def _forward(self, message: can.Message) -> None:
+        """A frame from the CAN side: to the host if the channel is open (and was
+        when the frame was sent: a closed adapter heard nothing)."""
         with self._lock:
-            self._queued.clear()
-            termios.tcflush(self._slave, termios.TCIFLUSH)
+            if message.timestamp < self.adapter.opened_at:
+                return
+            text = self.adapter.frame_line(message)
+            if text is not None:
+                self._write(text)
+
+    def _execute(self, line: bytes) -> None:
+        """One command line from the host: reply, then send its frame (if any)."""
+        with self._lock:
+            if line == b"C":  # a new session starts clean: drop what the host has not read
+                self._queued.clear()
+                termios.tcflush(self._slave, termios.TCIFLUSH)
+            reply, frame = self.adapter.command(line)
+            if reply:
+                self._write(reply)
+        if frame is not None:
+            self.adapter.send(frame)
 
     def _serve_pty(self) -> None:
+        self._pty_thread = threading.get_ident()
         line = bytearray()
         overlong = False
         while not self._stopping.is_set():
             with self._lock:
                 pending = bool(self._queued)
             readable, writable, _ = select.select(
-                [self._master, self._wake_r], [self._master] if pending else [], [], 0.5)
+                [self._master, self._wake_r], [self._master] if pending else [], [], 0.5
+            )
             if self._wake_r in readable:
                 os.read(self._wake_r, 4096)
             if writable:
@@ -276,30 +348,21 @@ class SlcanPty:
                 return
             for byte in chunk:
                 if byte in (0x0D, 0x0A):
-                    with self._session_lock:
-                        if overlong:
-                            reply = ERROR
-                        else:
-                            if bytes(line) == b"C":
-                                self._discard_output()
-                            reply = self.adapter.handle_line(bytes(line))
-                        if reply:
-                            self._write(reply)
+                    if overlong:
+                        self._write(ERROR)
+                    else:
+                        self._execute(bytes(line))
                     line.clear()
                     overlong = False
                 elif len(line) < MAX_LINE_BYTES + 1:
                     line.append(byte)
                 else:
                     overlong = True
+            with self._lock:
+                self._flush_locked()
 
-    def _forward_bus(self) -> None:
+    def _receive_bus(self) -> None:
         while not self._stopping.is_set():
             message = self.adapter.bus.recv(timeout=0.2)
-            if message is None:
-                continue
-            with self._session_lock:
-                if message.timestamp < self.adapter.opened_at:
-                    continue  # a closed adapter hears nothing: drop the backlog from then
-                text = self.adapter.frame_line(message)
-                if text is not None:
-                    self._write(text)
+            if message is not None:
+                self._forward(message)

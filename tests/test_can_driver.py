@@ -28,8 +28,7 @@ from firmware_sim.slcan import SlcanPty
 pytestmark = pytest.mark.timeout(60)
 NODE_ID = 4
 HEARTBEAT_S = 0.2  # generous: a loaded test machine can starve threads
-FAST = DriveSettings(frequency_hz=1000.0, amplitude_v=40.0, flyback_shape="linear",
-                     flyback_s=100e-6)
+FAST = DriveSettings(frequency_hz=1000.0, amplitude_v=40.0, flyback_shape="linear", flyback_s=100e-6)
 
 
 @dataclass
@@ -53,10 +52,8 @@ def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
     bus: dict[str, Any] = {"interface": "virtual", "channel": channel}
     if request.param == "slcan-pty":
         adapter = SlcanPty(can.Bus(interface="virtual", channel=channel)).start()
-        bus = {"interface": "slcan", "channel": adapter.path, "bitrate": 500000,
-               "sleep_after_open": 0}
-    amp = CanopenAmplifier(bus, NODE_ID, heartbeat_s=HEARTBEAT_S, timeout_s=0.5,
-                           supervise_host=True)
+        bus = {"interface": "slcan", "channel": adapter.path, "bitrate": 500000, "sleep_after_open": 0}
+    amp = CanopenAmplifier(bus, NODE_ID, heartbeat_s=HEARTBEAT_S, timeout_s=0.5, supervise_host=True)
     yield Rig(firmware, node, amp, channel)
     amp.close()
     if node.network.bus is not None:
@@ -78,8 +75,7 @@ def test_apply_enable_step_and_wait(rig: Rig) -> None:
     amp.enable()
     status = axis.status()
     assert (status.frequency_hz, status.amplitude_v) == (1000.0, 40.0)
-    assert (status.flyback_shape, status.flyback_s, status.mode) == \
-        ("linear", pytest.approx(100e-6), "stp")
+    assert (status.flyback_shape, status.flyback_s, status.mode) == ("linear", pytest.approx(100e-6), "stp")
     amp.step(120)
     assert amp.wait(3.0)
     assert axis.status().step_counter == 120 == amp.step_counter
@@ -93,13 +89,13 @@ def test_apply_enable_step_and_wait(rig: Rig) -> None:
 
 def test_apply_reorders_flyback_and_frequency_as_needed(rig: Rig) -> None:
     axis = rig.firmware.axis(2)
-    slow_long = DriveSettings(frequency_hz=50.0, amplitude_v=10.0, flyback_shape="half-cosine",
-                              flyback_s=15e-3)
+    slow_long = DriveSettings(
+        frequency_hz=50.0, amplitude_v=10.0, flyback_shape="half-cosine", flyback_s=15e-3
+    )
     for settings in (FAST, slow_long, FAST):
         rig.amp.apply(settings)
         status = axis.status()
-        assert (status.frequency_hz, status.flyback_shape) == \
-            (settings.frequency_hz, settings.flyback_shape)
+        assert (status.frequency_hz, status.flyback_shape) == (settings.frequency_hz, settings.flyback_shape)
         assert status.flyback_s == pytest.approx(settings.flyback_s)
 
 
@@ -168,8 +164,14 @@ def frames_from_host(channel: str, seconds: float, action: Any) -> list[can.Mess
 
 def expect_lost(amp: CanopenAmplifier) -> None:
     """Once lost, every call fails at once."""
-    for call in (amp.status, lambda: amp.step(5), amp.stop, amp.ground,
-                 lambda: amp.apply(FAST), lambda: amp.wait(1.0)):
+    for call in (
+        amp.status,
+        lambda: amp.step(5),
+        amp.stop,
+        amp.ground,
+        lambda: amp.apply(FAST),
+        lambda: amp.wait(1.0),
+    ):
         with pytest.raises(AmplifierLinkLost):
             call()
 
@@ -179,7 +181,7 @@ def test_vanished_node_is_reported_and_no_longer_commanded(rig: Rig) -> None:
     amp.apply(FAST)
     amp.enable()
     amp.run_continuous(forward=True)
-    rig.node.close()                       # no more heartbeats, no answers
+    rig.node.close()  # no more heartbeats, no answers
     with pytest.raises(AmplifierLinkLost, match="no heartbeat"):
         amp.wait(10.0)
     assert "no heartbeat" in (amp.lost or "")
@@ -193,7 +195,7 @@ def test_node_stopped_by_nmt_is_reported(rig: Rig) -> None:
     other.connect(interface="virtual", channel=rig.channel)
     try:
         rig.amp.enable()
-        other.nmt.send_command(0x02)       # every node: STOPPED
+        other.nmt.send_command(0x02)  # every node: STOPPED
         deadline = time.monotonic() + 5.0
         while rig.amp.lost is None and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -209,7 +211,7 @@ def test_a_host_that_dies_mid_move_gets_the_axis_grounded(rig: Rig) -> None:
     amp.enable()
     amp.run_continuous(forward=True)
     assert amp._host_heartbeat is not None
-    amp._host_heartbeat.stop()             # the host process froze: no more heartbeats
+    amp._host_heartbeat.stop()  # the host process froze: no more heartbeats
     deadline = time.monotonic() + 5.0
     while not axis.status().fault_word and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -223,7 +225,7 @@ def test_closing_the_driver_leaves_a_moving_axis_alone(rig: Rig) -> None:
     amp.enable()
     amp.run_continuous(forward=True)
     amp.close()
-    time.sleep(6 * HEARTBEAT_S)            # twice the node's consumer time
+    time.sleep(6 * HEARTBEAT_S)  # twice the node's consumer time
     status = axis.status()
     assert status.moving and status.fault_word == 0
     axis.stop()
@@ -235,7 +237,7 @@ def test_a_dead_host_bus_is_a_lost_link_not_a_can_error(rig: Rig) -> None:
     assert rig.amp.status().mode == "gnd"
     bus = rig.amp.network.bus
     assert bus is not None
-    bus.shutdown()                         # every send now raises can.CanOperationError
+    bus.shutdown()  # every send now raises can.CanOperationError
     with pytest.raises(AmplifierLinkLost):
         rig.amp.status()
     with pytest.raises(AmplifierLinkLost):

@@ -20,20 +20,17 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from feeder.drivers.canopen import (
-    MODES,
-    STATUS_FAULT,
-    STATUS_MOVING,
-    STATUS_REFUSED,
-    STATUS_STEPPING_MODE,
-)
 from feeder.plant.amplifier import AmplifierLimits
-from firmware_sim.canopen_node import EDS_PATH, CanopenNode, error_register
+from feeder.protocol.eds import MODES, STATUS_WORD_BITS, object_dictionary
+from firmware_sim.canopen_node import CanopenNode, error_register
 from firmware_sim.clock import VirtualClock
 from firmware_sim.firmware import Fault, Firmware, FirmwareConfig
 
 pytestmark = pytest.mark.timeout(60)
 NODE_ID = 5
+STATUS_MOVING, STATUS_STEPPING_MODE, STATUS_FAULT, STATUS_REFUSED = (
+    1 << STATUS_WORD_BITS.index(name) for name in ("moving", "stepping mode", "fault", "refused")
+)
 
 
 @dataclass
@@ -79,7 +76,7 @@ def make_rig(config: FirmwareConfig | None = None) -> Iterator[Rig]:
     network = canopen.Network()
     network.NOTIFIER_CYCLE = 0.1
     network.connect(interface="virtual", channel=channel)
-    master = canopen.RemoteNode(NODE_ID, str(EDS_PATH))
+    master = canopen.RemoteNode(NODE_ID, object_dictionary(NODE_ID))
     master.sdo.RESPONSE_TIMEOUT = 1.0
     network.add_node(master)
     node.start()
@@ -98,13 +95,20 @@ def rig() -> Iterator[Rig]:
 def snapshot(rig: Rig) -> tuple[object, ...]:
     """Everything a refused write must leave alone: axis state and SDO read-backs."""
     sdo = rig.master.sdo
-    return (rig.firmware.axis(1).status(), sdo["Frequency"].raw, sdo["Amplitude"].raw,
-            sdo["Flyback shape"].raw, sdo["Flyback time"].raw, sdo["Mode"].raw,
-            sdo["Producer heartbeat time"].raw, sdo["TPDO1 communication parameter"][2].raw)
+    return (
+        rig.firmware.axis(1).status(),
+        sdo["Frequency"].raw,
+        sdo["Amplitude"].raw,
+        sdo["Flyback shape"].raw,
+        sdo["Flyback time"].raw,
+        sdo["Mode"].raw,
+        sdo["Producer heartbeat time"].raw,
+        sdo["TPDO1 communication parameter"][2].raw,
+    )
 
 
 def test_identity_matches_the_eds_and_the_firmware_serial(rig: Rig) -> None:
-    od = canopen.import_od(str(EDS_PATH), NODE_ID)
+    od = object_dictionary(NODE_ID)
     identity = rig.master.sdo["Identity object"]
     assert identity["Vendor-ID"].raw == od.device_information.vendor_number
     assert identity["Product code"].raw == od.device_information.product_number
@@ -127,14 +131,16 @@ def test_settings_by_sdo_reach_the_firmware(rig: Rig) -> None:
     assert status.amplitude_v == pytest.approx(42.0)
     assert (status.flyback_shape, status.flyback_s) == ("linear", pytest.approx(50e-6))
     assert status.mode == "stp"
-    assert (sdo["Frequency"].raw, sdo["Amplitude"].raw, sdo["Flyback time"].raw) \
-        == (1_234_500, 42_000, 50_000)
+    assert (sdo["Frequency"].raw, sdo["Amplitude"].raw, sdo["Flyback time"].raw) == (
+        1_234_500,
+        42_000,
+        50_000,
+    )
     assert sdo["Amplitude limit"].raw == round(AmplifierLimits().max_amplitude_vpp * 1000)
     # the other front end (the console) calls the same API: the node sees its settings
     rig.firmware.axis(1).set_flyback("half-cosine", 200e-6)
     rig.firmware.axis(1).set_frequency(250.0)
-    assert (sdo["Flyback shape"].raw, sdo["Flyback time"].raw, sdo["Frequency"].raw) \
-        == (1, 200_000, 250_000)
+    assert (sdo["Flyback shape"].raw, sdo["Flyback time"].raw, sdo["Frequency"].raw) == (1, 200_000, 250_000)
 
 
 def test_steps_by_sdo_and_rpdo_advance_the_counter_exactly(rig: Rig) -> None:
@@ -188,22 +194,26 @@ def test_rpdo_zero_stops_and_a_refused_rpdo_is_flagged(rig: Rig) -> None:
     assert not rig.firmware.axis(1).status().moving
 
 
-@pytest.mark.parametrize(("name", "value", "code"), [
-    ("Frequency", 2_000_001, 0x06090031),              # EDS HighLimit
-    ("Frequency", 999, 0x06090032),                    # EDS LowLimit
-    ("Amplitude", 200_001, 0x06090031),
-    ("Flyback shape", 3, 0x06090031),                  # 'custom' is read-only
-    ("Mode", 7, 0x06090031),
-    ("Continuous", -2, 0x06090032),
-    ("Step command", -(1 << 31), 0x06090032),
-    ("Step counter", 5, 0x06010002),                   # read-only
-    ("Amplitude limit", 1, 0x06010002),
-    ("Fault word", 0, 0x06010002),
-    ("Step command", 10, 0x08000022),                  # axis grounded
-    ("Continuous", 1, 0x08000022),
-])
+@pytest.mark.parametrize(
+    ("name", "value", "code"),
+    [
+        ("Frequency", 2_000_001, 0x06090031),  # EDS HighLimit
+        ("Frequency", 999, 0x06090032),  # EDS LowLimit
+        ("Amplitude", 200_001, 0x06090031),
+        ("Flyback shape", 3, 0x06090031),  # 'custom' is read-only
+        ("Mode", 7, 0x06090031),
+        ("Continuous", -2, 0x06090032),
+        ("Step command", -(1 << 31), 0x06090032),
+        ("Step counter", 5, 0x06010002),  # read-only
+        ("Amplitude limit", 1, 0x06010002),
+        ("Fault word", 0, 0x06010002),
+        ("Step command", 10, 0x08000022),  # axis grounded
+        ("Continuous", 1, 0x08000022),
+    ],
+)
 def test_bad_writes_abort_with_the_right_code_and_change_nothing(
-        rig: Rig, name: str, value: int, code: int) -> None:
+    rig: Rig, name: str, value: int, code: int
+) -> None:
     before = snapshot(rig)
     with pytest.raises(SdoAbortedError) as info:
         rig.master.sdo[name].raw = value
@@ -215,14 +225,14 @@ def test_tighter_firmware_limits_and_conflicts_abort_too() -> None:
     config = FirmwareConfig(amplifier=AmplifierLimits(v_max_v=100.0, max_frequency_hz=500.0))
     for rig in make_rig(config):
         sdo = rig.master.sdo
-        sdo["Frequency"].raw = 400_000          # period 2.5 ms
-        sdo["Flyback time"].raw = 2_000_000     # 2 ms
-        sdo["Flyback shape"].raw = 0            # linear: fits the period
+        sdo["Frequency"].raw = 400_000  # period 2.5 ms
+        sdo["Flyback time"].raw = 2_000_000  # 2 ms
+        sdo["Flyback shape"].raw = 0  # linear: fits the period
         before = snapshot(rig)
         for name, value, code in [
-            ("Amplitude", 150_000, 0x06090031),   # inside the EDS, above this rating
-            ("Frequency", 600_000, 0x06090031),   # inside the EDS, above this amplifier
-            ("Frequency", 500_000, 0x06040043),   # period 2 ms: the flyback no longer fits
+            ("Amplitude", 150_000, 0x06090031),  # inside the EDS, above this rating
+            ("Frequency", 600_000, 0x06090031),  # inside the EDS, above this amplifier
+            ("Frequency", 500_000, 0x06040043),  # period 2 ms: the flyback no longer fits
         ]:
             with pytest.raises(SdoAbortedError) as info:
                 sdo[name].raw = value
@@ -253,8 +263,8 @@ def test_nmt_stopped_node_is_silent_but_beats(rig: Rig) -> None:
     assert rig.firmware.axis(1).status().moving
     rig.master.nmt.state = "STOPPED"
     assert rig.master.nmt.wait_for_heartbeat(2.0) == "STOPPED"
-    rig.run(0.05)                                           # the DAC plays out its buffer
-    assert not rig.firmware.axis(1).status().moving        # leaving OPERATIONAL stopped it
+    rig.run(0.05)  # the DAC plays out its buffer
+    assert not rig.firmware.axis(1).status().moving  # leaving OPERATIONAL stopped it
     rig.master.sdo.RESPONSE_TIMEOUT = 0.3
     rig.master.sdo.MAX_RETRIES = 1
     with pytest.raises(SdoCommunicationError):
@@ -272,11 +282,10 @@ def test_reset_node_boots_grounded_with_eds_defaults(rig: Rig) -> None:
     rig.master.nmt.add_heartbeat_callback(states.append)
     rig.master.nmt.state = "RESET"
     deadline = time.monotonic() + 3.0
-    while (0 not in states or 127 not in states[states.index(0):]) \
-            and time.monotonic() < deadline:
+    while (0 not in states or 127 not in states[states.index(0) :]) and time.monotonic() < deadline:
         time.sleep(0.01)
-    boot = states.index(0)              # the boot-up message ...
-    assert states[boot + 1] == 127      # ... then PRE-OPERATIONAL heartbeats
+    boot = states.index(0)  # the boot-up message ...
+    assert states[boot + 1] == 127  # ... then PRE-OPERATIONAL heartbeats
     assert rig.firmware.axis(1).status().mode == "gnd"
     assert sdo["Producer heartbeat time"].raw == 100
     assert sdo["TPDO1 communication parameter"][5].raw == 100
@@ -319,7 +328,7 @@ def test_sync_driven_tpdo_every_second_sync(rig: Rig) -> None:
     received: list[bytes] = []
     rig.master.tpdo[1].add_callback(lambda pdo: received.append(bytes(pdo.data)))
     time.sleep(0.2)
-    assert received == []           # no event-driven TPDOs in SYNC mode
+    assert received == []  # no event-driven TPDOs in SYNC mode
     for _ in range(10):
         rig.network.sync.transmit()
     deadline = time.monotonic() + 3.0
@@ -349,8 +358,15 @@ def harmless(can_id: int, data: bytes) -> bool:
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(frames=st.lists(st.tuples(st.sampled_from([0x000, 0x080, 0x600 + NODE_ID, 0x7E5])
-                                 | st.integers(0, 0x7FF), st.binary(max_size=8)), max_size=20))
+@given(
+    frames=st.lists(
+        st.tuples(
+            st.sampled_from([0x000, 0x080, 0x600 + NODE_ID, 0x7E5]) | st.integers(0, 0x7FF),
+            st.binary(max_size=8),
+        ),
+        max_size=20,
+    )
+)
 def test_random_and_malformed_frames_do_no_harm(rig: Rig, frames: list[tuple[int, bytes]]) -> None:
     before = snapshot(rig)
     for can_id, data in frames:

@@ -112,9 +112,9 @@ def test_long_line_and_non_utf8_get_errors_and_the_console_keeps_working(
 def test_stepw_waits_for_the_burst_and_counter_extension(ticking: Firmware) -> None:
     s = ConsoleSession(ticking)
     s.feed(b"echo off\r\n")
-    assert reply_lines(s, "setf 1 500\r\nsetv 1 20\r\nsetm 1 stp\r\nstepu 1 25\r\n") == ["OK"] * 4
-    start = time.monotonic()
-    assert reply_lines(s, "stepw 1\r\n") == ["OK"]
+    assert reply_lines(s, "setf 1 500\r\nsetv 1 20\r\nsetm 1 stp\r\n") == ["OK"] * 3
+    start = time.monotonic()            # before stepu: the burst starts with it
+    assert reply_lines(s, "stepu 1 25\r\nstepw 1\r\n") == ["OK", "OK"]
     assert time.monotonic() - start >= 0.04  # 25 periods of 2 ms
     assert reply_lines(s, "getcnt 1\r\n") == ["steps = 25", "OK"]
     assert reply_lines(s, "stepd 1 0\r\n") == ["OK"]  # 0 = continuous, as on real units

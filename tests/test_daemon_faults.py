@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
+import signal
 import socket
 import sqlite3
 import subprocess
@@ -250,3 +252,24 @@ def test_disk_full_ends_the_move_refuses_more_and_loses_no_record(tmp_path: Path
     assert len(moves) == records_before + 1
     assert moves[0]["status"] == "done" and moves[1]["status"] == "stopped"
     assert "state store unwritable" in moves[1]["reason"]
+
+
+def test_a_killed_simulator_is_respawned_on_a_fresh_pty(base: Path) -> None:  # noqa: F811
+    daemon = DaemonProcess(base)
+    try:
+        assert daemon.request("move", target_m=40e-6)["ok"]
+        before = daemon.request("status")
+        records = len(daemon.request("history", limit=100)["moves"])
+        os.kill(before["simulator_pid"], signal.SIGKILL)
+        after = daemon.wait_for(lambda s: s["simulator_respawns"] == 1 and s["fault"] is None
+                                and s["position_state"] == "confirmed", timeout=30)
+        moved = daemon.request("move", target_m=after["position_m"] + 30e-6)
+        history = daemon.request("history", limit=100)["moves"]
+    finally:
+        assert daemon.stop() == 0
+    assert after["simulator_pid"] != before["simulator_pid"]
+    assert after["simulator_endpoints"]["console_pty"] != before["simulator_endpoints"]["console_pty"] \
+        or after["simulator_endpoints"]["sensor_tcp"] != before["simulator_endpoints"]["sensor_tcp"]
+    assert moved["ok"], moved
+    assert len(history) == records + 1          # nothing written before was lost
+    assert history[0]["status"] == "done"

@@ -31,37 +31,45 @@ def buses() -> Iterator[tuple[can.BusABC, can.BusABC]]:
 
 
 def same_frame(a: can.Message, b: can.Message) -> bool:
-    return (a.arbitration_id, a.is_extended_id, a.is_remote_frame, a.dlc, bytes(a.data)) == \
-        (b.arbitration_id, b.is_extended_id, b.is_remote_frame, b.dlc, bytes(b.data))
+    return (a.arbitration_id, a.is_extended_id, a.is_remote_frame, a.dlc, bytes(a.data)) == (
+        b.arbitration_id,
+        b.is_extended_id,
+        b.is_remote_frame,
+        b.dlc,
+        bytes(b.data),
+    )
 
 
 def test_python_can_startup_sequence_and_info_commands(buses: tuple[can.BusABC, can.BusABC]) -> None:
     adapter = SlcanAdapter(buses[0], serial_number="AB12")
     # exactly what python-can's slcanBus(bitrate=500000) writes on open
-    assert [adapter.handle_line(c) for c in (b"C", b"S6", b"", b"O", b"O")] == \
-        [OK, OK, b"", OK, ERROR]
+    assert [adapter.handle_line(c) for c in (b"C", b"S6", b"", b"O", b"O")] == [OK, OK, b"", OK, ERROR]
     assert (adapter.is_open, adapter.bitrate) == (True, 500_000)
-    assert adapter.handle_line(b"S4") == ERROR            # bit rate only while closed
+    assert adapter.handle_line(b"S4") == ERROR  # bit rate only while closed
     assert adapter.handle_line(b"V") == b"V1013\r"
     assert adapter.handle_line(b"N") == b"NAB12\r"
     assert adapter.handle_line(b"F") == b"F00\r"
     assert adapter.handle_line(b"C") == OK
     assert adapter.handle_line(b"L") == OK and adapter.listen_only
-    assert adapter.handle_line(b"t1230") == ERROR         # listen-only: no transmit
+    assert adapter.handle_line(b"t1230") == ERROR  # listen-only: no transmit
 
 
-@pytest.mark.parametrize(("line", "frame"), [
-    (b"t1232DEAD", can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\xde\xad")),
-    (b"t7FF0", can.Message(arbitration_id=0x7FF, is_extended_id=False, data=b"")),
-    (b"T1ABCDEF08" + b"01" * 8,
-     can.Message(arbitration_id=0x1ABCDEF0, is_extended_id=True, data=b"\x01" * 8)),
-    (b"r0054", can.Message(arbitration_id=0x005, is_extended_id=False, is_remote_frame=True,
-                           dlc=4)),
-    (b"R000000012", can.Message(arbitration_id=1, is_extended_id=True, is_remote_frame=True,
-                                dlc=2)),
-])
-def test_transmit_lines_become_frames(buses: tuple[can.BusABC, can.BusABC], line: bytes,
-                                      frame: can.Message) -> None:
+@pytest.mark.parametrize(
+    ("line", "frame"),
+    [
+        (b"t1232DEAD", can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\xde\xad")),
+        (b"t7FF0", can.Message(arbitration_id=0x7FF, is_extended_id=False, data=b"")),
+        (
+            b"T1ABCDEF08" + b"01" * 8,
+            can.Message(arbitration_id=0x1ABCDEF0, is_extended_id=True, data=b"\x01" * 8),
+        ),
+        (b"r0054", can.Message(arbitration_id=0x005, is_extended_id=False, is_remote_frame=True, dlc=4)),
+        (b"R000000012", can.Message(arbitration_id=1, is_extended_id=True, is_remote_frame=True, dlc=2)),
+    ],
+)
+def test_transmit_lines_become_frames(
+    buses: tuple[can.BusABC, can.BusABC], line: bytes, frame: can.Message
+) -> None:
     side, peer = buses
     adapter = SlcanAdapter(side)
     adapter.handle_line(b"O")
@@ -73,24 +81,31 @@ def test_transmit_lines_become_frames(buses: tuple[can.BusABC, can.BusABC], line
 
 
 MALFORMED = [
-    b"t1232DEA",            # data shorter than DLC
-    b"t1232DEADBE",         # longer
+    b"t1232DEA",  # data shorter than DLC
+    b"t1232DEADBE",  # longer
     b"t12390000000000000000",  # DLC 9
-    b"t8000",               # standard id > 0x7FF
-    b"T200000000",          # extended id > 0x1FFFFFFF
-    b"t12G0",               # not hex
-    b"t12",                 # truncated
-    b"r1232AA",             # remote frame with data
-    b"d1230",               # CAN FD: not supported
-    b"X", b"Q", b"S9", b"S", b"s12", b"Z2", b"M123", b"Oxx", b"VV",
-    "t1231é".encode(),      # non-ASCII
-    b"t123" + b"0" * 40,    # over 32 bytes
+    b"t8000",  # standard id > 0x7FF
+    b"T200000000",  # extended id > 0x1FFFFFFF
+    b"t12G0",  # not hex
+    b"t12",  # truncated
+    b"r1232AA",  # remote frame with data
+    b"d1230",  # CAN FD: not supported
+    b"X",
+    b"Q",
+    b"S9",
+    b"S",
+    b"s12",
+    b"Z2",
+    b"M123",
+    b"Oxx",
+    b"VV",
+    "t1231é".encode(),  # non-ASCII
+    b"t123" + b"0" * 40,  # over 32 bytes
 ]
 
 
 @pytest.mark.parametrize("line", MALFORMED)
-def test_malformed_lines_get_bel_and_send_nothing(buses: tuple[can.BusABC, can.BusABC],
-                                                  line: bytes) -> None:
+def test_malformed_lines_get_bel_and_send_nothing(buses: tuple[can.BusABC, can.BusABC], line: bytes) -> None:
     side, peer = buses
     adapter = SlcanAdapter(side)
     adapter.handle_line(b"O")
@@ -114,10 +129,18 @@ def test_frames_only_while_open_and_timestamps(buses: tuple[can.BusABC, can.BusA
 
 frames = st.builds(
     lambda ext, rtr, ident, data, dlc: can.Message(
-        arbitration_id=ident & (0x1FFFFFFF if ext else 0x7FF), is_extended_id=ext,
-        is_remote_frame=rtr, data=b"" if rtr else data, dlc=dlc if rtr else len(data)),
-    st.booleans(), st.booleans(), st.integers(0, 0x1FFFFFFF), st.binary(max_size=8),
-    st.integers(0, 8))
+        arbitration_id=ident & (0x1FFFFFFF if ext else 0x7FF),
+        is_extended_id=ext,
+        is_remote_frame=rtr,
+        data=b"" if rtr else data,
+        dlc=dlc if rtr else len(data),
+    ),
+    st.booleans(),
+    st.booleans(),
+    st.integers(0, 0x1FFFFFFF),
+    st.binary(max_size=8),
+    st.integers(0, 8),
+)
 
 
 @settings(max_examples=300, deadline=None)
@@ -140,8 +163,10 @@ def test_any_frame_survives_the_round_trip(frame: can.Message) -> None:
 
 
 @settings(max_examples=500, deadline=None)
-@given(line=st.binary(max_size=40) | st.text("tTrRSsOLCFVvNZMm0123456789ABCDEFabcdefG",
-                                              max_size=30).map(str.encode))
+@given(
+    line=st.binary(max_size=40)
+    | st.text("tTrRSsOLCFVvNZMm0123456789ABCDEFabcdefG", max_size=30).map(str.encode)
+)
 def test_fuzzed_lines_never_crash(line: bytes) -> None:
     channel = f"test-slcan-fz-{uuid.uuid4().hex}"
     side = can.Bus(interface="virtual", channel=channel)
@@ -176,8 +201,7 @@ def pty_rig(buses: tuple[can.BusABC, can.BusABC]) -> Iterator[tuple[SlcanPty, ca
 
 def open_host(path: str) -> slcanBus:
     """Exactly how a host opens a USB SLCAN adapter (minus the 2 s settling sleep)."""
-    return cast(slcanBus, can.Bus(interface="slcan", channel=path, bitrate=500000,
-                                  sleep_after_open=0))
+    return cast(slcanBus, can.Bus(interface="slcan", channel=path, bitrate=500000, sleep_after_open=0))
 
 
 def recv_frame(bus: can.BusABC, timeout: float = 2.0) -> can.Message | None:
@@ -195,10 +219,11 @@ def test_python_can_host_over_the_pty(pty_rig: tuple[SlcanPty, can.BusABC]) -> N
     try:
         assert host.get_version(2.0) == (10, 13)
         assert host.get_serial_number(2.0) == "FS01"
-        sent = [can.Message(arbitration_id=0x601, is_extended_id=False, data=bytes(range(8))),
-                can.Message(arbitration_id=0x1234567, is_extended_id=True, data=b"\xff"),
-                can.Message(arbitration_id=0x701, is_extended_id=False, is_remote_frame=True,
-                            dlc=1)]
+        sent = [
+            can.Message(arbitration_id=0x601, is_extended_id=False, data=bytes(range(8))),
+            can.Message(arbitration_id=0x1234567, is_extended_id=True, data=b"\xff"),
+            can.Message(arbitration_id=0x701, is_extended_id=False, is_remote_frame=True, dlc=1),
+        ]
         for frame in sent:
             host.send(frame)
             received = peer.recv(2.0)
@@ -219,8 +244,7 @@ def test_garbage_on_the_pty_is_harmless(pty_rig: tuple[SlcanPty, can.BusABC]) ->
         port.write(b"\xff\xfe\x00garbage\r" + b"t" * 65536 + b"\rT\rt12\r\n\n\r")
         port.write(b"t3211AB\r")
         received = peer.recv(2.0)
-        assert received is not None and (received.arbitration_id, bytes(received.data)) == \
-            (0x321, b"\xab")
+        assert received is not None and (received.arbitration_id, bytes(received.data)) == (0x321, b"\xab")
         peer.send(can.Message(arbitration_id=0x185, is_extended_id=False, data=b"\x01"))
         received = recv_frame(host)  # the BEL replies before it are skipped by python-can
         assert received is not None and received.arbitration_id == 0x185
@@ -229,17 +253,19 @@ def test_garbage_on_the_pty_is_harmless(pty_rig: tuple[SlcanPty, can.BusABC]) ->
 
 
 def test_unread_frames_overflow_without_blocking_and_a_new_session_starts_clean(
-        pty_rig: tuple[SlcanPty, can.BusABC]) -> None:
+    pty_rig: tuple[SlcanPty, can.BusABC],
+) -> None:
     adapter, peer = pty_rig
     adapter.adapter.handle_line(b"O")  # as if a host had opened and then stopped reading
-    for i in range(20000):             # ~300 kB of lines: more than the pty and the queue hold
-        peer.send(can.Message(arbitration_id=0x180 + i % 64, is_extended_id=False,
-                              data=i.to_bytes(4, "little")))
+    for i in range(20000):  # ~300 kB of lines: more than the pty and the queue hold
+        peer.send(
+            can.Message(arbitration_id=0x180 + i % 64, is_extended_id=False, data=i.to_bytes(4, "little"))
+        )
     deadline = time.monotonic() + 5.0
     while not adapter.adapter.flags & FLAG_DATA_OVERRUN and time.monotonic() < deadline:
         time.sleep(0.01)
     assert adapter.adapter.flags & FLAG_DATA_OVERRUN
-    host = open_host(adapter.path)     # its C drops the stale backlog
+    host = open_host(adapter.path)  # its C drops the stale backlog
     try:
         time.sleep(0.1)
         marker = can.Message(arbitration_id=0x7AB, is_extended_id=False, data=b"\x42")

@@ -38,12 +38,10 @@ from feeder.waveform import Waveform
 HERE = Path(__file__).resolve().parent
 
 
-def batch_steps(stroke: np.ndarray, freq: np.ndarray, t_f: np.ndarray, shape: str,
-                a_s: float) -> np.ndarray:
+def batch_steps(stroke: np.ndarray, freq: np.ndarray, t_f: np.ndarray, shape: str, a_s: float) -> np.ndarray:
     """Steady step per parameter set on the ideal plate (batch mode: all sets at once)."""
     motion = sawtooth_motion(stroke, freq, t_f, shape, periods=2)
-    rel, _ = simulate_batch(motion.accel_m_s2, motion.duration_s, motion.jump_m_s, a_s,
-                            DEFAULT_KINETIC_RATIO)
+    rel, _ = simulate_batch(motion.accel_m_s2, motion.duration_s, motion.jump_m_s, a_s, DEFAULT_KINETIC_RATIO)
     per = motion.intervals_per_period
     return rel[:, 2 * per - 1] - rel[:, per - 1]
 
@@ -62,25 +60,36 @@ def sweep(part: Part) -> dict:
     volts = np.linspace(5, 200, 60)
     flybacks = np.geomspace(2e-5, 1.2e-3, 70)
     vv, ff = np.meshgrid(volts, flybacks)
-    grid = batch_steps(gain * vv.ravel(), np.full(vv.size, 100.0), ff.ravel(), "linear",
-                       a_s).reshape(vv.shape)
-    fly_lin = batch_steps(np.full(flybacks.size, gain * 200), np.full(flybacks.size, 100.0),
-                          flybacks, "linear", a_s)
-    fly_cos = batch_steps(np.full(flybacks.size, gain * 200), np.full(flybacks.size, 100.0),
-                          flybacks, "half-cosine", a_s)
+    grid = batch_steps(gain * vv.ravel(), np.full(vv.size, 100.0), ff.ravel(), "linear", a_s).reshape(
+        vv.shape
+    )
+    fly_lin = batch_steps(
+        np.full(flybacks.size, gain * 200), np.full(flybacks.size, 100.0), flybacks, "linear", a_s
+    )
+    fly_cos = batch_steps(
+        np.full(flybacks.size, gain * 200), np.full(flybacks.size, 100.0), flybacks, "half-cosine", a_s
+    )
     fixed = [1e-4, 2e-4, 3.5e-4]
     amp_lin = {t: linear_flyback_step(gain * volts, 0.01 - t, t, a_k) for t in fixed}
     thresholds = {f"{t * 1e6:g}us": float(a_k * t**2 / (gain * (1 + t / (0.01 - t)))) for t in fixed}
     amp_plant = np.array([plant_step(friction, frequency_hz=100.0, amplitude_vpp=v) for v in volts])
     freqs = np.geomspace(10, 2000, 30)
     freq_plant = np.array([plant_step(friction, frequency_hz=f, amplitude_vpp=200.0) for f in freqs])
-    freq_lin = batch_steps(np.full(freqs.size, gain * 200), freqs, np.full(freqs.size, 3.5e-4),
-                           "linear", a_s)
+    freq_lin = batch_steps(np.full(freqs.size, gain * 200), freqs, np.full(freqs.size, 3.5e-4), "linear", a_s)
     return {
-        "a_s": a_s, "volts": volts, "flybacks": flybacks, "grid": grid, "fly_lin": fly_lin,
+        "a_s": a_s,
+        "volts": volts,
+        "flybacks": flybacks,
+        "grid": grid,
+        "fly_lin": fly_lin,
         "fly_closed": linear_flyback_step(gain * 200, 0.01 - flybacks, flybacks, a_k),
-        "fly_cos": fly_cos, "amp_lin": amp_lin, "thresholds": thresholds, "amp_plant": amp_plant,
-        "freqs": freqs, "freq_plant": freq_plant, "freq_lin": freq_lin,
+        "fly_cos": fly_cos,
+        "amp_lin": amp_lin,
+        "thresholds": thresholds,
+        "amp_plant": amp_plant,
+        "freqs": freqs,
+        "freq_plant": freq_plant,
+        "freq_lin": freq_lin,
         "paper_step": plant_step(friction, frequency_hz=100.0, amplitude_vpp=200.0),
     }
 
@@ -95,16 +104,23 @@ def plot(data: dict, part: Part, path: Path) -> None:
     fig, axes = plt.subplots(2, 2, figsize=(11, 8))
     ax = axes[0, 0]
     mesh = ax.pcolormesh(data["volts"], data["flybacks"] * 1e3, data["grid"] * um, shading="auto")
-    ax.contour(data["volts"], data["flybacks"] * 1e3, data["grid"] * um, levels=[1e-3, 3.3],
-               colors=["w", "r"], linewidths=1)
+    ax.contour(
+        data["volts"],
+        data["flybacks"] * 1e3,
+        data["grid"] * um,
+        levels=[1e-3, 3.3],
+        colors=["w", "r"],
+        linewidths=1,
+    )
     fig.colorbar(mesh, ax=ax, label="step (µm)")
     ax.set_yscale("log")
     ax.set_xlabel("amplitude (Vpp)")
     ax.set_ylabel("linear flyback (ms)")
     ax.set_title("ideal plate, 100 Hz: white = threshold, red = 3.3 µm", fontsize=9)
     ax = axes[0, 1]
-    ax.semilogx(data["flybacks"] * 1e3, data["fly_closed"] * um, "k-", lw=3, alpha=0.3,
-                label="linear, closed form")
+    ax.semilogx(
+        data["flybacks"] * 1e3, data["fly_closed"] * um, "k-", lw=3, alpha=0.3, label="linear, closed form"
+    )
     ax.semilogx(data["flybacks"] * 1e3, data["fly_lin"] * um, "C0--", label="linear, solver")
     ax.semilogx(data["flybacks"] * 1e3, data["fly_cos"] * um, "C1-", label="half-cosine, solver")
     ax.set_xlabel("flyback time (ms)")
@@ -127,8 +143,10 @@ def plot(data: dict, part: Part, path: Path) -> None:
     ax.set_ylabel("step (µm)")
     ax.set_title("200 Vpp", fontsize=9)
     ax.legend(fontsize=8)
-    fig.suptitle(f"predicted step, part {part.label} µm, a_s = {data['a_s']:.4g} m/s², "
-                 f"F_k/F_s = {DEFAULT_KINETIC_RATIO}")
+    fig.suptitle(
+        f"predicted step, part {part.label} µm, a_s = {data['a_s']:.4g} m/s², "
+        f"F_k/F_s = {DEFAULT_KINETIC_RATIO}"
+    )
     fig.tight_layout()
     tmp = path.with_name(path.name + ".tmp.png")
     fig.savefig(tmp, dpi=110)
@@ -147,11 +165,14 @@ def main(argv: list[str] | None = None) -> int:
         print("sweeping (batch solver and plant) ...", file=sys.stderr)
     data = sweep(part)
     plot(data, part, args.out)
-    summary = {"part": part.label, "breakaway_accel_m_s2": data["a_s"],
-               "threshold_voltage_v": data["thresholds"],
-               "paper_waveform_step_m": data["paper_step"], "plot": str(args.out)}
-    print(json.dumps(summary, indent=2) if args.json else
-          "\n".join(f"{k}: {v}" for k, v in summary.items()))
+    summary = {
+        "part": part.label,
+        "breakaway_accel_m_s2": data["a_s"],
+        "threshold_voltage_v": data["thresholds"],
+        "paper_waveform_step_m": data["paper_step"],
+        "plot": str(args.out),
+    }
+    print(json.dumps(summary, indent=2) if args.json else "\n".join(f"{k}: {v}" for k, v in summary.items()))
     return 0
 
 

@@ -1,10 +1,20 @@
 """The ``feeder`` command: one thin sub-command module per concept.
 
-Each module named in :data:`SUBCOMMANDS` lives in this package and provides
-``register(subparsers)``, which adds its parser and sets ``handler`` to a
-function ``(args) -> int``.  Every sub-command takes ``--json``.
-Bad input raises :class:`feeder.errors.InputError`; :func:`main` turns it into
-one line on stderr and exit code 2.
+:data:`COMMANDS` names each sub-command, the module of this package that
+provides it and its one-line help.  A module provides ``register(subparsers)``,
+which adds its parsers and sets ``handler`` to a function ``(args) -> int``.
+Every sub-command takes ``--json``.
+
+Start-up is lazy: :func:`main` imports only the module of the sub-command on
+the command line (``feeder --help`` none; the others get a placeholder parser
+with their help line), so ``feeder --help`` and ``feeder status`` never load
+numpy or scipy.
+
+Exit codes (:func:`main`): 0 done; 1 the daemon refused or the move failed
+(:class:`~feeder.errors.DaemonRefused`, :class:`~feeder.errors.MoveFailed`, its
+reason on stderr); 2 bad input (:class:`~feeder.errors.InputError`, one line
+naming the field); 3 the daemon is unreachable or did not answer in time
+(:class:`~feeder.errors.DaemonUnreachable`, :class:`~feeder.errors.DaemonTimeout`).
 """
 
 from __future__ import annotations
@@ -12,15 +22,33 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import NoReturn
 
-from feeder.errors import InputError
+from feeder.errors import DaemonRefused, DaemonUnreachable, InputError, MoveFailed
 
-SUBCOMMANDS: tuple[str, ...] = (
-    "contact", "adhesion", "surface", "friction", "tau", "figures", "control", "waveform",
-    "simulate", "plan", "daemon", "demo", "vision",
-)
+#: sub-command → (module in this package, one-line help), in ``feeder --help`` order
+COMMANDS: dict[str, tuple[str, str]] = {
+    "contact": ("contact", "real contact area and breakaway force of a part"),
+    "adhesion": ("adhesion", "single-asperity adhesion: Hertz, DMT, JKR, Maugis–Dugdale"),
+    "surface": ("surface", "summit statistics of AFM scans, GW surface TOML"),
+    "friction": ("friction", "static-friction peaks of force curves (CSV)"),
+    "tau": ("tau", "shear strength τ = F/A_r from friction forces or force curves"),
+    "figures": ("figures", "paper Fig. 9 and τ tables IV–VI, recomputed, as PNGs"),
+    "move": ("control", "move the part to TARGET_M (or by --by DELTA_M)"),
+    "status": ("control", "the daemon's state, position, learned steps"),
+    "stop": ("control", "stop the running move (and drop queued ones)"),
+    "calibrate": ("control", "learn the step sizes: bursts forward and back, both waveforms"),
+    "history": ("control", "recorded moves, oldest first"),
+    "shutdown": ("control", "stop the daemon (it grounds the output first)"),
+    "waveform": ("waveform", "show a waveform file or export its tables"),
+    "simulate": ("simulate", "simulate a part stepping on the plate"),
+    "plan": ("plan", "plan a move: waveform, steps, predicted step and band"),
+    "daemon": ("daemon", "run the control daemon (no config: on a simulated amplifier)"),
+    "demo": ("demo", "closed-loop positioning on a simulated amplifier"),
+    "vision": ("vision", "pose of parts from camera images, camera frames, calibration"),
+    "sweep": ("sweep", "parameter sweep on Dask (local cluster or a scheduler), to Parquet"),
+}
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -30,22 +58,50 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
+    """The ``feeder`` parser with the real parsers of ``commands`` (None: all of them);
+    every other sub-command is a placeholder carrying only its help line."""
+    wanted = (
+        {COMMANDS[c][0] for c in COMMANDS}
+        if commands is None
+        else {COMMANDS[c][0] for c in commands if c in COMMANDS}
+    )
     parser = OneLineParser(prog="feeder", description=__doc__.splitlines()[0] if __doc__ else None)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
-    for name in SUBCOMMANDS:
-        importlib.import_module(f"feeder.cli.{name}").register(sub)
+    registered: set[str] = set()
+    for name, (module, help_line) in COMMANDS.items():
+        if module not in wanted:
+            sub.add_parser(name, help=help_line)
+        elif module not in registered:
+            importlib.import_module(f"feeder.cli.{module}").register(sub)
+            registered.add(module)
     return parser
 
 
+def _command_in(argv: Sequence[str]) -> list[str]:
+    """The sub-command named on the command line: its first word not starting with ``-``
+    (``feeder`` itself has no option taking a value)."""
+    return [word for word in argv if not word.startswith("-")][:1]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(_command_in(argv)).parse_args(argv)
+    prefix = f"feeder {args.command}"
     try:
         return int(args.handler(args))
     except InputError as err:
-        print(f"feeder {args.command}: error: {err}", file=sys.stderr)
+        print(f"{prefix}: error: {err}", file=sys.stderr)
         return 2
+    except (DaemonRefused, MoveFailed) as err:
+        print(
+            f"{prefix}: refused: {err}" if isinstance(err, DaemonRefused) else f"{prefix}: failed: {err}",
+            file=sys.stderr,
+        )
+        return 1
+    except DaemonUnreachable as err:
+        print(f"{prefix}: daemon unreachable: {err}", file=sys.stderr)
+        return 3
     except KeyboardInterrupt:
-        print(f"feeder {args.command}: interrupted", file=sys.stderr)
+        print(f"{prefix}: interrupted", file=sys.stderr)
         return 130

@@ -1,4 +1,8 @@
-"""Argument types and option groups shared by the sub-commands."""
+"""Argument types and option groups shared by the sub-commands.
+
+Light to import (``feeder --help`` and ``feeder status`` load it): the physics
+modules are imported inside the functions that need them.
+"""
 
 from __future__ import annotations
 
@@ -6,12 +10,15 @@ import argparse
 import math
 import re
 from dataclasses import replace
+from decimal import Decimal, DecimalException
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
 from feeder.errors import InputError
 from feeder.parts import SILICON_DENSITY_KG_M3, Part, Support
-from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters, load_surface
+
+if TYPE_CHECKING:
+    from feeder.surface.parameters import SurfaceParameters
 
 
 def positive_float(text: str) -> float:
@@ -35,7 +42,10 @@ def _quantity(text: str, units: dict[str, float], what: str, example: str) -> fl
     if match is None or match.group(2) not in units:
         raise argparse.ArgumentTypeError(
             f"expected a {what} like {example} (units: {', '.join(u for u in units if u)}), got {text!r}")
-    value = float(match.group(1)) * units[match.group(2)]
+    try:        # in decimal, so 150um is exactly the float 150e-6
+        value = float(Decimal(match.group(1)) * Decimal(repr(units[match.group(2)])))
+    except DecimalException:        # an exponent beyond decimal's range
+        value = math.inf
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"not a finite {what}: {text!r}")
     return value
@@ -75,6 +85,8 @@ def add_part_arguments(
 
 def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
     """``--tau``, ``--tau-adhesion-work`` (and ``--tau-band``); None = the τ fitted with the surface's w."""
+    from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
+
     p.add_argument("--tau", type=positive_float,
                    help=f"interfacial shear strength in Pa (default: the paper's, {DEFAULT_TAU_PA:g} "
                         "at w = 0, fitted again with the surface's w when it has one)")
@@ -87,6 +99,8 @@ def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
 
 def surface_from(args: argparse.Namespace) -> SurfaceParameters:
     """The ``--surface`` file (or the embedded default), with ``--adhesion-work`` applied."""
+    from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
+
     surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
     if getattr(args, "adhesion_work", None) is None:
         return surface

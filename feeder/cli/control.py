@@ -1,46 +1,66 @@
-"""``feeder move|status|stop|calibrate|history``: clients of the running daemon's socket."""
+"""``feeder move|status|stop|calibrate|history|shutdown``: clients of the running daemon's socket.
+
+Light to import (no numpy): ``feeder status`` starts in well under 0.5 s.  Errors
+become exit codes in :func:`feeder.cli.main`: 1 refused or failed, 2 bad input,
+3 unreachable or no answer within ``--timeout``.
+"""
 
 from __future__ import annotations
 
 import argparse
-import math
-import re
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
+from feeder.cli.arguments import allow_negative_values, length_m, positive_float
 from feeder.cli.output import print_json
-from feeder.daemon.client import Client, DaemonUnavailable
-from feeder.daemon.config import default_socket_path
-from feeder.errors import InputError
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of metres, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
+from feeder.daemon.client import (
+    DEFAULT_TIMEOUT_S,
+    Accepted,
+    Client,
+    MoveResult,
+    default_socket_path,
+)
+from feeder.errors import InputError, MoveFailed
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--socket", type=Path, default=None,
-                        help=f"daemon socket (default {default_socket_path()})")
+    parser.add_argument(
+        "--socket", type=Path, default=None, help=f"daemon socket (default {default_socket_path()})"
+    )
+    parser.add_argument(
+        "--timeout",
+        type=positive_float,
+        default=DEFAULT_TIMEOUT_S,
+        metavar="SECONDS",
+        help=f"give up (exit 3) when the daemon does not answer a request or "
+        f"heartbeat within SECONDS; a move may take longer "
+        f"(default {DEFAULT_TIMEOUT_S:g})",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     move = subparsers.add_parser("move", help="move the part to TARGET_M (or by --by DELTA_M)")
-    move.add_argument("target_m", nargs="?", type=_finite, metavar="TARGET_M",
-                      help="absolute target position, m")
-    move.add_argument("--by", type=_finite, dest="by_m", metavar="DELTA_M",
-                      help="relative move from the current position, m")
-    move.add_argument("--queue", action="store_true",
-                      help="wait for a running move to finish instead of being refused")
+    move.add_argument(
+        "target_m",
+        nargs="?",
+        type=length_m,
+        metavar="TARGET_M",
+        help="absolute target position, m; or with a unit: 150um, 150µm, 1.2mm, "
+        "20nm (negative: `feeder move -- -100um`)",
+    )
+    move.add_argument(
+        "--by",
+        type=length_m,
+        dest="by_m",
+        metavar="DELTA_M",
+        help="relative move from the current position, m; or with a unit (--by -20um)",
+    )
+    move.add_argument(
+        "--queue", action="store_true", help="wait for a running move to finish instead of being refused"
+    )
     move.add_argument("--no-wait", action="store_true", help="return once the move is accepted")
-    # let "-1e-4" be a number, not an option (argparse only knows "-1" and "-.5" forms)
-    move._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+    allow_negative_values(move)
     _common(move)
     move.set_defaults(handler=run_move)
 
@@ -53,7 +73,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     stop.set_defaults(handler=run_stop)
 
     calibrate = subparsers.add_parser(
-        "calibrate", help="learn the step sizes: bursts forward and back, both waveforms")
+        "calibrate", help="learn the step sizes: bursts forward and back, both waveforms"
+    )
     calibrate.add_argument("--steps", type=int, default=20, help="coarse steps per direction")
     _common(calibrate)
     calibrate.set_defaults(handler=run_calibrate)
@@ -63,93 +84,120 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _common(history)
     history.set_defaults(handler=run_history)
 
+    shutdown = subparsers.add_parser("shutdown", help="stop the daemon (it grounds the output first)")
+    _common(shutdown)
+    shutdown.set_defaults(handler=run_shutdown)
 
-def _request(args: argparse.Namespace, cmd: str, **fields: Any) -> dict[str, Any]:
-    path = args.socket or default_socket_path()
-    try:
-        with Client(path) as client:
-            return client.request(cmd, **fields)
-    except DaemonUnavailable as err:
-        raise InputError("--socket", str(err)) from None
+
+def _client(args: argparse.Namespace) -> Client:
+    return Client(args.socket, timeout_s=args.timeout)
 
 
 def _um(value: float | None) -> str:
     return "?" if value is None else f"{value * 1e6:.3f} µm"
 
 
-def _print_result(result: dict[str, Any]) -> None:
-    print(f"{result['kind']} {result['status']}: {result['reason']}; reached "
-          f"{_um(result['reached_m'])}"
-          + ("" if result["target_m"] is None else
-             f" for target {_um(result['target_m'])} (error {_um(result['error_m'])})")
-          + f", {result['steps']} steps in {result['bursts']} bursts, {result['duration_s']:.2f} s")
+def _print_result(result: MoveResult) -> None:
+    print(
+        f"{result.kind} {result.status}: {result.reason}; reached {_um(result.reached_m)}"
+        + (
+            ""
+            if result.target_m is None
+            else f" for target {_um(result.target_m)} (error {_um(result.error_m)})"
+        )
+        + f", {result.steps} steps{' (estimated)' if result.steps_estimated else ''} in "
+        f"{result.bursts} bursts, {result.duration_s:.2f} s"
+    )
 
 
-def _job(args: argparse.Namespace, cmd: str, **fields: Any) -> int:
-    reply = _request(args, cmd, wait=not getattr(args, "no_wait", False), **fields)
-    if "result" not in reply:
-        if not reply.get("ok"):
-            raise InputError(cmd, str(reply.get("error")))
+def _job(args: argparse.Namespace, cmd: str, start: Callable[[Client, bool], MoveResult | Accepted]) -> int:
+    """Run a move or calibration (``start(client, wait)``); 0 when it ends ``done`` (or was
+    accepted with ``--no-wait``), 1 with the result printed when it ends otherwise."""
+    with _client(args) as client:
+        try:
+            outcome, code = start(client, not getattr(args, "no_wait", False)), 0
+        except MoveFailed as failed:
+            outcome, code = failed.result, 1
+    if isinstance(outcome, MoveResult):
         if args.json:
-            print_json(reply)
+            print_json(outcome.raw)
         else:
-            print(f"{cmd} accepted" + (f" (queue position {reply['queue_position']})"
-                                       if reply.get("queue_position") else ""))
-        return 0
-    if args.json:
-        print_json(reply["result"])
+            _print_result(outcome)
+    elif args.json:
+        print_json({"ok": True, "accepted": True, "queue_position": outcome.queue_position})
     else:
-        _print_result(reply["result"])
-    return 0 if reply["ok"] else 1
+        print(
+            f"{cmd} accepted"
+            + (f" (queue position {outcome.queue_position})" if outcome.queue_position else "")
+        )
+    return code
 
 
 def run_move(args: argparse.Namespace) -> int:
     if (args.target_m is None) == (args.by_m is None):
         raise InputError("TARGET_M", "give either TARGET_M or --by DELTA_M")
-    fields: dict[str, Any] = {"queue": args.queue}
     if args.by_m is not None:
-        fields["by_m"] = args.by_m
-    else:
-        fields["target_m"] = args.target_m
-    return _job(args, "move", **fields)
+        return _job(args, "move", lambda c, wait: c.move_by(args.by_m, queue=args.queue, wait=wait))
+    return _job(args, "move", lambda c, wait: c.move_to(args.target_m, queue=args.queue, wait=wait))
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
     if not 2 <= args.steps <= 10_000:
         raise InputError("--steps", "must be in [2, 10000]")
-    return _job(args, "calibrate", steps=args.steps)
+    return _job(args, "calibrate", lambda c, wait: c.calibrate(args.steps, wait=wait))
 
 
 def run_stop(args: argparse.Namespace) -> int:
-    reply = _request(args, "stop")
+    with _client(args) as client:
+        stopped = client.stop()
     if args.json:
-        print_json({"stopped": reply.get("stopped"), "dequeued": reply.get("dequeued")})
+        print_json({"stopped": stopped.stopped, "dequeued": stopped.dequeued})
     else:
-        print("stopped the running move" if reply.get("stopped") else "nothing was moving")
+        print("stopped the running move" if stopped.stopped else "nothing was moving")
+    return 0
+
+
+def run_shutdown(args: argparse.Namespace) -> int:
+    with _client(args) as client:
+        client.shutdown(wait=True)
+    if args.json:
+        print_json({"shutting_down": True, "stopped": True})
+    else:
+        print("the daemon stopped")
     return 0
 
 
 def run_status(args: argparse.Namespace) -> int:
-    reply = _request(args, "status")
+    with _client(args) as client:
+        status = client.status()
+    reply = dict(status.raw)
     reply.pop("ok", None)
     if args.json:
         print_json(reply)
         return 0
-    print(f"state: {reply['state']}" + (f" ({reply['fault']})" if reply.get("fault") else ""))
-    print(f"position: {_um(reply['position_m'])} ({reply['position_state']}; last known "
-          f"{_um(reply['last_known_position_m'])})")
-    if reply.get("target_m") is not None:
-        print(f"target: {_um(reply['target_m'])}")
-    lo, hi = reply["travel_limits_m"]
-    print(f"tolerance: ±{_um(reply['tolerance_m'])}, travel limits [{_um(lo)}, {_um(hi)}]")
-    for name, est in reply["estimates"].items():
-        predicted = reply["predicted_steps_m"][name.split("/")[0]]
-        print(f"step {name}: {_um(est['step_m'])} ± {_um(est['std_m'])} after {est['steps']} steps"
-              f" (predicted {_um(predicted)})")
-    t = reply["timing"]
-    print(f"loop: {t['rate_hz']:g} Hz, {t['ticks']} ticks, {t['overruns']} overruns, jitter p50 "
-          f"{t['jitter_p50_s'] * 1e3:.3f} ms, p99 {t['jitter_p99_s'] * 1e3:.3f} ms, max "
-          f"{t['jitter_max_s'] * 1e3:.3f} ms")
+    print(f"state: {status.state}" + (f" ({status.fault})" if status.fault else ""))
+    print(
+        f"position: {_um(status.position_m)} ({status.position_state}; last known "
+        f"{_um(status.last_known_position_m)})"
+    )
+    if status.target_m is not None:
+        print(f"target: {_um(status.target_m)}")
+    lo, hi = status.travel_limits_m
+    print(f"tolerance: ±{_um(status.tolerance_m)}, travel limits [{_um(lo)}, {_um(hi)}]")
+    predicted = reply.get("predicted_steps_m", {})
+    for name, est in status.estimates.items():
+        mode = name.split("/")[0]
+        print(
+            f"step {name}: {_um(est.step_m)} ± {_um(est.std_m)} after {est.steps} steps"
+            + (f" (predicted {_um(predicted[mode])})" if mode in predicted else "")
+        )
+    t = reply.get("timing")
+    if t:
+        print(
+            f"loop: {t['rate_hz']:g} Hz, {t['ticks']} ticks, {t['overruns']} overruns, jitter "
+            f"p50 {t['jitter_p50_s'] * 1e3:.3f} ms, p99 {t['jitter_p99_s'] * 1e3:.3f} ms, max "
+            f"{t['jitter_max_s'] * 1e3:.3f} ms"
+        )
     if reply.get("interrupted_moves"):
         print(f"interrupted moves (daemon was killed): {reply['interrupted_moves']}")
     return 0
@@ -158,14 +206,16 @@ def run_status(args: argparse.Namespace) -> int:
 def run_history(args: argparse.Namespace) -> int:
     if not 1 <= args.limit <= 100_000:
         raise InputError("--limit", "must be in [1, 100000]")
-    reply = _request(args, "history", limit=args.limit)
-    if not reply.get("ok"):
-        raise InputError("--limit", str(reply.get("error")))
+    with _client(args) as client:
+        moves = client.history(args.limit)
     if args.json:
-        print_json({"moves": reply["moves"]})
+        print_json({"moves": [m.raw for m in moves]})
         return 0
-    for m in reply["moves"]:
-        print(f"#{m['id']:<5} {m['status']:<11} target {_um(m['target_m']):>14} reached "
-              f"{_um(m['reached_m']):>14} error {_um(m['error_m']):>11} steps {m['steps']:>5}"
-              + (f"  {m['reason']}" if m["status"] != "done" else ""))
+    for m in moves:
+        print(
+            f"#{m.id:<5} {m.status:<11} target {_um(m.target_m):>14} reached "
+            f"{_um(m.reached_m):>14} error {_um(m.error_m):>11} steps {m.steps:>5}"
+            + (" (estimated)" if m.steps_estimated else "")
+            + (f"  {m.reason}" if m.status != "done" else "")
+        )
     return 0

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from feeder.cli.arguments import add_part_arguments, add_tau_arguments, part_from, positive_float
 from feeder.cli.output import print_json
-from feeder.planner import DEFAULT_MARGIN, plan
-from feeder.plant.amplifier import AmplifierLimits
+from feeder.planner import DEFAULT_MARGIN, StepPrediction, plan
+from feeder.plant.amplifier import AmplifierLimits, resolve_amplifier
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
 
 _DEFAULT_AMPLIFIER = AmplifierLimits()
@@ -25,26 +27,48 @@ def register(sub: Any) -> None:
     p.add_argument("--margin", type=positive_float, default=DEFAULT_MARGIN,
                    help=f"k in the acceleration margins (default {DEFAULT_MARGIN})")
     p.add_argument("--frequency-hz", type=positive_float, help="fix the frequency (default: chosen)")
-    p.add_argument("--max-voltage-v", type=positive_float, default=_DEFAULT_AMPLIFIER.v_max_v,
+    p.add_argument("--amplifier", default=None,
+                   help="amplifier model (anc300, paper = firmware_sim) or a TOML file of its limits; "
+                        "the three options below override its values (default: firmware_sim)")
+    p.add_argument("--max-voltage-v", type=positive_float,
                    help=f"amplifier rail (default {_DEFAULT_AMPLIFIER.v_max_v:g} V)")
     p.add_argument("--current-limit-a", type=positive_float,
-                   default=_DEFAULT_AMPLIFIER.current_limit_a,
                    help=f"amplifier peak current (default {_DEFAULT_AMPLIFIER.current_limit_a:g} A)")
     p.add_argument("--max-frequency-hz", type=positive_float,
-                   default=_DEFAULT_AMPLIFIER.max_frequency_hz,
                    help=f"amplifier's highest frequency (default {_DEFAULT_AMPLIFIER.max_frequency_hz:g} Hz)")
+    p.add_argument("--out", type=Path, metavar="TOML",
+                   help="write the waveform with the prediction it was planned with (a design file)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     part, support, surface = part_from(args)
-    amplifier = AmplifierLimits(v_max_v=args.max_voltage_v, current_limit_a=args.current_limit_a,
-                                max_frequency_hz=args.max_frequency_hz)  # fmt: skip
+    model, amplifier = resolve_amplifier(args.amplifier) if args.amplifier else ("firmware_sim",
+                                                                                 _DEFAULT_AMPLIFIER)
+    overrides = {name: value for name, value in (("v_max_v", args.max_voltage_v),
+                 ("current_limit_a", args.current_limit_a), ("max_frequency_hz", args.max_frequency_hz))
+                 if value is not None}  # fmt: skip
+    if overrides:
+        model, amplifier = f"{model} (modified)", replace(amplifier, **overrides)
     result = plan(part, support, surface, args.tau, amplifier, args.distance_m,
                   tau_band_pa=args.tau_band, kinetic_ratio=args.kinetic_ratio,
-                  margin=args.margin, frequency_hz=args.frequency_hz)  # fmt: skip
+                  tau_adhesion_work_j_m2=args.tau_adhesion_work, margin=args.margin,
+                  frequency_hz=args.frequency_hz)  # fmt: skip
     out = {"part": part.label, "support": support.kind, **result.to_json()}
+    if args.out:
+        from feeder.design import DesignProblem, write_design
+
+        problem = DesignProblem(part, support, surface, str(args.surface or "embedded"), args.tau,
+                                args.tau_band, args.kinetic_ratio, model, amplifier,
+                                tau_adhesion_work_j_m2=args.tau_adhesion_work)  # fmt: skip
+        prediction = StepPrediction(result.predicted_step_m, result.predicted_step_band_m)
+        moves = {"distance_m": result.distance_m, "steps": result.steps, "duration_s": result.duration_s,
+                 "predicted_distance_m": result.predicted_distance_m,
+                 "predicted_distance_band_m": list(result.predicted_distance_band_m)}  # fmt: skip
+        write_design(args.out, problem, result.waveform(), prediction,
+                     {"plan": moves, "margins": dict(result.margins)}, written_by="feeder plan")
+        out["path"] = str(args.out)
     if args.json:
         print_json(out)
         return 0
@@ -60,4 +84,6 @@ def run(args: argparse.Namespace) -> int:
           f"(required {m['required']:g}×)")
     for w in result.warnings:
         print(f"  warning: {w}")
+    if args.out:
+        print(f"  written    {args.out}")
     return 0

@@ -19,7 +19,7 @@ from feeder.cli.arguments import (
     positive_float,
 )
 from feeder.cli.output import print_json
-from feeder.cli.waveform import load_checked
+from feeder.cli.waveform import file_amplifier, load_checked
 from feeder.contact.breakaway import contact
 from feeder.errors import InputError
 from feeder.files import save_figure
@@ -142,10 +142,12 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError("--waveform", "required unless --ideal")
             if args.scatter > 0 and args.seed is None:
                 args.seed = 0
-            waveform = load_checked(args.waveform, AmplifierLimits())
+            amplifier = file_amplifier(args.waveform)  # a design file's [amplifier], else the default
+            waveform = load_checked(args.waveform, amplifier)
             if not args.json:
                 print(f"simulating {args.periods} periods at 100 kS/s ...", file=sys.stderr)
-            run_ = run_waveform(friction, waveform, args.periods, scatter=args.scatter, seed=args.seed)
+            run_ = run_waveform(friction, waveform, args.periods, amplifier, scatter=args.scatter,
+                                seed=args.seed)  # fmt: skip
             steps, slip_fraction = run_.steps_m, run_.slip_fraction
             time, part_x, plate_x = run_.time_s, run_.part_position_m, run_.plate_position_m
             extra = {"model": "plant", "waveform": str(args.waveform)}

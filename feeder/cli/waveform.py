@@ -1,21 +1,31 @@
-"""``feeder waveform show|export``: inspect a waveform file, export its tables (paper §V.B)."""
+"""``feeder waveform show|export|design``: inspect a waveform file, export its tables, design one (§V.B)."""
 
 from __future__ import annotations
 
 import argparse
 import io
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from feeder.cli.arguments import add_part_arguments, add_tau_arguments, part_from, positive_float
 from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure
-from feeder.plant.amplifier import AmplifierLimits, OutputStage
+from feeder.plant.amplifier import AmplifierLimits, OutputStage, limits_from_table
 from feeder.plant.stack import StackParameters
-from feeder.waveform import DEFAULT_DAC_BITS, DEFAULT_DAC_POINTS, Waveform, load_waveform
+from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
+from feeder.waveform import (
+    DEFAULT_DAC_BITS,
+    DEFAULT_DAC_POINTS,
+    FLYBACK_SHAPES,
+    Waveform,
+    load_waveform,
+    read_waveform_tables,
+)
 
 PLOT_SAMPLE_RATE_HZ = 100e3
 
@@ -37,17 +47,42 @@ def register(sub: Any) -> None:
     export.add_argument("--out", type=Path, help="write here (atomically) instead of stdout")
     export.add_argument("--json", action="store_true", help="print one JSON object")
     export.set_defaults(handler=run)
+    design = actions.add_parser(
+        "design", help="search the waveforms an amplifier can play for the best one (plant model)")
+    add_part_arguments(design, example="500x500x50")
+    add_tau_arguments(design)
+    design.add_argument("--kinetic-ratio", type=positive_float, default=DEFAULT_KINETIC_RATIO,
+                        help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})")
+    design.add_argument("--amplifier", default="paper",
+                        help="anc300, paper (= firmware_sim, 200 V / 2 kHz) or a TOML file of "
+                             "amplifier limits (default paper)")
+    design.add_argument("--objective", default="max-step",
+                        choices=("max-step", "min-scatter", "max-speed"),
+                        help="largest step per period, narrowest relative band, or fastest (m/s)")
+    design.add_argument("--shapes", default=",".join(FLYBACK_SHAPES),
+                        help=f"flyback shapes to search, comma-separated (default all: "
+                             f"{','.join(FLYBACK_SHAPES)})")
+    design.add_argument("--out", type=Path, required=True, help="design file (TOML) to write")
+    design.add_argument("--json", action="store_true", help="print one JSON object")
+    design.set_defaults(handler=run_design)
 
 
-def load_checked(path: Path, amplifier: AmplifierLimits) -> Waveform:
-    """Load a waveform file and check it against the amplifier (rails, frequency)."""
+def file_amplifier(path: Path) -> AmplifierLimits:
+    """The ``[amplifier]`` a design file was made for, else the default amplifier."""
+    table = read_waveform_tables(path).get("amplifier")
+    return AmplifierLimits() if table is None else limits_from_table(table, f"{path}: [amplifier].")
+
+
+def load_checked(path: Path, amplifier: AmplifierLimits | None = None) -> Waveform:
+    """Load a waveform file and check it against the amplifier (default: the file's own, if any)."""
     waveform = load_waveform(path)
+    amplifier = amplifier or file_amplifier(path)
     amplifier.check(waveform, field_prefix=f"{path}: [waveform].")
     return waveform
 
 
 def run(args: argparse.Namespace) -> int:
-    amplifier = AmplifierLimits()
+    amplifier = file_amplifier(args.file)
     waveform = load_checked(args.file, amplifier)
     if args.action == "show":
         return _show(args, waveform, amplifier)
@@ -164,3 +199,44 @@ def _plot(waveform: Waveform, amplifier: AmplifierLimits, stack: StackParameters
     ax.legend()
     fig.tight_layout()
     save_figure(fig, path)
+
+
+def run_design(args: argparse.Namespace) -> int:
+    from feeder.design import DesignProblem, design_waveform, write_design
+    from feeder.plant.amplifier import resolve_amplifier
+
+    part, support, surface = part_from(args)
+    model, limits = resolve_amplifier(args.amplifier)
+    shapes = tuple(s.strip() for s in args.shapes.split(",") if s.strip())
+    bad = [s for s in shapes if s not in FLYBACK_SHAPES]
+    if bad or not shapes:
+        raise InputError("--shapes", f"expected some of {', '.join(FLYBACK_SHAPES)}, got {args.shapes!r}")
+    if not args.kinetic_ratio <= 1:
+        raise InputError("--kinetic-ratio", f"must lie in (0, 1], got {args.kinetic_ratio}")
+    problem = DesignProblem(part, support, surface, str(args.surface or "embedded"), args.tau,
+                            args.tau_band, args.kinetic_ratio, model, limits,
+                            tau_adhesion_work_j_m2=args.tau_adhesion_work)  # fmt: skip
+
+    def progress(message: str) -> None:
+        print(f"design: {message}", file=sys.stderr, flush=True)
+
+    design = design_waveform(problem, args.objective, shapes=shapes, progress=progress)
+    write_design(args.out, problem, design.waveform, design.prediction, design.tables(),
+                 written_by="feeder waveform design")  # fmt: skip
+    out = {"part": part.label, "support": support.kind, "amplifier": model, **design.to_json(),
+           "path": str(args.out)}  # fmt: skip
+    if args.json:
+        print_json(out)
+        return 0
+    w, (lo, hi) = design.waveform, design.predicted_step_band_m
+    flyback = f"{w.flyback_s * 1e6:.4g} µs " if w.flyback_s else ""
+    print(f"design for part {part.label} µm on {support.kind} support, amplifier {model}, "
+          f"objective {args.objective}: {args.out}")
+    print(f"  waveform   {w.frequency_hz:.5g} Hz, {w.amplitude_vpp:.5g} Vpp, {flyback}"
+          f"{w.flyback_shape} flyback")
+    print(f"  step       {design.predicted_step_m * 1e6:.4g} µm  [{lo * 1e6:.4g}, {hi * 1e6:.4g}], "
+          f"{design.speed_m_s * 1e3:.4g} mm/s")
+    m = design.margins
+    print(f"  margins    flyback {m['flyback_margin']:.3g}×, ramp {m['ramp_margin']:.3g}×, "
+          f"rail {m['rail_margin_v']:.3g} V, current {m['current_margin']:.3g}×")
+    return 0

@@ -4,78 +4,595 @@ Requests are ``{"cmd": "move" | "stop" | "status" | "calibrate" | "history" |
 "shutdown", ...}``; replies are ``{"ok": true, ...}`` or ``{"ok": false,
 "error": "..."}``.  The client refuses a socket that another user owns, so a
 planted socket cannot impersonate the daemon.
+
+:class:`Client` (also ``feeder.Client``) has two layers:
+
+- typed calls for scripts: :meth:`~Client.move_to`, :meth:`~Client.move_by`,
+  :meth:`~Client.calibrate`, :meth:`~Client.stop`, :meth:`~Client.status`,
+  :meth:`~Client.history`, :meth:`~Client.shutdown`.  They return dataclasses
+  (SI units, the protocol's key names) and raise the :class:`~feeder.errors.DaemonError`
+  family: :class:`~feeder.errors.DaemonRefused`, :class:`~feeder.errors.MoveFailed`
+  (:class:`~feeder.errors.MoveFaulted`), :class:`~feeder.errors.DaemonUnreachable`
+  (:class:`~feeder.errors.DaemonTimeout`).
+- :meth:`Client.request`: one raw request, the reply object as it came.
+
+Timeouts.  ``timeout_s`` bounds every reply or acknowledgement, never a move's
+duration.  The daemon answers a waiting move only when it ends, so while waiting
+the client sends a heartbeat (a ``status`` request on a second connection) after
+every :data:`HEARTBEAT_S` of silence; a heartbeat unanswered within ``timeout_s``
+raises :class:`~feeder.errors.DaemonTimeout`.  A stopped (SIGSTOP) or hung daemon
+is thus reported within ``timeout_s + HEARTBEAT_S``, a dead one at once (its
+connection closes); the move itself may run for as long as it takes.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import stat
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, TypeVar, overload
+
+from feeder.errors import (
+    DaemonRefused,
+    DaemonTimeout,
+    DaemonUnreachable,
+    InputError,
+    MoveFailed,
+    MoveFaulted,
+)
 
 MAX_LINE_BYTES = 64 * 1024
+"""Longest request line the daemon reads."""
+MAX_REPLY_BYTES = 64 * MAX_LINE_BYTES
+"""Longest reply line the client reads (histories and traces are long)."""
+DEFAULT_TIMEOUT_S = 10.0
+HEARTBEAT_S = 0.25
+"""Silence on a waiting move after which the client checks that the daemon still answers."""
+SHUTDOWN_POLL_S = 0.02
+
+T = TypeVar("T")
+
+DaemonUnavailable = DaemonUnreachable
+"""The former name of :class:`~feeder.errors.DaemonUnreachable`."""
 
 
-class DaemonUnavailable(RuntimeError):
-    """No daemon answers on the socket (not running, wrong path, wrong owner)."""
+def default_socket_path() -> Path:
+    """``$XDG_RUNTIME_DIR/feeder/feeder.sock``, else ``/tmp/feeder-<uid>/feeder.sock``."""
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    base = Path(runtime) / "feeder" if runtime else Path("/tmp") / f"feeder-{os.getuid()}"
+    return base / "feeder.sock"
 
 
 def check_owned_by_me(path: Path, what: str) -> os.stat_result:
     """``lstat`` of ``path``; raises :class:`PermissionError` unless the current user owns it."""
     info = path.lstat()
     if info.st_uid != os.getuid():
-        raise PermissionError(f"{what} {path} is owned by uid {info.st_uid}, not by this user "
-                              f"(uid {os.getuid()}); refusing it")
+        raise PermissionError(
+            f"{what} {path} is owned by uid {info.st_uid}, not by this user (uid {os.getuid()}); refusing it"
+        )
     return info
 
 
-class Client:
-    """A connection to the daemon at ``socket_path``."""
+# -- replies ------------------------------------------------------------------
 
-    def __init__(self, socket_path: Path, timeout_s: float = 10.0) -> None:
-        self.socket_path = Path(socket_path)
+
+@dataclass(frozen=True)
+class LearnedStep:
+    """The daemon's learned step for one ``mode/direction``: step and burst offset, m."""
+
+    step_m: float
+    std_m: float
+    offset_m: float
+    offset_std_m: float
+    steps: int
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> LearnedStep:
+        return cls(
+            float(d["step_m"]),
+            float(d["std_m"]),
+            float(d["offset_m"]),
+            float(d["offset_std_m"]),
+            int(d["steps"]),
+        )
+
+
+def _learned(d: dict[str, Any]) -> dict[str, LearnedStep]:
+    return {name: LearnedStep.from_dict(est) for name, est in d.items()}
+
+
+def _opt(value: Any) -> float | None:
+    return None if value is None else float(value)
+
+
+@dataclass(frozen=True)
+class MoveResult:
+    """How a move (``kind`` ``move``) or calibration (``calibrate``) ended.
+
+    status: ``done``, ``stopped``, ``stalled``, ``limit``, ``oscillating``,
+    ``unreachable``, ``fault`` or ``refused``; ``reason`` in words.  Positions in m,
+    ``duration_s`` in s; ``estimates`` the learned steps after it; ``steps_estimated``:
+    a burst was cut short and its steps estimated from time.  ``raw`` is the daemon's
+    object as it came (fields added later are there).
+    """
+
+    kind: str
+    status: str
+    reason: str
+    target_m: float | None
+    start_m: float | None
+    reached_m: float | None
+    error_m: float | None
+    steps: int
+    bursts: int
+    duration_s: float
+    estimates: dict[str, LearnedStep]
+    move_id: int | None
+    steps_estimated: bool = False
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def done(self) -> bool:
+        return self.status == "done"
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> MoveResult:
+        return cls(
+            kind=str(d["kind"]),
+            status=str(d["status"]),
+            reason=str(d["reason"]),
+            target_m=_opt(d["target_m"]),
+            start_m=_opt(d.get("start_m")),
+            reached_m=_opt(d["reached_m"]),
+            error_m=_opt(d.get("error_m")),
+            steps=int(d["steps"]),
+            bursts=int(d["bursts"]),
+            duration_s=float(d["duration_s"]),
+            estimates=_learned(d.get("estimates") or {}),
+            move_id=d.get("move_id"),
+            steps_estimated=bool(d.get("steps_estimated", False)),
+            raw=d,
+        )
+
+
+@dataclass(frozen=True)
+class Accepted:
+    """A job the daemon accepted without waiting for it (``wait=False``).
+
+    queue_position: 0 when it started at once, else its place in the queue.
+    """
+
+    queue_position: int
+
+
+@dataclass(frozen=True)
+class StopResult:
+    """``stopped``: a move was running and was told to stop; ``dequeued``: queued jobs dropped."""
+
+    stopped: bool
+    dequeued: int
+
+
+@dataclass(frozen=True)
+class Status:
+    """The daemon's state (``idle``, ``moving``, ``calibrating``, ``fault``, ...), m and s;
+    ``loop_state`` the control policy's (``idle``, ``moving``, ``settling``, ``holding``,
+    ``fault``) where the daemon reports it.
+
+    ``raw`` holds the whole reply (timing, waveforms, transport, ...).
+    """
+
+    state: str
+    position_m: float | None
+    position_state: str
+    last_known_position_m: float | None
+    target_m: float | None
+    fault: str | None
+    queued_moves: int
+    tolerance_m: float
+    travel_limits_m: tuple[float, float]
+    estimates: dict[str, LearnedStep]
+    last_result: MoveResult | None
+    loop_state: str | None = None
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Status:
+        lo, hi = d["travel_limits_m"]
+        last = d.get("last_result")
+        return cls(
+            state=str(d["state"]),
+            position_m=_opt(d["position_m"]),
+            position_state=str(d["position_state"]),
+            last_known_position_m=_opt(d.get("last_known_position_m")),
+            target_m=_opt(d.get("target_m")),
+            fault=d.get("fault"),
+            queued_moves=int(d.get("queued_moves", 0)),
+            tolerance_m=float(d["tolerance_m"]),
+            travel_limits_m=(float(lo), float(hi)),
+            estimates=_learned(d.get("estimates") or {}),
+            last_result=None if last is None else MoveResult.from_dict(last),
+            loop_state=d.get("loop_state"),
+            raw=d,
+        )
+
+
+@dataclass(frozen=True)
+class MoveRecord:
+    """One recorded move from the history: times in s (Unix), positions in m."""
+
+    id: int
+    started_s: float
+    finished_s: float | None
+    start_m: float | None
+    target_m: float
+    reached_m: float | None
+    error_m: float | None
+    steps: int
+    bursts: int
+    status: str
+    reason: str
+    step_forward_m: float | None
+    step_backward_m: float | None
+    steps_estimated: bool = False
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> MoveRecord:
+        return cls(
+            id=int(d["id"]),
+            started_s=float(d["started_s"]),
+            finished_s=_opt(d["finished_s"]),
+            start_m=_opt(d["start_m"]),
+            target_m=float(d["target_m"]),
+            reached_m=_opt(d["reached_m"]),
+            error_m=_opt(d["error_m"]),
+            steps=int(d["steps"]),
+            bursts=int(d["bursts"]),
+            status=str(d["status"]),
+            reason=str(d["reason"]),
+            step_forward_m=_opt(d.get("step_forward_m")),
+            step_backward_m=_opt(d.get("step_backward_m")),
+            steps_estimated=bool(d.get("steps_estimated", False)),
+            raw=d,
+        )
+
+
+# -- the connection -----------------------------------------------------------
+
+
+class _Connection:
+    """One socket connection: send a line, read a line by a deadline (timeouts leave it usable)."""
+
+    def __init__(self, socket_path: Path, timeout_s: float | None) -> None:
         try:
-            info = check_owned_by_me(self.socket_path, "socket")
+            info = check_owned_by_me(socket_path, "socket")
         except FileNotFoundError:
-            raise DaemonUnavailable(f"no daemon socket at {self.socket_path} "
-                                    "(start one with `feeder daemon`)") from None
+            raise DaemonUnreachable(
+                f"no daemon socket at {socket_path} (start one with `feeder daemon`)"
+            ) from None
         except PermissionError as err:
-            raise DaemonUnavailable(str(err)) from None
+            raise DaemonUnreachable(str(err)) from None
         if not stat.S_ISSOCK(info.st_mode):
-            raise DaemonUnavailable(f"{self.socket_path} is not a socket")
+            raise DaemonUnreachable(f"{socket_path} is not a socket")
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         self._sock.settimeout(timeout_s)
         try:
-            self._sock.connect(str(self.socket_path))
+            self._sock.connect(str(socket_path))
+        except TimeoutError:
+            self._sock.close()
+            raise DaemonTimeout(
+                f"the daemon at {socket_path} did not accept the connection within {timeout_s:g} s",
+                timeout_s or 0.0,
+            ) from None
         except OSError as err:
             self._sock.close()
-            raise DaemonUnavailable(f"no daemon listening on {self.socket_path}: {err}") from None
-        self._file = self._sock.makefile("rb")
+            raise DaemonUnreachable(f"no daemon listening on {socket_path}: {err}") from None
+        self._buffer = bytearray()
 
-    def request(self, cmd: str, timeout_s: float | None = None, **fields: Any) -> dict[str, Any]:
-        """Send one request and return the reply object (``ok`` tells success)."""
+    def send(self, cmd: str, fields: dict[str, Any], timeout_s: float | None) -> None:
         line = json.dumps({"cmd": cmd, **fields}).encode() + b"\n"
         self._sock.settimeout(timeout_s)
         try:
             self._sock.sendall(line)
-            reply = self._file.readline(MAX_LINE_BYTES * 64)
+        except TimeoutError:
+            raise DaemonTimeout(
+                f"the daemon did not take the {cmd!r} request within {timeout_s:g} s", timeout_s or 0.0
+            ) from None
         except OSError as err:
-            raise DaemonUnavailable(f"daemon connection failed: {err}") from None
-        if not reply:
-            raise DaemonUnavailable("the daemon closed the connection")
-        obj = json.loads(reply)
+            raise DaemonUnreachable(f"daemon connection failed: {err}") from None
+
+    def receive(self, cmd: str, timeout_s: float | None) -> dict[str, Any]:
+        """The next reply object; :class:`DaemonTimeout` when none is complete in ``timeout_s``."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while (end := self._buffer.find(b"\n")) < 0:
+            if len(self._buffer) > MAX_REPLY_BYTES:
+                raise DaemonUnreachable(f"reply to {cmd!r} longer than {MAX_REPLY_BYTES} bytes")
+            remaining = None if deadline is None else deadline - time.monotonic()
+            try:
+                if remaining is not None and remaining <= 0:
+                    raise TimeoutError
+                self._sock.settimeout(remaining)
+                chunk = self._sock.recv(65536)
+            except TimeoutError:
+                raise DaemonTimeout(
+                    f"the daemon did not answer {cmd!r} within {timeout_s:g} s", timeout_s or 0.0
+                ) from None
+            except OSError as err:
+                raise DaemonUnreachable(f"daemon connection failed: {err}") from None
+            if not chunk:
+                raise DaemonUnreachable("the daemon closed the connection")
+            self._buffer += chunk
+        line = bytes(self._buffer[:end])
+        del self._buffer[: end + 1]
+        try:
+            obj = json.loads(line)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            obj = None
         if not isinstance(obj, dict):
-            raise DaemonUnavailable(f"unexpected reply: {reply[:200]!r}")
+            raise DaemonUnreachable(f"unexpected reply to {cmd!r}: {line[:200]!r}")
         return obj
 
     def close(self) -> None:
-        self._file.close()
         self._sock.close()
+
+
+# -- the client ---------------------------------------------------------------
+
+
+class Client:
+    """The daemon at ``socket_path`` (default :func:`default_socket_path`).
+
+    Connects at once (:class:`~feeder.errors.DaemonUnreachable` when nobody listens)
+    and keeps the connection; one that failed or timed out is replaced on the next
+    call.  ``timeout_s`` is the default of every typed call's ``timeout_s``.  Not
+    thread-safe: one client per thread.
+    """
+
+    def __init__(self, socket_path: Path | str | None = None, timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise InputError("timeout_s", f"must be a positive number of seconds, got {timeout_s!r}")
+        self.socket_path = default_socket_path() if socket_path is None else Path(socket_path)
+        self.timeout_s = timeout_s
+        self._conn: _Connection | None = _Connection(self.socket_path, timeout_s)
+
+    # -- raw requests -----------------------------------------------------------
+    def request(self, cmd: str, timeout_s: float | None = None, **fields: Any) -> dict[str, Any]:
+        """Send one request and return the reply object (``ok`` tells success).
+
+        ``timeout_s`` bounds the reply (None: wait as long as it takes, e.g. for a
+        waiting move without heartbeat).
+        """
+        conn = self._connection()
+        try:
+            conn.send(cmd, fields, timeout_s)
+            return conn.receive(cmd, timeout_s)
+        except DaemonUnreachable:
+            self._drop()  # a late reply would answer the next request
+            raise
+
+    def _connection(self) -> _Connection:
+        if self._conn is None:
+            self._conn = _Connection(self.socket_path, self.timeout_s)
+        return self._conn
+
+    def _drop(self) -> None:
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+    def close(self) -> None:
+        self._drop()
 
     def __enter__(self) -> Client:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    # -- typed calls -----------------------------------------------------------
+    def _timeout(self, timeout_s: float | None) -> float:
+        if timeout_s is None:
+            return self.timeout_s
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise InputError("timeout_s", f"must be a positive number of seconds, got {timeout_s!r}")
+        return timeout_s
+
+    def _call(self, cmd: str, timeout_s: float | None, **fields: Any) -> dict[str, Any]:
+        reply = self.request(cmd, self._timeout(timeout_s), **fields)
+        if reply.get("ok") is not True:
+            raise DaemonRefused(str(reply.get("error") or f"{cmd} refused without a reason"))
+        return reply
+
+    def status(self, *, timeout_s: float | None = None) -> Status:
+        """The daemon's state, position and learned steps."""
+        reply = self._call("status", timeout_s)
+        return _parse("status", Status.from_dict, reply)
+
+    def history(self, limit: int = 100, *, timeout_s: float | None = None) -> list[MoveRecord]:
+        """The newest ``limit`` recorded moves, oldest first."""
+        reply = self._call("history", timeout_s, limit=limit)
+        return _parse("history", lambda r: [MoveRecord.from_dict(m) for m in r["moves"]], reply)
+
+    def stop(self, *, timeout_s: float | None = None) -> StopResult:
+        """Stop the running move and drop queued ones (the move's own call then raises
+        :class:`~feeder.errors.MoveFailed` with status ``stopped``)."""
+        reply = self._call("stop", timeout_s)
+        return _parse("stop", lambda r: StopResult(bool(r["stopped"]), int(r["dequeued"])), reply)
+
+    def shutdown(self, *, wait: bool = True, timeout_s: float | None = None) -> None:
+        """Stop the daemon (it stops the move, grounds the output and closes its links).
+
+        With ``wait``, return once nothing listens on the socket any more (removed, or
+        refusing connections); :class:`~feeder.errors.DaemonTimeout` when it still does
+        after ``timeout_s``.
+        """
+        timeout = self._timeout(timeout_s)
+        self._connection()  # nobody listening: DaemonUnreachable
+        try:
+            self._call("shutdown", timeout)
+        except DaemonTimeout:
+            raise
+        except DaemonUnreachable:
+            pass  # it went away before its acknowledgement got out; checked below
+        self._drop()
+        end = time.monotonic() + timeout
+        while wait and _listening(self.socket_path):
+            if time.monotonic() > end:
+                raise DaemonTimeout(
+                    f"the daemon acknowledged the shutdown but still listens on "
+                    f"{self.socket_path} after {timeout:g} s",
+                    timeout,
+                )
+            time.sleep(SHUTDOWN_POLL_S)
+
+    @overload
+    def move_to(
+        self, target_m: float, *, queue: bool = ..., wait: Literal[True] = ..., timeout_s: float | None = ...
+    ) -> MoveResult: ...
+
+    @overload
+    def move_to(
+        self, target_m: float, *, queue: bool = ..., wait: Literal[False], timeout_s: float | None = ...
+    ) -> Accepted: ...
+
+    @overload
+    def move_to(
+        self, target_m: float, *, queue: bool = ..., wait: bool = ..., timeout_s: float | None = ...
+    ) -> MoveResult | Accepted: ...
+
+    def move_to(
+        self, target_m: float, *, queue: bool = False, wait: bool = True, timeout_s: float | None = None
+    ) -> MoveResult | Accepted:
+        """Move the part to ``target_m`` (m).
+
+        queue: wait behind a running move instead of being refused.  wait: return the
+        result when the move ends (a :class:`MoveResult` with status ``done``; any other
+        end raises :class:`~feeder.errors.MoveFailed`), else :class:`Accepted` once the
+        daemon took it.
+        """
+        return self._job("move", {"target_m": _metres("target_m", target_m)}, queue, wait, timeout_s)
+
+    @overload
+    def move_by(
+        self, delta_m: float, *, queue: bool = ..., wait: Literal[True] = ..., timeout_s: float | None = ...
+    ) -> MoveResult: ...
+
+    @overload
+    def move_by(
+        self, delta_m: float, *, queue: bool = ..., wait: Literal[False], timeout_s: float | None = ...
+    ) -> Accepted: ...
+
+    @overload
+    def move_by(
+        self, delta_m: float, *, queue: bool = ..., wait: bool = ..., timeout_s: float | None = ...
+    ) -> MoveResult | Accepted: ...
+
+    def move_by(
+        self, delta_m: float, *, queue: bool = False, wait: bool = True, timeout_s: float | None = None
+    ) -> MoveResult | Accepted:
+        """Move the part by ``delta_m`` (m) from where it is when the move starts; as
+        :meth:`move_to`."""
+        return self._job("move", {"by_m": _metres("delta_m", delta_m)}, queue, wait, timeout_s)
+
+    @overload
+    def calibrate(
+        self, steps: int = ..., *, queue: bool = ..., wait: Literal[True] = ..., timeout_s: float | None = ...
+    ) -> MoveResult: ...
+
+    @overload
+    def calibrate(
+        self, steps: int = ..., *, queue: bool = ..., wait: Literal[False], timeout_s: float | None = ...
+    ) -> Accepted: ...
+
+    @overload
+    def calibrate(
+        self, steps: int = ..., *, queue: bool = ..., wait: bool = ..., timeout_s: float | None = ...
+    ) -> MoveResult | Accepted: ...
+
+    def calibrate(
+        self, steps: int = 20, *, queue: bool = False, wait: bool = True, timeout_s: float | None = None
+    ) -> MoveResult | Accepted:
+        """Learn the step sizes: ``steps`` coarse steps per direction (2–10000), both
+        waveforms, forward and back; as :meth:`move_to`."""
+        if isinstance(steps, bool) or not isinstance(steps, int) or not 2 <= steps <= 10_000:
+            raise InputError("steps", f"must be an integer in [2, 10000], got {steps!r}")
+        return self._job("calibrate", {"steps": steps}, queue, wait, timeout_s)
+
+    def _job(
+        self, cmd: str, fields: dict[str, Any], queue: bool, wait: bool, timeout_s: float | None
+    ) -> MoveResult | Accepted:
+        timeout = self._timeout(timeout_s)
+        fields = {**fields, "queue": queue, "wait": wait}
+        if not wait:
+            reply = self._call(cmd, timeout, **fields)
+            return _parse(cmd, lambda r: Accepted(int(r.get("queue_position") or 0)), reply)
+        reply = self._await(cmd, fields, timeout)
+        if "result" not in reply:
+            raise DaemonRefused(str(reply.get("error") or f"{cmd} refused without a reason"))
+        result = _parse(cmd, lambda r: MoveResult.from_dict(r["result"]), reply)
+        if result.status == "done":
+            return result
+        if result.status == "refused":
+            raise DaemonRefused(result.reason, result)
+        raise (MoveFaulted if result.status == "fault" else MoveFailed)(result)
+
+    def _await(self, cmd: str, fields: dict[str, Any], timeout_s: float) -> dict[str, Any]:
+        """Send a request the daemon answers only when the job ends; check on it by heartbeat
+        (see the module's docstring)."""
+        conn = self._connection()
+        heartbeat: _Connection | None = None
+        try:
+            conn.send(cmd, fields, timeout_s)
+            while True:
+                try:
+                    return conn.receive(cmd, HEARTBEAT_S)
+                except DaemonTimeout:
+                    pass  # silence: the job runs; is the daemon still there?
+                if heartbeat is None:
+                    heartbeat = _Connection(self.socket_path, timeout_s)
+                heartbeat.send("status", {}, timeout_s)
+                heartbeat.receive("status (heartbeat)", timeout_s)
+        except DaemonUnreachable:
+            self._drop()
+            raise
+        finally:
+            if heartbeat is not None:
+                heartbeat.close()
+
+
+def _listening(socket_path: Path) -> bool:
+    """Whether a connection to ``socket_path`` is accepted (or queued) right now."""
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    probe.settimeout(SHUTDOWN_POLL_S)
+    try:
+        probe.connect(str(socket_path))
+    except (FileNotFoundError, ConnectionRefusedError):
+        return False
+    except OSError:  # e.g. a full backlog: somebody is still there
+        return True
+    finally:
+        probe.close()
+    return True
+
+
+def _metres(name: str, value: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(name, f"must be a finite number of metres, got {value!r}")
+    return float(value)
+
+
+def _parse(cmd: str, parse: Callable[[dict[str, Any]], T], reply: dict[str, Any]) -> T:
+    """``parse(reply)``; a reply without the protocol's fields is :class:`DaemonUnreachable`."""
+    try:
+        return parse(reply)
+    except (KeyError, TypeError, ValueError) as err:
+        raise DaemonUnreachable(
+            f"malformed reply to {cmd!r} ({type(err).__name__}: {err}): {json.dumps(reply)[:200]}"
+        ) from None

@@ -207,6 +207,13 @@ class ControlLoop:
         with self._lock:
             return self.policy.request_stop(reason)
 
+    def amplifier_lost(self, message: str) -> None:
+        """Declare the amplifier link lost (the job ends, ``on_fault`` reconnects)."""
+        with self._lock:
+            self.policy.on_link_lost(message)
+            outputs = self.policy.tick(self._clock())
+        self._dispatch(outputs)
+
     def replace_amplifier(self, amplifier: Amplifier) -> None:
         """After a reconnect: use the new link and leave the fault state (no move resumes)."""
         self.executor.replace(amplifier)

@@ -3,11 +3,17 @@
 With no hardware named in the configuration, :func:`open_links` starts
 ``firmware_sim`` (a separate program, :mod:`feeder.daemon.launcher`) for the
 configured part and amplifier rating, and points the same drivers at its
-console pty (or slcan pty for CAN) and camera port.
+console pty (or slcan pty for CAN) and camera port.  Should that program die,
+the next reconnect starts a new one and uses its fresh endpoints: the old pty
+path is never reopened (another program may own it by then).  Configured
+hardware is reopened at its configured address, with the service's backoff.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
+import logging
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +25,8 @@ from feeder.drivers.camera import StreamCamera
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import InputError
 
+log = logging.getLogger(__name__)
+
 SLCAN_BITRATE = 500_000
 CAN_HEARTBEAT_S = 0.25
 """Node heartbeat period the daemon asks for: a few lost periods mark the node dead, so a
@@ -29,13 +37,39 @@ class DriverLinks:
     """Opens (and re-opens, to reconnect) the configured amplifier driver and camera client."""
 
     def __init__(self, config: DaemonConfig, amplifier_address: str | dict[str, Any],
-                 sensor_address: str, simulator: Simulator | None = None) -> None:
+                 sensor_address: str, simulator: Simulator | None = None,
+                 log_path: Path | None = None) -> None:
         self.config = config
         self.amplifier_address = amplifier_address
         self.sensor_address = sensor_address
         self.simulator = simulator
+        self.log_path = log_path
+        self.respawns = 0
+        self._lock = threading.Lock()
+        # PR_SET_PDEATHSIG fires when the *thread* that started the child ends: respawns run
+        # on this one long-lived thread, never on a reconnect thread that is about to end
+        self._spawner = concurrent.futures.ThreadPoolExecutor(1, "simulator-spawner")
+
+    def _simulator_alive(self) -> None:
+        """Start a new firmware_sim when ours died; take its endpoints."""
+        with self._lock:
+            if self.simulator is None or self.simulator.alive():
+                return
+            self.simulator.stop()
+            log.warning("firmware_sim (pid %d) died; starting a new one",
+                        self.simulator.process.pid)
+            sim = self._spawner.submit(Simulator, simulator_args(self.config),
+                                       log_path=self.log_path).result()
+            try:
+                self.amplifier_address, self.sensor_address = simulator_addresses(self.config, sim)
+            except InputError:
+                sim.stop()
+                raise
+            self.simulator = sim
+            self.respawns += 1
 
     def open_amplifier(self) -> Amplifier:
+        self._simulator_alive()
         amp = self.config.amplifier
         if isinstance(self.amplifier_address, dict):
             from feeder.drivers.canopen import CanopenAmplifier  # python-can only when used
@@ -49,6 +83,7 @@ class DriverLinks:
                                     password=amp.password)
 
     def open_sensor(self) -> PositionSensor:
+        self._simulator_alive()
         return StreamCamera(self.sensor_address, connect_timeout_s=self.config.sensor_timeout_s)
 
     def describe(self) -> dict[str, Any]:
@@ -62,12 +97,14 @@ class DriverLinks:
             out["simulator_pid"] = self.simulator.process.pid
             out["simulator_endpoints"] = self.simulator.endpoints
             out["simulator_true"] = self.simulator.ready.get("true")
+            out["simulator_respawns"] = self.respawns
         return out
 
     def close(self) -> None:
         """Stop firmware_sim if this daemon started it."""
         if self.simulator is not None:
             self.simulator.stop()
+        self._spawner.shutdown(wait=False)
 
 
 def simulator_args(config: DaemonConfig) -> list[str]:
@@ -94,17 +131,28 @@ def open_links(config: DaemonConfig, log_path: Path | None = None) -> DriverLink
         address: str | dict[str, Any] = dict(amp.can) if amp.transport == "can" else str(amp.port)
         return DriverLinks(config, address, config.sensor_address)
     sim = Simulator(simulator_args(config), log_path=log_path)
+    try:
+        address, sensor = simulator_addresses(config, sim)
+    except InputError:
+        sim.stop()
+        raise
+    return DriverLinks(config, address, sensor, sim, log_path)
+
+
+def simulator_addresses(config: DaemonConfig,
+                        sim: Simulator) -> tuple[str | dict[str, Any], str]:
+    """The amplifier address (pty path, or python-can arguments) and the camera URL of a
+    started firmware_sim, from its ready line."""
+    amp = config.amplifier
     ends = sim.endpoints
     try:
         if amp.transport == "can":
-            address = {"interface": "slcan", "channel": ends["slcan_pty"],
-                       "bitrate": SLCAN_BITRATE, "sleep_after_open": 0,
-                       "node_id": int(amp.can.get("node_id", 1)),
-                       "heartbeat_s": float(amp.can.get("heartbeat_s", CAN_HEARTBEAT_S))}
+            address: str | dict[str, Any] = {
+                "interface": "slcan", "channel": ends["slcan_pty"], "bitrate": SLCAN_BITRATE,
+                "sleep_after_open": 0, "node_id": int(amp.can.get("node_id", 1)),
+                "heartbeat_s": float(amp.can.get("heartbeat_s", CAN_HEARTBEAT_S))}
         else:
             address = ends["console_pty"]
-        sensor = ends["sensor_tcp"]
+        return address, ends["sensor_tcp"]
     except KeyError as err:
-        sim.stop()
         raise InputError("firmware_sim", f"its ready line lacks the endpoint {err}") from None
-    return DriverLinks(config, address, sensor, sim)

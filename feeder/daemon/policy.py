@@ -414,6 +414,11 @@ class Policy:
             if self.job is not None and self._finish_as is not None:
                 self._enter_holding(done.at_s)
 
+    def on_link_lost(self, message: str) -> None:
+        """The amplifier link is known to be gone (e.g. the simulator behind it restarted)."""
+        if self.fault is None:
+            self._link_lost(message)
+
     def link_restored(self) -> None:
         """A new amplifier link (grounded): leave the fault state; no move resumes."""
         self.fault = None

@@ -52,7 +52,7 @@ from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.daemon.store import Calibration, Store
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSensor
-from feeder.errors import InputError
+from feeder.errors import FeederError, InputError
 
 log = logging.getLogger(__name__)
 
@@ -196,6 +196,7 @@ class Daemon:
             undo.callback(self.store.close)
             self.interrupted_moves = self.store.interrupt_running_moves()
             amplifier = links.open_amplifier()
+            self._amplifier_generation = getattr(links, "respawns", 0)
             undo.callback(amplifier.close)
             amplifier.ground()
             sensor = links.open_sensor()
@@ -227,9 +228,9 @@ class Daemon:
         for job in queued:
             self._refuse_queued(job, "daemon shutting down")
         self.loop.shutdown()
-        with contextlib.suppress(Exception):     # a dead link must not stop the shutdown
+        with contextlib.suppress(FeederError, OSError):  # a dead link must not stop the shutdown
             self.loop.amplifier.ground()
-        with contextlib.suppress(Exception):
+        with contextlib.suppress(FeederError, OSError):
             self.loop.amplifier.close()
         if self._server is not None:
             self._server.close()
@@ -318,10 +319,12 @@ class Daemon:
         for job in queued:
             self._refuse_queued(job, f"{kind} lost: {message}")
         if kind == "amplifier":
-            # ground where the link still allows it, then free the port for the reconnect
-            with contextlib.suppress(Exception):
-                self.loop.amplifier.ground()
-            with contextlib.suppress(Exception):
+            # ground where the link still allows it (never through a stale simulator pty:
+            # another program may own that path now), then free the port for the reconnect
+            if getattr(self.links, "respawns", 0) == self._amplifier_generation:
+                with contextlib.suppress(FeederError, OSError):
+                    self.loop.amplifier.ground()
+            with contextlib.suppress(FeederError, OSError):
                 self.loop.amplifier.close()
         thread = threading.Thread(target=self._reconnect, args=(kind, record),
                                   name=f"reconnect-{kind}", daemon=True)
@@ -342,9 +345,13 @@ class Daemon:
                         amp.close()
                         raise
                     self.loop.replace_amplifier(amp)
+                    self._amplifier_generation = getattr(self.links, "respawns", 0)
                 else:
                     self.loop.replace_sensor(self.links.open_sensor())
-            except Exception as err:  # any failure to open is retried with backoff
+            except Exception as err:
+                # stops a link from opening (drivers, python-can, the launcher) is logged and
+                # retried with backoff; the thread must outlive it
+                log.info("%s reconnect attempt %d failed: %s", kind, attempts, err)
                 with self._lock:
                     record["reconnect_attempts"] = attempts
                     record["last_error"] = f"{type(err).__name__}: {err}"
@@ -356,6 +363,9 @@ class Daemon:
             break
         with self._lock:
             self._reconnecting.discard(kind)
+        if getattr(self.links, "respawns", 0) != self._amplifier_generation:
+            # the simulator behind the amplifier link was restarted: that link is stale
+            self.loop.amplifier_lost("firmware_sim was restarted; reopening its new console")
 
     # -- requests ------------------------------------------------------------
     def handle(self, request: Any) -> dict[str, Any]:
@@ -442,6 +452,9 @@ class Daemon:
         its bursts go forward first and come back (the excursion, with a pessimistic step
         and 25 % margin, must fit before the upper limit; the return's asymmetry, 25 % of
         it, behind).  A reason string when there is no room or no position."""
+        deadline = time.monotonic() + self.setup.sensor_timeout_s
+        while self.loop.position_m is None and time.monotonic() < deadline:
+            time.sleep(0.01)    # just started: the first frame is on its way
         x = self.loop.position_m
         if x is None:
             return "position uncertain: calibration needs a sensor reading first"
@@ -517,7 +530,13 @@ class Daemon:
             "timing": loop.timing(),
             "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
             **self.setup.info,
+            **self._live_links(),
         }
+
+    def _live_links(self) -> dict[str, Any]:
+        """What may change while running (a respawned simulator's pid and endpoints)."""
+        describe = getattr(self.links, "describe", None)
+        return describe() if callable(describe) else {}
 
     # -- socket ----------------------------------------------------------------
     def _accept(self) -> None:

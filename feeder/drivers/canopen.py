@@ -1,7 +1,8 @@
 """The amplifier over CAN: a CANopen (CiA 301) master for one amplifier axis node.
 
 Built on the ``canopen`` package's :class:`canopen.RemoteNode` and the node's EDS
-(``firmware_sim/feeder_amplifier.eds``; object reference in docs/canopen.md):
+(package data of :mod:`feeder.protocol.eds`; object reference in docs/canopen.md),
+every object addressed by its EDS name:
 
 - configuration by SDO (frequency, amplitude, flyback, mode),
 - steps by RPDO1 (signed count + command sequence), each confirmed by the
@@ -17,8 +18,9 @@ The bus is plain python-can keyword arguments, so the transport is configuration
     {"interface": "socketcan", "channel": "can0"}
     {"interface": "virtual", "channel": "test"}
 
-The code tables below are the node's protocol (documented in the EDS comments);
-``firmware_sim``'s node uses them too.
+Steps played: the node counts them (``Step counter``, in every TPDO1), so
+``AmplifierStatus.step_counter`` is the drive's own count, not an estimate; the
+end of a burst is the drive's ``moving`` bit going low in TPDO1 (:meth:`wait`).
 """
 
 from __future__ import annotations
@@ -27,11 +29,11 @@ import contextlib
 import threading
 import time
 from collections.abc import Callable, Mapping
-from pathlib import Path
 from typing import Any
 
 import can
 import canopen
+from canopen.objectdictionary import ObjectDictionary
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from feeder.drivers.amplifier import (
@@ -42,24 +44,8 @@ from feeder.drivers.amplifier import (
     AmplifierStatus,
     DriveSettings,
 )
-
-DEFAULT_EDS = Path(__file__).resolve().parents[2] / "firmware_sim" / "feeder_amplifier.eds"
-"""The EDS shipped with ``firmware_sim`` (a real amplifier comes with its own)."""
-
-MODES = ("gnd", "inp", "cap", "stp", "off", "stp+", "stp-")
-"""Object 0x2005 ``Mode``: value = index (ANC300 mode names)."""
-
-SHAPE_CODES = (*FLYBACK_SHAPES, "custom")
-"""Object 0x2002 ``Flyback shape``: value = index; ``custom`` (user tables) is read-only."""
-
-FAULT_NAMES = {0x01: "watchdog", 0x02: "host_watchdog", 0x04: "overtemp"}
-"""Bits of object 0x2014 ``Fault word``."""
-
-STATUS_MOVING = 0x01
-STATUS_STEPPING_MODE = 0x02
-STATUS_FAULT = 0x04
-STATUS_REFUSED = 0x08
-"""Bits of object 0x2015 ``Status word`` (``REFUSED``: the last RPDO1 command was refused)."""
+from feeder.protocol import anc300
+from feeder.protocol.eds import MODES, bit_mask, object_dictionary
 
 HOST_SILENCE_PERIODS = 3
 """The node's heartbeat consumer time, in the driver's heartbeat periods."""
@@ -68,10 +54,17 @@ HEARTBEAT_LOSS_PERIODS = 2.5
 """Missing heartbeats for this many periods = node lost (so it is reported
 within 3 periods of the node's last breath)."""
 
+CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
+TPDO1_TYPE = "TPDO1 communication parameter.Transmission type"
+SETTINGS = ("Flyback shape", "Frequency", "Flyback time", "Amplitude")
+"""The objects :meth:`CanopenAmplifier.apply` writes, in the order of ``_write_settings``' arguments."""
+
 ABORT_MESSAGES = {
+    0x05040001: "command not valid (no such transfer)",
     0x06010001: "object is write-only",
     0x06010002: "object is read-only",
     0x06020000: "object does not exist",
+    0x06090011: "sub-index does not exist",
     0x06040043: "conflicts with another setting",
     0x06090030: "value range exceeded",
     0x06090031: "value too high",
@@ -81,14 +74,18 @@ ABORT_MESSAGES = {
 
 
 def fault_names(word: int) -> tuple[str, ...]:
-    """Names of the bits set in a fault word, lowest bit first (``fault<bit>`` if unknown)."""
-    return tuple(FAULT_NAMES.get(1 << bit, f"fault{bit}") for bit in range(32) if word >> bit & 1)
+    """Names of the bits set in a fault word: the protocol's, then ``fault<bit>`` for
+    bits it does not name (a real drive may set more)."""
+    unknown = word & ~sum(anc300.FAULT_BITS.values())
+    return anc300.fault_names(word) + tuple(f"fault{bit}" for bit in range(32) if unknown >> bit & 1)
 
 
 class CanopenAmplifier(Amplifier):
     """One amplifier axis reached as CANopen node ``node_id`` on a python-can bus.
 
     bus: python-can keyword arguments (``can.Bus(**bus)``).
+    eds: the node's object dictionary; default: the packaged EDS
+        (:func:`feeder.protocol.eds.object_dictionary`).
     heartbeat_s: heartbeat period of the node (the driver sets object 0x1017).
     timeout_s: SDO response and RPDO acknowledge timeout.
     supervise_host: the driver beats too (as node ``host_id``, every
@@ -98,9 +95,16 @@ class CanopenAmplifier(Amplifier):
         firmware's ``--host-watchdog-s``.
     """
 
-    def __init__(self, bus: Mapping[str, Any], node_id: int, eds: str | Path = DEFAULT_EDS,
-                 heartbeat_s: float = 0.25, timeout_s: float = 0.5, supervise_host: bool = False,
-                 host_id: int = 127) -> None:
+    def __init__(
+        self,
+        bus: Mapping[str, Any],
+        node_id: int,
+        eds: ObjectDictionary | None = None,
+        heartbeat_s: float = 0.25,
+        timeout_s: float = 0.5,
+        supervise_host: bool = False,
+        host_id: int = 127,
+    ) -> None:
         self.node_id = node_id
         self.supervise_host = supervise_host
         self.host_id = host_id
@@ -124,7 +128,10 @@ class CanopenAmplifier(Amplifier):
         assert self.network.notifier is not None
         self.network.notifier.add_listener(_BusErrors(self._on_bus_error))
         try:
-            self.node = canopen.RemoteNode(node_id, str(eds))
+            od = eds if eds is not None else object_dictionary(node_id)
+            self.node = canopen.RemoteNode(node_id, od)
+            self._moving = bit_mask(od, "Status word", "moving")
+            self._refused = bit_mask(od, "Status word", "refused")
             self.node.sdo.RESPONSE_TIMEOUT = timeout_s
             self.network.add_node(self.node)
             self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
@@ -132,8 +139,9 @@ class CanopenAmplifier(Amplifier):
         except BaseException:
             self.network.disconnect()
             raise
-        self._watchdog = threading.Thread(target=self._watch_heartbeat, daemon=True,
-                                          name=f"canopen-heartbeat-{node_id}")
+        self._watchdog = threading.Thread(
+            target=self._watch_heartbeat, daemon=True, name=f"canopen-heartbeat-{node_id}"
+        )
         self._watchdog.start()
 
     # -- link setup and supervision --------------------------------------------
@@ -144,19 +152,21 @@ class CanopenAmplifier(Amplifier):
             self.node.nmt.wait_for_heartbeat(timeout=max(1.0, 5 * self.heartbeat_s))
         except canopen.nmt.NmtError as exc:
             raise AmplifierLinkLost(f"CANopen node {self.node_id}: no heartbeat") from exc
-        self._sdo_write(0x1017, 0, round(self.heartbeat_s * 1000))
+        self._sdo_write("Producer heartbeat time", round(self.heartbeat_s * 1000))
         if self.supervise_host:  # consumer first: it sees the first beat
-            self._sdo_write(0x1016, 1, self.host_id << 16
-                            | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000))
+            self._sdo_write(
+                CONSUMER_HEARTBEAT, self.host_id << 16 | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000)
+            )
             self._host_heartbeat = self.network.send_periodic(
-                0x700 + self.host_id, b"\x05", self.heartbeat_s)  # 5: OPERATIONAL
-        self._sdo_write(0x1800, 2, 255)  # TPDO1 event-driven: on change and on its timer
+                0x700 + self.host_id, b"\x05", self.heartbeat_s
+            )  # 5: OPERATIONAL
+        self._sdo_write(TPDO1_TYPE, 255)  # TPDO1 event-driven: on change and on its timer
         self.node.tpdo.read(from_od=True)
         self.node.rpdo.read(from_od=True)
         self._tpdo = self.node.tpdo[1]
         self._rpdo = self.node.rpdo[1]
         self._tpdo.add_callback(self._on_tpdo)
-        self._sequence = self._sdo_read(0x2019, 0)
+        self._sequence = self._sdo_read("Command acknowledge")
         self.node.nmt.state = "OPERATIONAL"
         with self._changed:
             if not self._changed.wait_for(lambda: self._tpdo_seen, self.timeout_s + 0.2):
@@ -178,8 +188,7 @@ class CanopenAmplifier(Amplifier):
             with self._changed:
                 silent = time.monotonic() - self._last_heartbeat
                 if silent >= limit and self._lost is None:
-                    self._lost = (f"CANopen node {self.node_id}: no heartbeat for "
-                                  f"{silent * 1000:.0f} ms")
+                    self._lost = f"CANopen node {self.node_id}: no heartbeat for {silent * 1000:.0f} ms"
                     self._changed.notify_all()
                 if self._lost is not None:
                     return
@@ -212,32 +221,28 @@ class CanopenAmplifier(Amplifier):
 
     # -- SDO and RPDO -----------------------------------------------------------
 
-    def _sdo_write(self, index: int, subindex: int, value: int) -> None:
+    def _sdo_write(self, name: str, value: int) -> None:
+        """Write object ``name`` (its EDS name; ``Record.Sub`` for a sub-object)."""
         self._check_link()
-        variable = self.node.sdo[index] if subindex == 0 else self.node.sdo[index][subindex]
         try:
-            variable.raw = value
+            self.node.sdo[name].raw = value
         except SdoAbortedError as exc:
-            raise AmplifierError(self._abort_text(exc, index, subindex, value)) from exc
+            raise AmplifierError(self._abort_text(exc, name, value)) from exc
         except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
             raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
 
-    def _sdo_read(self, index: int, subindex: int) -> int:
+    def _sdo_read(self, name: str) -> int:
+        """Read object ``name`` (its EDS name)."""
         self._check_link()
-        variable = self.node.sdo[index] if subindex == 0 else self.node.sdo[index][subindex]
         try:
-            return int(variable.raw)
+            return int(self.node.sdo[name].raw)
         except SdoAbortedError as exc:
-            raise AmplifierError(self._abort_text(exc, index, subindex, None)) from exc
+            raise AmplifierError(self._abort_text(exc, name, None)) from exc
         except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
             raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
 
-    def _abort_text(self, exc: SdoAbortedError, index: int, subindex: int,
-                    value: int | None) -> str:
-        name = self.node.object_dictionary[index]
-        if not isinstance(name, canopen.objectdictionary.ODVariable):
-            name = name[subindex]
-        what = f"{name.name} = {value}" if value is not None else name.name
+    def _abort_text(self, exc: SdoAbortedError, name: str, value: int | None) -> str:
+        what = f"{name} = {value}" if value is not None else name
         reason = ABORT_MESSAGES.get(exc.code, "refused")
         return f"CANopen node {self.node_id}: {what}: {reason} (SDO abort 0x{exc.code:08X})"
 
@@ -255,16 +260,15 @@ class CanopenAmplifier(Amplifier):
                 raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
             with self._changed:
                 acked = self._changed.wait_for(
-                    lambda: self._ack == sequence or self._lost is not None, self.timeout_s)
+                    lambda: self._ack == sequence or self._lost is not None, self.timeout_s
+                )
                 self._check_link()
-                refused = self._status_word & STATUS_REFUSED
+                refused = self._status_word & self._refused
             if not acked:
-                raise AmplifierLinkLost(
-                    f"CANopen node {self.node_id}: step command not acknowledged")
+                raise AmplifierLinkLost(f"CANopen node {self.node_id}: step command not acknowledged")
         if refused:
             state = self.status()
-            reason = (f"fault {', '.join(state.faults)}" if state.fault_word
-                      else f"mode {state.mode}")
+            reason = f"fault {', '.join(state.faults)}" if state.fault_word else f"mode {state.mode}"
             raise AmplifierError(f"CANopen node {self.node_id}: step {count} refused ({reason})")
 
     # -- the Amplifier interface -----------------------------------------------
@@ -273,28 +277,34 @@ class CanopenAmplifier(Amplifier):
         """Write the settings; if the node refuses one, restore the previous ones."""
         if settings.flyback_shape not in FLYBACK_SHAPES:
             raise AmplifierError(f"unknown flyback shape {settings.flyback_shape!r}")
-        wanted = (FLYBACK_SHAPES.index(settings.flyback_shape),
-                  round(settings.frequency_hz * 1000), round((settings.flyback_s or 0.0) * 1e9),
-                  round(settings.amplitude_v * 1000))
+        wanted = (
+            FLYBACK_SHAPES.index(settings.flyback_shape),
+            round(settings.frequency_hz * 1000),
+            round((settings.flyback_s or 0.0) * 1e9),
+            round(settings.amplitude_v * 1000),
+        )
         with self._lock:
-            previous = tuple(self._sdo_read(index, 0) for index in (0x2002, 0x2000, 0x2003, 0x2001))
+            previous = tuple(self._sdo_read(name) for name in SETTINGS)
             try:
                 self._write_settings(*wanted)
             except AmplifierError:
                 self._write_settings(*previous)
                 raise
 
-    def _write_settings(self, shape: int, frequency_mhz: int, flyback_ns: int,
-                        amplitude_mv: int) -> None:
+    def _write_settings(self, shape: int, frequency_mhz: int, flyback_ns: int, amplitude_mv: int) -> None:
         """SDO writes in an order the firmware accepts from any previous settings:
         current-limited flyback first (no timing constraint), then frequency, flyback
         time and the wanted shape (checked against the new period), then amplitude."""
         current_limited = FLYBACK_SHAPES.index("current-limited")
-        writes = [(0x2002, current_limited), (0x2000, frequency_mhz), (0x2003, flyback_ns)]
+        writes = [
+            ("Flyback shape", current_limited),
+            ("Frequency", frequency_mhz),
+            ("Flyback time", flyback_ns),
+        ]
         if shape != current_limited and shape < len(FLYBACK_SHAPES):
-            writes.append((0x2002, shape))
-        for index, value in [*writes, (0x2001, amplitude_mv)]:
-            self._sdo_write(index, 0, value)
+            writes.append(("Flyback shape", shape))
+        for name, value in [*writes, ("Amplitude", amplitude_mv)]:
+            self._sdo_write(name, value)
 
     def step(self, count: int) -> None:
         if count == 0:
@@ -303,7 +313,7 @@ class CanopenAmplifier(Amplifier):
 
     def run_continuous(self, forward: bool) -> None:
         with self._lock:
-            self._sdo_write(0x2011, 0, 1 if forward else -1)
+            self._sdo_write("Continuous", 1 if forward else -1)
 
     def stop(self) -> None:
         self._command(0)
@@ -311,37 +321,41 @@ class CanopenAmplifier(Amplifier):
     def wait(self, timeout_s: float) -> bool:
         with self._changed:
             done = self._changed.wait_for(
-                lambda: not self._status_word & STATUS_MOVING or self._lost is not None,
-                timeout_s)
+                lambda: not self._status_word & self._moving or self._lost is not None, timeout_s
+            )
             self._check_link()
             return done
 
     def ground(self) -> None:
         with self._lock:
-            self._sdo_write(0x2005, 0, MODES.index("gnd"))
+            self._sdo_write("Mode", MODES.index("gnd"))
 
     def enable(self) -> None:
         with self._lock:
-            self._sdo_write(0x2005, 0, MODES.index("stp"))
+            self._sdo_write("Mode", MODES.index("stp"))
 
     def clear_faults(self) -> None:
-        """Clear the node's latched fault word (object 0x2016); the output stays grounded."""
+        """Clear the node's latched fault word (``Fault reset``); the output stays grounded."""
         with self._lock:
-            self._sdo_write(0x2016, 0, 1)
+            self._sdo_write("Fault reset", 1)
 
     def status(self) -> AmplifierStatus:
         with self._lock:
-            mode = self._sdo_read(0x2005, 0)
-            frequency_mhz = self._sdo_read(0x2000, 0)
-            amplitude_mv = self._sdo_read(0x2001, 0)
-            fault_word = self._sdo_read(0x2014, 0)
-            counter = self._sdo_read(0x2012, 0)
-            moving = bool(self._sdo_read(0x2015, 0) & STATUS_MOVING)
+            mode = self._sdo_read("Mode")
+            frequency_mhz = self._sdo_read("Frequency")
+            amplitude_mv = self._sdo_read("Amplitude")
+            fault_word = self._sdo_read("Fault word")
+            counter = self._sdo_read("Step counter")
+            moving = bool(self._sdo_read("Status word") & self._moving)
         return AmplifierStatus(
             mode=MODES[mode] if mode < len(MODES) else str(mode),
-            frequency_hz=frequency_mhz / 1000, amplitude_v=amplitude_mv / 1000,
-            step_counter=counter, moving=moving, fault_word=fault_word,
-            faults=fault_names(fault_word))
+            frequency_hz=frequency_mhz / 1000,
+            amplitude_v=amplitude_mv / 1000,
+            step_counter=counter,
+            moving=moving,
+            fault_word=fault_word,
+            faults=fault_names(fault_word),
+        )
 
     @property
     def step_counter(self) -> int:
@@ -356,7 +370,7 @@ class CanopenAmplifier(Amplifier):
         if self._host_heartbeat is not None:
             if self._lost is None:
                 with contextlib.suppress(AmplifierError):
-                    self._sdo_write(0x1016, 1, 0)
+                    self._sdo_write(CONSUMER_HEARTBEAT, 0)
             self._host_heartbeat.stop()
         self._closing.set()
         if self._watchdog.is_alive():

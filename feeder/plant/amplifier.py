@@ -19,11 +19,15 @@ better) and ``firmware_sim`` (the feeder's own amplifier, the paper's 200 Vpp).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from feeder.errors import InputError
+from feeder.files import read_toml
 from feeder.waveform import Waveform
 
 
@@ -127,6 +131,11 @@ class OutputStage:
                 line = y + sign * d * np.arange(1, stop - i + 1)
                 reach = np.flatnonzero(sign * (u[i:stop] - line) <= 0)
                 m = i + int(reach[0]) if reach.size else stop
+                if m == i:  # |u − y| a rounding error above d: the first ramp sample is u itself
+                    out[i] = u[i]
+                    y = float(u[i])
+                    i += 1
+                    break
                 out[i:m] = line[: m - i]
                 y = float(out[m - 1]) if m > i else y
                 i = m
@@ -168,3 +177,65 @@ def within_rating(limits: AmplifierLimits, rating: AmplifierLimits, model: str) 
             raise InputError(name, f"{getattr(limits, name):g} {unit} is beyond the {model}'s "
                              f"rating ({value:g} {unit})")
 
+
+
+AMPLIFIER_ALIASES: dict[str, str] = {"paper": "firmware_sim"}
+"""Other names for :data:`AMPLIFIER_MODELS` (the paper's 200 Vpp amplifier is the firmware_sim rating)."""
+LIMIT_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(AmplifierLimits))
+
+
+def limits_from_table(table: Mapping[str, Any], where: str) -> AmplifierLimits:
+    """AmplifierLimits from a TOML table of its fields (``model`` optional: the base for missing ones).
+
+    ``where`` prefixes every error's field, e.g. ``"amp.toml: [amplifier]."``.
+    """
+    model = table.get("model")
+    if model is not None and not isinstance(model, str):
+        raise InputError(f"{where}model", f"must be a string, got {model!r}")
+    name = AMPLIFIER_ALIASES.get(model, model) if model else None
+    base = AMPLIFIER_MODELS.get(name, AmplifierLimits()) if name else AmplifierLimits()
+    values: dict[str, float] = {}
+    for key, value in table.items():
+        if key == "model":
+            continue
+        if key not in LIMIT_FIELDS:
+            raise InputError(f"{where}{key}", f"unknown field; known: model, {', '.join(LIMIT_FIELDS)}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"{where}{key}", f"must be a number, got {value!r}")
+        values[key] = float(value)
+    try:
+        return AmplifierLimits(**{**asdict(base), **values})
+    except InputError as err:
+        raise InputError(f"{where}{err.field}", err.message) from None
+
+
+def load_amplifier(path: Path | str) -> AmplifierLimits:
+    """Amplifier limits from a TOML file: its ``[amplifier]`` table, else its top-level keys.
+
+    A design file (``[waveform]`` + ``[amplifier]``) therefore names the
+    amplifier it was designed for.
+    """
+    path = Path(path)
+    data = read_toml(path)
+    if isinstance(data.get("amplifier"), dict):
+        return limits_from_table(data["amplifier"], f"{path}: [amplifier].")
+    if any(isinstance(v, dict) for v in data.values()):
+        raise InputError(str(path), "no [amplifier] table and not a flat table of amplifier limits")
+    return limits_from_table(data, f"{path}: ")
+
+
+def resolve_amplifier(spec: str, field: str = "--amplifier") -> tuple[str, AmplifierLimits]:
+    """(model name, limits) for a model name (:data:`AMPLIFIER_MODELS`, ``paper``) or a TOML file."""
+    name = AMPLIFIER_ALIASES.get(spec, spec)
+    if name in AMPLIFIER_MODELS:
+        return name, AMPLIFIER_MODELS[name]
+    path = Path(spec)
+    if path.suffix.lower() != ".toml" and not path.exists():
+        known = ", ".join([*AMPLIFIER_MODELS, *AMPLIFIER_ALIASES])
+        raise InputError(field, f"{spec!r} is neither a known amplifier ({known}) nor a TOML file")
+    return str(path), load_amplifier(path)
+
+
+def amplifier_table(model: str, limits: AmplifierLimits) -> dict[str, Any]:
+    """The ``[amplifier]`` table of a design file: model name and every limit."""
+    return {"model": model, **asdict(limits)}

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import control
 import numpy as np
@@ -87,8 +88,8 @@ class StackFilter:
     def __init__(self, stack: StackParameters, sample_rate_hz: float, initial_v: float = 0.0) -> None:
         self.stack = stack
         self.sample_rate_hz = sample_rate_hz
-        self._rows = _transfer_rows(stack.discrete(sample_rate_hz))
-        self._states = [_steady_state(b, a, initial_v) for b, a in self._rows]
+        self._rows, unit_states = _filter_design(stack, float(sample_rate_hz))
+        self._states = [zi * initial_v for zi in unit_states]
 
     @property
     def order(self) -> int:
@@ -119,9 +120,26 @@ class StackFilter:
         return outputs[0], outputs[1]
 
 
-def _steady_state(b: np.ndarray, a: np.ndarray, level: float) -> np.ndarray:
-    """lfilter state of a filter that has seen the constant input ``level`` forever."""
+@lru_cache(maxsize=128)
+def _filter_design(
+    stack: StackParameters, sample_rate_hz: float
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[np.ndarray]]:
+    """(b, a) per output and the lfilter state for a unit constant input, memoised.
+
+    Discretising costs ~60 ms (matrix exponential, ss2tf); a sweep or a design
+    search builds thousands of plants with the same stack and rate.  Pure
+    function of its (frozen) arguments; the arrays are read-only.
+    """
+    rows = _transfer_rows(stack.discrete(sample_rate_hz))
+    states = [_unit_steady_state(b, a) for b, a in rows]
+    for array in [*(x for row in rows for x in row), *states]:
+        array.flags.writeable = False
+    return rows, states
+
+
+def _unit_steady_state(b: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """lfilter state of a filter that has seen the constant input 1 forever."""
     n = max(len(a), len(b)) - 1
     if n == 0:
         return np.zeros(0)
-    return lfilter_zi(b, a) * level
+    return lfilter_zi(b, a)

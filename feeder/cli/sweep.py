@@ -1,0 +1,69 @@
+"""``feeder sweep``: evaluate a grid or random sample of designs × parts × surfaces × seeds on Dask."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from feeder.cli.output import print_json
+from feeder.errors import InputError
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("sweep", help="parameter sweep on Dask (local cluster or a scheduler), to Parquet")
+    p.add_argument("spec", type=Path, help="sweep spec (TOML; see docs in feeder/sweep.py, waveforms/)")
+    p.add_argument("--out", type=Path, required=True, help="results (Parquet); part files go beside it")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, help="local Dask cluster of N processes (default: cores)")
+    where.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, tcp://HOST:8786")
+    where.add_argument("--serial", action="store_true", help="in this process, no Dask")
+    p.add_argument("--plot", type=Path, nargs="?", const=True, metavar="PNG",
+                   help="standard views (step vs frequency and flyback, scatter bands); "
+                        "default path: OUT with .png")  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.workers is not None and args.workers < 1:
+        raise InputError("--workers", f"must be at least 1, got {args.workers}")
+    if args.out.suffix.lower() != ".parquet":
+        raise InputError("--out", f"expected a .parquet file, got {args.out}")
+    try:
+        from feeder.sweep import load_spec, run_sweep
+    except ImportError as err:
+        raise InputError(
+            "feeder sweep", f"needs the sweep extra (pip install 'feeder[sweep]'): {err}"
+        ) from None
+    spec = load_spec(args.spec)
+    start = time.monotonic()
+
+    def progress(done: int, total: int, cached: int) -> None:
+        width = 30
+        filled = round(width * done / total) if total else width
+        print(f"\rsweep [{'#' * filled}{'.' * (width - filled)}] {done}/{total} chunks "
+              f"({cached} already done) {time.monotonic() - start:.1f} s",
+              end="\n" if done == total else "", file=sys.stderr, flush=True)  # fmt: skip
+
+    report = run_sweep(spec, args.out, workers=args.workers, scheduler=args.scheduler,
+                       serial=args.serial, progress=progress)  # fmt: skip
+    out: dict[str, Any] = {"path": str(report.path), "points": report.points, "chunks": report.chunks,
+                           "chunks_computed": report.computed, "chunks_cached": report.cached,
+                           "elapsed_s": time.monotonic() - start}  # fmt: skip
+    if args.plot:
+        from feeder.sweep import plot_sweep
+
+        png = args.out.with_suffix(".png") if args.plot is True else args.plot
+        plot_sweep(report.path, png)
+        out["plot"] = str(png)
+    if args.json:
+        print_json(out)
+    else:
+        print(f"{report.points} points in {report.chunks} chunks ({report.computed} computed, "
+              f"{report.cached} already done) → {report.path}")  # fmt: skip
+        if "plot" in out:
+            print(f"plot → {out['plot']}")
+    return 0

@@ -1,0 +1,482 @@
+"""Parameter sweeps of waveform × part × surface × scatter seed, serial or on Dask, resumable.
+
+Spec (TOML)::
+
+    [sweep]
+    model = "plant"             # full plant (amplifier, stack, exact stick-slip) or "ideal" (ideal plate)
+    periods = 5                 # steps per point (plant: after a lead-in rise)
+    amplifier = "firmware_sim"  # a model name (anc300, paper) or a TOML file of amplifier limits
+    sample = "grid"             # every combination, or "random": `points` draws with `seed`
+    chunk_size = 50             # points per task and per Parquet part file
+    # points = 2000
+    # seed = 1
+
+    [parameters]                # a list: the values (grid) or the choices (random)
+    frequency_hz = {min = 50.0, max = 1000.0, num = 8, log = true}   # a range: num values (grid)
+    amplitude_vpp = [100.0, 150.0, 200.0]                            # or uniform/log-uniform draws
+    flyback_shape = ["current-limited", "linear"]
+    flyback_s = [2e-4]          # for linear / half-cosine (ignored for current-limited)
+    part = ["300x300x50", "500x500x50"]
+    support = ["flat"]
+    surface = ["embedded"]      # or paths of surface TOML files
+    tau_pa = [22.18e9]
+    kinetic_ratio = [0.8]
+    scatter = [0.0, 0.05]       # relative per-stick scatter of a_s (plant model)
+    seed = [0, 1, 2]            # scatter seed
+
+Parameters left out take the defaults above.  Every point is one row of the
+result, with every input column and ``point`` (its index), ``breakaway_accel_m_s2``,
+``step_mean_m``, ``step_std_m``, ``speed_m_s``, ``slip_fraction`` and ``error``
+(empty, or why the point could not run, e.g. a flyback longer than the rise).
+
+Resuming: the points are cut into chunks in order; each chunk is a Parquet
+part file in ``<out>.parts/`` named by a hash of its inputs and the settings, so
+a restarted sweep recomputes only the chunks without a part file.  The result
+is the parts concatenated in point order, written atomically.  Every point's
+computation depends only on its own row (seeded), so a Dask run and a serial
+run give identical numbers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import logging
+import math
+import os
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from feeder.contact.breakaway import DEFAULT_TAU_PA, contact
+from feeder.errors import FeederError, InputError
+from feeder.files import read_toml
+from feeder.parts import Part, Support
+from feeder.plant.amplifier import AmplifierLimits, resolve_amplifier
+from feeder.plant.ideal_plate import sawtooth_motion
+from feeder.plant.plant import run_waveform
+from feeder.plant.stack import StackParameters
+from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, simulate_batch
+from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters, load_surface
+from feeder.waveform import FLYBACK_SHAPES, Waveform
+
+log = logging.getLogger(__name__)
+
+MODELS = ("plant", "ideal")
+DEFAULTS: dict[str, Any] = {
+    "frequency_hz": 100.0,
+    "amplitude_vpp": 200.0,
+    "flyback_shape": "current-limited",
+    "flyback_s": 2e-4,
+    "part": "500x500x50",
+    "support": "flat",
+    "surface": "embedded",
+    "tau_pa": DEFAULT_TAU_PA,
+    "kinetic_ratio": DEFAULT_KINETIC_RATIO,
+    "scatter": 0.0,
+    "seed": 0,
+}
+"""The input columns and their values when a spec leaves them out."""
+_TEXT = ("flyback_shape", "part", "support", "surface")
+_INTEGER = ("seed",)
+OUTPUTS = ("breakaway_accel_m_s2", "step_mean_m", "step_std_m", "speed_m_s", "slip_fraction", "error")
+
+
+@dataclass(frozen=True)
+class SweepSettings:
+    """How every point is evaluated (the same for all points of a sweep)."""
+
+    model: str = "plant"
+    periods: int = 5
+    amplifier_model: str = "firmware_sim"
+    amplifier: AmplifierLimits = field(default_factory=AmplifierLimits)
+    stack: StackParameters = field(default_factory=StackParameters)
+
+    def key(self) -> str:
+        """Canonical JSON of the settings (part of every chunk's hash)."""
+        return json.dumps({"model": self.model, "periods": self.periods,
+                           "amplifier": asdict(self.amplifier), "stack": asdict(self.stack)},
+                          sort_keys=True)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A parsed spec: settings, the points (one dict of inputs per point) and the chunk size."""
+
+    settings: SweepSettings
+    points: list[dict[str, Any]]
+    chunk_size: int
+
+    def chunks(self) -> list[list[dict[str, Any]]]:
+        n = self.chunk_size
+        return [self.points[i : i + n] for i in range(0, len(self.points), n)]
+
+
+def chunk_key(settings: SweepSettings, rows: list[dict[str, Any]]) -> str:
+    """Hash of a chunk's inputs and settings: its part file's name."""
+    text = settings.key() + json.dumps(rows, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def _values(name: str, value: Any, where: str, grid: bool) -> list[Any] | dict[str, float]:
+    """A parameter's values (grid) or, for random sampling, a range table as-is."""
+    if isinstance(value, list):
+        if not value:
+            raise InputError(where, "an empty list")
+        return value
+    if isinstance(value, dict):
+        if name in _TEXT or name in _INTEGER:
+            raise InputError(where, "takes a list of values, not a range")
+        unknown = set(value) - {"min", "max", "num", "log"}
+        if unknown or "min" not in value or "max" not in value:
+            raise InputError(where, "a range is {min = …, max = …, num = … (grid), log = true|false}")
+        lo, hi, log_scale = float(value["min"]), float(value["max"]), bool(value.get("log", False))
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi) or (log_scale and lo <= 0):
+            raise InputError(where, f"needs finite min ≤ max (> 0 on a log scale), got {value!r}")
+        if not grid:
+            return {"min": lo, "max": hi, "log": float(log_scale)}
+        num = value.get("num")
+        if not isinstance(num, int) or isinstance(num, bool) or num < 1:
+            raise InputError(f"{where}.num", f"a grid range needs an integer num ≥ 1, got {num!r}")
+        space = np.geomspace if log_scale else np.linspace
+        return [float(v) for v in space(lo, hi, num)]
+    return [value]
+
+
+def _check(name: str, value: Any, where: str) -> Any:
+    if name in _TEXT:
+        if not isinstance(value, str):
+            raise InputError(where, f"must be a string, got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(where, f"must be a number, got {value!r}")
+    if name in _INTEGER:
+        if int(value) != value:
+            raise InputError(where, f"must be an integer, got {value!r}")
+        return int(value)
+    return float(value)
+
+
+def load_spec(path: Path | str) -> SweepSpec:
+    """Read and expand a sweep spec; every problem is an :class:`InputError` naming file and field."""
+    path = Path(path)
+    data = read_toml(path)
+    unknown = set(data) - {"sweep", "parameters"}
+    if unknown:
+        raise InputError(f"{path}: [{sorted(unknown)[0]}]", "unknown table; known: [sweep], [parameters]")
+    head = data.get("sweep", {})
+    params = data.get("parameters", {})
+    if not isinstance(head, dict) or not isinstance(params, dict):
+        raise InputError(str(path), "[sweep] and [parameters] must be tables")
+    known = {"model", "periods", "amplifier", "sample", "chunk_size", "points", "seed"}
+    for key in head:
+        if key not in known:
+            raise InputError(f"{path}: [sweep].{key}", f"unknown field; known: {', '.join(sorted(known))}")
+    model = head.get("model", "plant")
+    if model not in MODELS:
+        raise InputError(f"{path}: [sweep].model", f"expected one of {', '.join(MODELS)}, got {model!r}")
+    periods = head.get("periods", 5)
+    if not isinstance(periods, int) or isinstance(periods, bool) or periods < 1:
+        raise InputError(f"{path}: [sweep].periods", f"must be an integer ≥ 1, got {periods!r}")
+    chunk_size = head.get("chunk_size", 50)
+    if not isinstance(chunk_size, int) or isinstance(chunk_size, bool) or chunk_size < 1:
+        raise InputError(f"{path}: [sweep].chunk_size", f"must be an integer ≥ 1, got {chunk_size!r}")
+    amp_spec = head.get("amplifier", "firmware_sim")
+    if not isinstance(amp_spec, str):
+        raise InputError(f"{path}: [sweep].amplifier", f"must be a string, got {amp_spec!r}")
+    if amp_spec not in ("anc300", "firmware_sim", "paper") and not Path(amp_spec).is_absolute():
+        amp_spec = str(path.parent / amp_spec)
+    amp_model, amplifier = resolve_amplifier(amp_spec, f"{path}: [sweep].amplifier")
+    settings = SweepSettings(model, periods, amp_model, amplifier)
+    sample = head.get("sample", "grid")
+    if sample not in ("grid", "random"):
+        raise InputError(f"{path}: [sweep].sample", f"expected grid or random, got {sample!r}")
+    for key in params:
+        if key not in DEFAULTS:
+            raise InputError(
+                f"{path}: [parameters].{key}", f"unknown parameter; known: {', '.join(DEFAULTS)}"
+            )
+    grid = sample == "grid"
+    axes = {name: _values(name, params.get(name, DEFAULTS[name]), f"{path}: [parameters].{name}", grid)
+            for name in DEFAULTS}  # fmt: skip
+    for name, values in axes.items():
+        if isinstance(values, list):
+            axes[name] = [_check(name, v, f"{path}: [parameters].{name}") for v in values]
+    if grid:
+        lists = [axes[name] for name in DEFAULTS]
+        points = [dict(zip(DEFAULTS, combo, strict=True)) for combo in itertools.product(*lists)]
+    else:
+        count = head.get("points")
+        if not isinstance(count, int) or isinstance(count, bool) or count < 1:
+            raise InputError(
+                f"{path}: [sweep].points", f"random sampling needs an integer ≥ 1, got {count!r}"
+            )
+        seed = head.get("seed", 0)
+        if not isinstance(seed, int) or isinstance(seed, bool):
+            raise InputError(f"{path}: [sweep].seed", f"must be an integer, got {seed!r}")
+        points = _random_points(axes, count, seed)
+    _check_text_values(points, path)
+    return SweepSpec(settings, points, chunk_size)
+
+
+def _random_points(axes: dict[str, Any], count: int, seed: int) -> list[dict[str, Any]]:
+    rng = np.random.default_rng(seed)
+    columns: dict[str, list[Any]] = {}
+    for name, values in axes.items():
+        if isinstance(values, dict):
+            lo, hi = values["min"], values["max"]
+            if values["log"]:
+                draws = np.exp(rng.uniform(math.log(lo), math.log(hi), count))
+            else:
+                draws = rng.uniform(lo, hi, count)
+            columns[name] = [float(v) for v in draws]
+        else:
+            picks = rng.integers(0, len(values), count)
+            columns[name] = [values[int(k)] for k in picks]
+    return [{name: columns[name][i] for name in axes} for i in range(count)]
+
+
+def _check_text_values(points: list[dict[str, Any]], path: Path) -> None:
+    for name, check in (("flyback_shape", lambda v: v in FLYBACK_SHAPES), ("part", _part_ok),
+                        ("support", lambda v: v in Support.KINDS)):  # fmt: skip
+        for value in {p[name] for p in points}:
+            if not check(value):
+                raise InputError(f"{path}: [parameters].{name}", f"bad value {value!r}")
+    for value in {p["surface"] for p in points}:
+        if value != "embedded":
+            load_surface(Path(value))  # InputError naming the file if it does not load
+
+
+def _part_ok(text: str) -> bool:
+    try:
+        Part.parse(text)
+    except InputError:
+        return False
+    return True
+
+
+def _surface(label: str) -> SurfaceParameters:
+    return DEFAULT_SURFACE if label == "embedded" else load_surface(Path(label))
+
+
+def _waveform(row: dict[str, Any]) -> Waveform:
+    shape = row["flyback_shape"]
+    flyback = None if shape == "current-limited" else row["flyback_s"]
+    return Waveform(frequency_hz=row["frequency_hz"], amplitude_vpp=row["amplitude_vpp"],
+                    flyback_shape=shape, flyback_s=flyback)  # fmt: skip
+
+
+def evaluate_chunk(settings: SweepSettings, rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """Evaluate one chunk: the input rows with the output columns (runs on a Dask worker)."""
+    accel_cache: dict[tuple[Any, ...], float] = {}
+    results: list[dict[str, Any]] = [dict(row) for row in rows]
+    for out in results:
+        out.update({name: math.nan for name in OUTPUTS})
+        out["error"] = ""
+        try:
+            key = (out["part"], out["support"], out["surface"], out["tau_pa"])
+            if key not in accel_cache:
+                result = contact(Part.parse(out["part"]), Support.parse(out["support"]),
+                                 _surface(out["surface"]), out["tau_pa"])  # fmt: skip
+                accel_cache[key] = result.breakaway_accel_m_s2
+            out["breakaway_accel_m_s2"] = accel_cache[key]
+            settings.amplifier.check(_waveform(out))
+            if settings.model == "ideal" and out["scatter"] > 0:
+                raise InputError("scatter", 'the ideal model has no scatter (use model = "plant")')
+        except FeederError as err:
+            out["error"] = str(err)
+    if settings.model == "plant":
+        for out in results:
+            if not out["error"]:
+                try:
+                    _plant_point(settings, out)
+                except FeederError as err:
+                    out["error"] = str(err)
+    else:
+        _ideal_points(settings, [out for out in results if not out["error"]])
+    for out in results:
+        out["speed_m_s"] = out["step_mean_m"] * out["frequency_hz"]
+    return pd.DataFrame(results, columns=[*rows[0].keys(), *OUTPUTS])
+
+
+def _plant_point(settings: SweepSettings, out: dict[str, Any]) -> None:
+    friction = Friction(out["breakaway_accel_m_s2"], out["kinetic_ratio"])
+    run = run_waveform(friction, _waveform(out), settings.periods, settings.amplifier, settings.stack,
+                       scatter=out["scatter"], seed=out["seed"])  # fmt: skip
+    out["step_mean_m"] = float(np.mean(run.steps_m))
+    out["step_std_m"] = float(np.std(run.steps_m, ddof=1)) if run.steps_m.size > 1 else 0.0
+    out["slip_fraction"] = run.slip_fraction
+
+
+def _ideal_points(settings: SweepSettings, rows: list[dict[str, Any]]) -> None:
+    """Ideal plate (no amplifier dynamics, no scatter), all rows of a flyback shape at once."""
+    stack = settings.stack
+    for shape in ("linear", "half-cosine"):
+        group = [r for r in rows if r["flyback_shape"] == shape or
+                 (shape == "linear" and r["flyback_shape"] == "current-limited")]  # fmt: skip
+        if not group:
+            continue
+        volts = np.array([r["amplitude_vpp"] for r in group])
+        freq = np.array([r["frequency_hz"] for r in group])
+        t_f = np.array([r["flyback_s"] for r in group])
+        stroke = stack.gain_m_per_v * volts
+        limited = np.array([r["flyback_shape"] == "current-limited" for r in group])
+        if limited.any():  # the current limit sets a linear flyback over part of the swing
+            t_cl, fraction = settings.amplifier.current_limited_flyback(volts, freq, stack.capacitance_f)
+            t_f = np.where(limited, t_cl, t_f)
+            stroke = np.where(limited, stroke * fraction, stroke)
+        motion = sawtooth_motion(stroke, freq, t_f, shape, settings.periods)
+        a_s = np.array([r["breakaway_accel_m_s2"] for r in group])
+        ratio = np.array([r["kinetic_ratio"] for r in group])
+        rel, slip = simulate_batch(motion.accel_m_s2, motion.duration_s, motion.jump_m_s, a_s, ratio)
+        per = motion.intervals_per_period
+        steps = np.diff(np.concatenate([np.zeros((len(group), 1)), rel[:, per - 1 :: per]], axis=1), axis=1)
+        for k, r in enumerate(group):
+            r["step_mean_m"] = float(steps[k].mean())
+            r["step_std_m"] = float(steps[k].std(ddof=1)) if steps.shape[1] > 1 else 0.0
+            r["slip_fraction"] = float(slip[k] * freq[k] / settings.periods)
+
+
+def _write_parquet(frame: pd.DataFrame, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    frame.to_parquet(tmp, index=False)
+    tmp.replace(path)
+
+
+def parts_dir(out: Path) -> Path:
+    """Where the chunk part files of ``out`` live."""
+    return out.with_name(out.name + ".parts")
+
+
+@dataclass(frozen=True)
+class SweepReport:
+    """What a run did: points, chunks, how many were computed now and how many were already done."""
+
+    points: int
+    chunks: int
+    computed: int
+    cached: int
+    path: Path
+
+
+def run_sweep(
+    spec: SweepSpec,
+    out: Path | str,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    serial: bool = False,
+    progress: Callable[[int, int, int], None] | None = None,
+) -> SweepReport:
+    """Evaluate every chunk without a part file, then write ``out`` (Parquet, point order).
+
+    serial: in this process; scheduler: an existing Dask scheduler's address
+    (``tcp://host:8786``); otherwise a local Dask cluster of ``workers``
+    processes (default: one per core) bound to 127.0.0.1.
+    progress(done, total, cached) is called as chunks finish.
+    """
+    out = Path(out)
+    folder = parts_dir(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    chunks = spec.chunks()
+    offsets = np.cumsum([0] + [len(c) for c in chunks])
+    keys = [chunk_key(spec.settings, rows) for rows in chunks]
+    files = [folder / f"chunk-{key}.parquet" for key in keys]
+    todo = [i for i, f in enumerate(files) if not f.exists()]
+    cached = len(chunks) - len(todo)
+    say = progress or (lambda done, total, skipped: None)
+    say(cached, len(chunks), cached)
+    done = cached
+    for index, frame in _evaluate(spec.settings, [chunks[i] for i in todo], todo, workers, scheduler, serial):
+        frame.insert(0, "point", np.arange(offsets[index], offsets[index + 1]))
+        _write_parquet(frame, files[index])
+        done += 1
+        say(done, len(chunks), cached)
+    result = pd.concat([pd.read_parquet(f) for f in files], ignore_index=True)
+    _write_parquet(result, out)
+    return SweepReport(len(spec.points), len(chunks), len(todo), cached, out)
+
+
+def _evaluate(
+    settings: SweepSettings,
+    chunks: list[list[dict[str, Any]]],
+    indices: list[int],
+    workers: int | None,
+    scheduler: str | None,
+    serial: bool,
+) -> Iterator[tuple[int, pd.DataFrame]]:
+    """(chunk index, frame) as each chunk finishes (in any order on Dask)."""
+    if serial or not chunks:
+        for index, rows in zip(indices, chunks, strict=True):
+            yield index, evaluate_chunk(settings, rows)
+        return
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    if scheduler:
+        client = Client(scheduler)
+        cluster = None
+    else:
+        n = workers or os.cpu_count() or 1
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=None)  # fmt: skip
+        client = Client(cluster)
+    try:
+        futures = {client.submit(evaluate_chunk, settings, rows, pure=False): index
+                   for index, rows in zip(indices, chunks, strict=True)}  # fmt: skip
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def plot_sweep(results: Path | str, png: Path | str) -> None:
+    """Standard views of a result file: step vs frequency, vs flyback, and the scatter bands."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from feeder.files import save_figure
+
+    frame = pd.read_parquet(results)
+    ok = frame[frame["error"] == ""]
+    um = 1e6
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    ax = axes[0]
+    for shape, group in ok.groupby("flyback_shape"):
+        ax.scatter(group["frequency_hz"], group["step_mean_m"] * um, s=8, alpha=0.6, label=str(shape))
+    ax.set_xscale("log")
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("mean step (µm)")
+    ax.set_title("step vs frequency", fontsize=9)
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    commanded = ok[ok["flyback_shape"] != "current-limited"]
+    if len(commanded):
+        points = ax.scatter(commanded["flyback_s"] * 1e3, commanded["step_mean_m"] * um, s=8,
+                            c=commanded["amplitude_vpp"], cmap="viridis")  # fmt: skip
+        fig.colorbar(points, ax=ax, label="amplitude (Vpp)")
+    ax.set_xlabel("commanded flyback (ms)")
+    ax.set_ylabel("mean step (µm)")
+    ax.set_title("step vs flyback (linear, half-cosine)", fontsize=9)
+    ax = axes[2]
+    seeds = ok.groupby(["scatter", "frequency_hz"])["step_mean_m"].agg(["mean", "std", "min", "max"])
+    for scatter, band in seeds.groupby(level=0):
+        f = band.index.get_level_values(1)
+        ax.plot(f, band["mean"] * um, label=f"scatter {scatter:g}")
+        ax.fill_between(f, band["min"] * um, band["max"] * um, alpha=0.25)
+    ax.set_xscale("log")
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("mean step (µm), band: min–max over the rest")
+    ax.set_title("scatter bands", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.suptitle(f"{Path(results).name}: {len(ok)} points ({len(frame) - len(ok)} could not run)")
+    fig.tight_layout()
+    save_figure(fig, Path(png))
