@@ -50,7 +50,7 @@ def _jit(func: Callable[..., Any]) -> Callable[..., Any]:
 
 
 @_jit
-def _contact(stuck: bool, w: float, s: float, slip: float, a_s: float, k: int, acc: float, h: float,
+def contact_interval(stuck: bool, w: float, s: float, slip: float, a_s: float, k: int, acc: float, h: float,
              jump: float, nominal: float, ratio: float, scatter: float,
              normals: np.ndarray) -> tuple[bool, float, float, float, float, int]:  # fmt: skip
     """One interval of constant plate acceleration (:func:`.stick_slip.advance_interval`).
@@ -106,7 +106,7 @@ def stick_slip_run(st: np.ndarray, accel: np.ndarray, dts: np.ndarray, jumps: np
     while i < n:
         if scatter > 0.0 and k >= normals.size:
             break
-        stuck, w, s, slip, a_s, k = _contact(stuck, w, s, slip, a_s, k, accel[i], dts[i], jumps[i],
+        stuck, w, s, slip, a_s, k = contact_interval(stuck, w, s, slip, a_s, k, accel[i], dts[i], jumps[i],
                                              nominal, ratio, scatter, normals)  # fmt: skip
         out[i] = s
         i += 1
@@ -152,7 +152,7 @@ def plant_run(command: np.ndarray, coef: np.ndarray, z: np.ndarray, plate: np.nd
         q0 = vb1 * y + q1 - va1 * v
         q1 = vb2 * y + q2 - va2 * v
         q2 = vb3 * y - va3 * v
-        stuck, w, s, slip, a_s, k = _contact(stuck, w, s, slip, a_s, k, (v - v_prev) * rate, h, 0.0,
+        stuck, w, s, slip, a_s, k = contact_interval(stuck, w, s, slip, a_s, k, (v - v_prev) * rate, h, 0.0,
                                              nominal, ratio, scatter, normals)  # fmt: skip
         part_out[i] = x + s
         plate_out[i] = x
