@@ -103,3 +103,12 @@ def test_switch_off_selects_numpy() -> None:
         assert kernels.enabled()
     finally:
         kernels.use_compiled(before)
+
+
+def test_rectangle_integrals_compiled_equal_plain_python() -> None:
+    rng = np.random.default_rng(5)
+    for wx, wy, omega in rng.normal(0, 1, (50, 3)) * [1e-3, 1e-3, 5.0]:
+        fast = kernels.rectangle_integrals(wx, wy, omega, 150e-6, 100e-6)
+        slow = kernels.rectangle_integrals.py_func(wx, wy, omega, 150e-6, 100e-6)
+        np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=0)
+        assert fast[3] > 0  # dissipated power
