@@ -10,9 +10,13 @@ all lines end in CRLF; numbers are plain fixed point.
 
 from __future__ import annotations
 
+import hmac
 import math
 import re
+import threading
+import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from feeder.protocol.anc300 import (
@@ -32,6 +36,12 @@ GREETING = "attocube ANC300 compatible controller (firmware_sim)"
 VERSION_LINES = ("attocube ANC300 controller version 1.1.0 compatible (firmware_sim 0.1.0)",)
 MAX_LINE = 4096
 MAX_LOGIN_ATTEMPTS = 3
+MIN_LOGIN_INTERVAL_S = 0.2
+"""Password tries from one source are evaluated at least this far apart (≤ 5 tries/s) ..."""
+MAX_LOGIN_INTERVAL_S = 1.0
+"""... and the spacing doubles with every failed try, up to this."""
+FORGET_FAILURES_S = 60.0
+"""A source with no try for this long starts afresh."""
 INTEGER = re.compile(r"[+-]?[0-9]{1,12}")
 
 TrueStepSource = Callable[[Axis], "TrueStep | None"]
@@ -52,6 +62,71 @@ class ConsoleError(Exception):
     """A malformed command line; ``str()`` is the error line."""
 
 
+@dataclass
+class _Source:
+    failures: int = 0        # consecutive failed tries
+    next_free_s: float = 0.0  # monotonic time the next try may be evaluated
+    last_s: float = 0.0       # monotonic time of the last try
+
+
+class LoginThrottle:
+    """Paces password tries per source (the peer's address, or ``pty``), across connections.
+
+    Each try reserves the source's next slot: tries are evaluated in arrival
+    order, at least ``MIN_LOGIN_INTERVAL_S`` apart, and the spacing doubles
+    with each consecutive failure up to ``MAX_LOGIN_INTERVAL_S``; a correct
+    password resets it.  Reconnecting does not help: the state is per source,
+    not per connection.  :meth:`attempt` sleeps in the caller's thread (each
+    connection has its own), so one source's penalty never delays another
+    session or the firmware's tick.
+    """
+
+    def __init__(self, min_interval_s: float = MIN_LOGIN_INTERVAL_S,
+                 max_interval_s: float = MAX_LOGIN_INTERVAL_S,
+                 forget_s: float = FORGET_FAILURES_S) -> None:
+        self.min_interval_s = min_interval_s
+        self.max_interval_s = max_interval_s
+        self.forget_s = forget_s
+        self._lock = threading.Lock()
+        self._sources: dict[str, _Source] = {}
+
+    def interval_s(self, failures: int) -> float:
+        """Spacing of tries after ``failures`` consecutive failed ones, s."""
+        return min(self.min_interval_s * 2.0 ** min(failures, 32), self.max_interval_s)
+
+    def attempt(self, source: str, check: Callable[[], bool]) -> bool:
+        """Wait for ``source``'s next slot, then run ``check`` (is the password right?)."""
+        delay = self._reserve(source) - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        ok = check()
+        with self._lock:
+            state = self._sources.setdefault(source, _Source())
+            now = time.monotonic()
+            if ok:
+                state.failures = 0
+            else:
+                state.failures += 1
+                state.next_free_s = max(state.next_free_s, now + self.interval_s(state.failures))
+        return ok
+
+    def _reserve(self, source: str) -> float:
+        with self._lock:
+            now = time.monotonic()
+            self._forget(now)
+            state = self._sources.setdefault(source, _Source())
+            at = max(now, state.next_free_s)
+            state.next_free_s = at + self.interval_s(state.failures)
+            state.last_s = at
+            return at
+
+    def _forget(self, now: float) -> None:
+        stale = [s for s, state in self._sources.items()
+                 if now - max(state.last_s, state.next_free_s) > self.forget_s]
+        for source in stale:
+            del self._sources[source]
+
+
 class ConsoleSession:
     """One connection's console.
 
@@ -63,11 +138,14 @@ class ConsoleSession:
     dialect: ``anc300`` answers only a real ANC300's verbs (every extension gets
         its error reply, ``Unknown command``); ``extended`` adds the extensions
         (:data:`feeder.protocol.anc300.VERBS`).
+    throttle, source: password tries are paced by ``throttle`` under the name
+        ``source`` (the peer's address); ``None`` = unpaced (tests).
     """
 
     def __init__(self, firmware: Firmware, password: str | None = None,
                  true_step: TrueStepSource | None = None, max_line: int = MAX_LINE,
-                 wait_timeout_s: float = 600.0, dialect: str = "extended") -> None:
+                 wait_timeout_s: float = 600.0, dialect: str = "extended",
+                 throttle: LoginThrottle | None = None, source: str = "local") -> None:
         self.firmware = firmware
         self.verbs = verbs_of(dialect)
         self.password = password
@@ -77,7 +155,9 @@ class ConsoleSession:
         self.echo = True
         self.logged_in = password is None
         self.closed = False
-        self._failed_logins = 0
+        self.throttle = throttle
+        self.source = source
+        self.failed_logins = 0
         self._buffer = bytearray()
         self._discarding = False
         self._skip_lf = False
@@ -142,14 +222,23 @@ class ConsoleSession:
 
     def _login(self, text: str) -> str:
         masked = "*" * len(text) + CRLF
-        if text == self.password:
+        if self._password_ok(text):
             self.logged_in = True
             return masked + "Authorization success" + CRLF
-        self._failed_logins += 1
-        if self._failed_logins >= MAX_LOGIN_ATTEMPTS:
+        self.failed_logins += 1
+        if self.failed_logins >= MAX_LOGIN_ATTEMPTS:
             self.closed = True
             return masked + "Authorization failed" + CRLF
         return masked + "Authorization failed" + CRLF + "Authorization code: "
+
+    def _password_ok(self, text: str) -> bool:
+        assert self.password is not None
+        expected = self.password.encode()
+
+        def check() -> bool:  # constant time: the reply's timing tells nothing
+            return hmac.compare_digest(text.encode(), expected)
+
+        return check() if self.throttle is None else self.throttle.attempt(self.source, check)
 
     # -- interpreter ----------------------------------------------------------
 

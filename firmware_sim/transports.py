@@ -13,20 +13,34 @@ import contextlib
 import os
 import select
 import socket
-import socketserver
 import termios
 import threading
 import time
 import tty
+from collections import deque
 from collections.abc import Callable
 
 from firmware_sim.console import ConsoleSession
 
 LOCALHOST = "127.0.0.1"
 MAX_CONSOLE_CLIENTS = 32
+"""Logged-in console sessions at once."""
+MAX_PENDING_LOGINS = 4
+"""Console connections still at the password prompt; a new one evicts the longest-waiting
+one that is not having a password checked, or is refused if there is none."""
+LOGIN_TIMEOUT_S = 5.0
+"""A connection at the password prompt that sends no password line for this long is closed."""
 HANGUP_POLL_S = 0.005
+MAX_SENSOR_CLIENTS = 16
+SENSOR_BACKLOG_BYTES = 64 * 1024
+"""A camera client more than this far behind is disconnected."""
+SENSOR_SEND_TIMEOUT_S = 2.0
+"""A camera client that takes no data for this long while data waits for it is disconnected."""
+SENSOR_SEND_BUFFER_BYTES = 32 * 1024
+POLL_S = 0.1
 
-SessionFactory = Callable[[], ConsoleSession]
+SessionFactory = Callable[[str], ConsoleSession]
+"""Makes a console session for a connection from a source (the peer's address, or ``pty``)."""
 
 
 def check_local(host: str) -> None:
@@ -35,20 +49,102 @@ def check_local(host: str) -> None:
         raise ValueError(f"refusing to bind {host!r}: only {LOCALHOST} is allowed")
 
 
-class _ConsoleHandler(socketserver.BaseRequestHandler):
-    server: _ConsoleTcpServer
+class _Connection:
+    """One console connection and its session (state read by the accept thread)."""
 
-    def handle(self) -> None:
-        sock: socket.socket = self.request
-        with self.server.count_lock:
-            full = self.server.clients >= MAX_CONSOLE_CLIENTS
-            if not full:
-                self.server.clients += 1
-        if full:
-            return
+    def __init__(self, sock: socket.socket, session: ConsoleSession) -> None:
+        self.sock = sock
+        self.session = session
+        self.waiting_since = time.monotonic()  # at the prompt since (connect or last try)
+        self.checking = False                  # a password line is being evaluated
+
+    def evict(self) -> None:
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)  # its thread's recv() returns b""
+
+
+class TcpConsoleServer:
+    """The console on ``host:port`` (port 0 picks a free one; see :attr:`port`).
+
+    One thread per connection.  Denial of service from the same machine is
+    bounded: connections at the password prompt have their own cap
+    (``max_pending``, the longest-waiting idle one makes room for a new one)
+    and a login timeout, so idle connections cannot lock out an operator who
+    has the password; logged-in sessions have a separate cap.  Password tries
+    are paced per source by the sessions' :class:`~firmware_sim.console.LoginThrottle`.
+    """
+
+    def __init__(self, host: str, port: int, session_factory: SessionFactory, *,
+                 max_pending: int = MAX_PENDING_LOGINS, max_sessions: int = MAX_CONSOLE_CLIENTS,
+                 login_timeout_s: float = LOGIN_TIMEOUT_S) -> None:
+        check_local(host)
+        self._factory = session_factory
+        self.max_pending = max_pending
+        self.max_sessions = max_sessions
+        self.login_timeout_s = login_timeout_s
+        self._listener = socket.create_server((host, port), backlog=2 * (max_pending + 8))
+        self.host, self.port = self._listener.getsockname()[:2]
+        self._lock = threading.Lock()
+        self._pending: list[_Connection] = []
+        self._sessions: list[_Connection] = []
+        self._thread = threading.Thread(target=self._accept, name="console-tcp", daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        return f"socket://{self.host}:{self.port}"
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                sock, peer = self._listener.accept()
+            except OSError:
+                return  # closed
+            conn = _Connection(sock, self._factory(str(peer[0])))
+            if conn.session.logged_in:  # no password asked
+                admitted = self._admit(conn, self._sessions, self.max_sessions, evict=False)
+            else:
+                admitted = self._admit(conn, self._pending, self.max_pending, evict=True)
+            if not admitted:
+                with contextlib.suppress(OSError):
+                    sock.sendall(b"Too many connections\r\n")
+                sock.close()
+                continue
+            threading.Thread(target=self._serve, args=(conn,), name="console-tcp-client",
+                             daemon=True).start()
+
+    def _admit(self, conn: _Connection, group: list[_Connection], cap: int,
+               evict: bool) -> bool:
+        with self._lock:
+            if len(group) >= cap:
+                idle = [c for c in group if not c.checking]
+                if not (evict and idle):
+                    return False
+                oldest = min(idle, key=lambda c: c.waiting_since)
+                group.remove(oldest)
+                oldest.evict()
+            group.append(conn)
+            return True
+
+    def _serve(self, conn: _Connection) -> None:
+        sock, session = conn.sock, conn.session
         try:
-            session = self.server.session_factory()
             sock.sendall(session.greeting())
+            while not session.logged_in and not session.closed:
+                if not self._login_step(conn):
+                    return
+            if session.closed:
+                return
+            sock.settimeout(None)
+            with self._lock:
+                if conn in self._pending:
+                    self._pending.remove(conn)
+                full = conn not in self._sessions and len(self._sessions) >= self.max_sessions
+                if not full and conn not in self._sessions:
+                    self._sessions.append(conn)
+            if full:
+                sock.sendall(b"Too many sessions\r\n")
+                return
             while not session.closed:
                 data = sock.recv(4096)
                 if not data:
@@ -57,43 +153,46 @@ class _ConsoleHandler(socketserver.BaseRequestHandler):
                 if reply:
                     sock.sendall(reply)
         except OSError:
-            pass  # the client went away mid-line or mid-reply
+            pass  # the client went away mid-line or mid-reply, or was evicted
         finally:
-            with self.server.count_lock:
-                self.server.clients -= 1
+            with self._lock:
+                for group in (self._pending, self._sessions):
+                    if conn in group:
+                        group.remove(conn)
+            sock.close()
 
-
-class _ConsoleTcpServer(socketserver.ThreadingTCPServer):
-    daemon_threads = True
-    allow_reuse_address = True
-    request_queue_size = 2 * MAX_CONSOLE_CLIENTS
-
-    def __init__(self, address: tuple[str, int], session_factory: SessionFactory) -> None:
-        self.session_factory = session_factory
-        self.count_lock = threading.Lock()
-        self.clients = 0
-        super().__init__(address, _ConsoleHandler)
-
-
-class TcpConsoleServer:
-    """The console on ``host:port`` (port 0 picks a free one; see :attr:`port`)."""
-
-    def __init__(self, host: str, port: int, session_factory: SessionFactory) -> None:
-        check_local(host)
-        self._server = _ConsoleTcpServer((host, port), session_factory)
-        self.host, self.port = self._server.socket.getsockname()[:2]
-        self._thread = threading.Thread(target=self._server.serve_forever,
-                                        kwargs={"poll_interval": 0.1},
-                                        name="console-tcp", daemon=True)
-        self._thread.start()
-
-    @property
-    def url(self) -> str:
-        return f"socket://{self.host}:{self.port}"
+    def _login_step(self, conn: _Connection) -> bool:
+        """Read and answer at the password prompt; False when the connection must end."""
+        remaining = conn.waiting_since + self.login_timeout_s - time.monotonic()
+        if remaining <= 0:
+            conn.sock.sendall(b"\r\nAuthorization timeout\r\n")
+            return False
+        conn.sock.settimeout(remaining)
+        try:
+            data = conn.sock.recv(4096)
+        except TimeoutError:
+            return True  # the next step reports the timeout
+        if not data:
+            return False
+        failed = conn.session.failed_logins
+        conn.checking = b"\n" in data or b"\r" in data
+        try:
+            reply = conn.session.feed(data)
+        finally:
+            conn.checking = False
+        if conn.session.failed_logins != failed:
+            conn.waiting_since = time.monotonic()
+        if reply:
+            conn.sock.sendall(reply)
+        return True
 
     def close(self) -> None:
-        self._server.shutdown()
-        self._server.server_close()
+        with contextlib.suppress(OSError):
+            self._listener.shutdown(socket.SHUT_RDWR)  # wakes the accept() in its thread
+        self._listener.close()
+        with self._lock:
+            for conn in self._pending + self._sessions:
+                conn.evict()
 
 
 class PtyConsole:
@@ -124,7 +223,7 @@ class PtyConsole:
                 time.sleep(HANGUP_POLL_S)
                 continue
             if session is None:  # no hang-up any more: a program opened the pty
-                session = self._factory()
+                session = self._factory("pty")
                 if not session.logged_in:
                     self._write(session.greeting())
             if event & select.POLLIN:
@@ -154,24 +253,55 @@ class PtyConsole:
         os.close(self._master)
 
 
+class _Subscriber:
+    """A camera client: its socket, the bytes it has not taken yet, since when it lags."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+        self.backlog = bytearray()
+        self.stalled_since: float | None = None
+
+
 class LineBroadcastServer:
     """Sends every published line to every connected TCP client (the camera stream).
 
-    A client that does not keep up (its socket buffer is full) is dropped.
+    :meth:`publish` only queues the line (it never blocks: the firmware's tick
+    calls it); a sender thread writes to the clients without blocking.  At
+    most ``max_clients`` clients (more are closed at once); a client more
+    than ``SENSOR_BACKLOG_BYTES`` behind, or one that takes nothing for
+    ``SENSOR_SEND_TIMEOUT_S`` while data waits for it, is disconnected.
     """
 
-    def __init__(self, host: str, port: int) -> None:
+    def __init__(self, host: str, port: int, max_clients: int = MAX_SENSOR_CLIENTS,
+                 send_timeout_s: float = SENSOR_SEND_TIMEOUT_S) -> None:
         check_local(host)
+        self.max_clients = max_clients
+        self.send_timeout_s = send_timeout_s
         self._listener = socket.create_server((host, port))
         self.host, self.port = self._listener.getsockname()[:2]
-        self._clients: list[socket.socket] = []
+        self._clients: list[_Subscriber] = []
         self._lock = threading.Lock()
-        self._thread = threading.Thread(target=self._accept, name="sensor-accept", daemon=True)
-        self._thread.start()
+        self._lines: deque[bytes] = deque(maxlen=SENSOR_BACKLOG_BYTES // 16)
+        self._published = threading.Event()
+        self._closed = threading.Event()
+        self._threads = [threading.Thread(target=self._accept, name="sensor-accept", daemon=True),
+                         threading.Thread(target=self._send, name="sensor-send", daemon=True)]
+        for thread in self._threads:
+            thread.start()
 
     @property
     def url(self) -> str:
         return f"socket://{self.host}:{self.port}"
+
+    @property
+    def client_count(self) -> int:
+        with self._lock:
+            return len(self._clients)
+
+    def publish(self, line: bytes) -> None:
+        """Queue ``line`` for every client; returns at once."""
+        self._lines.append(line)
+        self._published.set()
 
     def _accept(self) -> None:
         while True:
@@ -179,26 +309,58 @@ class LineBroadcastServer:
                 client, _ = self._listener.accept()
             except OSError:
                 return
-            client.setblocking(False)
             with self._lock:
-                self._clients.append(client)
+                full = len(self._clients) >= self.max_clients
+                if not full:
+                    client.setblocking(False)
+                    client.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF,
+                                      SENSOR_SEND_BUFFER_BYTES)
+                    self._clients.append(_Subscriber(client))
+            if full:
+                client.close()
 
-    def publish(self, line: bytes) -> None:
-        with self._lock:
-            for client in list(self._clients):
-                try:
-                    sent = client.send(line)
-                except (BlockingIOError, OSError):
-                    sent = -1
-                if sent != len(line):
-                    self._clients.remove(client)
-                    client.close()
+    def _send(self) -> None:
+        while not self._closed.is_set():
+            self._published.wait(POLL_S)
+            self._published.clear()
+            lines = []
+            while self._lines:
+                lines.append(self._lines.popleft())
+            data = b"".join(lines)
+            now = time.monotonic()
+            with self._lock:
+                for client in list(self._clients):
+                    if not self._flush(client, data, now):
+                        self._clients.remove(client)
+                        client.sock.close()
+
+    def _flush(self, client: _Subscriber, data: bytes, now: float) -> bool:
+        """Send what ``client`` can take now; False if it must go."""
+        client.backlog += data
+        if len(client.backlog) > SENSOR_BACKLOG_BYTES:
+            return False
+        if client.backlog:
+            try:
+                del client.backlog[:client.sock.send(client.backlog)]
+            except BlockingIOError:
+                pass
+            except OSError:
+                return False  # the client went away
+        if not client.backlog:
+            client.stalled_since = None
+        elif client.stalled_since is None:
+            client.stalled_since = now
+        return client.stalled_since is None or now - client.stalled_since <= self.send_timeout_s
 
     def close(self) -> None:
+        self._closed.set()
+        self._published.set()
         with contextlib.suppress(OSError):
             self._listener.shutdown(socket.SHUT_RDWR)  # wakes the accept() in its thread
         self._listener.close()
+        for thread in self._threads:
+            thread.join(timeout=1.0)
         with self._lock:
             for client in self._clients:
-                client.close()
+                client.sock.close()
             self._clients.clear()

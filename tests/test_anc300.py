@@ -126,7 +126,7 @@ class GarbageSession(ConsoleSession):
 
 def test_resync_after_garbage_and_reconnect_after_timeout() -> None:
     fw = Firmware()
-    pty = PtyConsole(lambda: GarbageSession(fw))
+    pty = PtyConsole(lambda _source: GarbageSession(fw))
     link = Anc300Link(pty.path, timeout_s=0.5)
     try:
         link.query("setv 1 12.5")  # garbage lines before the reply are skipped
@@ -149,7 +149,7 @@ def test_unopenable_device_is_a_lost_link() -> None:
 
 def test_wrong_password_is_refused() -> None:
     fw = Firmware()
-    pty = PtyConsole(lambda: ConsoleSession(fw, password="secret"))
+    pty = PtyConsole(lambda _source: ConsoleSession(fw, password="secret"))
     try:
         with pytest.raises(AmplifierError, match="password"):
             Anc300Link(pty.path, password="123456", timeout_s=0.5).query("ver")

@@ -19,7 +19,6 @@ from test_daemon_service import start, wait_for
 from feeder import Client
 from feeder.daemon import client as client_module
 from feeder.daemon.client import HEARTBEAT_S, Accepted, DaemonUnavailable, MoveRecord, MoveResult
-from feeder.daemon.config import default_socket_path
 from feeder.daemon.service import Daemon
 from feeder.errors import (
     DaemonError,
@@ -303,8 +302,3 @@ def test_shutdown_waits_until_the_daemon_is_gone(daemon) -> None:
     assert not sock.exists() and running.wait(0)
     with pytest.raises(DaemonUnreachable):
         Client(sock)
-
-
-def test_default_socket_path_matches_the_daemon_config() -> None:
-    """The client keeps its own copy (importing the config would load numpy)."""
-    assert client_module.default_socket_path() == default_socket_path()

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from feeder.cli import main
+from feeder.daemon.store import Store
 from feeder.errors import InputError
 from feeder.vision.calibration import (
     CameraCalibration,
@@ -98,10 +99,21 @@ def test_calibrate_cli_from_rendered_images(tmp_path: Path, capsys: pytest.Captu
         image("t1", xt, yt, turn),
         "--out",
         str(out),
+        "--save-state",
+        "--state-dir",
+        str(tmp_path / "state"),
         "--json",
     ]
     assert main(argv) == 0
     report = json.loads(capsys.readouterr().out)
+    # stored with the step calibration, in the daemon's SQLite state
+    store = Store(tmp_path / "state" / "feeder.sqlite")
+    try:
+        stored = store.camera_calibration()
+    finally:
+        store.close()
+    assert stored is not None and stored["pixel_size_m"] == report["pixel_size_m"]
+    assert stored["origin_x_px"] == report["origin_x_px"]
     assert report["pixel_size_from_part_m"] == pytest.approx(1.2e-6, rel=5e-4)
     assert report["pixel_size_m"] == pytest.approx(1.2e-6, rel=5e-4)
     assert report["rotation_rad"] == pytest.approx(0.3, abs=2e-3) and report["mirrored"] is True

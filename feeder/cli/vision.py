@@ -92,6 +92,11 @@ def register(sub: Any) -> None:
         help="images before and after a plate turn, e.g. 5deg (repeatable): the θ centre",
     )
     cal.add_argument("--out", type=Path, help="write the calibration JSON (read by `locate --calibration`)")
+    cal.add_argument("--save-state", action="store_true",
+                     help="also store it in the daemon's state database, beside the step "
+                          "calibration (see --state-dir)")
+    cal.add_argument("--state-dir", type=Path,
+                     help="the daemon's state directory (default: $XDG_STATE_HOME/feeder)")
     cal.add_argument("--json", action="store_true", help="print one JSON object")
     cal.set_defaults(handler=run_calibrate)
 
@@ -307,6 +312,24 @@ def _length(text: str, flag: str) -> float:
         raise InputError(flag, str(err)) from None
 
 
+def _save_state(state_dir: Path | None, report: dict[str, Any]) -> Path:
+    """Store the calibration in the daemon's SQLite state (one-line error if it is not ours)."""
+    from feeder.daemon.config import default_state_dir
+    from feeder.daemon.store import Store, StoreError
+
+    path = (state_dir or default_state_dir()) / "feeder.sqlite"
+    try:
+        store = Store(path)
+    except (StoreError, OSError) as err:
+        raise InputError("--state-dir", str(err)) from None
+    try:
+        store.save_camera_calibration({k: v for k, v in report.items()
+                                       if v is not None and k != "note"})
+    finally:
+        store.close()
+    return path
+
+
 def run_calibrate(args: argparse.Namespace) -> int:
     _check_target(args.out, "--out")
     report: dict[str, Any] = {}
@@ -364,6 +387,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     if args.out is not None:
         write_text(args.out, json.dumps({k: v for k, v in report.items() if v is not None}, indent=2) + "\n")
         report["out"] = str(args.out)
+    if args.save_state:
+        report["database"] = str(_save_state(args.state_dir, report))
     if args.json:
         print_json(report)
     else:

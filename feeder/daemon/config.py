@@ -61,6 +61,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from feeder.daemon.client import default_socket_path
 from feeder.daemon.control_loop import LoopSettings
 from feeder.errors import InputError
 from feeder.files import read_toml
@@ -82,13 +83,6 @@ def default_state_dir() -> Path:
     """``$XDG_STATE_HOME/feeder``, else ``~/.local/state/feeder``."""
     base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
     return Path(base) / "feeder"
-
-
-def default_socket_path() -> Path:
-    """``$XDG_RUNTIME_DIR/feeder/feeder.sock``, else ``/tmp/feeder-<uid>/feeder.sock``."""
-    runtime = os.environ.get("XDG_RUNTIME_DIR")
-    base = Path(runtime) / "feeder" if runtime else Path("/tmp") / f"feeder-{os.getuid()}"
-    return base / "feeder.sock"
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,7 @@ from feeder.errors import FeederError
 
 PR_SET_PDEATHSIG = 1
 READY_TIMEOUT_S = 30.0
+STDERR_LINES_KEPT = 20
 
 
 class LaunchError(FeederError, RuntimeError):
@@ -41,7 +43,8 @@ def _die_with_parent() -> None:
 class Simulator:
     """A running firmware_sim; ``endpoints`` is the ready line's endpoint map.
 
-    Its stderr goes to ``log_path`` (appended; None discards it); stdout after
+    Its stderr goes to ``log_path`` (appended; None keeps its last lines in memory);
+    either way a :class:`LaunchError` quotes the child's last stderr line.  Stdout after
     the ready line is drained so the child never blocks on a full pipe.
     """
 
@@ -49,7 +52,9 @@ class Simulator:
                  timeout_s: float = READY_TIMEOUT_S) -> None:
         self.command = [sys.executable, "-m", "firmware_sim", *args]
         self.log_path = log_path
-        log = open(log_path, "ab") if log_path is not None else subprocess.DEVNULL  # noqa: SIM115
+        self._stderr_lines: deque[str] = deque(maxlen=STDERR_LINES_KEPT)
+        log = open(log_path, "ab") if log_path is not None else subprocess.PIPE  # noqa: SIM115
+        self._log_start = log.tell() if log_path is not None else 0  # type: ignore[union-attr]
         try:
             self.process = subprocess.Popen(
                 self.command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log,
@@ -58,9 +63,21 @@ class Simulator:
         finally:
             if log_path is not None:
                 log.close()  # type: ignore[union-attr]
+        self._stderr_reader: threading.Thread | None = None
+        if log_path is None:
+            self._stderr_reader = threading.Thread(target=self._keep_stderr_tail,
+                                                   name="firmware_sim-stderr", daemon=True)
+            self._stderr_reader.start()
         self.ready = self._read_ready(timeout_s)
         self.endpoints: dict[str, Any] = dict(self.ready.get("endpoints", {}))
         threading.Thread(target=self._drain, name="firmware_sim-stdout", daemon=True).start()
+
+    def _keep_stderr_tail(self) -> None:
+        """Read the child's stderr (no log file) and keep its last lines for errors."""
+        assert self.process.stderr is not None
+        with contextlib.suppress(OSError, ValueError):
+            for line in self.process.stderr:
+                self._stderr_lines.append(line.decode(errors="replace").rstrip())
 
     def _drain(self) -> None:
         assert self.process.stdout is not None
@@ -100,10 +117,17 @@ class Simulator:
             self.process.wait(timeout=2.0)
         except subprocess.TimeoutExpired:
             return "(still running)"
-        text = ""
-        if self.log_path is not None:
-            text = self.log_path.read_text(errors="replace").strip()
-        return text.splitlines()[-1] if text else f"exit code {self.process.returncode}"
+        if self.log_path is not None:  # only what this child wrote
+            with open(self.log_path, "rb") as log:
+                log.seek(self._log_start)
+                lines = log.read().decode(errors="replace").splitlines()
+        else:
+            if self._stderr_reader is not None:
+                self._stderr_reader.join(timeout=2.0)
+            lines = list(self._stderr_lines)
+        lines = [line.strip() for line in lines if line.strip()]
+        code = f"exit code {self.process.returncode}"
+        return f"{lines[-1]} ({code})" if lines else code
 
     def alive(self) -> bool:
         return self.process.poll() is None
@@ -117,6 +141,7 @@ class Simulator:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
-        if self.process.stdout is not None:
-            with contextlib.suppress(OSError, ValueError):
-                self.process.stdout.close()
+        for stream in (self.process.stdout, self.process.stderr):
+            if stream is not None:
+                with contextlib.suppress(OSError, ValueError):
+                    stream.close()

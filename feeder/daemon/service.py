@@ -183,6 +183,7 @@ class Daemon:
         self.links = links
         self.setup = setup
         self._stopping = threading.Event()
+        self._stopped = threading.Event()
         self._lock = threading.Lock()
         self._queue: collections.deque[Job] = collections.deque()
         self._clients = 0
@@ -215,14 +216,25 @@ class Daemon:
             threading.Thread(target=target, name=name, daemon=True).start()
 
     def wait(self, timeout_s: float | None = None) -> bool:
-        """Block until shut down; False on timeout."""
-        return self._stopping.wait(timeout_s)
+        """Block until the shutdown is complete (output grounded, socket gone); False on
+        timeout."""
+        return self._stopped.wait(timeout_s)
 
     def shutdown(self) -> None:
-        """Stop the move, ground the output, close links, remove the socket."""
-        if self._stopping.is_set():
+        """Stop the move, ground the output, close links, remove the socket.  A second call
+        (from another thread) returns when the first one is done."""
+        with self._lock:
+            first = not self._stopping.is_set()
+            self._stopping.set()
+        if not first:
+            self._stopped.wait()
             return
-        self._stopping.set()
+        try:
+            self._shut_down()
+        finally:
+            self._stopped.set()
+
+    def _shut_down(self) -> None:
         with self._lock:
             queued, self._queue = list(self._queue), collections.deque()
         for job in queued:
@@ -517,6 +529,7 @@ class Daemon:
             "reconnecting": reconnecting,
             "faults": faults,
             "queued_moves": queued,
+            "camera_calibration": self.store.camera_calibration(),
             "store_unwritable": loop.writer.unwritable,
             "pending_records": loop.writer.pending(),
             "interrupted_moves": self.interrupted_moves,

@@ -8,6 +8,7 @@ socket threads can share a :class:`Store`.
 
 from __future__ import annotations
 
+import json
 import sqlite3
 import threading
 import time
@@ -53,6 +54,11 @@ CREATE TABLE IF NOT EXISTS moves (
 CREATE TABLE IF NOT EXISTS position (
     id INTEGER PRIMARY KEY CHECK (id = 1),
     position_m REAL NOT NULL,
+    updated_s REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS camera_calibration (
+    id INTEGER PRIMARY KEY CHECK (id = 1),
+    calibration TEXT NOT NULL,
     updated_s REAL NOT NULL
 );
 """
@@ -276,6 +282,20 @@ class Store:
     def position(self) -> KnownPosition | None:
         rows = self._read("SELECT position_m, updated_s FROM position WHERE id = 1")
         return KnownPosition(*rows[0]) if rows else None
+
+    # -- camera calibration (feeder vision calibrate --save-state) ------------
+    def save_camera_calibration(self, calibration: dict[str, Any]) -> None:
+        """The camera-to-plate transform (pixel size, rotation, θ centre), stored beside the
+        step calibration."""
+        self._write(
+            "INSERT OR REPLACE INTO camera_calibration (id, calibration, updated_s)"
+            " VALUES (1, ?, ?)", (json.dumps(calibration, allow_nan=False), time.time()))
+
+    def camera_calibration(self) -> dict[str, Any] | None:
+        rows = self._read("SELECT calibration, updated_s FROM camera_calibration WHERE id = 1")
+        if not rows:
+            return None
+        return {**json.loads(rows[0][0]), "updated_s": rows[0][1]}
 
 
 def _move_row(row: tuple[Any, ...]) -> dict[str, Any]:
