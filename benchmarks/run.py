@@ -17,7 +17,8 @@ from pathlib import Path
 
 BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "gw_md_solve", "loop_jitter", "summits",
                                "console_rtt", "tick_jitter", "sdo_rtt", "pdo_rate",
-                               "stickslip", "plant_realtime", "planar_period", "vision_locate",
+                               "stickslip", "stickslip_half_cosine", "plant_realtime",
+                               "plant_realtime_1ms", "planar_period", "vision_locate",
                                "vision_render", "cli_start", "sweep_scaling")
 
 

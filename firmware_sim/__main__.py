@@ -35,6 +35,7 @@ from typing import NoReturn
 
 from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
+from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
 from feeder.protocol.anc300 import DEFAULT_PASSWORD, DIALECTS
 from firmware_sim.canopen_node import serve_slcan_pty
 from firmware_sim.clock import Clock, RealTimeClock, VirtualClock
@@ -54,7 +55,7 @@ from firmware_sim.transports import (
     TcpConsoleServer,
     check_local,
 )
-from firmware_sim.world import CameraConfig, TrueStep, World, WorldConfig
+from firmware_sim.world import PLANTS, CameraConfig, TrueStep, World, WorldConfig, parse_poses
 
 REFERENCE_FREQUENCY_HZ = 100.0
 VIRTUAL_TICKS_PER_YIELD = 10
@@ -196,6 +197,14 @@ def build_parser() -> argparse.ArgumentParser:
                help="seed of the world's random draws")
     add_number(world, "--plant-axis", 1, SLOTS, integer=True, default=1,
                help="axis wired to the stack (at most --axes)")
+    world.add_argument("--plant", choices=PLANTS, default="line",
+                       help="line: one stack on --plant-axis (default); planar: axes 1-3 drive the "
+                            "plate's x, y and θ, parts at --parts")
+    world.add_argument("--parts", metavar="X,Y,PSI;...", default="0,0,0",
+                       help="planar: the parts' poses in the plate frame (m, m, rad; origin at "
+                            "the rotation centre O), ';' between parts (default %(default)s)")
+    add_number(world, "--lever-arm-m", 1e-6, 1.0, default=DEFAULT_LEVER_ARM_M,
+               help="planar: radius about O at which the θ stack turns the plate, m")
     add_number(world, "--camera-rate-hz", 0.1, MAX_CAMERA_RATE_HZ, default=100.0,
                help="camera frame rate, Hz")
     add_number(world, "--camera-noise-m", 0, 1e-3, default=50e-9, help="position noise (1σ), m")
@@ -336,7 +345,8 @@ def build(args: argparse.Namespace) -> tuple[Firmware, World, TrueStep]:
     world = World(WorldConfig(
         part=args.part, support=args.support, tau_pa=args.tau_pa, tau_offset=args.tau_offset,
         kinetic_ratio=args.kinetic_ratio, scatter=args.scatter, seed=args.seed,
-        plant_axis=args.plant_axis,
+        plant_axis=args.plant_axis, plant=args.plant, poses=parse_poses(args.parts),
+        lever_arm_m=args.lever_arm_m,
         camera=CameraConfig(args.camera_rate_hz, args.camera_noise_m,
                             args.camera_latency_s)), config)
     world.attach(firmware)

@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import json
+import socket
 
 import numpy as np
 import pytest
 
 from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
+from feeder.daemon.launcher import Simulator
+from feeder.drivers.anc300 import Anc300Link
+from feeder.errors import InputError
 from feeder.plant.plant import run_waveform
 from feeder.waveform import Waveform
 from firmware_sim.clock import VirtualClock
 from firmware_sim.firmware import Firmware, FirmwareConfig
-from firmware_sim.world import CameraConfig, World, WorldConfig
+from firmware_sim.world import CameraConfig, World, WorldConfig, parse_poses
 
 
 def test_camera_rate_latency_and_noise() -> None:
@@ -60,3 +64,69 @@ def test_true_step_matches_the_plant_model_on_the_ideal_waveform() -> None:
     assert step.scatter == 0.0
     noisy = World(WorldConfig(scatter=0.05, seed=4), config).true_step(axis)
     assert 0.0 < noisy.scatter < 1.0
+
+
+# --- the planar plant behind axes 1–3 -------------------------------------------------------
+
+
+def sensor_poses(url: str, after: float) -> tuple[float, list[list[float]]]:
+    """(time, poses) of the first sensor frame exposed after ``after`` s of world time."""
+    host, port = url.removeprefix("socket://").rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=30) as sock:
+        stream = sock.makefile("r")
+        for line in stream:
+            frame = json.loads(line)
+            if frame["time_s"] > after:
+                return frame["time_s"], frame["poses"]
+    raise AssertionError("sensor stream ended")
+
+
+def settled_poses(link: Anc300Link, url: str) -> np.ndarray:
+    """Poses a few frames after everything is idle (the part stuck, the plate at rest)."""
+    t, _ = sensor_poses(url, 0.0)
+    return np.array(sensor_poses(url, t + 0.03)[1])
+
+
+@pytest.mark.timeout(180)
+def test_console_steps_turn_and_move_parts_on_the_planar_plant() -> None:
+    """axis 3 turns a part 2 mm from O and moves it on an orbit; axis 1 moves it N steps in x."""
+    sim = Simulator(["--clock", "virtual", "--plant", "planar", "--parts", "2e-3,0,0;-2e-3,0,0.5",
+                     "--dialect", "extended", "--sensor", "tcp:127.0.0.1:0", "--camera-noise-m", "0",
+                     "--scatter", "0", "--seed", "2"])  # fmt: skip
+    try:
+        true = sim.ready["true"]
+        assert true["plant"] == "planar" and true["poses"][1] == [-2e-3, 0.0, 0.5]
+        url = sim.endpoints["sensor_tcp"]
+        link = Anc300Link(sim.endpoints["console_pty"], timeout_s=60.0)
+        start = settled_poses(link, url)
+        np.testing.assert_allclose(start, [[2e-3, 0, 0], [-2e-3, 0, 0.5]], atol=1e-12)
+        volts = true["step_reference"]["amplitude_v"]
+        for command in (f"setv 3 {volts}", "setm 3 stp", "stepu 3 3", "stepw 3"):
+            link.query(command)
+        turned = settled_poses(link, url)
+        change = turned - start
+        radius = np.hypot(turned[:, 0], turned[:, 1])
+        polar = np.angle((turned[:, 0] + 1j * turned[:, 1]) / (start[:, 0] + 1j * start[:, 1]))
+        for k in range(2):  # both parts turn the plate's way and orbit O at their distance
+            assert change[k, 2] > 1e-4 and polar[k] > 1e-4
+            assert abs(radius[k] - 2e-3) < 0.05 * 2e-3 * polar[k]
+        n = 3
+        for command in (f"setv 1 {volts}", "setm 1 stp", f"stepu 1 {n}", "stepw 1"):
+            link.query(command)
+        moved = settled_poses(link, url) - turned
+        link.close()
+        # a pure translation: the 1-D model's step (true step_up_m, measured on the same DAC stream)
+        np.testing.assert_allclose(moved[:, 0], n * true["step_up_m"], rtol=0.03)
+        np.testing.assert_allclose(moved[:, 1:], 0.0, atol=1e-12)
+    finally:
+        sim.stop()
+
+
+def test_planar_world_refuses_too_few_axes_and_bad_poses() -> None:
+    with pytest.raises(InputError, match="--axes"):
+        World(WorldConfig(plant="planar"), FirmwareConfig(axes=2))
+    with pytest.raises(InputError, match="--parts"):
+        parse_poses("1e-3,0")
+    with pytest.raises(InputError, match="--plant"):
+        World(WorldConfig(plant="cube"), FirmwareConfig())
+    assert parse_poses("1e-3,0,0;-1e-3,2e-3,0.5") == ((1e-3, 0.0, 0.0), (-1e-3, 2e-3, 0.5))

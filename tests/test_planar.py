@@ -10,11 +10,15 @@ from scipy.integrate import solve_ivp
 
 from feeder.errors import InputError
 from feeder.parts import Part
+from feeder.plant import planar as planar_solver
 from feeder.plant.ideal_plate import linear_flyback_step, sawtooth_motion
 from feeder.plant.limit_surface import Patch
 from feeder.plant.planar import PlanarPart, PlanarStickSlip, simulate
+from feeder.plant.planar_plant import PlanarPlant
+from feeder.plant.plant import Plant
 from feeder.plant.plate_motion import sawtooth
 from feeder.plant.stick_slip import Friction, StickSlip
+from feeder.waveform import Waveform
 
 A_S = 105.25
 PART = Part.parse("300x200x50")
@@ -332,3 +336,39 @@ def test_cli_y_axis_is_the_x_step_on_y(capsys: pytest.CaptureFixture[str]) -> No
     assert x["step_mean_m"] == y["step_mean_m"]
     assert x["poses"][-1] == pytest.approx([-1e-3 + 4 * x["step_mean_m"], 2e-4, 0.5], rel=1e-12)
     assert y["poses"][-1] == pytest.approx([-1e-3, 2e-4 + 4 * y["step_mean_m"], 0.5], rel=1e-12)
+
+
+def test_planar_plant_skips_held_samples_without_changing_the_result(monkeypatch: pytest.MonkeyPatch) -> None:
+    """PlanarPlant (three channels, firmware-like DAC command): bulk skipping of surely-held samples
+    gives the per-sample solver's poses; x alone moves both parts the 1-D plant's distance."""
+    waveform = Waveform(frequency_hz=100.0, amplitude_vpp=200.0)
+    index = np.arange(1, 3001)
+    line = waveform.voltage_at_phase((index % 1000) / 1000)
+    friction = Friction(A_S, 0.8)
+    parts = [PlanarPart.from_part(PART, friction, (2e-3, 0.0, 0.0)),
+             PlanarPart.from_part(PART, friction, (-1e-3, 1e-3, 0.4))]  # fmt: skip
+
+    def run(command: np.ndarray) -> tuple[np.ndarray, PlanarPlant]:
+        plant = PlanarPlant(parts)
+        return np.concatenate([plant.advance(c) for c in np.split(command, 30, axis=1)], axis=1), plant
+
+    x_and_theta = np.stack([line, np.zeros_like(line), 0.3 * line])
+    x_only = np.stack([line, np.zeros_like(line), np.zeros_like(line)])
+    skipped, plant = run(x_and_theta)
+    fast_x, _ = run(x_only)
+    monkeypatch.setattr(planar_solver, "_SKIP_HELD", False)
+    every, every_plant = run(x_and_theta)
+    slow_x, _ = run(x_only)
+    assert abs(skipped[0, -1, 2] - skipped[0, 0, 2]) > 1e-4  # it turned
+    np.testing.assert_allclose(skipped, every, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(plant.poses(), every_plant.poses(), rtol=0, atol=0)
+    assert plant.contact.slip_time_s == every_plant.contact.slip_time_s
+    np.testing.assert_allclose(fast_x, slow_x, rtol=0, atol=1e-15)
+    # the 1-D plant's steps (its plate position is the stack filter's, the planar plate's the
+    # trapezoid of its velocity samples: equal to ~1e-9 m, not to rounding)
+    tops = [998, 1998, 2998]  # the top of each rise, the part stuck
+    expected = Plant(friction).advance(line)[tops]
+    assert np.diff(expected).min() > 1e-6
+    for k, pose in enumerate(fast_x):
+        np.testing.assert_allclose(pose[tops, 0] - parts[k].pose[0], expected, rtol=1e-3)
+        np.testing.assert_allclose(pose[:, 1:], np.tile(parts[k].pose[1:], (line.size, 1)), atol=0)

@@ -16,7 +16,13 @@ from pathlib import Path
 
 import pytest
 import serial
-from test_daemon_hil import TRANSPORTS, DaemonProcess, assert_within_tolerance, base  # noqa: F401
+from test_daemon_hil import (  # noqa: F401
+    TRANSPORTS,
+    DaemonProcess,
+    assert_within_tolerance,
+    base,
+    true_coarse_steps,
+)
 
 from feeder.daemon.config import DaemonConfig
 from feeder.daemon.launcher import Simulator
@@ -153,7 +159,7 @@ def test_stop_mid_burst_records_where_the_part_settled(base: Path, transport: st
         time.sleep(1.0)
         later = daemon.request("status")
         move = daemon.request("history", limit=1)["moves"][-1]
-        coarse_step = later["estimates"]["coarse/forward"]["step_m"]
+        coarse_step = true_coarse_steps(daemon, later)[0]     # the plant's true step
     finally:
         assert daemon.stop() == 0
     tolerance = later["tolerance_m"]
@@ -161,9 +167,15 @@ def test_stop_mid_burst_records_where_the_part_settled(base: Path, transport: st
     assert idle["last_result"]["status"] == "stopped"
     assert abs(move["reached_m"] - later["position_m"]) <= tolerance, (move, later["position_m"])
     assert abs(idle["position_m"] - later["position_m"]) <= tolerance
-    # the steps recorded are the ones played: they account for the distance travelled
+    # the steps recorded are the ones played: with the plant's true step they account for
+    # the distance travelled (a burst from rest loses less than a step of hundreds)
     travelled = move["reached_m"] - (move["start_m"] or 0.0)
-    assert move["steps"] * coarse_step == pytest.approx(travelled, rel=0.15)
+    assert move["steps"] > 50
+    # CANopen reads the drive's counter; an ANC300 counts nothing, so the host estimates the
+    # steps of a cut burst from the times of its stepu and stop round trips: its error is the
+    # link's latency jitter × f (a few ms × 3 kHz here, on a loaded test machine)
+    assert move["steps"] * coarse_step == pytest.approx(travelled,
+                                                        rel=0.08 if transport == "can" else 0.25)
     # counted where the drive counts them (CANopen), estimated from time where it cannot (ANC300)
     assert move["steps_estimated"] is (transport == "serial")
 

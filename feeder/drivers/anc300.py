@@ -248,11 +248,13 @@ class Anc300Amplifier(Amplifier):
         if count == 0:
             raise AmplifierError("step count 0 refused (stepu 0 runs forever on an ANC300)")
         verb = "stepu" if count > 0 else "stepd"
+        sent = self._clock()
         self.link.query(f"{verb} {self.axis} {abs(count)}")
         with self._lock:
             self._settle_burst()
             self._continuous = False
-            self._burst = (self._clock(), count)
+            # the unit started between sending and its OK: the midpoint halves the error
+            self._burst = (0.5 * (sent + self._clock()), count)
             self._counter += count
             self._estimated = False
 
@@ -263,9 +265,10 @@ class Anc300Amplifier(Amplifier):
             self._continuous = True
 
     def stop(self) -> None:
+        sent = self._clock()
         self.link.query(f"stop {self.axis}")
         with self._lock:
-            self._cut_burst()
+            self._cut_burst(0.5 * (sent + self._clock()))
 
     def wait(self, timeout_s: float) -> bool:
         """Sleep until N/f after the burst started, then confirm with ``stepw``."""
@@ -323,11 +326,13 @@ class Anc300Amplifier(Amplifier):
         start, count = self._burst
         return start + abs(count) / self._frequency_hz + BURST_END_MARGIN_S - self._clock()
 
-    def _played(self, start: float, count: int) -> int:
-        """Steps of a burst played by now, from the time it ran (sign of ``count``)."""
+    def _played(self, start: float, count: int, at: float | None = None) -> int:
+        """Steps of a burst played by ``at`` (default now), from the time it ran (sign of
+        ``count``)."""
         if self._frequency_hz <= 0:
             return 0
-        done = min(abs(count), max(0, math.floor((self._clock() - start) * self._frequency_hz)))
+        now = self._clock() if at is None else at
+        done = min(abs(count), max(0, round((now - start) * self._frequency_hz)))
         return done if count > 0 else -done
 
     def _settle_burst(self) -> None:
@@ -335,12 +340,13 @@ class Anc300Amplifier(Amplifier):
         if self._burst is not None and self._remaining_s() <= 0:
             self._burst = None
 
-    def _cut_burst(self) -> None:
-        """The output stopped now: keep only the steps played so far (estimated)."""
+    def _cut_burst(self, at: float | None = None) -> None:
+        """The output stopped (at clock time ``at``, default now): keep only the steps played
+        by then (estimated)."""
         self._continuous = False
         self._settle_burst()
         if self._burst is not None:
             start, count = self._burst
-            self._counter += self._played(start, count) - count
+            self._counter += self._played(start, count, at) - count
             self._burst = None
             self._estimated = True

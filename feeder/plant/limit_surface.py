@@ -26,7 +26,6 @@ disc; exact by symmetry at the centre and for pure translation).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -34,6 +33,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from feeder.errors import InputError
+from feeder.plant import kernels
 
 SHAPES = ("rectangle", "disc")
 _SERIES_BELOW = 1e-3
@@ -41,29 +41,6 @@ _DISC_RADIAL, _DISC_ANGULAR = 48, 96
 
 Integrals = tuple[float, float, float, float]
 """(∫v̂_x dA, ∫v̂_y dA, ∫ρ×v̂ dA, ∫|v| dA) in m², m², m³, m³/s."""
-
-
-def _corner_x(x: float, y: float) -> float:
-    """Corner function of ∫∫ x/r dx dy."""
-    r = math.hypot(x, y)
-    return 0.5 * (y * r + (x * x * math.asinh(y / abs(x)) if x else 0.0))
-
-
-def _corner_r(x: float, y: float) -> float:
-    """Corner function of ∫∫ r dx dy."""
-    r = math.hypot(x, y)
-    out = x * y * r / 3.0
-    if x:
-        out += x**3 * math.asinh(y / abs(x)) / 6.0
-    if y:
-        out += y**3 * math.asinh(x / abs(y)) / 6.0
-    return out
-
-
-def _box(corner: Callable[[float, float], float], x1: float, x2: float, y1: float,
-         y2: float) -> float:  # fmt: skip
-    """∫∫ over [x1, x2] × [y1, y2] from a corner function."""
-    return corner(x2, y2) - corner(x1, y2) - corner(x2, y1) + corner(x1, y1)
 
 
 @dataclass(frozen=True)
@@ -106,7 +83,7 @@ class Patch:
         if self.shape == "disc":
             return 2 * math.pi * (0.5 * self.length_m) ** 3 / 3
         a, b = 0.5 * self.length_m, 0.5 * self.width_m
-        return _box(_corner_r, -a, a, -b, b)
+        return kernels.box_r(-a, a, -b, b)
 
     @cached_property
     def second_moments_m4(self) -> tuple[float, float]:
@@ -139,14 +116,7 @@ class Patch:
             return area * ux, area * uy, omega * q / speed, speed * area + 0.5 * omega**2 * q / speed
         if self.shape == "disc":
             return self._disc(wx, wy, omega)
-        xc, yc = -wy / omega, wx / omega  # instantaneous centre of rotation
-        a, b = 0.5 * self.length_m, 0.5 * self.width_m
-        x1, x2, y1, y2 = -a - xc, a - xc, -b - yc, b - yc
-        ix = _box(_corner_x, x1, x2, y1, y2)
-        iy = _box(_corner_x, y1, y2, x1, x2)  # ∫∫ y/r: the same function, axes swapped
-        ir = _box(_corner_r, x1, x2, y1, y2)
-        sign = math.copysign(1.0, omega)
-        return -sign * iy, sign * ix, sign * (ir + xc * ix + yc * iy), abs(omega) * ir
+        return kernels.rectangle_integrals(wx, wy, omega, 0.5 * self.length_m, 0.5 * self.width_m)
 
     def _disc(self, wx: float, wy: float, omega: float) -> Integrals:
         x, y, weight = self._disc_nodes

@@ -20,7 +20,8 @@ with DOP853 (rtol 1e-10) to the time the twist vanishes (terminal event).
 Where the sliding direction cannot turn (no rotation of the plate in the
 segment, no relative spin, plate acceleration along the sliding direction: every
 x or y drive) the segment is solved in the 1-D closed form of
-:func:`feeder.plant.stick_slip.advance_interval`, so a pure translation is the
+:func:`feeder.plant.stick_slip.advance_interval` (its scalar form,
+:func:`feeder.plant.kernels.contact_interval`), so a pure translation is the
 1-D model (DESIGN §4) to rounding.
 """
 
@@ -36,9 +37,10 @@ from scipy.optimize import brentq
 
 from feeder.errors import InputError
 from feeder.parts import Part
+from feeder.plant import kernels
 from feeder.plant.limit_surface import Patch
-from feeder.plant.plate_motion import PlanarMotion, Segment, sampled
-from feeder.plant.stick_slip import Friction, advance_interval
+from feeder.plant.plate_motion import PlanarMotion, Segment
+from feeder.plant.stick_slip import Friction
 
 Pose = tuple[float, float, float]
 _SEED_TIME_S = 1e-12
@@ -46,6 +48,12 @@ _SEED_TIME_S = 1e-12
 _STOP = 1e-10
 """A slip ends when the twist has fallen below this fraction of its value at the start."""
 _BREAKAWAY_SAMPLES = 16
+_ROUNDING = 1e-14
+_SKIP_HELD = True
+"""Skip samples in bulk while every part is surely held (tests switch it off to compare)."""
+_HELD_MARGIN = 1 - 1e-6
+_NO_DRAWS = np.zeros(0)
+"""A twist this small relative to the part's lab velocity is rounding: it has vanished."""
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
 
 
@@ -299,12 +307,16 @@ class _PartState:
 
         Friction jumps where the twist passes zero, so no step may cross it: a
         step that reverses the twist is dropped and the integration restarts
-        with its end at 0.9 of the linearly predicted time to zero, until the
-        twist is below the stop threshold.
+        with its end at 0.9 of the linearly predicted time to zero (halved
+        while no step fits), until the twist is below the stop threshold or
+        its predicted time to zero below the time resolution (a twist at the
+        rounding floor of the velocities).
         """
         bound = t_end
         previous = twist(t, y)
+        factor = 0.9
         for _ in range(1000):
+            begin = t
             stepper = DOP853(rhs, t, y, bound, rtol=1e-10, atol=_ATOL)
             reversed_ = False
             while stepper.status == "running":
@@ -316,7 +328,8 @@ class _PartState:
                     reversed_ = True
                     break
                 t, y, previous = stepper.t, stepper.y, now
-                if math.sqrt(self._dot(now, now)) <= self._stop:
+                floor = _ROUNDING * math.sqrt(self._dot((y[3], y[4], y[5]), (y[3], y[4], y[5])))
+                if math.sqrt(self._dot(now, now)) <= max(self._stop, floor):
                     return t, y, True
             if not reversed_ and t >= t_end:
                 return t, y, False
@@ -324,7 +337,10 @@ class _PartState:
             to_zero = -self._dot(previous, d) / self._dot(d, d)
             if not to_zero > 0:
                 return t, y, True
-            bound = min(t_end, t + 0.9 * to_zero)
+            factor = 0.9 if t > begin else 0.5 * factor  # no step fitted: aim shorter
+            if factor * to_zero <= 1e-15 * t_end:  # it vanishes within the time resolution
+                return t, y, True
+            bound = min(t_end, t + factor * to_zero)
         raise RuntimeError("planar stick-slip: the twist does not vanish")
 
     def _settle(self, seg: Segment, plate: _Plate, tau: float) -> None:
@@ -349,20 +365,22 @@ class _PartState:
             return tau
         ex, ey = ex / norm, ey / norm
         friction = self.part.friction
-        stuck, w_end, s_end, slip = advance_interval(
-            np.array([False]), np.array([w[0] * ex + w[1] * ey]), np.array([0.0]),
-            np.array([a[0] * ex + a[1] * ey]), np.array([seg.duration_s - tau]), np.array([0.0]),
-            np.array([friction.static_accel_m_s2]), np.array([friction.kinetic_accel_m_s2]))  # fmt: skip
+        w_along, a_along = w[0] * ex + w[1] * ey, a[0] * ex + a[1] * ey
+        a_s = friction.static_accel_m_s2
+        if w_along == 0 and abs(a_along) <= a_s:  # at rest relative to a plate it can follow
+            stuck, rel, s, slip = True, 0.0, 0.0, 0.0
+        else:  # the closed form of :func:`advance_interval`, scalar
+            stuck, rel, s, slip, _, _ = kernels.contact_interval(
+                False, w_along, 0.0, 0.0, a_s, 0, a_along, seg.duration_s - tau, 0.0, a_s,
+                friction.kinetic_ratio, 0.0, _NO_DRAWS)  # fmt: skip
         p0, _ = plate.at(seg, tau)
         p1, v1 = plate.at(seg, seg.duration_s)
-        s = float(s_end[0])
         # the part: where it started plus the plate's displacement plus the relative slide
         cx = self.lab[0] + (p1[0] - p0[0]) + s * ex
         cy = self.lab[1] + (p1[1] - p0[1]) + s * ey
-        rel = float(w_end[0])
         self.lab = [cx, cy, self.lab[2], v1[0] + rel * ex, v1[1] + rel * ey, 0.0]
-        self.slip_time_s += float(slip[0])
-        if bool(stuck[0]):
+        self.slip_time_s += slip
+        if stuck:
             self.pose = self.plate_pose(p1)
             self.stuck = True
         return seg.duration_s
@@ -422,16 +440,79 @@ class PlanarStickSlip:
     def advance_sampled(self, velocity: np.ndarray, sample_rate_hz: float) -> np.ndarray:
         """Plate velocity samples (v_x, v_y, Ω) of shape (3, n), acceleration held between samples.
 
-        Returns the parts' lab-frame poses (parts, n, 3) at each sample.
+        Returns the parts' lab-frame poses (parts, n, 3) at each sample.  While
+        every part is stuck and the plate's motion surely cannot break any of
+        them loose (:meth:`_surely_held`), samples are skipped in bulk: the
+        plate moves, the parts' plate-frame poses stay (what the per-sample
+        solver would do, to rounding of the lab poses).
         """
-        out = []
-        for seg in sampled(velocity, self._plate.velocity, sample_rate_hz):
+        v = np.asarray(velocity, dtype=float)
+        n = v.shape[1]
+        dt = 1.0 / sample_rate_hz
+        start = np.concatenate([np.asarray(self._plate.velocity, dtype=float)[:, None], v[:, :-1]], axis=1)
+        accel = (v - start) * sample_rate_hz  # as :func:`sampled`
+        starts, accels, ends = start.T.tolist(), accel.T.tolist(), v.T.tolist()
+        out = np.empty((len(self._states), n, 3))
+        held: tuple[list[Pose], np.ndarray] | None = None
+        k = 0
+        while k < n:
+            if _SKIP_HELD and all(state.stuck for state in self._states):
+                poses = [state.pose for state in self._states]
+                if held is None or held[0] != poses:
+                    held = poses, self._surely_held(start, v, accel, k)
+                stop = k + int(np.argmin(held[1][k - n :])) if not held[1][k - n :].all() else n
+                if stop > k:
+                    self._skip(start, accel, dt, k, stop, ends[stop - 1], out)
+                    k = stop
+                    continue
+            seg = Segment(dt, tuple(starts[k]), tuple(accels[k]))
             for state in self._states:
                 state.run(seg, self._plate)
             self._plate.finish(seg)
-            self.elapsed_s += seg.duration_s
-            out.append(self.lab_poses())
-        return np.array(out, dtype=float).reshape(len(out), len(self._states), 3).transpose(1, 0, 2)
+            # the sample itself, not v₀ + a·dt (which rounds differently): no corner at the next one
+            self._plate.velocity = (ends[k][0], ends[k][1], ends[k][2])
+            self.elapsed_s += dt
+            out[:, k] = self.lab_poses()
+            k += 1
+        return out
+
+    def _surely_held(self, start: np.ndarray, end: np.ndarray, accel: np.ndarray, k: int) -> np.ndarray:
+        """Per sample from ``k`` on (length n): True where no stuck part can break loose.
+
+        The force carrying a part at distance r from O is at most
+        m·(|a_O| + |α|·r + max Ω²·r) over the sample (Ω is linear in it), the
+        moment I·|α|; inside the diamond |F|/F₀ + |M|/M₀ ≤ 1 (inside the limit
+        surface, :meth:`Patch.holds`) the part holds, with a margin.
+        """
+        n = start.shape[1]
+        sure = np.ones(n, dtype=bool)
+        a_lin = np.hypot(accel[0, k:], accel[1, k:])
+        alpha = np.abs(accel[2, k:])
+        spin2 = np.maximum(start[2, k:] ** 2, end[2, k:] ** 2)
+        for state in self._states:
+            part = state.part
+            r = math.hypot(state.pose[0], state.pose[1])
+            force = part.mass_kg * (a_lin + alpha * r + spin2 * r) / (state._tau_s * part.patch.area_m2)
+            moment = part.inertia_kg_m2 * alpha / (state._tau_s * part.patch.polar_m3)
+            sure[k:] &= force + moment <= _HELD_MARGIN
+        return sure
+
+    def _skip(self, start: np.ndarray, accel: np.ndarray, dt: float, k: int, stop: int,
+              last: list[float], out: np.ndarray) -> None:  # fmt: skip
+        """Samples k…stop−1 with every part held: the plate moves (trapezoid, as :meth:`_Plate.finish`)."""
+        step = start[:, k:stop] * dt + 0.5 * accel[:, k:stop] * dt * dt  # Segment.position at its end
+        before = np.asarray(self._plate.pose)[:, None]
+        plate = np.cumsum(np.concatenate([before, step], axis=1), axis=1)[:, 1:]
+        c, s = np.cos(plate[2]), np.sin(plate[2])
+        for i, state in enumerate(self._states):
+            x, y, psi = state.pose
+            out[i, k:stop, 0] = plate[0] + c * x - s * y
+            out[i, k:stop, 1] = plate[1] + s * x + c * y
+            out[i, k:stop, 2] = plate[2] + psi
+        self._plate.pose = (float(plate[0, -1]), float(plate[1, -1]), float(plate[2, -1]))
+        self._plate.velocity = (last[0], last[1], last[2])
+        for _ in range(stop - k):  # as the per-sample loop adds it
+            self.elapsed_s += dt
 
 
 @dataclass(frozen=True)

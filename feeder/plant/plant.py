@@ -18,6 +18,7 @@ import numpy as np
 from feeder.contact.breakaway import DEFAULT_TAU_PA, contact
 from feeder.errors import InputError
 from feeder.parts import FLAT, Part, Support
+from feeder.plant import kernels
 from feeder.plant.amplifier import AmplifierLimits, OutputStage
 from feeder.plant.stack import StackFilter, StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, StickSlip
@@ -54,6 +55,7 @@ class Plant:
         self.contact = StickSlip(friction, scatter=scatter, seed=seed)
         self.plate_position_m = self.stack.gain_m_per_v * self.output.voltage_v
         self.plate_velocity_m_s = 0.0
+        self._coefficients: np.ndarray | None = None  # of the compiled path
 
     @classmethod
     def from_contact(
@@ -95,6 +97,8 @@ class Plant:
         command = np.asarray(command_volts, dtype=float)
         if command.size == 0:
             return np.zeros(0), np.zeros(0)
+        if kernels.enabled() and self.mechanics.order == kernels.FILTER_ORDER:
+            return self._advance_compiled(command)
         voltage = self.output.advance(command)
         position, velocity = self.mechanics.advance(voltage)
         accel = np.empty(velocity.size)
@@ -105,6 +109,28 @@ class Plant:
         self.plate_position_m = float(position[-1])
         self.plate_velocity_m_s = float(velocity[-1])
         return position + relative, position
+
+    def _advance_compiled(self, command: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`advance_traces` in one compiled loop (:func:`feeder.plant.kernels.plant_run`)."""
+        if self._coefficients is None:
+            limits = self.output.limits
+            self._coefficients = np.concatenate([[limits.v_min_v, limits.v_max_v, self.output.max_step_v],
+                                                 self.mechanics.coefficients()])  # fmt: skip
+        n = command.size
+        part, plate = np.empty(n), np.empty(n)
+        contact, coef = self.contact, self._coefficients
+        friction = contact.friction
+        z = self.mechanics.states
+        motion = np.array([self.output.voltage_v, self.plate_velocity_m_s, self.sample_rate_hz])
+        contact.run_kernel(lambda st, start: kernels.plant_run(
+            command, coef, z, motion, st, friction.static_accel_m_s2, friction.kinetic_ratio,
+            contact.scatter, contact.normals, part, plate, start), n)  # fmt: skip
+        self.mechanics.states = z
+        contact.elapsed_s += n / self.sample_rate_hz
+        self.output.voltage_v = float(motion[0])
+        self.plate_velocity_m_s = float(motion[1])
+        self.plate_position_m = float(plate[-1])
+        return part, plate
 
 
 @dataclass(frozen=True)

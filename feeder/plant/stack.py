@@ -91,6 +91,26 @@ class StackFilter:
         self._rows, unit_states = _filter_design(stack, float(sample_rate_hz))
         self._states = [zi * initial_v for zi in unit_states]
 
+    @property
+    def order(self) -> int:
+        """The filters' order (both rows share the denominator, so their states match)."""
+        return self._states[0].size
+
+    def coefficients(self) -> np.ndarray:
+        """b and a of the position row, then of the velocity row, a[0] = 1, each padded to order + 1."""
+        n = self.order + 1
+        return np.concatenate([np.pad(c / a[0], (0, n - c.size)) for b, a in self._rows for c in (b, a)])
+
+    @property
+    def states(self) -> np.ndarray:
+        """The two rows' lfilter states, concatenated."""
+        return np.concatenate(self._states)
+
+    @states.setter
+    def states(self, z: np.ndarray) -> None:
+        n = self.order
+        self._states = [z[:n], z[n:]]
+
     def advance(self, voltage_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(position, velocity) at each voltage sample."""
         outputs = []

@@ -26,11 +26,13 @@ Two drivers of the same closed forms (tests check they agree to rounding):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from feeder.errors import InputError
+from feeder.plant import kernels
 
 DEFAULT_KINETIC_RATIO = 0.8
 KINETIC_RATIO_SPREAD = 0.1
@@ -137,13 +139,55 @@ class StickSlip:
         self.elapsed_s = 0.0
         self.static_accel_m_s2 = friction.static_accel_m_s2
         self._slip_window = _WINDOW
+        self._normals = np.zeros(0)  # draws of the generator, used in order by both paths
+        self._next_normal = 0
         self._draw()
+
+    def _normal(self) -> float:
+        if self._next_normal >= self._normals.size:
+            self._refill()
+        self._next_normal += 1
+        return float(self._normals[self._next_normal - 1])
+
+    def _refill(self) -> None:
+        self._normals = np.concatenate([self._normals[self._next_normal :],
+                                        kernels.normals_buffer(self._rng)])  # fmt: skip
+        self._next_normal = 0
 
     def _draw(self) -> None:
         nominal = self.friction.static_accel_m_s2
         if self.scatter > 0:
-            factor = max(0.05, 1.0 + self.scatter * float(self._rng.standard_normal()))
+            factor = max(0.05, 1.0 + self.scatter * self._normal())
             self.static_accel_m_s2 = nominal * factor
+
+    @property
+    def normals(self) -> np.ndarray:
+        """The scatter draws from the next unused one's buffer (kernel state ``NORMAL`` indexes it)."""
+        return self._normals
+
+    def state(self) -> np.ndarray:
+        """The state as the compiled kernels take it (:mod:`feeder.plant.kernels`)."""
+        return np.array([1.0 if self.stuck else 0.0, self.relative_velocity_m_s, self.relative_position_m,
+                         self.slip_time_s, self.static_accel_m_s2, self._next_normal])  # fmt: skip
+
+    def set_state(self, st: np.ndarray) -> None:
+        """Take the state back from a kernel."""
+        stuck, self.relative_velocity_m_s, self.relative_position_m, self.slip_time_s, \
+            self.static_accel_m_s2, normal = st.tolist()
+        self.stuck = stuck != 0.0
+        self._next_normal = int(normal)
+
+    def run_kernel(self, run: Callable[[np.ndarray, int], int], n: int) -> None:
+        """Call ``run(state, start)`` until it has done ``n`` intervals, refilling the draws."""
+        st = self.state()
+        start = 0
+        while True:
+            start = run(st, start)
+            self.set_state(st)
+            if start >= n:
+                return
+            self._refill()
+            st[kernels.NORMAL] = 0
 
     def advance(
         self, accel: np.ndarray, dt: np.ndarray | float, jump: np.ndarray | None = None
@@ -162,6 +206,8 @@ class StickSlip:
         else:
             dts = np.asarray(dt, dtype=float)
             self.elapsed_s += float(dts.sum())
+        if kernels.enabled():
+            return self._advance_compiled(a, dts, jump)
         jumps = np.zeros(0) if jump is None else np.asarray(jump, dtype=float)
         where = np.flatnonzero(jumps)
         # jumps as Python numbers: this loop runs per jump, where numpy scalars cost ~5×
@@ -178,6 +224,15 @@ class StickSlip:
                 i = self._stick_span(i, end, a, out) if i < end else i
             else:
                 i = self._slip_span(i, end, a, dts, out)
+        return out
+
+    def _advance_compiled(self, a: np.ndarray, dts: np.ndarray, jump: np.ndarray | None) -> np.ndarray:
+        jumps = np.zeros(a.size) if jump is None else np.asarray(jump, dtype=float)
+        out = np.empty(a.size)
+        friction = self.friction
+        self.run_kernel(lambda st, start: kernels.stick_slip_run(
+            st, a, dts, jumps, friction.static_accel_m_s2, friction.kinetic_ratio, self.scatter,
+            self.normals, out, start), a.size)  # fmt: skip
         return out
 
     def _jump(self, jump: float, accel: float) -> None:

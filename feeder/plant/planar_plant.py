@@ -1,0 +1,80 @@
+"""The planar plant: three DAC channels (x, y, θ) → amplifier → stack → plate → parts' poses (DESIGN §9).
+
+Each axis has its own amplifier output stage and stack model
+(:class:`~feeder.plant.plant.Plant` without the contact); the θ stack pushes
+the plate round O at ``lever_arm_m``, so the plate turns by (stack
+displacement)/(lever arm).  The parts ride the plate with the planar
+stick-slip of :class:`~feeder.plant.planar.PlanarStickSlip`, fed the three
+plate velocities sample by sample (acceleration held between samples, as the
+1-D plant does).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from feeder.errors import InputError
+from feeder.plant.amplifier import AmplifierLimits, OutputStage
+from feeder.plant.planar import PlanarPart, PlanarStickSlip, Pose
+from feeder.plant.plant import DEFAULT_SAMPLE_RATE_HZ
+from feeder.plant.stack import StackFilter, StackParameters
+
+DEFAULT_LEVER_ARM_M = 2e-3
+"""Radius at which the θ stack drives the plate: 14 µm of stroke turn it by 7 mrad."""
+
+
+class PlanarPlant:
+    """Parts on a plate driven by three stick-slip channels, streaming at ``sample_rate_hz``.
+
+    parts: the parts and their poses (plate frame, origin O); amplifier,
+    stack: one model, used for each of the three channels; lever_arm_m: the
+    θ stack's radius about O (m).
+    """
+
+    def __init__(
+        self,
+        parts: list[PlanarPart],
+        amplifier: AmplifierLimits | None = None,
+        stack: StackParameters | None = None,
+        sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
+        lever_arm_m: float = DEFAULT_LEVER_ARM_M,
+    ) -> None:
+        if not (np.isfinite(lever_arm_m) and lever_arm_m > 0):
+            raise InputError("lever_arm_m", f"must be a positive number, got {lever_arm_m!r}")
+        self.amplifier = amplifier or AmplifierLimits()
+        self.stack = stack or StackParameters()
+        self.sample_rate_hz = float(sample_rate_hz)
+        self.lever_arm_m = float(lever_arm_m)
+        capacitance = self.stack.capacitance_f
+        self.outputs = [OutputStage(self.amplifier, capacitance, sample_rate_hz) for _ in range(3)]
+        self.mechanics = [StackFilter(self.stack, sample_rate_hz) for _ in range(3)]
+        self.contact = PlanarStickSlip(parts)
+        self._scale = np.array([[1.0], [1.0], [1.0 / self.lever_arm_m]])  # stack m → plate m, m, rad
+
+    @property
+    def plate_pose(self) -> Pose:
+        """(x_O, y_O, θ) of the plate now (m, m, rad), zero at the start."""
+        return self.contact.plate_pose
+
+    @property
+    def output_voltages_v(self) -> tuple[float, float, float]:
+        return (self.outputs[0].voltage_v, self.outputs[1].voltage_v, self.outputs[2].voltage_v)
+
+    def poses(self) -> list[Pose]:
+        """The parts' poses in the plate frame now."""
+        return self.contact.poses()
+
+    def lab_poses(self) -> list[Pose]:
+        """The parts' poses in the lab frame now (what a camera sees)."""
+        return self.contact.lab_poses()
+
+    def advance(self, command_volts: np.ndarray) -> np.ndarray:
+        """Command samples (3, n) in V for x, y, θ; returns the parts' lab poses (parts, n, 3)."""
+        command = np.asarray(command_volts, dtype=float)
+        if command.ndim != 2 or command.shape[0] != 3:
+            raise InputError("command_volts", f"expected shape (3, n), got {command.shape}")
+        velocity = np.empty(command.shape)
+        for k in range(3):
+            _, velocity[k] = self.mechanics[k].advance(self.outputs[k].advance(command[k]))
+        velocity *= self._scale
+        return self.contact.advance_sampled(velocity, self.sample_rate_hz)
