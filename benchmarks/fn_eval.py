@@ -17,8 +17,10 @@ INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 
 def quad_fn(n: float, h: float) -> float:
-    return INV_SQRT_2PI * quad(lambda s: (s - h) ** n * math.exp(-0.5 * s * s), h, math.inf,
-                               epsabs=0.0, epsrel=1e-12)[0]
+    return (
+        INV_SQRT_2PI
+        * quad(lambda s: (s - h) ** n * math.exp(-0.5 * s * s), h, math.inf, epsabs=0.0, epsrel=1e-12)[0]
+    )
 
 
 def run(quick: bool = False) -> dict[str, float]:

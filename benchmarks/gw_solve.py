@@ -27,8 +27,9 @@ def baseline_separation(gw: GreenwoodWilliamson, load: float, epsabs: float = 0.
     norm = 1.0 / (math.sqrt(2.0 * math.pi) * s.sigma_m)
 
     def carried(d: float) -> float:
-        f = lambda z: (z - d) ** 1.5 * norm * math.exp(  # noqa: E731
-            -0.5 * ((z - s.mean_summit_height_m) / s.sigma_m) ** 2)
+        def f(z: float) -> float:
+            return (z - d) ** 1.5 * norm * math.exp(-0.5 * ((z - s.mean_summit_height_m) / s.sigma_m) ** 2)
+
         return hertz * quad(f, d, s.z_max, epsabs=epsabs, epsrel=1e-12)[0] - load
 
     with warnings.catch_warnings():  # quad complains it cannot reach 1e-12 on some loads; fine here

@@ -48,10 +48,12 @@ class _InstantAmplifier(Amplifier):
     def stop(self) -> None: ...
     def wait(self, timeout_s: float) -> bool:
         return True
+
     def ground(self) -> None: ...
     def enable(self) -> None: ...
     def status(self) -> AmplifierStatus:
         return AmplifierStatus("gnd", 100.0, 0.0, 0, False)
+
     def close(self) -> None: ...
 
 
@@ -82,8 +84,7 @@ def _slow_write(*_: object) -> None:
 
 def _busy_with_slow_commits(settings: LoopSettings, duration: float) -> tuple[dict[str, float | int], int]:
     """The loop running moves back to back while every record write takes 50 ms."""
-    loop = ControlLoop(_InstantAmplifier(), _StillSensor(), MODES, settings,
-                       on_position=_slow_write)
+    loop = ControlLoop(_InstantAmplifier(), _StillSensor(), MODES, settings, on_position=_slow_write)
     loop.start()
     jobs = 0
     end = time.monotonic() + duration

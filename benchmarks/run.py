@@ -15,11 +15,26 @@ import json
 import sys
 from pathlib import Path
 
-BENCHMARKS: tuple[str, ...] = ("fn_eval", "gw_solve", "gw_md_solve", "loop_jitter", "summits",
-                               "console_rtt", "tick_jitter", "sdo_rtt", "pdo_rate",
-                               "stickslip", "stickslip_half_cosine", "plant_realtime",
-                               "plant_realtime_1ms", "planar_period", "vision_locate",
-                               "vision_render", "cli_start", "sweep_scaling")
+BENCHMARKS: tuple[str, ...] = (
+    "fn_eval",
+    "gw_solve",
+    "gw_md_solve",
+    "loop_jitter",
+    "summits",
+    "console_rtt",
+    "tick_jitter",
+    "sdo_rtt",
+    "pdo_rate",
+    "stickslip",
+    "stickslip_half_cosine",
+    "plant_realtime",
+    "plant_realtime_1ms",
+    "planar_period",
+    "vision_locate",
+    "vision_render",
+    "cli_start",
+    "sweep_scaling",
+)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -30,8 +45,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     unknown = [n for n in args.names if n not in BENCHMARKS]
     if unknown:
-        print(f"run.py: error: unknown benchmark {unknown[0]!r}; known: {', '.join(BENCHMARKS)}",
-              file=sys.stderr)
+        print(
+            f"run.py: error: unknown benchmark {unknown[0]!r}; known: {', '.join(BENCHMARKS)}",
+            file=sys.stderr,
+        )
         return 2
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     results: dict[str, dict[str, object]] = {}
@@ -40,8 +57,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"running {name} ...", file=sys.stderr, flush=True)
         results[name] = importlib.import_module(name).run(quick=args.quick)
         if not args.json:
-            figures = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                                for k, v in results[name].items())
+            figures = ", ".join(
+                f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in results[name].items()
+            )
             print(f"{name}: {figures}", flush=True)
     if args.json:
         print(json.dumps(results, indent=2))

@@ -56,11 +56,13 @@ def baseline(periods: int, rtol: float, shape: str = "half-cosine") -> np.ndarra
     def slip(sigma: float) -> Callable[[float, np.ndarray], list[float]]:
         def rhs(t: float, y: np.ndarray) -> list[float]:
             return [y[1], -sigma * a_k - plate_accel(t)]
+
         return rhs
 
     def crossing(sigma: float) -> Callable[[float, np.ndarray], float]:
         def event(t: float, y: np.ndarray) -> float:
             return float(y[1])
+
         event.terminal = True  # type: ignore[attr-defined]
         event.direction = -sigma  # type: ignore[attr-defined]  # w returns to zero
         return event
@@ -77,15 +79,17 @@ def baseline(periods: int, rtol: float, shape: str = "half-cosine") -> np.ndarra
             if stuck:
                 if t >= T_F or amp_a == 0:  # a = 0: nothing breaks it loose
                     return s, 0.0, True
-                sol = solve_ivp(lambda _t, _y: [0.0, 0.0], (t, t1), [s, 0.0], events=breakaway,
-                                rtol=rtol, atol=1e-30)
+                sol = solve_ivp(
+                    lambda _t, _y: [0.0, 0.0], (t, t1), [s, 0.0], events=breakaway, rtol=rtol, atol=1e-30
+                )
                 if sol.status != 1:
                     return s, 0.0, True
                 t, stuck, w = float(sol.t_events[0][0]), False, 0.0
                 continue
             sigma = math.copysign(1.0, w) if w != 0 else -math.copysign(1.0, plate_accel(t))
-            sol = solve_ivp(slip(sigma), (t, t1), [s, w], events=crossing(sigma), rtol=rtol,
-                            atol=[1e-18, 1e-15])
+            sol = solve_ivp(
+                slip(sigma), (t, t1), [s, w], events=crossing(sigma), rtol=rtol, atol=[1e-18, 1e-15]
+            )
             s, w = float(sol.y[0, -1]), float(sol.y[1, -1])
             if sol.status != 1:
                 return s, w, False

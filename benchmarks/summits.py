@@ -50,8 +50,9 @@ def run(quick: bool) -> dict[str, float | int]:
     ring[1, 1] = False
     ours_summits = best_time(lambda: find_summits(detrended))
     filter_summits = best_time(
-        lambda: np.nonzero(detrended > ndimage.maximum_filter(detrended, footprint=ring, mode="constant",
-                                                               cval=np.inf))
+        lambda: np.nonzero(
+            detrended > ndimage.maximum_filter(detrended, footprint=ring, mode="constant", cval=np.inf)
+        )
     )
     return {
         "ratio": baseline / ours,

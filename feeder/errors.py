@@ -87,5 +87,8 @@ MEMORY_BUDGET_BYTES = 2 * 2**30
 def check_memory_budget(field: str, nbytes: float) -> None:
     """Refuse (InputError naming ``field``) a request that needs more than :data:`MEMORY_BUDGET_BYTES`."""
     if not nbytes <= MEMORY_BUDGET_BYTES:
-        raise InputError(field, f"needs ~{nbytes / 2**30:.3g} GiB, more than the "
-                                f"{MEMORY_BUDGET_BYTES // 2**30} GiB memory budget")
+        raise InputError(
+            field,
+            f"needs ~{nbytes / 2**30:.3g} GiB, more than the "
+            f"{MEMORY_BUDGET_BYTES // 2**30} GiB memory budget",
+        )

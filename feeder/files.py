@@ -29,8 +29,9 @@ def read_text(path: Path) -> str:
         if not stat.S_ISREG(info.st_mode):
             raise InputError(str(path), "not a regular file")
         if info.st_size > MAX_TEXT_BYTES:
-            raise InputError(str(path), f"larger than {MAX_TEXT_BYTES // 2**20} MiB; not a "
-                             "configuration file")
+            raise InputError(
+                str(path), f"larger than {MAX_TEXT_BYTES // 2**20} MiB; not a configuration file"
+            )
         return Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(str(path), "no such file") from None

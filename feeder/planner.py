@@ -155,8 +155,14 @@ def predict_step(
 
     τ and w are a pair (:func:`feeder.contact.breakaway.contact`): None = the τ fitted
     with the surface's w."""
-    result = contact(part, support=support, surface=surface, tau_pa=tau_pa, tau_band_pa=tau_band_pa,
-                     tau_adhesion_work_j_m2=tau_adhesion_work_j_m2)
+    result = contact(
+        part,
+        support=support,
+        surface=surface,
+        tau_pa=tau_pa,
+        tau_band_pa=tau_band_pa,
+        tau_adhesion_work_j_m2=tau_adhesion_work_j_m2,
+    )
     return _prediction(waveform, result.breakaway_accel_m_s2, result.breakaway_accel_band_m_s2,
                        kinetic_ratio, amplifier, stack)  # fmt: skip
 
@@ -232,8 +238,14 @@ def plan(
         raise InputError("distance_m", f"must be a non-zero finite distance, got {distance_m!r}")
     if not (math.isfinite(margin) and margin >= 1):
         raise InputError("margin", f"must be a number ≥ 1, got {margin!r}")
-    result = contact(part, support=support, surface=surface, tau_pa=tau_pa, tau_band_pa=tau_band_pa,
-                     tau_adhesion_work_j_m2=tau_adhesion_work_j_m2)
+    result = contact(
+        part,
+        support=support,
+        surface=surface,
+        tau_pa=tau_pa,
+        tau_band_pa=tau_band_pa,
+        tau_adhesion_work_j_m2=tau_adhesion_work_j_m2,
+    )
     a_s = result.breakaway_accel_m_s2
     a_lo, a_hi = result.breakaway_accel_band_m_s2
 

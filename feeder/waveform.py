@@ -80,15 +80,11 @@ class Waveform:
                 f"expected one of {', '.join(FLYBACK_SHAPES)}, got {self.flyback_shape!r}",
             )
         if self.direction not in DIRECTIONS:
-            raise InputError(
-                "direction", f"expected one of {', '.join(DIRECTIONS)}, got {self.direction!r}"
-            )
+            raise InputError("direction", f"expected one of {', '.join(DIRECTIONS)}, got {self.direction!r}")
         if not (math.isfinite(self.frequency_hz) and self.frequency_hz > 0):
             raise InputError("frequency_hz", f"must be a positive number, got {self.frequency_hz!r}")
         if not (math.isfinite(self.amplitude_vpp) and self.amplitude_vpp > 0):
-            raise InputError(
-                "amplitude_vpp", f"must be a positive number, got {self.amplitude_vpp!r}"
-            )
+            raise InputError("amplitude_vpp", f"must be a positive number, got {self.amplitude_vpp!r}")
         if not math.isfinite(self.offset_v):
             raise InputError("offset_v", f"must be a finite number, got {self.offset_v!r}")
         if self.flyback_shape != "current-limited":
@@ -101,9 +97,7 @@ class Waveform:
                     "flyback_s",
                     f"{self.flyback_s:g} s is not shorter than the period {self.period_s:g} s",
                 )
-        elif self.flyback_s is not None and not (
-            math.isfinite(self.flyback_s) and self.flyback_s > 0
-        ):
+        elif self.flyback_s is not None and not (math.isfinite(self.flyback_s) and self.flyback_s > 0):
             raise InputError("flyback_s", f"must be a positive number, got {self.flyback_s!r}")
 
     @property

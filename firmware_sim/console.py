@@ -64,9 +64,9 @@ class ConsoleError(Exception):
 
 @dataclass
 class _Source:
-    failures: int = 0        # consecutive failed tries
+    failures: int = 0  # consecutive failed tries
     next_free_s: float = 0.0  # monotonic time the next try may be evaluated
-    last_s: float = 0.0       # monotonic time of the last try
+    last_s: float = 0.0  # monotonic time of the last try
 
 
 class LoginThrottle:
@@ -81,9 +81,12 @@ class LoginThrottle:
     session or the firmware's tick.
     """
 
-    def __init__(self, min_interval_s: float = MIN_LOGIN_INTERVAL_S,
-                 max_interval_s: float = MAX_LOGIN_INTERVAL_S,
-                 forget_s: float = FORGET_FAILURES_S) -> None:
+    def __init__(
+        self,
+        min_interval_s: float = MIN_LOGIN_INTERVAL_S,
+        max_interval_s: float = MAX_LOGIN_INTERVAL_S,
+        forget_s: float = FORGET_FAILURES_S,
+    ) -> None:
         self.min_interval_s = min_interval_s
         self.max_interval_s = max_interval_s
         self.forget_s = forget_s
@@ -121,8 +124,11 @@ class LoginThrottle:
             return at
 
     def _forget(self, now: float) -> None:
-        stale = [s for s, state in self._sources.items()
-                 if now - max(state.last_s, state.next_free_s) > self.forget_s]
+        stale = [
+            s
+            for s, state in self._sources.items()
+            if now - max(state.last_s, state.next_free_s) > self.forget_s
+        ]
         for source in stale:
             del self._sources[source]
 
@@ -142,10 +148,17 @@ class ConsoleSession:
         ``source`` (the peer's address); ``None`` = unpaced (tests).
     """
 
-    def __init__(self, firmware: Firmware, password: str | None = None,
-                 true_step: TrueStepSource | None = None, max_line: int = MAX_LINE,
-                 wait_timeout_s: float = 600.0, dialect: str = "extended",
-                 throttle: LoginThrottle | None = None, source: str = "local") -> None:
+    def __init__(
+        self,
+        firmware: Firmware,
+        password: str | None = None,
+        true_step: TrueStepSource | None = None,
+        max_line: int = MAX_LINE,
+        wait_timeout_s: float = 600.0,
+        dialect: str = "extended",
+        throttle: LoginThrottle | None = None,
+        source: str = "local",
+    ) -> None:
         self.firmware = firmware
         self.verbs = verbs_of(dialect)
         self.password = password
@@ -263,12 +276,13 @@ class ConsoleSession:
             _arity(args, 0)
             return [f"serialnumber = {fw.config.serial_number}"]
         if verb == "help":
-            return [f"{name} {BY_NAME[name].usage}".rstrip() for name in BY_NAME
-                    if name in self.verbs]
+            return [f"{name} {BY_NAME[name].usage}".rstrip() for name in BY_NAME if name in self.verbs]
         if verb == "gettick":
             _arity(args, 0)
-            return [f"{key[:-2]} = {fixed(value * 1e6, 3)} us" if key.endswith("_s")
-                    else f"{key} = {value}" for key, value in fw.tick_summary().items()]
+            return [
+                f"{key[:-2]} = {fixed(value * 1e6, 3)} us" if key.endswith("_s") else f"{key} = {value}"
+                for key, value in fw.tick_summary().items()
+            ]
         handler = AXIS_VERBS.get(verb)
         if handler is None:
             raise ConsoleError(UNKNOWN_COMMAND)
@@ -386,8 +400,7 @@ class ConsoleSession:
     def _getfb(self, axis: Axis, args: list[str]) -> list[str]:
         _arity(args, 0)
         status = axis.status()
-        return [f"flybackshape = {status.flyback_shape}",
-                f"flyback = {fixed(status.flyback_s, 9)} s"]
+        return [f"flybackshape = {status.flyback_shape}", f"flyback = {fixed(status.flyback_s, 9)} s"]
 
     def _getcnt(self, axis: Axis, args: list[str]) -> list[str]:
         _arity(args, 0)
@@ -396,13 +409,15 @@ class ConsoleSession:
     def _getst(self, axis: Axis, args: list[str]) -> list[str]:
         _arity(args, 0)
         s = axis.status()
-        return [f"mode = {s.mode}",
-                f"frequency = {frequency_text(s.frequency_hz)} Hz",
-                f"voltage = {fixed(s.amplitude_v)} V",
-                f"steps = {s.step_counter}",
-                f"moving = {int(s.moving)}",
-                f"faults = {s.fault_word}",
-                f"faultnames = {','.join(s.faults) or 'none'}"]
+        return [
+            f"mode = {s.mode}",
+            f"frequency = {frequency_text(s.frequency_hz)} Hz",
+            f"voltage = {fixed(s.amplitude_v)} V",
+            f"steps = {s.step_counter}",
+            f"moving = {int(s.moving)}",
+            f"faults = {s.fault_word}",
+            f"faultnames = {','.join(s.faults) or 'none'}",
+        ]
 
     def _clrf(self, axis: Axis, args: list[str]) -> list[str]:
         _arity(args, 0)
@@ -423,8 +438,11 @@ class ConsoleSession:
         step = self.true_step(axis) if self.true_step is not None else None
         if step is None:
             raise ConsoleError("No plant on this axis")
-        return [f"stepup = {fixed(step.up_m, 12)} m", f"stepdown = {fixed(step.down_m, 12)} m",
-                f"stepscatter = {fixed(step.scatter)}"]
+        return [
+            f"stepup = {fixed(step.up_m, 12)} m",
+            f"stepdown = {fixed(step.down_m, 12)} m",
+            f"stepscatter = {fixed(step.scatter)}",
+        ]
 
 
 def _arity(args: list[str], n: int) -> None:
@@ -451,19 +469,31 @@ def _integer(text: str, name: str) -> int:
 AxisVerb = Callable[[ConsoleSession, Axis, list[str]], list[str]]
 
 AXIS_VERBS: dict[str, AxisVerb] = {
-    "setm": ConsoleSession._setm, "getm": ConsoleSession._getm,
-    "setf": ConsoleSession._setf, "getf": ConsoleSession._getf,
-    "setv": ConsoleSession._setv, "getv": ConsoleSession._getv,
-    "seta": ConsoleSession._seta, "geta": ConsoleSession._geta,
+    "setm": ConsoleSession._setm,
+    "getm": ConsoleSession._getm,
+    "setf": ConsoleSession._setf,
+    "getf": ConsoleSession._getf,
+    "setv": ConsoleSession._setv,
+    "getv": ConsoleSession._getv,
+    "seta": ConsoleSession._seta,
+    "geta": ConsoleSession._geta,
     "geto": ConsoleSession._geto,
-    "stepu": ConsoleSession._stepu, "stepd": ConsoleSession._stepd,
-    "stop": ConsoleSession._stop, "stepw": ConsoleSession._wait,
-    "getc": ConsoleSession._getc, "capw": ConsoleSession._wait,
-    "setpu": ConsoleSession._setpu, "setpd": ConsoleSession._setpd,
-    "getpu": ConsoleSession._getpu, "getpd": ConsoleSession._getpd,
+    "stepu": ConsoleSession._stepu,
+    "stepd": ConsoleSession._stepd,
+    "stop": ConsoleSession._stop,
+    "stepw": ConsoleSession._wait,
+    "getc": ConsoleSession._getc,
+    "capw": ConsoleSession._wait,
+    "setpu": ConsoleSession._setpu,
+    "setpd": ConsoleSession._setpd,
+    "getpu": ConsoleSession._getpu,
+    "getpd": ConsoleSession._getpd,
     "getser": ConsoleSession._getser,
-    "setfb": ConsoleSession._setfb, "getfb": ConsoleSession._getfb,
-    "getcnt": ConsoleSession._getcnt, "getst": ConsoleSession._getst,
-    "clrf": ConsoleSession._clrf, "injf": ConsoleSession._injf,
+    "setfb": ConsoleSession._setfb,
+    "getfb": ConsoleSession._getfb,
+    "getcnt": ConsoleSession._getcnt,
+    "getst": ConsoleSession._getst,
+    "clrf": ConsoleSession._clrf,
+    "injf": ConsoleSession._injf,
     "simstep": ConsoleSession._simstep,
 }

@@ -82,8 +82,7 @@ class LimitError(FirmwareError):
     """A value outside its allowed range ``[lo, hi]``."""
 
     def __init__(self, field: str, value: float, lo: float, hi: float) -> None:
-        super().__init__(
-            f"Value out of range: {field} = {_plain(value)} not in [{_plain(lo)}, {_plain(hi)}]")
+        super().__init__(f"Value out of range: {field} = {_plain(value)} not in [{_plain(lo)}, {_plain(hi)}]")
         self.field = field
         self.value = value
         self.lo = lo
@@ -176,12 +175,20 @@ class TickStats:
         """Counts and jitter p50/p99/max in seconds."""
         jitter = np.asarray(self.jitter_s, dtype=float)
         p50, p99, top = (
-            (float(np.percentile(jitter, 50)), float(np.percentile(jitter, 99)),
-             float(jitter.max())) if jitter.size else (0.0, 0.0, 0.0))
-        return {"ticks": self.ticks, "late_ticks": self.late_ticks,
-                "missed_deadlines": self.missed_deadlines, "underruns": self.underruns,
-                "underrun_samples": self.underrun_samples,
-                "jitter_p50_s": p50, "jitter_p99_s": p99, "jitter_max_s": top}
+            (float(np.percentile(jitter, 50)), float(np.percentile(jitter, 99)), float(jitter.max()))
+            if jitter.size
+            else (0.0, 0.0, 0.0)
+        )
+        return {
+            "ticks": self.ticks,
+            "late_ticks": self.late_ticks,
+            "missed_deadlines": self.missed_deadlines,
+            "underruns": self.underruns,
+            "underrun_samples": self.underrun_samples,
+            "jitter_p50_s": p50,
+            "jitter_p99_s": p99,
+            "jitter_max_s": top,
+        }
 
 
 DacSink = Callable[[int, int, np.ndarray], None]
@@ -192,12 +199,17 @@ TickListener = Callable[[float], None]
 """Called at the end of every tick with the tick's time (s since start)."""
 
 
-def sawtooth_design(shape: str, flyback_s: float, frequency_hz: float,
-                    direction: str = "forward") -> Waveform:
+def sawtooth_design(
+    shape: str, flyback_s: float, frequency_hz: float, direction: str = "forward"
+) -> Waveform:
     """The sawtooth design (unit amplitude) behind an axis' flyback settings."""
-    return Waveform(frequency_hz=frequency_hz, amplitude_vpp=1.0, flyback_shape=shape,
-                    flyback_s=flyback_s if shape != "current-limited" else None,
-                    direction=direction)
+    return Waveform(
+        frequency_hz=frequency_hz,
+        amplitude_vpp=1.0,
+        flyback_shape=shape,
+        flyback_s=flyback_s if shape != "current-limited" else None,
+        direction=direction,
+    )
 
 
 class Axis:
@@ -216,21 +228,21 @@ class Axis:
         self._flyback_shape = "current-limited"
         self._flyback_s = 0.0
         self._patterns: dict[bool, list[int]] = {}  # 256-point 0–255 (getpu/setpu)
-        self._tables: dict[bool, np.ndarray] = {}    # what the DDS reads, 0..1
+        self._tables: dict[bool, np.ndarray] = {}  # what the DDS reads, 0..1
         self._update_patterns()
         self._phase = 0
         self._up = True
-        self._remaining = 0          # steps left in the burst; -1 = continuous
-        self._step_counter = 0       # steps the DAC has played
+        self._remaining = 0  # steps left in the burst; -1 = continuous
+        self._step_counter = 0  # steps the DAC has played
         self._fault_word = 0
-        self._code = 0               # last DAC code generated (the slew limiter's state)
-        self._played_code = 0        # last DAC code played
-        self._written = 0            # index of the next sample to generate
-        self._pending_codes = np.zeros(0, dtype=np.int64)   # generated, not yet played
-        self._pending_steps = np.zeros(0, dtype=np.int64)   # ±1 where a period completes
+        self._code = 0  # last DAC code generated (the slew limiter's state)
+        self._played_code = 0  # last DAC code played
+        self._written = 0  # index of the next sample to generate
+        self._pending_codes = np.zeros(0, dtype=np.int64)  # generated, not yet played
+        self._pending_steps = np.zeros(0, dtype=np.int64)  # ±1 where a period completes
         self._pending_phases = np.zeros(0, dtype=np.uint64)  # DDS phase of each sample
-        self._cap_done_sample = 0    # capacitance measurement ends at this sample
-        self._active_until = 0       # the last burst's final sample plays before this one
+        self._cap_done_sample = 0  # capacitance measurement ends at this sample
+        self._active_until = 0  # the last burst's final sample plays before this one
         self._capacitance_f = firmware.config.load_capacitance_f
 
     # -- settings -------------------------------------------------------------
@@ -252,8 +264,9 @@ class Axis:
             if mode != "gnd" and self._fault_word:
                 raise FirmwareError("Axis in fault state")
             if mode == "cap":
-                self._cap_done_sample = (self._fw.samples_played
-                                         + round(CAPACITANCE_MEASURE_S * self._fw.sample_rate))
+                self._cap_done_sample = self._fw.samples_played + round(
+                    CAPACITANCE_MEASURE_S * self._fw.sample_rate
+                )
             if mode not in STEPPING_MODES:
                 self._remaining = 0
             self._mode = mode
@@ -299,8 +312,12 @@ class Axis:
             if shape == "current-limited":
                 seconds = 0.0
             else:
-                _check("flyback", seconds, 1.0 / self._fw.sample_rate,
-                       1.0 / self._frequency_hz - 1.0 / self._fw.sample_rate)
+                _check(
+                    "flyback",
+                    seconds,
+                    1.0 / self._fw.sample_rate,
+                    1.0 / self._frequency_hz - 1.0 / self._fw.sample_rate,
+                )
             self._flyback_shape = shape
             self._flyback_s = float(seconds)
             self._update_patterns()
@@ -356,8 +373,7 @@ class Axis:
         """Block until the DAC has played the burst and no capacitance measurement
         runs; False on timeout."""
         with self._fw.lock:
-            return self._fw.lock.wait_for(lambda: not self._busy() or self._fw.stopped,
-                                          timeout_s)
+            return self._fw.lock.wait_for(lambda: not self._busy() or self._fw.stopped, timeout_s)
 
     # -- faults ---------------------------------------------------------------
 
@@ -382,17 +398,23 @@ class Axis:
     def status(self) -> AxisStatus:
         with self._fw.lock:
             return AxisStatus(
-                axis=self.number, mode=self._mode, frequency_hz=self._frequency_hz,
-                amplitude_v=self._amplitude_v, offset_v=self._offset_v,
-                flyback_shape=self._flyback_shape, flyback_s=self._flyback_s,
-                step_counter=self._step_counter, moving=self._busy() and self._mode != "cap",
-                fault_word=self._fault_word, output_v=self._fw.volts(self._played_code))
+                axis=self.number,
+                mode=self._mode,
+                frequency_hz=self._frequency_hz,
+                amplitude_v=self._amplitude_v,
+                offset_v=self._offset_v,
+                flyback_shape=self._flyback_shape,
+                flyback_s=self._flyback_s,
+                step_counter=self._step_counter,
+                moving=self._busy() and self._mode != "cap",
+                fault_word=self._fault_word,
+                output_v=self._fw.volts(self._played_code),
+            )
 
     # -- internals (called with the lock held) --------------------------------
 
     def _busy(self) -> bool:
-        return (self._remaining != 0 or self._mode == "cap"
-                or self._fw.samples_played < self._active_until)
+        return self._remaining != 0 or self._mode == "cap" or self._fw.samples_played < self._active_until
 
     def _rewrite(self, resume: bool) -> None:
         """Regenerate the unplayed part of the DAC buffer from the current state, so
@@ -428,11 +450,11 @@ class Axis:
 
     def _hold(self, n: int) -> None:
         """The DAC ran dry for ``n`` samples: it repeated its last code."""
-        self._pending_codes = np.concatenate((self._pending_codes,
-                                              np.full(n, self._code, dtype=np.int64)))
+        self._pending_codes = np.concatenate((self._pending_codes, np.full(n, self._code, dtype=np.int64)))
         self._pending_steps = np.concatenate((self._pending_steps, np.zeros(n, dtype=np.int64)))
-        self._pending_phases = np.concatenate((self._pending_phases,
-                                               np.full(n, self._phase, dtype=np.uint64)))
+        self._pending_phases = np.concatenate(
+            (self._pending_phases, np.full(n, self._phase, dtype=np.uint64))
+        )
         self._written += n
 
     def _play(self, n: int) -> np.ndarray:
@@ -475,10 +497,14 @@ class Axis:
         up, down = design.anc300_tables()
         self._patterns = {True: up, False: down}
         self._tables = {
-            forward: sawtooth_design(self._flyback_shape, self._flyback_s, self._frequency_hz,
-                                     "forward" if forward else "backward")
-            .dac_table(WAVETABLE_POINTS, DAC_BITS).astype(float) / DAC_MAX_CODE
-            for forward in (True, False)}
+            forward: sawtooth_design(
+                self._flyback_shape, self._flyback_s, self._frequency_hz, "forward" if forward else "backward"
+            )
+            .dac_table(WAVETABLE_POINTS, DAC_BITS)
+            .astype(float)
+            / DAC_MAX_CODE
+            for forward in (True, False)
+        }
 
     def _generate(self, first_sample: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The next ``n`` DAC codes, signed step marks and DDS phases."""
@@ -503,8 +529,7 @@ class Axis:
             if code == self._code:  # at rest: nothing to limit
                 return np.full(n, code, dtype=np.int64), steps, phases
             volts = np.full(n, level)
-        target = np.rint((np.clip(volts, amp.v_min_v, amp.v_max_v) - amp.v_min_v)
-                         / fw.lsb_v).astype(np.int64)
+        target = np.rint((np.clip(volts, amp.v_min_v, amp.v_max_v) - amp.v_min_v) / fw.lsb_v).astype(np.int64)
         codes = _slew_limit(target, self._code, fw.max_codes_per_sample)
         self._code = int(codes[-1])
         return codes, steps, phases
@@ -556,7 +581,7 @@ def _slew_limit(target: np.ndarray, start: int, max_step: int) -> np.ndarray:
     i = 0
     n = target.size
     while i < n:
-        previous = np.concatenate(([code], target[i:n - 1]))
+        previous = np.concatenate(([code], target[i : n - 1]))
         jumps = np.flatnonzero(np.abs(target[i:] - previous) > max_step)
         if not jumps.size:
             break
@@ -598,9 +623,9 @@ class Firmware:
         self.lsb_v = cfg.amplifier.max_amplitude_vpp / DAC_MAX_CODE
         self.max_slope_v_per_s = cfg.amplifier.max_slope_v_per_s(cfg.load_capacitance_f)
         self.max_codes_per_sample = max(
-            1, math.floor(self.max_slope_v_per_s / cfg.sample_rate_hz / self.lsb_v))
-        self.buffer_samples = max(cfg.samples_per_tick,
-                                  round(cfg.dac_buffer_s * cfg.sample_rate_hz))
+            1, math.floor(self.max_slope_v_per_s / cfg.sample_rate_hz / self.lsb_v)
+        )
+        self.buffer_samples = max(cfg.samples_per_tick, round(cfg.dac_buffer_s * cfg.sample_rate_hz))
         self.samples_played = 0
         self.stats = TickStats()
         self.stopped = False
@@ -668,8 +693,7 @@ class Firmware:
                     if axis._written < played:
                         axis._hold(played - axis._written)
                     codes = axis._play(played - self.samples_played)
-                    blocks.append((number, self.samples_played,
-                                   cfg.amplifier.v_min_v + codes * self.lsb_v))
+                    blocks.append((number, self.samples_played, cfg.amplifier.v_min_v + codes * self.lsb_v))
                 self.samples_played = played
             if cfg.host_watchdog_s > 0 and now_s - self._last_host_s > cfg.host_watchdog_s:
                 for axis in self._axes.values():
@@ -691,8 +715,7 @@ class Firmware:
         """Output voltage of a DAC code."""
         return self.config.amplifier.v_min_v + code * self.lsb_v
 
-    def run(self, clock: Clock, stop: threading.Event | None = None,
-            max_ticks: int | None = None) -> None:
+    def run(self, clock: Clock, stop: threading.Event | None = None, max_ticks: int | None = None) -> None:
         """Tick at ``tick_hz`` on ``clock`` until ``stop`` is set or ``max_ticks`` ran.
 
         Call again with the same clock to continue.  Jitter (wake − deadline) is

@@ -56,7 +56,7 @@ class _Connection:
         self.sock = sock
         self.session = session
         self.waiting_since = time.monotonic()  # at the prompt since (connect or last try)
-        self.checking = False                  # a password line is being evaluated
+        self.checking = False  # a password line is being evaluated
 
     def evict(self) -> None:
         with contextlib.suppress(OSError):
@@ -74,9 +74,16 @@ class TcpConsoleServer:
     are paced per source by the sessions' :class:`~firmware_sim.console.LoginThrottle`.
     """
 
-    def __init__(self, host: str, port: int, session_factory: SessionFactory, *,
-                 max_pending: int = MAX_PENDING_LOGINS, max_sessions: int = MAX_CONSOLE_CLIENTS,
-                 login_timeout_s: float = LOGIN_TIMEOUT_S) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        session_factory: SessionFactory,
+        *,
+        max_pending: int = MAX_PENDING_LOGINS,
+        max_sessions: int = MAX_CONSOLE_CLIENTS,
+        login_timeout_s: float = LOGIN_TIMEOUT_S,
+    ) -> None:
         check_local(host)
         self._factory = session_factory
         self.max_pending = max_pending
@@ -110,11 +117,9 @@ class TcpConsoleServer:
                     sock.sendall(b"Too many connections\r\n")
                 sock.close()
                 continue
-            threading.Thread(target=self._serve, args=(conn,), name="console-tcp-client",
-                             daemon=True).start()
+            threading.Thread(target=self._serve, args=(conn,), name="console-tcp-client", daemon=True).start()
 
-    def _admit(self, conn: _Connection, group: list[_Connection], cap: int,
-               evict: bool) -> bool:
+    def _admit(self, conn: _Connection, group: list[_Connection], cap: int, evict: bool) -> bool:
         with self._lock:
             if len(group) >= cap:
                 idle = [c for c in group if not c.checking]
@@ -242,7 +247,7 @@ class PtyConsole:
         try:
             view = memoryview(data)
             while view:
-                view = view[os.write(self._master, view):]
+                view = view[os.write(self._master, view) :]
         except OSError:
             return False
         return True
@@ -272,8 +277,13 @@ class LineBroadcastServer:
     ``SENSOR_SEND_TIMEOUT_S`` while data waits for it, is disconnected.
     """
 
-    def __init__(self, host: str, port: int, max_clients: int = MAX_SENSOR_CLIENTS,
-                 send_timeout_s: float = SENSOR_SEND_TIMEOUT_S) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        max_clients: int = MAX_SENSOR_CLIENTS,
+        send_timeout_s: float = SENSOR_SEND_TIMEOUT_S,
+    ) -> None:
         check_local(host)
         self.max_clients = max_clients
         self.send_timeout_s = send_timeout_s
@@ -284,8 +294,10 @@ class LineBroadcastServer:
         self._lines: deque[bytes] = deque(maxlen=SENSOR_BACKLOG_BYTES // 16)
         self._published = threading.Event()
         self._closed = threading.Event()
-        self._threads = [threading.Thread(target=self._accept, name="sensor-accept", daemon=True),
-                         threading.Thread(target=self._send, name="sensor-send", daemon=True)]
+        self._threads = [
+            threading.Thread(target=self._accept, name="sensor-accept", daemon=True),
+            threading.Thread(target=self._send, name="sensor-send", daemon=True),
+        ]
         for thread in self._threads:
             thread.start()
 
@@ -313,8 +325,7 @@ class LineBroadcastServer:
                 full = len(self._clients) >= self.max_clients
                 if not full:
                     client.setblocking(False)
-                    client.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF,
-                                      SENSOR_SEND_BUFFER_BYTES)
+                    client.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SENSOR_SEND_BUFFER_BYTES)
                     self._clients.append(_Subscriber(client))
             if full:
                 client.close()
@@ -341,7 +352,7 @@ class LineBroadcastServer:
             return False
         if client.backlog:
             try:
-                del client.backlog[:client.sock.send(client.backlog)]
+                del client.backlog[: client.sock.send(client.backlog)]
             except BlockingIOError:
                 pass
             except OSError:

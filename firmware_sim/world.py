@@ -116,15 +116,18 @@ class WorldConfig:
         if self.tau_offset is not None:
             return DEFAULT_TAU_PA * (1.0 + self.tau_offset)
         rng = np.random.default_rng(self.seed)
-        return float(rng.uniform(DEFAULT_TAU_PA - DEFAULT_TAU_BAND_PA,
-                                 DEFAULT_TAU_PA + DEFAULT_TAU_BAND_PA))
+        return float(rng.uniform(DEFAULT_TAU_PA - DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA + DEFAULT_TAU_BAND_PA))
 
 
 class World:
     """Plant + camera attached to a firmware's DAC stream (see :meth:`attach`)."""
 
-    def __init__(self, config: WorldConfig, firmware_config: FirmwareConfig,
-                 publish: Callable[[bytes], None] | None = None) -> None:
+    def __init__(
+        self,
+        config: WorldConfig,
+        firmware_config: FirmwareConfig,
+        publish: Callable[[bytes], None] | None = None,
+    ) -> None:
         if config.plant not in PLANTS:
             raise InputError("--plant", f"expected one of {', '.join(PLANTS)}, got {config.plant!r}")
         self.config = config
@@ -143,9 +146,14 @@ class World:
         self._pending: list[tuple[float, int, dict[str, object]]] = []
 
     def _plant(self, scatter: float, seed: int | None) -> Plant:
-        return Plant(self.friction, amplifier=self.firmware_config.amplifier,
-                     stack=self.config.stack, sample_rate_hz=self.firmware_config.sample_rate_hz,
-                     scatter=scatter, seed=seed)
+        return Plant(
+            self.friction,
+            amplifier=self.firmware_config.amplifier,
+            stack=self.config.stack,
+            sample_rate_hz=self.firmware_config.sample_rate_hz,
+            scatter=scatter,
+            seed=seed,
+        )
 
     def _planar_plant(self, part: Part) -> PlanarPlant:
         if self.firmware_config.axes < PLANAR_AXES:
@@ -198,7 +206,8 @@ class World:
                 frame: dict[str, object] = {"seq": self._next_frame, "time_s": t}
                 if poses is None:
                     frame["position_m"] = float(positions[sample - first]) + camera.noise_m * float(
-                        self._rng.standard_normal())
+                        self._rng.standard_normal()
+                    )
                 else:
                     seen = poses[:, sample - first].copy()
                     seen[:, :2] += camera.noise_m * self._rng.standard_normal((seen.shape[0], 2))
@@ -241,11 +250,14 @@ class World:
     def _period_steps(self, axis: Axis, sign: int, count: int, scatter: float) -> np.ndarray:
         """Per-period displacements (m) of ``count`` periods of a burst after the warm-up."""
         status = axis.status()
-        config = FirmwareConfig(axes=1, tick_hz=self.firmware_config.tick_hz,
-                                sample_rate_hz=self.firmware_config.sample_rate_hz,
-                                amplifier=self.firmware_config.amplifier,
-                                load_capacitance_f=self.firmware_config.load_capacitance_f,
-                                watchdog_s=math.inf)
+        config = FirmwareConfig(
+            axes=1,
+            tick_hz=self.firmware_config.tick_hz,
+            sample_rate_hz=self.firmware_config.sample_rate_hz,
+            amplifier=self.firmware_config.amplifier,
+            load_capacitance_f=self.firmware_config.load_capacitance_f,
+            watchdog_s=math.inf,
+        )
         firmware = Firmware(config)
         probe = firmware.axis(1)
         probe.set_frequency(status.frequency_hz)
@@ -264,23 +276,30 @@ class World:
         period = (1 << PHASE_BITS) / increment  # samples per DDS period
         steps = WARMUP_STEPS + count + 1
         probe.step(sign * steps)
-        firmware.run(VirtualClock(), max_ticks=math.ceil(steps * period
-                                                          / config.samples_per_tick) + 2)
+        firmware.run(VirtualClock(), max_ticks=math.ceil(steps * period / config.samples_per_tick) + 2)
         x = np.concatenate(trace)
         at = [round((k + 0.5) * period) for k in range(WARMUP_STEPS, steps)]
         return np.diff(x[at])
 
     def describe(self) -> dict[str, object]:
         """The true parameters, for the ready line."""
-        return {"tau_pa": self.tau_pa,
-                "static_accel_m_s2": self.friction.static_accel_m_s2,
-                "kinetic_ratio": self.friction.kinetic_ratio,
-                "scatter": self.config.scatter,
-                "part": self.config.part, "support": self.config.support,
-                "plant_axis": self.config.plant_axis,
-                "plant": self.config.plant,
-                **({"poses": [list(p) for p in self.config.poses],
-                    "lever_arm_m": self.config.lever_arm_m} if self.planar is not None else {}),
-                "camera": {"rate_hz": self.config.camera.rate_hz,
-                           "noise_m": self.config.camera.noise_m,
-                           "latency_s": self.config.camera.latency_s}}
+        return {
+            "tau_pa": self.tau_pa,
+            "static_accel_m_s2": self.friction.static_accel_m_s2,
+            "kinetic_ratio": self.friction.kinetic_ratio,
+            "scatter": self.config.scatter,
+            "part": self.config.part,
+            "support": self.config.support,
+            "plant_axis": self.config.plant_axis,
+            "plant": self.config.plant,
+            **(
+                {"poses": [list(p) for p in self.config.poses], "lever_arm_m": self.config.lever_arm_m}
+                if self.planar is not None
+                else {}
+            ),
+            "camera": {
+                "rate_hz": self.config.camera.rate_hz,
+                "noise_m": self.config.camera.noise_m,
+                "latency_s": self.config.camera.latency_s,
+            },
+        }

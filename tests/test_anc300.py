@@ -33,8 +33,7 @@ def sim() -> Iterator[Simulator]:
 @pytest.mark.parametrize("endpoint", ["console_pty", "console_tcp"])
 def test_driver_configures_steps_waits_and_grounds(sim: Simulator, endpoint: str) -> None:
     with Anc300Amplifier.open(sim.endpoints[endpoint], axis=2, timeout_s=2.0) as amp:
-        amp.apply(DriveSettings(frequency_hz=400.0, amplitude_v=35.5,
-                                flyback_shape="linear", flyback_s=2e-4))
+        amp.apply(DriveSettings(frequency_hz=400.0, amplitude_v=35.5, flyback_shape="linear", flyback_s=2e-4))
         amp.enable()
         before = amp.status().step_counter
         start = int(amp.link.value("getcnt 2", "steps"))
@@ -47,7 +46,7 @@ def test_driver_configures_steps_waits_and_grounds(sim: Simulator, endpoint: str
         assert status.counted_by == "host"
         # the firmware counted what the host counted
         assert int(amp.link.value("getcnt 2", "steps")) - start == -40
-        assert amp.link.query("getfb 2")[0] == "flybackshape = custom"   # tables, not setfb
+        assert amp.link.query("getfb 2")[0] == "flybackshape = custom"  # tables, not setfb
         amp.run_continuous(forward=True)
         assert not amp.wait(0.05)
         amp.ground()
@@ -65,17 +64,22 @@ def test_driver_uploads_tables_uses_stepw_and_estimates_a_cut_burst(sim: Simulat
     link = Anc300Link(sim.endpoints["console_tcp"], timeout_s=2.0)
     amp = Anc300Amplifier(link, axis=1)
     try:
-        settings = DriveSettings(frequency_hz=200.0, amplitude_v=10.0,
-                                 flyback_shape="half-cosine", flyback_s=5e-4)
+        settings = DriveSettings(
+            frequency_hz=200.0, amplitude_v=10.0, flyback_shape="half-cosine", flyback_s=5e-4
+        )
         amp.apply(settings)
         up = [int(v) for v in link.query("getpu 1")]
-        assert up == Waveform(frequency_hz=200.0, amplitude_vpp=1.0, flyback_shape="half-cosine",
-                              flyback_s=5e-4).anc300_tables()[0]
+        assert (
+            up
+            == Waveform(
+                frequency_hz=200.0, amplitude_vpp=1.0, flyback_shape="half-cosine", flyback_s=5e-4
+            ).anc300_tables()[0]
+        )
         start = int(link.value("getcnt 1", "steps"))
         amp.enable()
         amp.step(10)
         assert amp.wait(5.0)
-        assert amp.steps_played() == (10, False)   # the driver's own count
+        assert amp.steps_played() == (10, False)  # the driver's own count
         assert int(link.value("getcnt 1", "steps")) - start == 10
         # a burst of 400 steps (2 s) cut after ~0.3 s: the host estimates from time
         amp.step(400)
@@ -84,7 +88,7 @@ def test_driver_uploads_tables_uses_stepw_and_estimates_a_cut_burst(sim: Simulat
         played, estimated = amp.steps_played()
         true = int(link.value("getcnt 1", "steps")) - start
         assert estimated and amp.status().counted_by == "estimated"
-        assert abs(played - true) <= 4, (played, true)     # 4 periods = 20 ms of link latency
+        assert abs(played - true) <= 4, (played, true)  # 4 periods = 20 ms of link latency
         assert not amp.status().moving
     finally:
         amp.ground()

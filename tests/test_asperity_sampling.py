@@ -14,8 +14,9 @@ from feeder.parts import Part
 from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters
 
 
-@pytest.mark.parametrize(("scale", "mean_tol", "spread_range"),
-                         [(100, 0.01, (0.015, 0.05)), (10, 0.05, (0.05, 0.15))])
+@pytest.mark.parametrize(
+    ("scale", "mean_tol", "spread_range"), [(100, 0.01, (0.015, 0.05)), (10, 0.05, (0.05, 0.15))]
+)
 def test_many_asperities_recover_gw(scale: int, mean_tol: float, spread_range: tuple) -> None:
     area, load = 9e-8 * scale, 1.0285e-7 * scale  # 300×300 pressure, n ≈ 3.2 × scale
     gw = GreenwoodWilliamson(DEFAULT_SURFACE, area)
@@ -29,16 +30,18 @@ def test_many_asperities_recover_gw(scale: int, mean_tol: float, spread_range: t
 
 def test_one_asperity_carries_everything_hertz_closed_form() -> None:
     # sparse, tall summits and a light load: the highest summit alone touches
-    surface = SurfaceParameters(sigma_m=5e-9, summit_radius_m=1e-6, summit_density_per_m2=1e9,
-                                mean_summit_height_m=0.0)
+    surface = SurfaceParameters(
+        sigma_m=5e-9, summit_radius_m=1e-6, summit_density_per_m2=1e9, mean_summit_height_m=0.0
+    )
     load = 1e-9
     sampled = sample_contact(surface, 1e-8, load, placements=300, seed=3)  # N = 10 summits
     single = sampled.contacts == 1
     assert single.mean() > 0.9
     e_star = surface.effective_modulus_pa
     delta = (3 * load / (4 * e_star * math.sqrt(surface.summit_radius_m))) ** (2 / 3)
-    np.testing.assert_allclose(sampled.real_area_m2[single], math.pi * surface.summit_radius_m * delta,
-                               rtol=1e-9)
+    np.testing.assert_allclose(
+        sampled.real_area_m2[single], math.pi * surface.summit_radius_m * delta, rtol=1e-9
+    )
 
 
 def test_deterministic_for_a_seed_and_band_in_contact_result() -> None:

@@ -15,8 +15,16 @@ from feeder.paper import PAPER_ROWS
 from feeder.surface.parameters import DEFAULT_SURFACE
 
 KEYS = {
-    "mass_kg", "weight_N", "nominal_area_m2", "separation_m", "real_area_m2", "contacts",
-    "breakaway_force_N", "breakaway_force_band_N", "breakaway_accel_m_s2", "warnings",
+    "mass_kg",
+    "weight_N",
+    "nominal_area_m2",
+    "separation_m",
+    "real_area_m2",
+    "contacts",
+    "breakaway_force_N",
+    "breakaway_force_band_N",
+    "breakaway_accel_m_s2",
+    "warnings",
 }
 
 
@@ -53,7 +61,8 @@ def test_surface_file_is_used(capsys: pytest.CaptureFixture[str], tmp_path: Path
 def test_table_covers_four_parts_on_two_supports(capsys: pytest.CaptureFixture[str]) -> None:
     data = run_json(capsys, "--table")
     assert {(r["part"], r["support"]) for r in data["rows"]} == {
-        (p, s) for p in PAPER_ROWS for s in ("flat", "grooved")}
+        (p, s) for p in PAPER_ROWS for s in ("flat", "grooved")
+    }
     flat = [r for r in data["rows"] if r["support"] == "flat"]
     assert all(abs(r["real_area_deviation"]) < 2e-3 for r in flat)
     assert main(["contact", "--table"]) == 0
@@ -90,8 +99,11 @@ def test_bad_input_is_one_line_exit_2(
 @pytest.mark.parametrize(
     ("text", "field"),
     [
-        ("[surface]\nsigma_m = -0.482e-9\nsummit_radius_m = 55e-9\n"
-         "summit_density_per_m2 = 124.1e12\nmean_summit_height_m = 32.227e-9\n", "sigma_m"),
+        (
+            "[surface]\nsigma_m = -0.482e-9\nsummit_radius_m = 55e-9\n"
+            "summit_density_per_m2 = 124.1e12\nmean_summit_height_m = 32.227e-9\n",
+            "sigma_m",
+        ),
         ("[surface]\nsigma_m = 0.482e-9\n", "summit_radius_m"),
         ("[surface\nsigma_m = 1\n", "not valid TOML"),
         ("[surface]\nsigma_m = 'big'\n", "sigma_m"),
@@ -103,7 +115,9 @@ def test_malformed_surface_file(tmp_path: Path, text: str, field: str) -> None:
     path.write_text(text)
     proc = subprocess.run(
         [sys.executable, "-m", "feeder", "contact", "--part", "300x300x50", "--surface", str(path)],
-        capture_output=True, text=True, check=False,
+        capture_output=True,
+        text=True,
+        check=False,
     )
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and field in proc.stderr and "bad.toml" in proc.stderr

@@ -91,8 +91,7 @@ def test_login_buffers_typed_ahead_input_and_closes_after_three_failures() -> No
     s = ConsoleSession(Firmware(), password="123456")
     assert s.greeting().endswith(b"Authorization code: ")
     out = s.feed(b"123456\r\necho off\r\ngetf 1\r\n")
-    assert out == (b"******\r\nAuthorization success\r\necho off\r\nOK\r\n"
-                   b"frequency = 100 Hz\r\nOK\r\n")
+    assert out == (b"******\r\nAuthorization success\r\necho off\r\nOK\r\nfrequency = 100 Hz\r\nOK\r\n")
     s = ConsoleSession(Firmware(), password="123456")
     for _ in range(2):
         assert s.feed(b"wrong\r\n").endswith(b"Authorization failed\r\nAuthorization code: ")
@@ -100,8 +99,7 @@ def test_login_buffers_typed_ahead_input_and_closes_after_three_failures() -> No
     assert s.closed
 
 
-def test_long_line_and_non_utf8_get_errors_and_the_console_keeps_working(
-        session: ConsoleSession) -> None:
+def test_long_line_and_non_utf8_get_errors_and_the_console_keeps_working(session: ConsoleSession) -> None:
     out = session.feed(b"x" * 65536)
     assert out == b"Line too long\r\nERROR\r\n"
     assert session.feed(b"yyy\r\n") == b""  # the rest of the long line is dropped
@@ -113,7 +111,7 @@ def test_stepw_waits_for_the_burst_and_counter_extension(ticking: Firmware) -> N
     s = ConsoleSession(ticking)
     s.feed(b"echo off\r\n")
     assert reply_lines(s, "setf 1 500\r\nsetv 1 20\r\nsetm 1 stp\r\n") == ["OK"] * 3
-    start = time.monotonic()            # before stepu: the burst starts with it
+    start = time.monotonic()  # before stepu: the burst starts with it
     assert reply_lines(s, "stepu 1 25\r\nstepw 1\r\n") == ["OK", "OK"]
     assert time.monotonic() - start >= 0.04  # 25 periods of 2 ms
     assert reply_lines(s, "getcnt 1\r\n") == ["steps = 25", "OK"]
@@ -126,6 +124,7 @@ def test_stepw_waits_for_the_burst_and_counter_extension(ticking: Firmware) -> N
 
 
 # -- TCP ----------------------------------------------------------------------
+
 
 def _connect(port: int) -> socket.socket:
     sock = socket.create_connection(("127.0.0.1", port), timeout=5)
@@ -154,8 +153,9 @@ def test_tcp_server_survives_abuse_and_many_clients() -> None:
             sock.close()
         socks = [_connect(server.port) for _ in range(MAX_CONSOLE_CLIENTS + 8)]
         # idle at the prompt: each new one evicts the longest-waiting, the newest are greeted
-        assert all(b"Authorization code" in _read_until(sock, b"code: ")
-                   for sock in socks[-MAX_PENDING_LOGINS:])
+        assert all(
+            b"Authorization code" in _read_until(sock, b"code: ") for sock in socks[-MAX_PENDING_LOGINS:]
+        )
         sock = _connect(server.port)
         _read_until(sock, b"code: ")
         sock.sendall(b"123456\r\necho off\r\ngetv 2\r\n")
@@ -174,6 +174,7 @@ def test_tcp_server_refuses_other_addresses() -> None:
 
 # -- property-based fuzz ---------------------------------------------------------
 
+
 @settings(max_examples=150, deadline=None)
 @given(st.lists(st.binary(max_size=200), max_size=8))
 def test_random_bytes_never_crash_and_answer_in_ascii(chunks: list[bytes]) -> None:
@@ -183,12 +184,33 @@ def test_random_bytes_never_crash_and_answer_in_ascii(chunks: list[bytes]) -> No
         out.decode("ascii")
 
 
-WORDS = st.sampled_from(["gnd", "stp", "stp+", "stp-", "inp", "cap", "off", "c", "linear",
-                         "half-cosine", "current-limited", "overtemp", "nan", "inf", "-1",
-                         "OK", "ERROR", ""])
-NUMBERS = st.one_of(st.integers(-10, 100_000).map(str),
-                    st.floats(allow_nan=True, allow_infinity=True).map(repr),
-                    st.floats(-50, 400).map(lambda v: f"{v:.3f}"))
+WORDS = st.sampled_from(
+    [
+        "gnd",
+        "stp",
+        "stp+",
+        "stp-",
+        "inp",
+        "cap",
+        "off",
+        "c",
+        "linear",
+        "half-cosine",
+        "current-limited",
+        "overtemp",
+        "nan",
+        "inf",
+        "-1",
+        "OK",
+        "ERROR",
+        "",
+    ]
+)
+NUMBERS = st.one_of(
+    st.integers(-10, 100_000).map(str),
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.floats(-50, 400).map(lambda v: f"{v:.3f}"),
+)
 AXES = st.sampled_from(["1", "2", "3", "4", "0", "-1", "x"])
 
 
@@ -204,8 +226,7 @@ def command_lines(draw: st.DrawFn) -> str:
 
 @settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(command_lines(), min_size=1, max_size=25))
-def test_fuzzed_commands_keep_the_dac_stream_inside_voltage_slew_and_current_limits(
-        lines: list[str]) -> None:
+def test_fuzzed_commands_keep_the_dac_stream_inside_voltage_slew_and_current_limits(lines: list[str]) -> None:
     fw = Firmware(FirmwareConfig(dac_buffer_s=0.003))
     stream: list[np.ndarray] = []
     fw.add_sink(lambda axis, first, volts: stream.append(volts.copy()))
@@ -221,7 +242,7 @@ def test_fuzzed_commands_keep_the_dac_stream_inside_voltage_slew_and_current_lim
     for volts in stream:
         assert volts.min() >= amp.v_min_v and volts.max() <= amp.v_max_v
     # consecutive blocks of one axis are contiguous; check slopes inside and across blocks
-    per_axis = [np.concatenate(stream[k::fw.config.axes]) for k in range(fw.config.axes)]
+    per_axis = [np.concatenate(stream[k :: fw.config.axes]) for k in range(fw.config.axes)]
     for volts in per_axis:
         slope = np.abs(np.diff(volts)) / dt
         assert slope.max(initial=0.0) <= amp.slew_rate_v_per_s * (1 + 1e-9)
@@ -248,10 +269,17 @@ def _still_answers(port: int) -> bool:
 
 @pytest.mark.timeout(120)
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(st.lists(st.one_of(st.binary(max_size=300), st.just(b"123456\r\n"),
-                          st.just(b"q" * 70_000), st.just(b"stepu 1 5\r\n")), max_size=6))
+@given(
+    st.lists(
+        st.one_of(
+            st.binary(max_size=300), st.just(b"123456\r\n"), st.just(b"q" * 70_000), st.just(b"stepu 1 5\r\n")
+        ),
+        max_size=6,
+    )
+)
 def test_tcp_fuzz_then_disconnect_mid_line_leaves_the_server_answering(
-        tcp_console: TcpConsoleServer, chunks: list[bytes]) -> None:
+    tcp_console: TcpConsoleServer, chunks: list[bytes]
+) -> None:
     sock = _connect(tcp_console.port)
     with contextlib.suppress(OSError):  # the server closes after three failed logins
         for chunk in chunks:

@@ -28,9 +28,15 @@ MODES = {
     COARSE: StepMode(COARSE, DriveSettings(1000.0, COARSE_V), 3.45e-6, (2.8e-6, 4.1e-6)),
     FINE: StepMode(FINE, DriveSettings(1000.0, FINE_V), 0.8e-6, (0.5e-6, 1.1e-6)),
 }
-SETTINGS = LoopSettings(rate_hz=100.0, tolerance_m=1e-6, min_position_m=-1e-3,
-                        max_position_m=1e-3, settle_s=0.02, average_samples=3,
-                        sensor_noise_m=0.05e-6)
+SETTINGS = LoopSettings(
+    rate_hz=100.0,
+    tolerance_m=1e-6,
+    min_position_m=-1e-3,
+    max_position_m=1e-3,
+    settle_s=0.02,
+    average_samples=3,
+    sensor_noise_m=0.05e-6,
+)
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -156,7 +162,7 @@ def test_stop_request_halts_the_part(world: FakeWorld) -> None:
 
 
 def test_part_seen_outside_limits_stops_the_burst(world: FakeWorld) -> None:
-    world.true_steps = {**TRUE, (COARSE_V, 1): 12e-6}   # 4× the prediction: overshoots
+    world.true_steps = {**TRUE, (COARSE_V, 1): 12e-6}  # 4× the prediction: overshoots
     settings = LoopSettings(**{**SETTINGS.__dict__, "max_position_m": 500e-6})
     loop, _, _ = make_loop(world, settings=settings)
     try:
@@ -205,7 +211,7 @@ def test_link_lost_faults_and_a_new_link_does_not_resume(world: FakeWorld) -> No
         fresh = FakeAmplifier(world)
         loop.replace_amplifier(fresh)
         time.sleep(0.1)
-        assert "step" not in fresh.calls          # nothing resumed by itself
+        assert "step" not in fresh.calls  # nothing resumed by itself
         ok = run_job(loop, Job("move", target_m=world.position(time.monotonic()) + 20e-6))
     finally:
         loop.shutdown()
@@ -223,13 +229,12 @@ def test_timing_reports_jitter_and_overruns(world: FakeWorld) -> None:
     assert 0 <= timing["jitter_p50_s"] <= timing["jitter_p99_s"] <= timing["jitter_max_s"]
 
 
-def test_a_latched_watchdog_fault_is_cleared_by_a_new_move_others_are_reported(
-        world: FakeWorld) -> None:
+def test_a_latched_watchdog_fault_is_cleared_by_a_new_move_others_are_reported(world: FakeWorld) -> None:
     loop, amp, _ = make_loop(world)
     try:
-        amp.faults = ("watchdog",)            # the firmware grounded itself after a late tick
+        amp.faults = ("watchdog",)  # the firmware grounded itself after a late tick
         moved = run_job(loop, Job("move", target_m=30e-6))
-        amp.grounded, amp.faults = True, ("overtemp",)     # grounded itself between moves
+        amp.grounded, amp.faults = True, ("overtemp",)  # grounded itself between moves
         first = run_job(loop, Job("move", target_m=0.0))
         second = run_job(loop, Job("move", target_m=0.0))
     finally:
@@ -247,8 +252,10 @@ def test_a_plate_jump_on_a_waveform_change_is_measured_not_learned(world: FakeWo
     world.stack_gain_m_per_v = 0.05e-6
     loop, _, _ = make_loop(world)
     try:
-        results = [run_job(loop, Job("move", target_m=t))
-                   for t in (200e-6, 20e-6, 26e-6, 13e-6, 14.5e-6, -30e-6, -29e-6, -60e-6)]
+        results = [
+            run_job(loop, Job("move", target_m=t))
+            for t in (200e-6, 20e-6, 26e-6, 13e-6, 14.5e-6, -30e-6, -29e-6, -60e-6)
+        ]
         est = loop.estimates()
     finally:
         loop.shutdown()
@@ -260,8 +267,10 @@ def test_a_plate_jump_on_a_waveform_change_is_measured_not_learned(world: FakeWo
 
 
 def test_a_failing_store_ends_the_move_but_not_the_loop(
-        world: FakeWorld, caplog: pytest.LogCaptureFixture) -> None:
+    world: FakeWorld, caplog: pytest.LogCaptureFixture
+) -> None:
     """A store that cannot be written (tests/test_daemon_faults.py has the full disk-full case)."""
+
     def broken(position_m: float) -> None:
         raise OSError("disk full")
 

@@ -89,20 +89,23 @@ def test_full_file(tmp_path: Path) -> None:
     assert config.socket_path == Path("/tmp/feeder-test.sock")
 
 
-@pytest.mark.parametrize("text, words", [
-    ("[motor]\nx = 1", "unknown section [motor]"),
-    ("[amplifier]\ntransport = 'usb'", "amplifier.transport"),
-    ("[amplifier]\naxis = 0", "amplifier.axis"),
-    ("[amplifier.limits]\nv_max_v = -5.0", "v_max_v"),
-    ("[amplifier.limits]\nvolts = 5.0", "amplifier.limits.volts"),
-    ("[control]\ntolerance_m = -1e-6", "tolerance_m"),
-    ("[control]\ntolerance_m = 'small'", "tolerance_m"),
-    ("[control]\nspeed = 3", "control.speed"),
-    ("[control]\naverage_samples = 2.5", "average_samples"),
-    ("[control]\nmin_position_m = 1e-3\nmax_position_m = 0.0", "min_position_m"),
-    ("[part]\nsize = '300x300'", "--part"),
-    ("not toml [", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("[motor]\nx = 1", "unknown section [motor]"),
+        ("[amplifier]\ntransport = 'usb'", "amplifier.transport"),
+        ("[amplifier]\naxis = 0", "amplifier.axis"),
+        ("[amplifier.limits]\nv_max_v = -5.0", "v_max_v"),
+        ("[amplifier.limits]\nvolts = 5.0", "amplifier.limits.volts"),
+        ("[control]\ntolerance_m = -1e-6", "tolerance_m"),
+        ("[control]\ntolerance_m = 'small'", "tolerance_m"),
+        ("[control]\nspeed = 3", "control.speed"),
+        ("[control]\naverage_samples = 2.5", "average_samples"),
+        ("[control]\nmin_position_m = 1e-3\nmax_position_m = 0.0", "min_position_m"),
+        ("[part]\nsize = '300x300'", "--part"),
+        ("not toml [", "not valid TOML"),
+    ],
+)
 def test_bad_files_name_the_key(tmp_path: Path, text: str, words: str) -> None:
     path = tmp_path / "bad.toml"
     path.write_text(text)
@@ -119,8 +122,10 @@ def test_half_named_hardware_is_refused() -> None:
 
 def test_simulator_gets_our_part_and_amplifier_rating(tmp_path: Path) -> None:
     path = tmp_path / "sim.toml"
-    path.write_text("[part]\nsize = '200x100x50'\n[amplifier.limits]\nv_max_v = 120.0\n"
-                    "[simulator]\nargs = ['--seed', '9']\n")
+    path.write_text(
+        "[part]\nsize = '200x100x50'\n[amplifier.limits]\nv_max_v = 120.0\n"
+        "[simulator]\nargs = ['--seed', '9']\n"
+    )
     args = simulator_args(load_config(path))
     assert args[args.index("--part") + 1] == "200x100x50"
     assert float(args[args.index("--v-max") + 1]) == 120.0
@@ -132,29 +137,40 @@ def test_simulator_gets_our_part_and_amplifier_rating(tmp_path: Path) -> None:
 def test_feeder_daemon_with_a_bad_config_exits_2_in_one_line(tmp_path: Path) -> None:
     path = tmp_path / "bad.toml"
     path.write_text("[control]\nrate_hz = 0\n")
-    done = subprocess.run([sys.executable, "-m", "feeder", "daemon", "--config", str(path)],
-                          capture_output=True, text=True, timeout=60, cwd=tmp_path,
-                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    done = subprocess.run(
+        [sys.executable, "-m", "feeder", "daemon", "--config", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "rate_hz" in done.stderr
 
 
-@pytest.mark.parametrize(("text", "words"), [
-    ('[amplifier]\nprot = "/dev/ttyUSB0"\n', "did you mean amplifier.port"),
-    ('[amplfier]\nport = "/dev/ttyUSB0"\n', "did you mean [amplifier]"),
-    ('[amplifier]\ntransport = "can"\n[amplifier.can]\ninterface = "slcan"\nchanel = "/dev/x"\n',
-     "is 'chanel' meant to be 'channel'"),
-    ("[amplifier]\naxis = " + "9" * 400 + "\n", "amplifier.axis = a huge integer"),
-    ("[control]\nrate_hz = " + "1" * 400 + "\n", "control.rate_hz"),
-    ("[control]\nrate_hz = 1e-9\n", "control.rate_hz = 1e-09 is outside"),
-    ("[control]\naverage_samples = 1000000000\n", "control.average_samples"),
-    ("[sensor]\ntimeout_s = nan\n", "sensor.timeout_s must be a finite number"),
-    ('[sensor]\naddress = "tcp:127.0.0.1:7240"\n', "socket://"),
-    ('[amplifier]\nmodel = "anc300"\n[amplifier.limits]\nv_max_v = 200.0\n',
-     "beyond the anc300's rating"),
-])
-def test_misspelt_or_out_of_range_keys_are_refused_by_name(tmp_path: Path, text: str,
-                                                           words: str) -> None:
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ('[amplifier]\nprot = "/dev/ttyUSB0"\n', "did you mean amplifier.port"),
+        ('[amplfier]\nport = "/dev/ttyUSB0"\n', "did you mean [amplifier]"),
+        (
+            '[amplifier]\ntransport = "can"\n[amplifier.can]\ninterface = "slcan"\nchanel = "/dev/x"\n',
+            "is 'chanel' meant to be 'channel'",
+        ),
+        ("[amplifier]\naxis = " + "9" * 400 + "\n", "amplifier.axis = a huge integer"),
+        ("[control]\nrate_hz = " + "1" * 400 + "\n", "control.rate_hz"),
+        ("[control]\nrate_hz = 1e-9\n", "control.rate_hz = 1e-09 is outside"),
+        ("[control]\naverage_samples = 1000000000\n", "control.average_samples"),
+        ("[sensor]\ntimeout_s = nan\n", "sensor.timeout_s must be a finite number"),
+        ('[sensor]\naddress = "tcp:127.0.0.1:7240"\n', "socket://"),
+        (
+            '[amplifier]\nmodel = "anc300"\n[amplifier.limits]\nv_max_v = 200.0\n',
+            "beyond the anc300's rating",
+        ),
+    ],
+)
+def test_misspelt_or_out_of_range_keys_are_refused_by_name(tmp_path: Path, text: str, words: str) -> None:
     path = tmp_path / "bad.toml"
     path.write_text(text)
     with pytest.raises(InputError) as err:
@@ -172,8 +188,11 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, float):
-        return "nan" if value != value else ("inf" if value == math.inf else
-                                              "-inf" if value == -math.inf else repr(value))
+        return (
+            "nan"
+            if value != value
+            else ("inf" if value == math.inf else "-inf" if value == -math.inf else repr(value))
+        )
     if isinstance(value, list):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     if isinstance(value, int):
@@ -183,20 +202,34 @@ def _toml_value(value: Any) -> str:
 
 def _toml(doc: dict[str, dict[str, Any]]) -> str:
     """A TOML document of tables of scalars (a wrong value is the loader's to refuse)."""
-    return "".join(f"[{name}]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in table.items())
-                   for name, table in doc.items())
+    return "".join(
+        f"[{name}]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in table.items())
+        for name, table in doc.items()
+    )
 
 
-_SCALARS = st.one_of(st.integers(min_value=-10**500, max_value=10**500), st.floats(),
-                     st.text(max_size=12), st.booleans(), st.lists(st.integers(), max_size=3))
+_SCALARS = st.one_of(
+    st.integers(min_value=-(10**500), max_value=10**500),
+    st.floats(),
+    st.text(max_size=12),
+    st.booleans(),
+    st.lists(st.integers(), max_size=3),
+)
 
 
-@given(st.dictionaries(
-    st.sampled_from([*SECTIONS, "amplifer", "x"]),
-    st.dictionaries(st.sampled_from(sorted({k for keys in SECTIONS.values() for k in keys}
-                                           | {"chanel", "interface", "v_max_v"})),
-                    _SCALARS, max_size=6),
-    max_size=4))
+@given(
+    st.dictionaries(
+        st.sampled_from([*SECTIONS, "amplifer", "x"]),
+        st.dictionaries(
+            st.sampled_from(
+                sorted({k for keys in SECTIONS.values() for k in keys} | {"chanel", "interface", "v_max_v"})
+            ),
+            _SCALARS,
+            max_size=6,
+        ),
+        max_size=4,
+    )
+)
 @settings(max_examples=300, deadline=1000, suppress_health_check=[HealthCheck.too_slow])
 def test_fuzzed_configurations_load_or_fail_in_one_line(doc: dict[str, Any]) -> None:
     """Any document of the schema's shape with any values: a config or an InputError."""

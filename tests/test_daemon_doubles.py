@@ -29,8 +29,14 @@ from feeder.drivers.sensor import PositionSample, PositionSensor, SensorLost
 class FakeWorld:
     """True step (m) per (amplitude V, +1/−1 direction); position in m."""
 
-    def __init__(self, true_steps: dict[tuple[float, int], float], scatter: float = 0.0,
-                 noise_m: float = 0.0, seed: int = 1, position_m: float = 0.0) -> None:
+    def __init__(
+        self,
+        true_steps: dict[tuple[float, int], float],
+        scatter: float = 0.0,
+        noise_m: float = 0.0,
+        seed: int = 1,
+        position_m: float = 0.0,
+    ) -> None:
         self.true_steps = true_steps
         self.scatter = scatter
         self.noise_m = noise_m
@@ -96,7 +102,7 @@ class FakeAmplifier(Amplifier):
         self.world = world
         self.link_up = True
         self.grounded = True
-        self.faults: tuple[str, ...] = ()       # latched, as firmware_sim's fault word
+        self.faults: tuple[str, ...] = ()  # latched, as firmware_sim's fault word
         self.calls: list[str] = []
 
     def _check(self, name: str) -> None:

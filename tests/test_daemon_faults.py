@@ -34,18 +34,26 @@ pytestmark = pytest.mark.timeout(120)
 
 # -- the state file -------------------------------------------------------------------------
 
+
 def _daemon_exit(state: Path, sock: Path, *extra: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "feeder", "daemon", "--state-dir", str(state),
-                           "--socket", str(sock), *extra], cwd=ROOT, capture_output=True,
-                          text=True, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "feeder", "daemon", "--state-dir", str(state), "--socket", str(sock), *extra],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
 
 
-@pytest.mark.parametrize("content", [
-    pytest.param(b"", id="zero-bytes"),
-    pytest.param(b"SQLite format 3\x00" + b"\x01" * 40, id="truncated"),
-    pytest.param(b"PK\x03\x04 a zip file, not a database" * 10, id="not-sqlite"),
-    pytest.param(None, id="foreign-sqlite"),
-])
+@pytest.mark.parametrize(
+    "content",
+    [
+        pytest.param(b"", id="zero-bytes"),
+        pytest.param(b"SQLite format 3\x00" + b"\x01" * 40, id="truncated"),
+        pytest.param(b"PK\x03\x04 a zip file, not a database" * 10, id="not-sqlite"),
+        pytest.param(None, id="foreign-sqlite"),
+    ],
+)
 def test_a_bad_state_file_is_refused_and_left_untouched(base: Path, content: bytes | None) -> None:  # noqa: F811
     state = base / "state"
     state.mkdir(mode=0o700)
@@ -91,7 +99,7 @@ ABUSE = [
 
 def _exchange(path: Path, data: bytes, read: bool = True) -> dict[str, object] | None:
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as conn:
-        conn.connect(str(path))         # blocking: waits for room in the backlog
+        conn.connect(str(path))  # blocking: waits for room in the backlog
         conn.settimeout(10)
         # a too-long line: the daemon answers and hangs up mid-send
         with contextlib.suppress(BrokenPipeError, ConnectionResetError):
@@ -111,7 +119,8 @@ def running(tmp_path_factory: pytest.TempPathFactory) -> DaemonProcess:
 
 @pytest.mark.parametrize("data", ABUSE)
 def test_abusive_requests_get_an_error_reply_and_the_daemon_keeps_answering(
-        running: DaemonProcess, data: bytes) -> None:
+    running: DaemonProcess, data: bytes
+) -> None:
     reply = _exchange(running.socket, data)
     assert reply is not None and reply["ok"] is False and reply["error"]
     assert running.request("status")["ok"] is True
@@ -120,7 +129,7 @@ def test_abusive_requests_get_an_error_reply_and_the_daemon_keeps_answering(
 def test_half_written_requests_do_not_hold_a_handler(running: DaemonProcess) -> None:
     for _ in range(40):
         _exchange(running.socket, b'{"cmd": "sta', read=False)
-    deadline = time.monotonic() + 5      # the handlers see EOF and end
+    deadline = time.monotonic() + 5  # the handlers see EOF and end
     while True:
         try:
             assert running.request("status")["ok"] is True
@@ -130,8 +139,11 @@ def test_half_written_requests_do_not_hold_a_handler(running: DaemonProcess) -> 
 
 
 @given(st.binary(max_size=300))
-@settings(max_examples=150, deadline=5000, suppress_health_check=[HealthCheck.too_slow,
-                                                                  HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=150,
+    deadline=5000,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
 def test_fuzzed_request_lines_always_get_a_json_reply(running: DaemonProcess, data: bytes) -> None:
     line = data.replace(b"\n", b" ") + b"\n"
     if not line.strip():
@@ -143,6 +155,7 @@ def test_fuzzed_request_lines_always_get_a_json_reply(running: DaemonProcess, da
 
 
 # -- the sensor and the store ----------------------------------------------------------------
+
 
 class _GarbageSensor(FakeSensor):
     """Real frames, then NaN."""
@@ -163,8 +176,14 @@ def test_a_nan_position_is_a_sensor_fault_and_nothing_invalid_is_stored() -> Non
     saved: list[float] = []
     faults: list[str] = []
     amp = FakeAmplifier(world)
-    loop = ControlLoop(amp, _GarbageSensor(world, good=60), MODES, SETTINGS,
-                       on_position=saved.append, on_fault=lambda k, m: faults.append(k))
+    loop = ControlLoop(
+        amp,
+        _GarbageSensor(world, good=60),
+        MODES,
+        SETTINGS,
+        on_position=saved.append,
+        on_fault=lambda k, m: faults.append(k),
+    )
     loop.start()
     try:
         job = Job("move", target_m=900e-6)
@@ -178,7 +197,7 @@ def test_a_nan_position_is_a_sensor_fault_and_nothing_invalid_is_stored() -> Non
     assert "non-finite" in job.result.reason
     assert refused is not None and "sensor" in refused
     assert saved and all(x == x for x in saved)
-    assert not world.moving(time.monotonic())       # stopped, or the burst was over anyway
+    assert not world.moving(time.monotonic())  # stopped, or the burst was over anyway
 
 
 class _FillingDisk:
@@ -204,17 +223,24 @@ class _FillingDisk:
     def end(self, job: Job, result: object) -> None:
         self._check()
         assert job.record_id is not None
-        self.store.finish_move(job.record_id, status=result.status, reason=result.reason,  # type: ignore[attr-defined]
-                               reached_m=result.reached_m, steps=result.steps,  # type: ignore[attr-defined]
-                               bursts=result.bursts, step_forward_m=None,  # type: ignore[attr-defined]
-                               step_backward_m=None)
+        self.store.finish_move(
+            job.record_id,
+            status=result.status,
+            reason=result.reason,  # type: ignore[attr-defined]
+            reached_m=result.reached_m,
+            steps=result.steps,  # type: ignore[attr-defined]
+            bursts=result.bursts,
+            step_forward_m=None,  # type: ignore[attr-defined]
+            step_backward_m=None,
+        )
 
 
 def test_disk_full_ends_the_move_refuses_more_and_loses_no_record(tmp_path: Path) -> None:
     world = FakeWorld(TRUE, scatter=0.02, noise_m=0.05e-6, seed=4)
     disk = _FillingDisk(tmp_path / "f.sqlite")
-    loop = ControlLoop(FakeAmplifier(world), FakeSensor(world), MODES, SETTINGS,
-                       on_position=disk.save_position)
+    loop = ControlLoop(
+        FakeAmplifier(world), FakeSensor(world), MODES, SETTINGS, on_position=disk.save_position
+    )
 
     def job(target: float) -> Job:
         j = Job("move", target_m=target)
@@ -234,13 +260,13 @@ def test_disk_full_ends_the_move_refuses_more_and_loses_no_record(tmp_path: Path
         while world.position(time.monotonic()) < 150e-6:
             time.sleep(0.005)
         disk.full = True
-        assert second.done.wait(20)         # the move ends although its record cannot be written
+        assert second.done.wait(20)  # the move ends although its record cannot be written
         assert second.result is not None and second.result.status == "stopped"
         assert "state store unwritable" in second.result.reason
         refused = loop.submit(job(0.0))
         assert refused is not None and "state store unwritable" in refused
         assert loop.writer.pending() >= 1
-        disk.full = False                   # space returns: the queued records go in, in order
+        disk.full = False  # space returns: the queued records go in, in order
         deadline = time.monotonic() + 10
         while loop.writer.unwritable is not None and time.monotonic() < deadline:
             time.sleep(0.05)
@@ -261,15 +287,21 @@ def test_a_killed_simulator_is_respawned_on_a_fresh_pty(base: Path) -> None:  # 
         before = daemon.request("status")
         records = len(daemon.request("history", limit=100)["moves"])
         os.kill(before["simulator_pid"], signal.SIGKILL)
-        after = daemon.wait_for(lambda s: s["simulator_respawns"] == 1 and s["fault"] is None
-                                and s["position_state"] == "confirmed", timeout=30)
+        after = daemon.wait_for(
+            lambda s: (
+                s["simulator_respawns"] == 1 and s["fault"] is None and s["position_state"] == "confirmed"
+            ),
+            timeout=30,
+        )
         moved = daemon.request("move", target_m=after["position_m"] + 30e-6)
         history = daemon.request("history", limit=100)["moves"]
     finally:
         assert daemon.stop() == 0
     assert after["simulator_pid"] != before["simulator_pid"]
-    assert after["simulator_endpoints"]["console_pty"] != before["simulator_endpoints"]["console_pty"] \
+    assert (
+        after["simulator_endpoints"]["console_pty"] != before["simulator_endpoints"]["console_pty"]
         or after["simulator_endpoints"]["sensor_tcp"] != before["simulator_endpoints"]["sensor_tcp"]
+    )
     assert moved["ok"], moved
-    assert len(history) == records + 1          # nothing written before was lost
+    assert len(history) == records + 1  # nothing written before was lost
     assert history[0]["status"] == "done"

@@ -43,14 +43,20 @@ def _can_available() -> bool:
         import feeder.drivers.canopen  # noqa: F401
     except ImportError:
         return False
-    help_text = subprocess.run([sys.executable, "-m", "firmware_sim", "--help"], cwd=ROOT,
-                               capture_output=True, text=True,
-                               env={**os.environ, "PYTHONPATH": str(ROOT)}).stdout
+    help_text = subprocess.run(
+        [sys.executable, "-m", "firmware_sim", "--help"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    ).stdout
     return "slcan-pty" in help_text
 
 
-TRANSPORTS = ["serial", pytest.param("can", marks=pytest.mark.skipif(
-    not _can_available(), reason="CANopen link not available"))]
+TRANSPORTS = [
+    "serial",
+    pytest.param("can", marks=pytest.mark.skipif(not _can_available(), reason="CANopen link not available")),
+]
 
 
 class DaemonProcess:
@@ -58,11 +64,22 @@ class DaemonProcess:
 
     def __init__(self, base: Path, *extra: str) -> None:
         self.socket = base / "s.sock"
-        cmd = [sys.executable, "-m", "feeder", "daemon", "--json", "--state-dir",
-               str(base / "state"), "--socket", str(self.socket),
-               *[f"--sim-arg={a}" for a in SIM_ARGS], *extra]
-        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, text=True,
-                                     env={**os.environ, "PYTHONPATH": str(ROOT)})
+        cmd = [
+            sys.executable,
+            "-m",
+            "feeder",
+            "daemon",
+            "--json",
+            "--state-dir",
+            str(base / "state"),
+            "--socket",
+            str(self.socket),
+            *[f"--sim-arg={a}" for a in SIM_ARGS],
+            *extra,
+        ]
+        self.proc = subprocess.Popen(
+            cmd, cwd=ROOT, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}
+        )
         assert self.proc.stdout is not None
         lines = []
         for line in self.proc.stdout:
@@ -137,22 +154,24 @@ def true_coarse_steps(daemon: DaemonProcess, status: dict[str, Any]) -> tuple[fl
     wave = status["waveforms"]["coarse"]
     steps = []
     for direction in ("forward", "backward"):
-        waveform = Waveform(frequency_hz=wave["frequency_hz"], amplitude_vpp=wave["amplitude_v"],
-                            flyback_shape=wave["flyback_shape"], direction=direction)
+        waveform = Waveform(
+            frequency_hz=wave["frequency_hz"],
+            amplitude_vpp=wave["amplitude_v"],
+            flyback_shape=wave["flyback_shape"],
+            direction=direction,
+        )
         steps.append(abs(plant_step(waveform, true["static_accel_m_s2"], true["kinetic_ratio"])))
     return steps[0], steps[1]
 
 
 @pytest.mark.parametrize("transport", TRANSPORTS)
-def test_moves_converge_and_the_step_is_learned_within_5_percent(base: Path,
-                                                                   transport: str) -> None:
+def test_moves_converge_and_the_step_is_learned_within_5_percent(base: Path, transport: str) -> None:
     daemon = DaemonProcess(base, f"--transport={transport}")
     try:
         calibrated = daemon.request("calibrate", steps=20)
         assert calibrated["ok"], calibrated
         status = daemon.request("status")
-        results = [daemon.request("move", target_m=t)
-                   for t in (400e-6, 150e-6, -300e-6, -297e-6, 0.0)]
+        results = [daemon.request("move", target_m=t) for t in (400e-6, 150e-6, -300e-6, -297e-6, 0.0)]
         truth = true_coarse_steps(daemon, status)
     finally:
         assert daemon.stop() == 0
@@ -164,7 +183,7 @@ def test_moves_converge_and_the_step_is_learned_within_5_percent(base: Path,
     assert abs(predicted / truth[0] - 1) > 0.02
     assert est["coarse/forward"]["step_m"] == pytest.approx(truth[0], rel=0.05)
     assert est["coarse/backward"]["step_m"] == pytest.approx(truth[1], rel=0.05)
-    assert process_gone(daemon.ready["simulator_pid"])     # stopped with its daemon
+    assert process_gone(daemon.ready["simulator_pid"])  # stopped with its daemon
 
 
 def test_sigkill_mid_move_restarts_with_calibration_and_history(base: Path) -> None:
@@ -173,7 +192,7 @@ def test_sigkill_mid_move_restarts_with_calibration_and_history(base: Path) -> N
     before = daemon.request("status")
     assert daemon.request("move", target_m=4e-3, wait=False)["ok"]
     daemon.wait_for(lambda s: s["state"] == "moving" and (s["position_m"] or 0) > 200e-6)
-    time.sleep(0.3)                               # the position is saved every 0.25 s mid-move
+    time.sleep(0.3)  # the position is saved every 0.25 s mid-move
     daemon.proc.send_signal(signal.SIGKILL)
     daemon.proc.wait()
     assert process_gone(daemon.ready["simulator_pid"]), "firmware_sim outlived its daemon"
@@ -188,8 +207,8 @@ def test_sigkill_mid_move_restarts_with_calibration_and_history(base: Path) -> N
     assert status["interrupted_moves"] == [history[-1]["id"]]
     assert [m["status"] for m in history] == ["done", "interrupted"]
     assert history[-1]["target_m"] == 4e-3
-    assert status["estimates"] == before["estimates"]          # calibration intact
-    assert status["last_known_position_m"] > 200e-6            # saved mid-move
+    assert status["estimates"] == before["estimates"]  # calibration intact
+    assert status["last_known_position_m"] > 200e-6  # saved mid-move
     assert confirmed["position_m"] is not None
 
 
@@ -201,15 +220,17 @@ def test_link_loss_faults_reconnects_and_does_not_resume(base: Path, transport: 
     try:
         assert daemon.request("move", target_m=4e-3, wait=False)["ok"]
         daemon.wait_for(lambda s: (s["position_m"] or 0) > 100e-6)
-        os.kill(sim, signal.SIGSTOP)                 # the link goes silent
+        os.kill(sim, signal.SIGSTOP)  # the link goes silent
         try:
             faulted = daemon.wait_for(lambda s: s["state"] == "fault", timeout=10)
             refused = daemon.request("move", target_m=0.0)
             time.sleep(1.0)
         finally:
             os.kill(sim, signal.SIGCONT)
-        daemon.wait_for(lambda s: s["state"] == "idle" and not s["reconnecting"]
-                        and s["position_state"] == "confirmed", timeout=30)
+        daemon.wait_for(
+            lambda s: s["state"] == "idle" and not s["reconnecting"] and s["position_state"] == "confirmed",
+            timeout=30,
+        )
         # the thawed firmware may first finish the burst it was playing when it froze
         # (commanded before the link was lost); after that nothing may move
         time.sleep(1.0)
@@ -222,21 +243,34 @@ def test_link_loss_faults_reconnects_and_does_not_resume(base: Path, transport: 
         assert daemon.stop() == 0
     assert faulted["fault"] and refused["ok"] is False
     assert history[-1]["status"] == "fault"
-    assert abs(later - still) < 0.5e-6                # no move resumed by itself
-    assert fresh["ok"], fresh                          # a new command works again
+    assert abs(later - still) < 0.5e-6  # no move resumed by itself
+    assert fresh["ok"], fresh  # a new command works again
 
 
 def test_configured_hardware_over_tcp_with_a_password(base: Path) -> None:
     """A config naming the amplifier (TCP console, password) and the camera: no simulator is
     started by the daemon; it drives the one it is pointed at."""
-    sim = Simulator(["--console", "tcp:127.0.0.1:0", "--sensor", "tcp:127.0.0.1:0",
-                     "--password", "s3cret", "--seed", "2", "--dialect", "anc300"])
+    sim = Simulator(
+        [
+            "--console",
+            "tcp:127.0.0.1:0",
+            "--sensor",
+            "tcp:127.0.0.1:0",
+            "--password",
+            "s3cret",
+            "--seed",
+            "2",
+            "--dialect",
+            "anc300",
+        ]
+    )
     try:
         config = base / "feeder.toml"
         config.write_text(
             f'[amplifier]\nport = "{sim.endpoints["console_tcp"]}"\npassword = "s3cret"\n'
             'model = "firmware_sim"\n'
-            f'[sensor]\naddress = "{sim.endpoints["sensor_tcp"]}"\n')
+            f'[sensor]\naddress = "{sim.endpoints["sensor_tcp"]}"\n'
+        )
         daemon = DaemonProcess(base, f"--config={config}")
         try:
             reply = daemon.request("move", target_m=-80e-6)
@@ -246,13 +280,28 @@ def test_configured_hardware_over_tcp_with_a_password(base: Path) -> None:
         assert reply["ok"], reply
         wrong = base / "wrong.toml"
         wrong.write_text(config.read_text().replace("s3cret", "guess"))
-        done = subprocess.run([sys.executable, "-m", "feeder", "daemon", "--config", str(wrong),
-                               "--state-dir", str(base / "state2"), "--socket",
-                               str(base / "t.sock")], cwd=ROOT, capture_output=True, text=True,
-                              timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)})
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "feeder",
+                "daemon",
+                "--config",
+                str(wrong),
+                "--state-dir",
+                str(base / "state2"),
+                "--socket",
+                str(base / "t.sock"),
+            ],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env={**os.environ, "PYTHONPATH": str(ROOT)},
+        )
         assert done.returncode == 1
         assert done.stderr.count("\n") == 1 and "password" in done.stderr
-        assert sim.alive()                      # not ours to stop
+        assert sim.alive()  # not ours to stop
     finally:
         sim.stop()
 
@@ -306,12 +355,14 @@ class CameraRelay:
 def test_sensor_loss_stops_the_part_and_reconnects(base: Path) -> None:
     sim = Simulator(["--console", "pty", "--sensor", "tcp:127.0.0.1:0", "--seed", "4"])
     relay = CameraRelay(sim.endpoints["sensor_tcp"])
-    direct = StreamCamera(sim.endpoints["sensor_tcp"])     # the test's own view of the part
+    direct = StreamCamera(sim.endpoints["sensor_tcp"])  # the test's own view of the part
     try:
         config = base / "feeder.toml"
-        config.write_text(f'[amplifier]\nport = "{sim.endpoints["console_pty"]}"\n'
-                          'model = "firmware_sim"\n'
-                          f'[sensor]\naddress = "{relay.url}"\n')
+        config.write_text(
+            f'[amplifier]\nport = "{sim.endpoints["console_pty"]}"\n'
+            'model = "firmware_sim"\n'
+            f'[sensor]\naddress = "{relay.url}"\n'
+        )
         daemon = DaemonProcess(base, f"--config={config}")
         try:
             assert daemon.request("move", target_m=4e-3, wait=False)["ok"]
@@ -324,8 +375,9 @@ def test_sensor_loss_stops_the_part_and_reconnects(base: Path) -> None:
             second = direct.read(2.0).position_m
             history = daemon.request("history")["moves"]
             relay.up = True
-            recovered = daemon.wait_for(lambda s: s["state"] == "idle"
-                                        and s["position_state"] == "confirmed", timeout=30)
+            recovered = daemon.wait_for(
+                lambda s: s["state"] == "idle" and s["position_state"] == "confirmed", timeout=30
+            )
         finally:
             assert daemon.stop() == 0
     finally:
@@ -334,5 +386,5 @@ def test_sensor_loss_stops_the_part_and_reconnects(base: Path) -> None:
         sim.stop()
     assert "sensor lost" in faulted["fault"] and faulted["position_state"] == "uncertain"
     assert history[-1]["status"] == "fault" and "sensor lost" in history[-1]["reason"]
-    assert abs(second - first) < 0.5e-6 and second < 3e-3       # stopped well short of 4 mm
+    assert abs(second - first) < 0.5e-6 and second < 3e-3  # stopped well short of 4 mm
     assert recovered["position_m"] == pytest.approx(second, abs=1e-6)

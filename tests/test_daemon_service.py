@@ -55,9 +55,14 @@ def short_dir() -> Iterator[Path]:
 
 
 def make_setup(base: Path) -> DaemonSetup:
-    return DaemonSetup(modes=MODES, loop=SETTINGS, database_path=base / "state" / "f.sqlite",
-                       socket_path=base / "run" / "f.sock", calibration_key="test",
-                       info={"transport": "fake"})
+    return DaemonSetup(
+        modes=MODES,
+        loop=SETTINGS,
+        database_path=base / "state" / "f.sqlite",
+        socket_path=base / "run" / "f.sock",
+        calibration_key="test",
+        info={"transport": "fake"},
+    )
 
 
 def start(base: Path, world: FakeWorld | None = None) -> tuple[Daemon, FakeLinks]:
@@ -95,7 +100,7 @@ def test_socket_is_owner_only_and_a_move_is_recorded(short_dir: Path) -> None:
     assert move["status"] == "done" and move["target_m"] == 120e-6
     assert move["steps"] == reply["result"]["steps"] > 0
     assert not sock.exists()
-    assert links.amplifiers[0].grounded                    # grounded on shutdown
+    assert links.amplifiers[0].grounded  # grounded on shutdown
 
 
 def test_bad_requests_are_refused_and_the_daemon_keeps_running(short_dir: Path) -> None:
@@ -108,11 +113,16 @@ def test_bad_requests_are_refused_and_the_daemon_keeps_running(short_dir: Path) 
         raw.connect(str(sock_path))
         f = raw.makefile("rb")
         replies = []
-        for line in (b"{not json\n", b"[1, 2]\n", b'{"cmd": "fly"}\n', b"\xff\xfe\n",
-                     b'{"cmd": "move", "target_m": "far"}\n',
-                     b'{"cmd": "move", "target_m": 1e9}\n',
-                     b'{"cmd": "move", "target_m": NaN}\n',
-                     b'{"cmd": "move"}\n'):
+        for line in (
+            b"{not json\n",
+            b"[1, 2]\n",
+            b'{"cmd": "fly"}\n',
+            b"\xff\xfe\n",
+            b'{"cmd": "move", "target_m": "far"}\n',
+            b'{"cmd": "move", "target_m": 1e9}\n',
+            b'{"cmd": "move", "target_m": NaN}\n',
+            b'{"cmd": "move"}\n',
+        ):
             raw.sendall(line)
             replies.append(json.loads(f.readline()))
         assert all(r["ok"] is False and r["error"] for r in replies)
@@ -120,9 +130,9 @@ def test_bad_requests_are_refused_and_the_daemon_keeps_running(short_dir: Path) 
         raw.sendall(b"x" * (MAX_LINE_BYTES + 10))
         last = json.loads(f.readline())
         assert "longer than" in last["error"]
-        assert f.readline() == b""                          # connection closed
+        assert f.readline() == b""  # connection closed
         raw.close()
-        with Client(sock_path) as client:                   # the daemon still answers
+        with Client(sock_path) as client:  # the daemon still answers
             status = client.request("status")
             history = client.request("history")
     finally:
@@ -176,12 +186,12 @@ def test_killed_mid_move_restarts_uncertain_until_the_sensor_confirms(short_dir:
     setup = make_setup(short_dir)
     store = Store(setup.database_path)
     store.save_position(42e-6)
-    running = store.begin_move(300e-6, 42e-6)    # what a SIGKILL mid-move leaves behind
+    running = store.begin_move(300e-6, 42e-6)  # what a SIGKILL mid-move leaves behind
     store.close()
     world = FakeWorld(TRUE, position_m=51e-6)
     links = FakeLinks(world)
     daemon = Daemon(links, setup)
-    links.sensors[0].paused = True               # the camera has not delivered a frame yet
+    links.sensors[0].paused = True  # the camera has not delivered a frame yet
     daemon.start()
     try:
         status = daemon.status()
@@ -207,7 +217,7 @@ def test_amplifier_link_loss_faults_reconnects_and_does_not_resume(short_dir: Pa
             links.amplifiers[0].link_up = False
             wait_for(lambda: client.request("status")["state"] == "fault")
             refused = client.request("move", target_m=0.0)
-            time.sleep(0.5)                          # a few failed reconnect attempts
+            time.sleep(0.5)  # a few failed reconnect attempts
             links.amplifier_up = True
             wait_for(lambda: client.request("status")["state"] == "idle")
             status = client.request("status")
@@ -219,7 +229,7 @@ def test_amplifier_link_loss_faults_reconnects_and_does_not_resume(short_dir: Pa
     assert history[-1]["status"] == "fault"
     assert status["faults"][-1]["reconnected_after_attempts"] >= 2
     fresh = links.amplifiers[-1]
-    assert "ground" in fresh.calls and "step" not in fresh.calls   # grounded, not resumed
+    assert "ground" in fresh.calls and "step" not in fresh.calls  # grounded, not resumed
 
 
 def test_refuses_socket_paths_of_other_users(short_dir: Path) -> None:
@@ -265,7 +275,7 @@ def test_a_second_daemon_on_the_same_state_directory_is_refused(short_dir: Path)
             Daemon(FakeLinks(FakeWorld(TRUE)), other)
     finally:
         daemon.shutdown()
-    again = Daemon(FakeLinks(FakeWorld(TRUE)), other)      # free once the first one is gone
+    again = Daemon(FakeLinks(FakeWorld(TRUE)), other)  # free once the first one is gone
     again.shutdown()
 
 
@@ -294,14 +304,18 @@ def test_other_users_cannot_use_the_socket(short_dir: Path) -> None:
         short_dir.chmod(0o755)
 
         def as_nobody() -> str:
-            done = subprocess.run([sys.executable, "-c", OTHER_USER_CONNECT, str(sock)],
-                                  capture_output=True, text=True, timeout=30)
+            done = subprocess.run(
+                [sys.executable, "-c", OTHER_USER_CONNECT, str(sock)],
+                capture_output=True,
+                text=True,
+                timeout=30,
+            )
             return done.stdout.strip()
 
         sock.parent.chmod(0o755)
-        blocked_by_mode = as_nobody()                 # socket 0600: cannot connect at all
-        sock.chmod(0o666)                             # even if the mode were opened up ...
-        answer = as_nobody()                          # ... the peer's uid is checked
+        blocked_by_mode = as_nobody()  # socket 0600: cannot connect at all
+        sock.chmod(0o666)  # even if the mode were opened up ...
+        answer = as_nobody()  # ... the peer's uid is checked
         sock.chmod(0o600)
         sock.parent.chmod(0o700)
         with Client(sock) as client:

@@ -15,8 +15,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def feeder(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "feeder", *args], cwd=cwd, capture_output=True,
-                          text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    return subprocess.run(
+        [sys.executable, "-m", "feeder", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
 
 
 @pytest.mark.timeout(150)
@@ -32,10 +38,10 @@ def test_demo_json_summary_and_plot(tmp_path: Path) -> None:
     assert summary["max_error_m"] <= summary["tolerance_m"] == 1e-6
     targets = [m["target_m"] for m in moves]
     steps = [b - a for a, b in itertools.pairwise(targets)]
-    assert any(s > 0 for s in steps) and any(s < 0 for s in steps)   # both ways
+    assert any(s > 0 for s in steps) and any(s < 0 for s in steps)  # both ways
     assert summary["duration_s"] > 0
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert done.stderr == ""                                          # no progress in --json
+    assert done.stderr == ""  # no progress in --json
 
 
 def test_demo_refuses_a_plot_path_that_is_not_png(tmp_path: Path) -> None:

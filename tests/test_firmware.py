@@ -81,8 +81,7 @@ def test_dds_plays_the_flyback_design_times_amplitude() -> None:
     fw.axis(1).set_frequency(10.0)
     fw.axis(1).set_flyback("half-cosine", 0.01)
     v = play_continuous(fw, rec, clock, 250)[:20000]
-    design = Waveform(frequency_hz=10.0, amplitude_vpp=50.0, flyback_shape="half-cosine",
-                      flyback_s=0.01)
+    design = Waveform(frequency_hz=10.0, amplitude_vpp=50.0, flyback_shape="half-cosine", flyback_s=0.01)
     expected = design.voltage_at_phase(np.arange(v.size) * 10.0 / fw.sample_rate)
     np.testing.assert_allclose(v, expected, atol=2 * fw.lsb_v)
 
@@ -196,7 +195,7 @@ def test_late_tick_within_buffer_is_no_underrun_and_longer_one_holds_the_dac() -
     gap = summary["underrun_samples"]
     assert gap == 2100
     v = rec.volts()
-    held = v[1300:1300 + gap]
+    held = v[1300 : 1300 + gap]
     assert np.all(held == held[0])
     assert axis.status().fault_word == 0
 
@@ -268,22 +267,21 @@ def test_ground_acts_from_the_next_played_sample_not_after_the_buffer() -> None:
     before = rec.volts()
     axis.ground()
     fw.run(clock, max_ticks=1)
-    after = rec.volts()[before.size:]
+    after = rec.volts()[before.size :]
     step = fw.max_codes_per_sample * fw.lsb_v
     # 60 % up a 200 V ramp: it falls at the current limit from the very first sample to 0 V
     assert before[-1] > 100.0
     ramp = int(before[-1] // step)
-    np.testing.assert_allclose(np.diff(np.concatenate(([before[-1]], after[:ramp]))), -step,
-                               rtol=1e-9)
-    assert np.all(after[ramp + 1:] == 0.0)
+    np.testing.assert_allclose(np.diff(np.concatenate(([before[-1]], after[:ramp]))), -step, rtol=1e-9)
+    assert np.all(after[ramp + 1 :] == 0.0)
     assert axis.status().step_counter == 0
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.lists(st.integers(0, 65535), min_size=1, max_size=80), st.integers(0, 65535),
-       st.integers(1, 5000))
+@given(st.lists(st.integers(0, 65535), min_size=1, max_size=80), st.integers(0, 65535), st.integers(1, 5000))
 def test_slew_limiter_matches_the_sample_by_sample_definition(
-        target: list[int], start: int, max_step: int) -> None:
+    target: list[int], start: int, max_step: int
+) -> None:
     expected, code = [], start
     for want in target:
         code += max(-max_step, min(max_step, want - code))

@@ -44,6 +44,7 @@ CASE_TIMEOUT_S = 30.0
 
 # -- options ---------------------------------------------------------------------
 
+
 def run_options(argv: list[str], timeout_s: float = CASE_TIMEOUT_S) -> tuple[str, str]:
     """Parse, check and build ``argv`` as the program does, in a forked child.
 
@@ -92,67 +93,129 @@ def assert_refused(argv: list[str], option: str) -> None:
     assert option in lines[0], err
 
 
-@pytest.mark.parametrize(("argv", "option"), [
-    (["--tick-hz", "0"], "--tick-hz"),                 # was ZeroDivisionError
-    (["--tick-hz", "nan"], "--tick-hz"),               # was "cannot convert float NaN"
-    (["--tick-hz", "3"], "--sample-rate-hz"),          # not a whole multiple
-    (["--tick-hz", "1", "--sample-rate-hz", "1000000"], "--tick-hz"),  # a 10⁶-sample tick
-    (["--sample-rate-hz", "-100000"], "--sample-rate-hz"),
-    (["--camera-rate-hz", "-1"], "--camera-rate-hz"),  # was a hang that ignored SIGTERM
-    (["--camera-rate-hz", "nan"], "--camera-rate-hz"),
-    (["--camera-latency-s", "inf"], "--camera-latency-s"),
-    (["--camera-noise-m", "-1e-9"], "--camera-noise-m"),
-    (["--watchdog-s", "-1"], "--watchdog-s"),
-    (["--host-watchdog-s", "nan"], "--host-watchdog-s"),
-    (["--dac-buffer-s", "1e9"], "--dac-buffer-s"),
-    (["--seed", "-1"], "--seed"),
-    (["--seed", "1" + "0" * 400], "--seed"),
-    (["--tau-pa", "-1"], "--tau-pa"),
-    (["--tau-offset", "-2"], "--tau-offset"),
-    (["--kinetic-ratio", "2"], "--kinetic-ratio"),
-    (["--scatter", "nan"], "--scatter"),
-    (["--axes", "0"], "--axes"),
-    (["--plant-axis", "5"], "--plant-axis"),
-    (["--v-max", "0"], "--v-max"),
-    (["--current-a", "-0.5"], "--current-a"),
-    (["--load-capacitance-f", "0"], "--load-capacitance-f"),
-    (["--max-frequency-hz", "60000"], "--max-frequency-hz"),
-    (["--console", "tcp:127.0.0.1:99999"], "--console"),
-    (["--sensor", "tcp:0.0.0.0:0"], "--sensor"),
-    (["--password", ""], "--password"),
-    (["--password", " 123456"], "--password"),
-    (["--can", "slcan-pty", "--can-node-id-base", "126"], "--can-node-id-base"),
-    (["--part", "banana"], "--part"),
-    (["--support", "velvet"], "--support"),
-    (["--dialect", "anc400"], "--dialect"),
-    (["--camera-http", "70000"], "--camera-http"),
-    (["--camera-http-fps", "0"], "--camera-http-fps"),
-    (["--camera-pixel-size-m", "nan"], "--camera-pixel-size-m"),
-])
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["--tick-hz", "0"], "--tick-hz"),  # was ZeroDivisionError
+        (["--tick-hz", "nan"], "--tick-hz"),  # was "cannot convert float NaN"
+        (["--tick-hz", "3"], "--sample-rate-hz"),  # not a whole multiple
+        (["--tick-hz", "1", "--sample-rate-hz", "1000000"], "--tick-hz"),  # a 10⁶-sample tick
+        (["--sample-rate-hz", "-100000"], "--sample-rate-hz"),
+        (["--camera-rate-hz", "-1"], "--camera-rate-hz"),  # was a hang that ignored SIGTERM
+        (["--camera-rate-hz", "nan"], "--camera-rate-hz"),
+        (["--camera-latency-s", "inf"], "--camera-latency-s"),
+        (["--camera-noise-m", "-1e-9"], "--camera-noise-m"),
+        (["--watchdog-s", "-1"], "--watchdog-s"),
+        (["--host-watchdog-s", "nan"], "--host-watchdog-s"),
+        (["--dac-buffer-s", "1e9"], "--dac-buffer-s"),
+        (["--seed", "-1"], "--seed"),
+        (["--seed", "1" + "0" * 400], "--seed"),
+        (["--tau-pa", "-1"], "--tau-pa"),
+        (["--tau-offset", "-2"], "--tau-offset"),
+        (["--kinetic-ratio", "2"], "--kinetic-ratio"),
+        (["--scatter", "nan"], "--scatter"),
+        (["--axes", "0"], "--axes"),
+        (["--plant-axis", "5"], "--plant-axis"),
+        (["--v-max", "0"], "--v-max"),
+        (["--current-a", "-0.5"], "--current-a"),
+        (["--load-capacitance-f", "0"], "--load-capacitance-f"),
+        (["--max-frequency-hz", "60000"], "--max-frequency-hz"),
+        (["--console", "tcp:127.0.0.1:99999"], "--console"),
+        (["--sensor", "tcp:0.0.0.0:0"], "--sensor"),
+        (["--password", ""], "--password"),
+        (["--password", " 123456"], "--password"),
+        (["--can", "slcan-pty", "--can-node-id-base", "126"], "--can-node-id-base"),
+        (["--part", "banana"], "--part"),
+        (["--support", "velvet"], "--support"),
+        (["--dialect", "anc400"], "--dialect"),
+        (["--camera-http", "70000"], "--camera-http"),
+        (["--camera-http-fps", "0"], "--camera-http-fps"),
+        (["--camera-pixel-size-m", "nan"], "--camera-pixel-size-m"),
+    ],
+)
 def test_bad_option_is_one_line_naming_it_and_exit_2(argv: list[str], option: str) -> None:
     assert_refused(argv, option)
 
 
 def test_option_ranges_are_stated_in_help() -> None:
     text = program.build_parser().format_help()
-    for fragment in ("--tick-hz X", "(in [1, 10000], default 1000)", "--seed N",
-                     "--camera-rate-hz X"):
+    for fragment in ("--tick-hz X", "(in [1, 10000], default 1000)", "--seed N", "--camera-rate-hz X"):
         assert fragment in text
 
 
-OPTION_VALUES = st.sampled_from([
-    "0", "-1", "1", "3", "7", "8", "100", "1000", "2000", "100000", "1e-12", "1e-300", "1e300",
-    "1e309", "nan", "-nan", "inf", "-inf", "0.5", "0x10", "", " ", "abc", "1" + "0" * 60,
-    "tcp:127.0.0.1:0", "pty", "socket://127.0.0.1:70000", "300x300x50", "0.001x1x1",
-    "1e9x1x1", "grooved", "flat", "real", "virtual", "anc300", "extended", "slcan-pty",
-])
-OPTIONS = ["--tick-hz", "--sample-rate-hz", "--dac-buffer-s", "--watchdog-s", "--host-watchdog-s",
-           "--v-max", "--slew-v-per-s", "--current-a", "--max-frequency-hz",
-           "--load-capacitance-f", "--part", "--support", "--tau-pa", "--tau-offset",
-           "--kinetic-ratio", "--scatter", "--seed", "--plant-axis", "--camera-rate-hz",
-           "--camera-noise-m", "--camera-latency-s", "--axes", "--console", "--sensor",
-           "--password", "--dialect", "--clock", "--can-node-id-base", "--camera-http-fps",
-           "--camera-pixel-size-m"]
+OPTION_VALUES = st.sampled_from(
+    [
+        "0",
+        "-1",
+        "1",
+        "3",
+        "7",
+        "8",
+        "100",
+        "1000",
+        "2000",
+        "100000",
+        "1e-12",
+        "1e-300",
+        "1e300",
+        "1e309",
+        "nan",
+        "-nan",
+        "inf",
+        "-inf",
+        "0.5",
+        "0x10",
+        "",
+        " ",
+        "abc",
+        "1" + "0" * 60,
+        "tcp:127.0.0.1:0",
+        "pty",
+        "socket://127.0.0.1:70000",
+        "300x300x50",
+        "0.001x1x1",
+        "1e9x1x1",
+        "grooved",
+        "flat",
+        "real",
+        "virtual",
+        "anc300",
+        "extended",
+        "slcan-pty",
+    ]
+)
+OPTIONS = [
+    "--tick-hz",
+    "--sample-rate-hz",
+    "--dac-buffer-s",
+    "--watchdog-s",
+    "--host-watchdog-s",
+    "--v-max",
+    "--slew-v-per-s",
+    "--current-a",
+    "--max-frequency-hz",
+    "--load-capacitance-f",
+    "--part",
+    "--support",
+    "--tau-pa",
+    "--tau-offset",
+    "--kinetic-ratio",
+    "--scatter",
+    "--seed",
+    "--plant-axis",
+    "--camera-rate-hz",
+    "--camera-noise-m",
+    "--camera-latency-s",
+    "--axes",
+    "--console",
+    "--sensor",
+    "--password",
+    "--dialect",
+    "--clock",
+    "--can-node-id-base",
+    "--camera-http-fps",
+    "--camera-pixel-size-m",
+]
 
 
 @st.composite
@@ -187,6 +250,7 @@ def test_fuzzed_options_never_crash_or_hang_long(argv: list[str]) -> None:
 
 
 # -- signals -----------------------------------------------------------------------
+
 
 @pytest.fixture
 def restore_signals() -> Iterator[None]:
@@ -245,16 +309,14 @@ def query(sock: socket.socket, line: str) -> str:
 
 
 @pytest.mark.timeout(180)
-def test_floods_on_both_ports_neither_fault_the_tick_nor_lock_out_and_sigterm_ends_it_in_1_s(
-        ) -> None:
-    sim = Simulator(["--console", "tcp:127.0.0.1:0", "--sensor", "tcp:127.0.0.1:0",
-                     "--password", PASSWORD])
+def test_floods_on_both_ports_neither_fault_the_tick_nor_lock_out_and_sigterm_ends_it_in_1_s() -> None:
+    sim = Simulator(["--console", "tcp:127.0.0.1:0", "--sensor", "tcp:127.0.0.1:0", "--password", PASSWORD])
     idle: list[socket.socket] = []
     try:
         console = int(sim.endpoints["console_tcp"].rsplit(":", 1)[1])
         sensor = int(sim.endpoints["sensor_tcp"].rsplit(":", 1)[1])
         reader = connect(sensor)
-        idle += [connect(sensor) for _ in range(1000)]          # was: 2000 stalled the tick
+        idle += [connect(sensor) for _ in range(1000)]  # was: 2000 stalled the tick
         idle += [connect(console) for _ in range(4 * MAX_PENDING_LOGINS + 32)]  # was: lock-out
         started = time.monotonic()
         operator = login(console)
@@ -274,7 +336,7 @@ def test_floods_on_both_ports_neither_fault_the_tick_nor_lock_out_and_sigterm_en
             exit_s = time.monotonic() - started
         sim.stop()
     assert login_s < 2.0
-    assert "faults = 0" in status, status           # no watchdog fault: the tick never waited
+    assert "faults = 0" in status, status  # no watchdog fault: the tick never waited
     assert b'"position_m"' in frames
     assert sim.process.returncode == 0 and exit_s < 1.0, exit_s
 
@@ -300,11 +362,15 @@ os._exit(status)
 def test_sigterm_ends_it_within_1_s_even_with_the_tick_stuck(tmp_path: Path) -> None:
     script = tmp_path / "stuck.py"
     script.write_text(STUCK_TICK)
-    proc = subprocess.Popen([sys.executable, str(script), "--sensor", "tcp:127.0.0.1:0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, str(script), "--sensor", "tcp:127.0.0.1:0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert proc.stdout is not None and '"ready": true' in proc.stdout.readline()
-        time.sleep(0.5)                   # 200 ticks: stuck by now
+        time.sleep(0.5)  # 200 ticks: stuck by now
         started = time.monotonic()
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=10)
@@ -341,20 +407,22 @@ def test_launcher_says_why_the_child_did_not_start() -> None:
 
 # -- console logins ----------------------------------------------------------------
 
+
 @pytest.fixture
 def console() -> Iterator[TcpConsoleServer]:
     fw = Firmware()
     throttle = LoginThrottle()
     server = TcpConsoleServer(
-        "127.0.0.1", 0,
+        "127.0.0.1",
+        0,
         lambda source: ConsoleSession(fw, password=PASSWORD, throttle=throttle, source=source),
-        login_timeout_s=0.5)
+        login_timeout_s=0.5,
+    )
     yield server
     server.close()
 
 
-def test_idle_unauthenticated_connections_do_not_lock_the_operator_out(
-        console: TcpConsoleServer) -> None:
+def test_idle_unauthenticated_connections_do_not_lock_the_operator_out(console: TcpConsoleServer) -> None:
     idle = [connect(console.port) for _ in range(64)]
     try:
         started = time.monotonic()
@@ -380,14 +448,13 @@ def test_login_timeout_closes_a_silent_connection(console: TcpConsoleServer) -> 
 
 
 @pytest.mark.timeout(60)
-def test_password_guessing_is_paced_per_source_across_reconnects(
-        console: TcpConsoleServer) -> None:
-    operator = login(console.port)        # logged in before the attack, from the same address
+def test_password_guessing_is_paced_per_source_across_reconnects(console: TcpConsoleServer) -> None:
+    operator = login(console.port)  # logged in before the attack, from the same address
     failures: list[float] = []
     stop = threading.Event()
-    guessers = MAX_PENDING_LOGINS - 1     # leaves the operator a place at the prompt
+    guessers = MAX_PENDING_LOGINS - 1  # leaves the operator a place at the prompt
 
-    def guess() -> None:                  # reconnect for every try
+    def guess() -> None:  # reconnect for every try
         while not stop.is_set():
             with contextlib.suppress(OSError), connect(console.port) as sock:
                 read_until(sock, b"code: ")
@@ -405,15 +472,15 @@ def test_password_guessing_is_paced_per_source_across_reconnects(
         answers.append(time.monotonic() - t)
         time.sleep(0.1)
     begun = time.monotonic()
-    login(console.port).close()           # the right password gets in behind the queued tries
+    login(console.port).close()  # the right password gets in behind the queued tries
     operator_login_s = time.monotonic() - begun
-    stop.set()                            # (tries still queued end with the fixture's server)
+    stop.set()  # (tries still queued end with the fixture's server)
     tries = [t for t in failures if t <= begun]
     assert len(tries) / (begun - started) <= 5.0, (len(tries), begun - started)
     gaps = [b - a for a, b in itertools.pairwise(tries)]
     # the delay grows per failure (tries queued earlier keep the spacing of their time)
     assert gaps[-1] >= 0.6 * MAX_LOGIN_INTERVAL_S and gaps[-1] > 2 * gaps[0], gaps
-    assert max(answers) < 0.5               # the logged-in session never waited
+    assert max(answers) < 0.5  # the logged-in session never waited
     assert operator_login_s < (guessers + 1) * MAX_LOGIN_INTERVAL_S + 0.5
     operator.close()
 
@@ -432,13 +499,14 @@ def test_login_throttle_spacing_doubles_per_failure_and_resets() -> None:
     for gap, expected in zip(gaps, (0.04, 0.08, 0.08, 0.08), strict=True):
         assert expected * 0.9 <= gap < expected + 0.05
     other = time.monotonic()
-    assert throttle.attempt("b", lambda: True)              # another source: no wait
+    assert throttle.attempt("b", lambda: True)  # another source: no wait
     assert time.monotonic() - other < 0.01
-    throttle.attempt("a", lambda: True)                     # the right password resets "a"
+    throttle.attempt("a", lambda: True)  # the right password resets "a"
     assert throttle.interval_s(throttle._sources["a"].failures) == pytest.approx(0.02)
 
 
 # -- camera port -------------------------------------------------------------------
+
 
 def test_camera_clients_are_capped_and_a_stalled_one_never_blocks_publish() -> None:
     server = LineBroadcastServer("127.0.0.1", 0, send_timeout_s=0.3)
@@ -453,13 +521,13 @@ def test_camera_clients_are_capped_and_a_stalled_one_never_blocks_publish() -> N
 
     thread = threading.Thread(target=read, daemon=True)
     thread.start()
-    idle = [connect(server.port) for _ in range(300)]    # never read
+    idle = [connect(server.port) for _ in range(300)]  # never read
     try:
         time.sleep(0.3)
         assert server.client_count == MAX_SENSOR_CLIENTS
         line = b"x" * 199 + b"\n"
         slowest = 0.0
-        for _ in range(100):            # 1 MB at 1 MB/s: past every stalled client's buffers
+        for _ in range(100):  # 1 MB at 1 MB/s: past every stalled client's buffers
             for _ in range(50):
                 t = time.perf_counter()
                 server.publish(line)
@@ -469,9 +537,9 @@ def test_camera_clients_are_capped_and_a_stalled_one_never_blocks_publish() -> N
         while server.client_count > 1 and time.monotonic() < deadline:
             server.publish(line)
             time.sleep(0.05)
-        assert server.client_count == 1                  # the stalled ones were dropped
-        assert slowest < 0.02, slowest                   # publish (the tick) never waited
-        assert len(received) >= 1_000_000                # the reader kept up
+        assert server.client_count == 1  # the stalled ones were dropped
+        assert slowest < 0.02, slowest  # publish (the tick) never waited
+        assert len(received) >= 1_000_000  # the reader kept up
     finally:
         stop.set()
         for sock in idle:

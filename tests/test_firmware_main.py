@@ -17,20 +17,32 @@ pytestmark = pytest.mark.timeout(120)
 
 
 def run_main(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "firmware_sim", *args],
-                          capture_output=True, text=True, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "firmware_sim", *args], capture_output=True, text=True, timeout=60
+    )
 
 
 def test_help_documents_the_startup_options() -> None:
     result = run_main("--help")
     assert result.returncode == 0
-    for option in ("--console", "--sensor", "--clock", "--tau-offset", "--tau-pa", "--seed",
-                   "--part", "--serial-login", "--dac-buffer-s", "--camera-noise-m"):
+    for option in (
+        "--console",
+        "--sensor",
+        "--clock",
+        "--tau-offset",
+        "--tau-pa",
+        "--seed",
+        "--part",
+        "--serial-login",
+        "--dac-buffer-s",
+        "--camera-noise-m",
+    ):
         assert option in result.stdout
 
 
-@pytest.mark.parametrize("args", [["--console", "tcp:0.0.0.0:0"], ["--console", "udp:x"],
-                                  ["--part", "banana"], ["--axes", "9"]])
+@pytest.mark.parametrize(
+    "args", [["--console", "tcp:0.0.0.0:0"], ["--console", "udp:x"], ["--part", "banana"], ["--axes", "9"]]
+)
 def test_bad_options_exit_2_with_one_line(args: list[str]) -> None:
     result = run_main(*args)
     assert result.returncode == 2

@@ -26,8 +26,9 @@ def test_camera_rate_latency_and_noise() -> None:
     firmware.add_tick_listener(lambda t: now.__setitem__(0, t))  # before the world's
     frames: list[tuple[float, dict[str, float]]] = []
     camera = CameraConfig(rate_hz=500.0, noise_m=1e-7, latency_s=0.013)
-    world = World(WorldConfig(camera=camera), config,
-                  publish=lambda line: frames.append((now[0], json.loads(line))))
+    world = World(
+        WorldConfig(camera=camera), config, publish=lambda line: frames.append((now[0], json.loads(line)))
+    )
     world.attach(firmware)
     firmware.run(VirtualClock(), max_ticks=400)
     seqs = [f["seq"] for _, f in frames]
@@ -57,8 +58,13 @@ def test_true_step_matches_the_plant_model_on_the_ideal_waveform() -> None:
     axis.set_amplitude(180.0)
     axis.set_mode("stp")
     step = world.true_step(axis)
-    run = run_waveform(world.friction, Waveform(frequency_hz=100.0, amplitude_vpp=180.0),
-                       5, config.amplifier, world.config.stack)
+    run = run_waveform(
+        world.friction,
+        Waveform(frequency_hz=100.0, amplitude_vpp=180.0),
+        5,
+        config.amplifier,
+        world.config.stack,
+    )
     assert step.up_m == pytest.approx(float(np.mean(run.steps_m)), rel=2e-3)
     assert step.down_m == pytest.approx(-step.up_m, rel=2e-3)
     assert step.scatter == 0.0

@@ -145,8 +145,11 @@ def _rows(n: int = 100) -> str:
     ("name", "text", "message"),
     [
         ("missing.csv", "displacement_m,height_m\n" + _rows(), "missing column"),
-        ("nan.csv", "# stiffness_n_per_m = 2\ndisplacement_m,deflection_m\n" + _rows(60) + "\n1e-6,nan\n",
-         "line 63: deflection_m is 'nan'"),
+        (
+            "nan.csv",
+            "# stiffness_n_per_m = 2\ndisplacement_m,deflection_m\n" + _rows(60) + "\n1e-6,nan\n",
+            "line 63: deflection_m is 'nan'",
+        ),
         ("text.csv", "# cantilever = TL-FM\ndisplacement_m,deflection_m\n0.1,abc\n", "line 3"),
         ("short.csv", "# cantilever = TL-FM\ndisplacement_m,deflection_m\n" + _rows(10), "at least 50"),
         ("empty.csv", "# nothing\n", "no header"),

@@ -45,7 +45,7 @@ def test_closed_forms_and_shapes() -> None:
     f0, f1 = gaussian_integrals((0.0, 1.0), h)
     assert f0.shape == (2, 2)
     np.testing.assert_allclose(f0, 0.5 * erfc(h / np.sqrt(2)), rtol=1e-15)
-    phi = np.exp(-h**2 / 2) / np.sqrt(2 * np.pi)
+    phi = np.exp(-(h**2) / 2) / np.sqrt(2 * np.pi)
     np.testing.assert_allclose(f1, phi - h * f0, rtol=1e-12)
 
 

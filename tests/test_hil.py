@@ -35,16 +35,36 @@ HEARTBEAT_S = 0.5  # generous: on a loaded machine Python threads can stall for 
 
 def start(transport: str = "serial") -> Simulator:
     can = ["--can", "slcan-pty"] if transport == "can" else []
-    return Simulator(["--console", "pty", "--sensor", "tcp:127.0.0.1:0", "--seed", "7",
-                      "--scatter", str(SCATTER), "--camera-noise-m", str(NOISE_M),
-                      "--camera-rate-hz", "200", "--camera-latency-s", "0.005", *can])
+    return Simulator(
+        [
+            "--console",
+            "pty",
+            "--sensor",
+            "tcp:127.0.0.1:0",
+            "--seed",
+            "7",
+            "--scatter",
+            str(SCATTER),
+            "--camera-noise-m",
+            str(NOISE_M),
+            "--camera-rate-hz",
+            "200",
+            "--camera-latency-s",
+            "0.005",
+            *can,
+        ]
+    )
 
 
 def open_amplifier(sim: Simulator, transport: str, timeout_s: float) -> Amplifier:
     """Axis 1 over the console pty, or CANopen node 1 over the slcan pty."""
     if transport == "can":
-        bus = {"interface": "slcan", "channel": sim.endpoints["slcan_pty"], "bitrate": 500000,
-               "sleep_after_open": 0}
+        bus = {
+            "interface": "slcan",
+            "channel": sim.endpoints["slcan_pty"],
+            "bitrate": 500000,
+            "sleep_after_open": 0,
+        }
         return CanopenAmplifier(bus, node_id=1, heartbeat_s=HEARTBEAT_S, timeout_s=timeout_s)
     return Anc300Amplifier.open(sim.endpoints["console_pty"], axis=1, timeout_s=timeout_s)
 
@@ -74,7 +94,8 @@ def position(camera: StreamCamera, frames: int = 8) -> float:
 
 @pytest.mark.parametrize("count", [30, -30])
 def test_n_steps_move_the_part_n_true_steps(
-        rig: tuple[Simulator, Amplifier, StreamCamera], count: int) -> None:
+    rig: tuple[Simulator, Amplifier, StreamCamera], count: int
+) -> None:
     sim, amp, camera = rig
     amp.apply(PAPER)
     amp.enable()
@@ -97,8 +118,11 @@ def test_n_steps_move_the_part_n_true_steps(
     # and last flyback add a fraction of a step; camera noise averages over 8 frames
     spread = sim.ready["true"]["step_scatter"]
     assert 0 < spread < 0.5
-    assert moved == pytest.approx(expected, rel=4 * spread / np.sqrt(abs(count)) + 0.01,
-                                  abs=0.2 * abs(expected) / abs(count) + 4 * NOISE_M)
+    assert moved == pytest.approx(
+        expected,
+        rel=4 * spread / np.sqrt(abs(count)) + 0.01,
+        abs=0.2 * abs(expected) / abs(count) + 4 * NOISE_M,
+    )
     assert abs(expected) > 50e-6
 
 

@@ -38,8 +38,9 @@ def test_tau_band_carries_to_force_and_accel() -> None:
     assert r.breakaway_force_n == pytest.approx(20e9 * r.real_area_m2)
     assert r.breakaway_force_band_n == pytest.approx((18e9 * r.real_area_m2, 22e9 * r.real_area_m2))
     lo, hi = r.breakaway_accel_band_m_s2
-    assert (lo, hi) == pytest.approx((r.breakaway_force_band_n[0] / r.mass_kg,
-                                      r.breakaway_force_band_n[1] / r.mass_kg))
+    assert (lo, hi) == pytest.approx(
+        (r.breakaway_force_band_n[0] / r.mass_kg, r.breakaway_force_band_n[1] / r.mass_kg)
+    )
 
 
 def test_contact_counts_and_honest_warnings() -> None:

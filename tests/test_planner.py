@@ -53,7 +53,8 @@ def test_flyback_margin_formula(forward_plan: Plan) -> None:
     t_r = 1 / p.frequency_hz - t_f
     assert p.flyback_s == pytest.approx(max(t_f, 1 / 60e3 + 8e-6))
     assert p.margins["flyback_accel_m_s2"] == pytest.approx(
-        stroke * (1 / t_r + 1 / p.flyback_s) / p.flyback_s, rel=1e-9)
+        stroke * (1 / t_r + 1 / p.flyback_s) / p.flyback_s, rel=1e-9
+    )
     assert p.margins["ramp_accel_m_s2"] == pytest.approx(2 * stroke / t_r**2, rel=1e-9)
 
 
@@ -99,19 +100,31 @@ def test_refuses_bad_distance_and_frequency() -> None:
 def test_cli_plan_json_and_refusal(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["plan", "--part", "300x300x50", "--distance-m", "500e-6", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
-    assert data.keys() >= {"frequency_hz", "amplitude_vpp", "flyback_s", "steps", "predicted_step_m",
-                           "predicted_step_band_m", "duration_s", "breakaway_accel_m_s2", "margins"}
+    assert data.keys() >= {
+        "frequency_hz",
+        "amplitude_vpp",
+        "flyback_s",
+        "steps",
+        "predicted_step_m",
+        "predicted_step_band_m",
+        "duration_s",
+        "breakaway_accel_m_s2",
+        "margins",
+    }
     assert data["steps"] * data["predicted_step_m"] == pytest.approx(500e-6, rel=1e-6)
-    assert main(["plan", "--part", "300x300x50", "--distance-m", "500e-6", "--current-limit-a",
-                 "0.01", "--json"]) == 2
+    assert (
+        main(
+            ["plan", "--part", "300x300x50", "--distance-m", "500e-6", "--current-limit-a", "0.01", "--json"]
+        )
+        == 2
+    )
     captured = capsys.readouterr()
     assert captured.out == "" and "breaks the part loose" in captured.err
     assert len(captured.err.strip().splitlines()) == 1
 
 
 def test_grooved_support_uses_its_breakaway_band(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["plan", "--part", "80x80x50", "--support", "grooved", "--distance-m=-20e-6",
-                 "--json"]) == 0
+    assert main(["plan", "--part", "80x80x50", "--support", "grooved", "--distance-m=-20e-6", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     c = contact(Part.parse("80x80x50"), GROOVED)
     assert data["breakaway_accel_m_s2"] == pytest.approx(c.breakaway_accel_m_s2)

@@ -54,7 +54,7 @@ def test_current_limited_flyback_time() -> None:
     per = 10_000
     index = np.arange(1, 2 * per + 1)
     out = stage.advance(w.voltage_at_phase((index % per) / per))
-    falling = np.flatnonzero(np.diff(out[:per + per // 2]) < -1e-9)  # the first flyback only
+    falling = np.flatnonzero(np.diff(out[: per + per // 2]) < -1e-9)  # the first flyback only
     assert np.all(np.diff(falling) == 1)
     measured = falling.size / 1e6
     t_f, fraction = amp.current_limited_flyback(200, 100, 1e-6)
@@ -93,8 +93,10 @@ def test_paper_waveform_gives_3_3_um_per_step() -> None:
 
 
 def test_step_does_not_depend_on_part_size_on_flat_support() -> None:
-    steps = [run_waveform(paper_friction(p), load_waveform(PAPER), 2).steps_m[-1]
-             for p in ("80x80x50", "100x100x50", "200x200x50", "300x300x50", "500x500x50")]
+    steps = [
+        run_waveform(paper_friction(p), load_waveform(PAPER), 2).steps_m[-1]
+        for p in ("80x80x50", "100x100x50", "200x200x50", "300x300x50", "500x500x50")
+    ]
     np.testing.assert_allclose(steps, steps[0], rtol=1e-9)
 
 
@@ -104,8 +106,9 @@ def test_fast_stiff_stack_approaches_the_ideal_closed_form() -> None:
     amp = AmplifierLimits()
     run = run_waveform(paper_friction(), load_waveform(PAPER), 2, stack=stiff, sample_rate_hz=2e6)
     t_f, fraction = amp.current_limited_flyback(200, 100, stiff.capacitance_f)
-    ideal = linear_flyback_step(0.07e-6 * 200 * fraction, 0.01 - t_f, t_f,
-                                0.8 * paper_friction().static_accel_m_s2)
+    ideal = linear_flyback_step(
+        0.07e-6 * 200 * fraction, 0.01 - t_f, t_f, 0.8 * paper_friction().static_accel_m_s2
+    )
     assert run.steps_m[-1] == pytest.approx(float(ideal), rel=3e-3)
 
 
@@ -127,7 +130,8 @@ def test_from_contact_and_scatter() -> None:
     part = Part.parse("300x300x50")
     plant = Plant.from_contact(part, tau_pa=15e9, scatter=0.1, seed=4)
     assert plant.contact.friction.static_accel_m_s2 == pytest.approx(
-        contact(part, tau_pa=15e9).breakaway_accel_m_s2)
+        contact(part, tau_pa=15e9).breakaway_accel_m_s2
+    )
     w = load_waveform(PAPER)
     a = run_waveform(paper_friction(), w, 20, scatter=0.1, seed=4).steps_m
     b = run_waveform(paper_friction(), w, 20, scatter=0.1, seed=4).steps_m
@@ -145,16 +149,37 @@ def test_low_amplitude_smooth_command_does_not_move_the_part() -> None:
 
 
 def test_cli_simulate_paper_and_ideal(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["simulate", "--part", "500x500x50", "--waveform", str(PAPER), "--periods", "10",
-                 "--json"]) == 0
+    assert (
+        main(["simulate", "--part", "500x500x50", "--waveform", str(PAPER), "--periods", "10", "--json"]) == 0
+    )
     data = json.loads(capsys.readouterr().out)
-    assert data.keys() >= {"step_mean_m", "step_std_m", "net_displacement_m", "periods",
-                           "slip_fraction"}
+    assert data.keys() >= {"step_mean_m", "step_std_m", "net_displacement_m", "periods", "slip_fraction"}
     assert data["step_mean_m"] == pytest.approx(STEP_500_M, abs=0.2e-6)
     assert data["periods"] == 10
-    assert main(["simulate", "--part", "300x300x50", "--ideal", "--stroke-m", "5e-6",
-                 "--frequency-hz", "100", "--flyback-s", "1e-4", "--flyback-shape", "linear",
-                 "--kinetic-ratio", "0.8", "--periods", "20", "--json"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--part",
+                "300x300x50",
+                "--ideal",
+                "--stroke-m",
+                "5e-6",
+                "--frequency-hz",
+                "100",
+                "--flyback-s",
+                "1e-4",
+                "--flyback-shape",
+                "linear",
+                "--kinetic-ratio",
+                "0.8",
+                "--periods",
+                "20",
+                "--json",
+            ]
+        )
+        == 0
+    )
     data = json.loads(capsys.readouterr().out)
     a_k = 0.8 * data["breakaway_accel_m_s2"]
     expected = 5e-6 * (1 + 1e-4 / 9.9e-3) - a_k * 1e-8
@@ -163,7 +188,23 @@ def test_cli_simulate_paper_and_ideal(capsys: pytest.CaptureFixture[str]) -> Non
 
 
 def test_cli_simulate_bad_input(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["simulate", "--part", "300x300x50", "--ideal", "--stroke-m", "5e-6",
-                 "--frequency-hz", "100", "--flyback-s", "0.02", "--json"]) == 2
+    assert (
+        main(
+            [
+                "simulate",
+                "--part",
+                "300x300x50",
+                "--ideal",
+                "--stroke-m",
+                "5e-6",
+                "--frequency-hz",
+                "100",
+                "--flyback-s",
+                "0.02",
+                "--json",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "--flyback-s" in err and len(err.strip().splitlines()) == 1

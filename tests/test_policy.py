@@ -27,9 +27,16 @@ MODES = {
     COARSE: StepMode(COARSE, DriveSettings(1000.0, 100.0), 3.0e-6, (2.8e-6, 3.2e-6)),
     FINE: StepMode(FINE, DriveSettings(1000.0, 40.0), 0.8e-6, (0.7e-6, 0.9e-6)),
 }
-SETTINGS = LoopSettings(rate_hz=100.0, tolerance_m=1e-6, min_position_m=-1e-3,
-                        max_position_m=1e-3, settle_s=0.02, average_samples=3,
-                        sensor_noise_m=0.05e-6, hold_timeout_s=1.0)
+SETTINGS = LoopSettings(
+    rate_hz=100.0,
+    tolerance_m=1e-6,
+    min_position_m=-1e-3,
+    max_position_m=1e-3,
+    settle_s=0.02,
+    average_samples=3,
+    sensor_noise_m=0.05e-6,
+    hold_timeout_s=1.0,
+)
 DT = 0.01
 
 
@@ -81,10 +88,10 @@ def start_move(rig: Rig, target_m: float) -> Job:
 def to_first_burst(rig: Rig, target_m: float = 100e-6) -> tuple[Job, Command]:
     """idle → moving (enable, apply) → a step command in flight."""
     job = start_move(rig, target_m)
-    assert rig.policy.state == "moving"                     # the output is grounded
+    assert rig.policy.state == "moving"  # the output is grounded
     enable = rig.run_until_command("enable")
     rig.complete(enable)
-    assert rig.policy.state == "settling"                   # leaving ground: measure again
+    assert rig.policy.state == "settling"  # leaving ground: measure again
     apply = rig.run_until_command("apply")
     assert apply.mode == COARSE
     rig.complete(apply)
@@ -107,18 +114,17 @@ def test_a_move_goes_idle_moving_settling_and_back_to_idle_done() -> None:
     confirm = rig.run_until_command("confirm_end")
     rig.complete(confirm)
     assert rig.policy.state == "settling"
-    while rig.policy.job is not None:       # fine steps until within tolerance
+    while rig.policy.job is not None:  # fine steps until within tolerance
         out = rig.tick()
         for o in out:
             if isinstance(o, Command):
                 if o.kind == "step":
-                    rig.position_m += o.steps * (3.0e-6 if rig.policy._applied == COARSE
-                                                 else 0.8e-6)
+                    rig.position_m += o.steps * (3.0e-6 if rig.policy._applied == COARSE else 0.8e-6)
                 rig.complete(o, counter=0)
         assert rig.now < 10
     result = rig.finished().result
     assert result.status == "done" and abs(result.error_m or 1) <= 1e-6
-    assert rig.policy.state == "idle" and job.result is None   # the loop sets it, not the policy
+    assert rig.policy.state == "idle" and job.result is None  # the loop sets it, not the policy
     assert any(isinstance(o, SavePosition) for o in rig.outputs)
 
 
@@ -136,7 +142,7 @@ def test_stop_while_settling_holds_until_the_part_reads_settled() -> None:
     rig.policy.request_stop("operator")
     out = rig.tick()
     stop = [o for o in out if isinstance(o, Command)]
-    assert [c.kind for c in stop] == ["stop"]           # a step was in flight: stop it
+    assert [c.kind for c in stop] == ["stop"]  # a step was in flight: stop it
     rig.complete(stop[0], counter=0)
     assert rig.policy.state == "holding"
     # the part still drifts: no result while the readings disagree

@@ -21,22 +21,23 @@ pytestmark = pytest.mark.timeout(120)
 
 @pytest.fixture(scope="module")
 def sim() -> Iterator[Simulator]:
-    simulator = Simulator(["--console", "pty", "--serial-login",
-                           "--console", "tcp:127.0.0.1:0", "--axes", "2"])
+    simulator = Simulator(
+        ["--console", "pty", "--serial-login", "--console", "tcp:127.0.0.1:0", "--axes", "2"]
+    )
     yield simulator
     simulator.stop()
 
 
 def resources(sim: Simulator) -> dict[str, str]:
     port = sim.endpoints["console_tcp"].rsplit(":", 1)[1]
-    return {"tcp": f"TCPIP::127.0.0.1::{port}::SOCKET",
-            "pty": f"ASRL{sim.endpoints['console_pty']}::INSTR"}
+    return {"tcp": f"TCPIP::127.0.0.1::{port}::SOCKET", "pty": f"ASRL{sim.endpoints['console_pty']}::INSTR"}
 
 
 @pytest.mark.parametrize("link", ["tcp", "pty"])
 def test_anc300controller_configures_and_steps_an_axis(sim: Simulator, link: str) -> None:
     controller = pymeasure_anc300.ANC300Controller(
-        resources(sim)[link], axisnames=["x", "y"], passwd="123456", visa_library="@py")
+        resources(sim)[link], axisnames=["x", "y"], passwd="123456", visa_library="@py"
+    )
     try:
         assert controller.version.startswith("attocube ANC300")
         axis = controller.y
@@ -64,5 +65,6 @@ def test_anc300controller_configures_and_steps_an_axis(sim: Simulator, link: str
 
 def test_wrong_password_is_refused_over_tcp(sim: Simulator) -> None:
     with pytest.raises(Exception, match="authorization failed"):
-        pymeasure_anc300.ANC300Controller(resources(sim)["tcp"], axisnames=["x"],
-                                          passwd="000000", visa_library="@py")
+        pymeasure_anc300.ANC300Controller(
+            resources(sim)["tcp"], axisnames=["x"], passwd="000000", visa_library="@py"
+        )

@@ -56,10 +56,8 @@ class Anc300Proxy:
                 client, _ = self.server.accept()
                 up = socket.create_connection(self.upstream)
                 logged_in = threading.Event()
-                threading.Thread(target=self._down, args=(up, client, logged_in),
-                                 daemon=True).start()
-                threading.Thread(target=self._up, args=(client, up, logged_in),
-                                 daemon=True).start()
+                threading.Thread(target=self._down, args=(up, client, logged_in), daemon=True).start()
+                threading.Thread(target=self._up, args=(client, up, logged_in), daemon=True).start()
 
     @staticmethod
     def _down(up: socket.socket, client: socket.socket, logged_in: threading.Event) -> None:
@@ -85,10 +83,9 @@ class Anc300Proxy:
         with contextlib.suppress(OSError):
             up.shutdown(socket.SHUT_RDWR)
 
-    def _line(self, raw: bytes, client: socket.socket, up: socket.socket,
-              logged_in: threading.Event) -> None:
+    def _line(self, raw: bytes, client: socket.socket, up: socket.socket, logged_in: threading.Event) -> None:
         if not logged_in.is_set():
-            logged_in.wait(0.5)         # the password line and the greeting race
+            logged_in.wait(0.5)  # the password line and the greeting race
         words = raw.decode("ascii", "replace").split()
         if not logged_in.is_set() or not words:
             up.sendall(raw)
@@ -111,14 +108,29 @@ class Anc300Proxy:
 def test_three_moves_through_a_proxy_that_passes_only_real_anc300_verbs(base: Path) -> None:  # noqa: F811
     # a simulator rated like an ANC300 (150 V, 10 kHz) with every extension still on offer:
     # the proxy, not the simulator, is what keeps the daemon honest
-    sim = Simulator(["--console", "tcp:127.0.0.1:0", "--sensor", "tcp:127.0.0.1:0",
-                     "--dialect", "extended", "--v-max", "150", "--max-frequency-hz", "10000",
-                     "--tau-offset=0.15", "--seed=6"])
+    sim = Simulator(
+        [
+            "--console",
+            "tcp:127.0.0.1:0",
+            "--sensor",
+            "tcp:127.0.0.1:0",
+            "--dialect",
+            "extended",
+            "--v-max",
+            "150",
+            "--max-frequency-hz",
+            "10000",
+            "--tau-offset=0.15",
+            "--seed=6",
+        ]
+    )
     proxy = Anc300Proxy(sim.endpoints["console_tcp"])
     try:
         config = base / "feeder.toml"
-        config.write_text(f'[amplifier]\nport = "{proxy.url}"\nmodel = "anc300"\n'
-                          f'[sensor]\naddress = "{sim.endpoints["sensor_tcp"]}"\n')
+        config.write_text(
+            f'[amplifier]\nport = "{proxy.url}"\nmodel = "anc300"\n'
+            f'[sensor]\naddress = "{sim.endpoints["sensor_tcp"]}"\n'
+        )
         daemon = DaemonProcess(base, f"--config={config}")
         try:
             replies = [daemon.request("move", target_m=t) for t in (150e-6, -60e-6, 25e-6)]
@@ -148,7 +160,7 @@ def test_the_same_moves_over_can(base: Path, transport: str) -> None:  # noqa: F
 
 @pytest.mark.parametrize("transport", TRANSPORTS)
 def test_stop_mid_burst_records_where_the_part_settled(base: Path, transport: str) -> None:  # noqa: F811
-    config = base / "feeder.toml"        # one long burst: the stop lands in the middle of it
+    config = base / "feeder.toml"  # one long burst: the stop lands in the middle of it
     config.write_text("[control]\nmax_burst_steps = 4000\n")
     daemon = DaemonProcess(base, f"--transport={transport}", f"--config={config}")
     try:
@@ -159,7 +171,7 @@ def test_stop_mid_burst_records_where_the_part_settled(base: Path, transport: st
         time.sleep(1.0)
         later = daemon.request("status")
         move = daemon.request("history", limit=1)["moves"][-1]
-        coarse_step = true_coarse_steps(daemon, later)[0]     # the plant's true step
+        coarse_step = true_coarse_steps(daemon, later)[0]  # the plant's true step
     finally:
         assert daemon.stop() == 0
     tolerance = later["tolerance_m"]
@@ -174,8 +186,7 @@ def test_stop_mid_burst_records_where_the_part_settled(base: Path, transport: st
     # CANopen reads the drive's counter; an ANC300 counts nothing, so the host estimates the
     # steps of a cut burst from the times of its stepu and stop round trips: its error is the
     # link's latency jitter × f (a few ms × 3 kHz here, on a loaded test machine)
-    assert move["steps"] * coarse_step == pytest.approx(travelled,
-                                                        rel=0.08 if transport == "can" else 0.25)
+    assert move["steps"] * coarse_step == pytest.approx(travelled, rel=0.08 if transport == "can" else 0.25)
     # counted where the drive counts them (CANopen), estimated from time where it cannot (ANC300)
     assert move["steps_estimated"] is (transport == "serial")
 
@@ -194,7 +205,7 @@ def test_strict_dialect_answers_every_extension_as_an_anc300() -> None:
                 if verb.real:
                     assert UNKNOWN_COMMAND not in reply, (verb.name, reply)
                     port.reset_input_buffer()
-                    port.write(b"stop 1\r\n")   # resynchronise on a short reply
+                    port.write(b"stop 1\r\n")  # resynchronise on a short reply
                     time.sleep(0.05)
                     port.reset_input_buffer()
                 else:

@@ -20,34 +20,38 @@ def test_without_forgetting_equals_batch_bayesian_least_squares() -> None:
         est.update(int(n), float(y))
     h = np.column_stack([counts, np.ones_like(counts)]).astype(float)
     r = 2 * noise**2 + counts * scatter**2
-    p0 = np.array([[seed.variance_m2, seed.covariance_m2],
-                   [seed.covariance_m2, seed.offset_variance_m2]])
+    p0 = np.array([[seed.variance_m2, seed.covariance_m2], [seed.covariance_m2, seed.offset_variance_m2]])
     information = np.linalg.inv(p0) + h.T @ (h / r[:, None])
-    mean = np.linalg.solve(information, np.linalg.inv(p0) @ [seed.step_m, seed.offset_m]
-                           + h.T @ (moves / r))
+    mean = np.linalg.solve(information, np.linalg.inv(p0) @ [seed.step_m, seed.offset_m] + h.T @ (moves / r))
     cov = np.linalg.inv(information)
     e = est.estimate
     assert [e.step_m, e.offset_m] == pytest.approx(mean, rel=1e-9)
     assert [e.variance_m2, e.covariance_m2, e.offset_variance_m2] == pytest.approx(
-        [cov[0, 0], cov[0, 1], cov[1, 1]], rel=1e-6)
+        [cov[0, 0], cov[0, 1], cov[1, 1]], rel=1e-6
+    )
     assert e.steps == counts.sum()
     assert e.displacement_m(7) == pytest.approx(7 * e.step_m + e.offset_m, rel=1e-15)
 
 
-def simulate(bursts: list[int], seed_error: float, offset_fraction: float,
-             trials: int = 300) -> np.ndarray:
+def simulate(bursts: list[int], seed_error: float, offset_fraction: float, trials: int = 300) -> np.ndarray:
     """Relative error of the learned step after ``bursts``: true step 3 µm, 2 % step-to-step
     scatter and 50 nm camera noise (firmware_sim's defaults)."""
     true_step, noise, scatter = 3.0e-6, 0.05e-6, 0.02
     rng = np.random.default_rng(11)
     errors = []
     for _ in range(trials):
-        est = StepEstimator(StepEstimate.seed(true_step * (1 + seed_error), 0.2 * true_step),
-                            sensor_noise_m=noise, step_scatter_m=scatter * true_step)
+        est = StepEstimator(
+            StepEstimate.seed(true_step * (1 + seed_error), 0.2 * true_step),
+            sensor_noise_m=noise,
+            step_scatter_m=scatter * true_step,
+        )
         for n in bursts:
             steps = true_step * (1 + scatter * rng.standard_normal(n))
-            moved = steps.sum() + offset_fraction * true_step + noise * (
-                rng.standard_normal() - rng.standard_normal())
+            moved = (
+                steps.sum()
+                + offset_fraction * true_step
+                + noise * (rng.standard_normal() - rng.standard_normal())
+            )
             est.update(n, moved)
         errors.append(est.step_m / true_step - 1)
     return np.array(errors)
@@ -66,8 +70,7 @@ def test_seeded_15_percent_off_converges_within_5_percent_in_20_steps(
 def test_bursts_of_one_length_pin_their_own_displacement() -> None:
     """Twenty 1-step bursts cannot tell s from c, but they learn s + c, what one step does."""
     true_step, offset = 1.0e-6, 0.16e-6
-    est = StepEstimator(StepEstimate.seed(1.15e-6, 0.2e-6), sensor_noise_m=0.05e-6,
-                        step_scatter_m=0.02e-6)
+    est = StepEstimator(StepEstimate.seed(1.15e-6, 0.2e-6), sensor_noise_m=0.05e-6, step_scatter_m=0.02e-6)
     rng = np.random.default_rng(2)
     for _ in range(20):
         est.update(1, true_step + offset + rng.normal(0, 0.07e-6))

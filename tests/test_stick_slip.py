@@ -21,8 +21,16 @@ def closed_form(stroke: float, t_r: float, t_f: float, a_k: float) -> float:
     return 0.0
 
 
-def streamed_steps(stroke: float, freq: float, t_f: float, a_s: float, ratio: float, shape: str,
-                   periods: int = 4, direction: float = 1.0) -> np.ndarray:
+def streamed_steps(
+    stroke: float,
+    freq: float,
+    t_f: float,
+    a_s: float,
+    ratio: float,
+    shape: str,
+    periods: int = 4,
+    direction: float = 1.0,
+) -> np.ndarray:
     motion = sawtooth_motion(stroke, freq, t_f, shape, periods, direction)
     solver = StickSlip(Friction(a_s, ratio))
     rel = solver.advance(motion.accel_m_s2[0], motion.duration_s[0], motion.jump_m_s[0])
@@ -97,8 +105,17 @@ def test_no_motion_when_plate_acceleration_stays_below_breakaway() -> None:
     assert over[-1] != 0.0 and solver.slip_time_s > 0
 
 
-def _euler_step(rel: float, v_part: float, stuck: bool, v0: float, v1: float, a_mid: float,
-                dt: float, a_s: float, a_k: float) -> tuple[float, float, bool]:
+def _euler_step(
+    rel: float,
+    v_part: float,
+    stuck: bool,
+    v0: float,
+    v1: float,
+    a_mid: float,
+    dt: float,
+    a_s: float,
+    a_k: float,
+) -> tuple[float, float, bool]:
     """One fixed step of the part on a plate going from velocity v0 to v1 (mid acceleration a_mid)."""
     if stuck and abs(a_mid) <= a_s:
         return rel, v1, True
@@ -115,8 +132,9 @@ def _euler_step(rel: float, v_part: float, stuck: bool, v0: float, v1: float, a_
     return rel + 0.5 * (w0 + w1) * dt, v_new, False
 
 
-def fine_step_half_cosine(stroke: float, freq: float, t_f: float, a_s: float, ratio: float,
-                          substeps: int = 100_000) -> float:
+def fine_step_half_cosine(
+    stroke: float, freq: float, t_f: float, a_s: float, ratio: float, substeps: int = 100_000
+) -> float:
     """Independent reference: the exact cosine plate, fixed steps of dt = t_f/substeps.
 
     Starts at the top of the rise with the part stuck: the flyback's start is a
@@ -186,8 +204,10 @@ def test_streaming_equals_batch_and_chunking_does_not_matter() -> None:
     np.testing.assert_allclose(whole, batch[0], rtol=1e-9, atol=1e-18)
     chunked = StickSlip(Friction(105.0, 0.7))
     cuts = np.sort(rng.choice(np.arange(1, 3000), 40, replace=False))
-    parts = [chunked.advance(a, d, j) for a, d, j in zip(np.split(accel, cuts), np.split(dt, cuts),
-                                                         np.split(jump, cuts), strict=True)]
+    parts = [
+        chunked.advance(a, d, j)
+        for a, d, j in zip(np.split(accel, cuts), np.split(dt, cuts), np.split(jump, cuts), strict=True)
+    ]
     np.testing.assert_allclose(np.concatenate(parts), whole, rtol=1e-12, atol=1e-20)
     assert chunked.slip_time_s == pytest.approx(float(slip[0]), rel=1e-9)
 
@@ -196,8 +216,13 @@ def test_batch_sets_are_independent() -> None:
     rng = np.random.default_rng(3)
     sets = [random_motion(rng, 500) for _ in range(5)]
     a_s = np.array([50.0, 80.0, 105.0, 150.0, 400.0])
-    batch, _ = simulate_batch(np.stack([s[0] for s in sets]), np.stack([s[1] for s in sets]),
-                              np.stack([s[2] for s in sets]), a_s, 0.8)
+    batch, _ = simulate_batch(
+        np.stack([s[0] for s in sets]),
+        np.stack([s[1] for s in sets]),
+        np.stack([s[2] for s in sets]),
+        a_s,
+        0.8,
+    )
     for k, (a, d, j) in enumerate(sets):
         alone = StickSlip(Friction(float(a_s[k]), 0.8)).advance(a, d, j)
         np.testing.assert_allclose(batch[k], alone, rtol=1e-9, atol=1e-18)

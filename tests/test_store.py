@@ -20,17 +20,25 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_round_trip(tmp_path: Path) -> None:
     store = Store(tmp_path / "state" / "feeder.sqlite")
     store.save_calibration(Calibration("a/coarse/forward", 3.1e-6, 1e-14, 20, 1.0))
-    store.save_calibration(Calibration("a/coarse/forward", 3.2e-6, 4e-15, 40, 2.0,
-                                       0.9e-6, 3e-14, -2e-15))
+    store.save_calibration(Calibration("a/coarse/forward", 3.2e-6, 4e-15, 40, 2.0, 0.9e-6, 3e-14, -2e-15))
     move = store.begin_move(100e-6, 0.0)
-    store.finish_move(move, status="done", reason="within tolerance", reached_m=100.4e-6,
-                      steps=33, bursts=4, step_forward_m=3.2e-6, step_backward_m=None)
+    store.finish_move(
+        move,
+        status="done",
+        reason="within tolerance",
+        reached_m=100.4e-6,
+        steps=33,
+        bursts=4,
+        step_forward_m=3.2e-6,
+        step_backward_m=None,
+    )
     store.save_position(100.4e-6)
     store.close()
 
     again = Store(tmp_path / "state" / "feeder.sqlite")
     assert again.calibration("a/coarse/forward") == Calibration(
-        "a/coarse/forward", 3.2e-6, 4e-15, 40, 2.0, 0.9e-6, 3e-14, -2e-15)
+        "a/coarse/forward", 3.2e-6, 4e-15, 40, 2.0, 0.9e-6, 3e-14, -2e-15
+    )
     (row,) = again.moves()
     assert row["status"] == "done" and row["steps"] == 33
     assert row["error_m"] == pytest.approx(0.4e-6, rel=1e-9)
@@ -38,16 +46,23 @@ def test_round_trip(tmp_path: Path) -> None:
     assert pos is not None and pos.position_m == 100.4e-6
     assert oct((tmp_path / "state").stat().st_mode & 0o777) == "0o700"
     assert oct((tmp_path / "state" / "feeder.sqlite").stat().st_mode & 0o777) == "0o600"
-    mode = sqlite3.connect(tmp_path / "state" / "feeder.sqlite").execute(
-        "PRAGMA journal_mode").fetchone()[0]
+    mode = sqlite3.connect(tmp_path / "state" / "feeder.sqlite").execute("PRAGMA journal_mode").fetchone()[0]
     assert mode == "wal"
 
 
 def test_running_moves_become_interrupted(tmp_path: Path) -> None:
     store = Store(tmp_path / "s.sqlite")
     first = store.begin_move(1e-3, 0.0)
-    store.finish_move(first, status="done", reason="", reached_m=1e-3, steps=1, bursts=1,
-                      step_forward_m=None, step_backward_m=None)
+    store.finish_move(
+        first,
+        status="done",
+        reason="",
+        reached_m=1e-3,
+        steps=1,
+        bursts=1,
+        step_forward_m=None,
+        step_backward_m=None,
+    )
     second = store.begin_move(2e-3, 1e-3)
     assert store.interrupt_running_moves() == [second]
     statuses = [m["status"] for m in store.moves()]
@@ -77,8 +92,9 @@ def test_sigkill_mid_write_leaves_a_consistent_database(tmp_path: Path) -> None:
     path = tmp_path / "crash.sqlite"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     for round_ in range(3):
-        proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], env=env,
-                                stdout=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(
+            [sys.executable, "-c", WRITER, str(path)], env=env, stdout=subprocess.PIPE, text=True
+        )
         assert proc.stdout is not None and proc.stdout.readline().strip() == "ready"
         time.sleep(0.3)
         proc.send_signal(signal.SIGKILL)
@@ -131,11 +147,11 @@ def test_a_version_1_database_is_migrated(tmp_path: Path) -> None:
     conn.commit()
     conn.close()
     store = Store(path)
-    assert store.calibration("k") == Calibration("k", 3e-6, 1e-15, 40, 5.0, 0.0,
-                                                 0.25 * 3e-6 * 3e-6, 0.0)
+    assert store.calibration("k") == Calibration("k", 3e-6, 1e-15, 40, 5.0, 0.0, 0.25 * 3e-6 * 3e-6, 0.0)
     store.close()
-    version = sqlite3.connect(path).execute(
-        "SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
+    version = (
+        sqlite3.connect(path).execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
+    )
     assert version == "3"
 
 
@@ -144,14 +160,23 @@ def test_a_version_2_database_gains_the_steps_estimated_mark(tmp_path: Path) -> 
     store = Store(path)
     move = store.begin_move(1e-4, 0.0)
     store.close()
-    conn = sqlite3.connect(path)        # back to version 2: the column did not exist
+    conn = sqlite3.connect(path)  # back to version 2: the column did not exist
     conn.executescript("""
         ALTER TABLE moves DROP COLUMN steps_estimated;
         UPDATE meta SET value = '2' WHERE key = 'schema_version';
     """)
     conn.close()
     store = Store(path)
-    store.finish_move(move, status="stopped", reason="stop", reached_m=5e-5, steps=12, bursts=1,
-                      step_forward_m=None, step_backward_m=None, steps_estimated=True)
+    store.finish_move(
+        move,
+        status="stopped",
+        reason="stop",
+        reached_m=5e-5,
+        steps=12,
+        bursts=1,
+        step_forward_m=None,
+        step_backward_m=None,
+        steps_estimated=True,
+    )
     assert store.moves()[0]["steps_estimated"] is True and store.moves()[0]["steps"] == 12
     store.close()

@@ -45,9 +45,11 @@ def test_readable_file_sq_matches_surface_topography(name: str) -> None:
     assert height_map.scan_size_m[0] == pytest.approx(size, rel=0.01)
     stats = surface_statistics(height_map)
     # independent: the package's own plane detrend and RMS height, converted to metres
-    topography = open_topography(str(AFM / name)).topography(
-        channel_index=_channel_index(AFM / name, height_map.channel)
-    ).to_unit("m")
+    topography = (
+        open_topography(str(AFM / name))
+        .topography(channel_index=_channel_index(AFM / name, height_map.channel))
+        .to_unit("m")
+    )
     reference = topography.detrend(detrend_mode="height").rms_height_from_area()
     assert stats.sq_m == pytest.approx(reference, rel=0.01)
     assert 1e-10 < stats.sq_m < 1e-6  # nanometre-scale roughness: units converted to metres
@@ -96,8 +98,16 @@ def test_cli_surface_toml_is_accepted_by_contact(tmp_path: Path, capsys) -> None
     assert main(["surface", str(AFM / "di-5.di"), "--json", "--out", str(out), "--plot", str(plot)]) == 0
     report = json.loads(capsys.readouterr().out)
     assert plot.read_bytes()[:4] == b"\x89PNG"
-    for key in ("sq_m", "summit_count", "summit_density_per_m2", "mean_summit_height_m",
-                "summit_height_std_m", "mean_summit_radius_m", "pixel_size_m", "scan_size_m"):
+    for key in (
+        "sq_m",
+        "summit_count",
+        "summit_density_per_m2",
+        "mean_summit_height_m",
+        "summit_height_std_m",
+        "mean_summit_radius_m",
+        "pixel_size_m",
+        "scan_size_m",
+    ):
         assert key in report
     surface = load_surface(out)
     assert surface.sigma_m == report["sq_m"]
@@ -125,8 +135,9 @@ def test_plain_npy_map_needs_a_pixel_size_and_reads_units(tmp_path: Path, capsys
     np.save(tmp_path / "map.npy", heights_nm)
     assert main(["surface", str(tmp_path / "map.npy"), "--json"]) == 2
     assert "--pixel-size" in capsys.readouterr().err
-    code = main(["surface", str(tmp_path / "map.npy"), "--pixel-size", "2e-9", "--height-unit", "nm",
-                 "--json"])
+    code = main(
+        ["surface", str(tmp_path / "map.npy"), "--pixel-size", "2e-9", "--height-unit", "nm", "--json"]
+    )
     assert code == 0
     report = json.loads(capsys.readouterr().out)
     assert report["pixel_size_m"] == [2e-9, 2e-9]

@@ -53,8 +53,18 @@ def test_cli_reproduces_the_paper_300x300_flat(capsys) -> None:
 
 def test_cli_given_real_area_and_area_band(capsys) -> None:
     area = PAPER_ROWS["300x300x50"].real_area_grooved_m2
-    args = ["tau", "--part", "300x300x50", "--support", "grooved", "--real-area", repr(area),
-            "--area-band", "0.05", "--json"]
+    args = [
+        "tau",
+        "--part",
+        "300x300x50",
+        "--support",
+        "grooved",
+        "--real-area",
+        repr(area),
+        "--area-band",
+        "0.05",
+        "--json",
+    ]
     for force in RAW_FORCES_300_GROOVED_N:
         args += ["--force", repr(force)]
     assert main(args) == 0

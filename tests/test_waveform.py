@@ -22,8 +22,9 @@ def test_linear_sawtooth_shape() -> None:
     phase = np.array([0.0, 0.45, 0.9, 0.95, 0.999999])
     np.testing.assert_allclose(w.shape_at(phase), [0.0, 0.5, 1.0, 0.5, 1e-5], atol=1e-9)
     np.testing.assert_allclose(w.voltage_at(np.array([0.0045, 0.0095])), [100.0, 100.0], atol=1e-9)
-    back = Waveform(frequency_hz=100, amplitude_vpp=200, flyback_shape="linear", flyback_s=1e-3,
-                    direction="backward")
+    back = Waveform(
+        frequency_hz=100, amplitude_vpp=200, flyback_shape="linear", flyback_s=1e-3, direction="backward"
+    )
     np.testing.assert_allclose(back.shape_at(phase), 1 - w.shape_at(phase))
 
 
@@ -57,19 +58,29 @@ def test_paper_file_loads_and_round_trips(tmp_path: Path) -> None:
     w = load_waveform(PAPER)
     assert (w.frequency_hz, w.amplitude_vpp, w.flyback_shape) == (100.0, 200.0, "current-limited")
     AmplifierLimits().check(w)
-    w2 = Waveform(frequency_hz=250, amplitude_vpp=120, offset_v=10, flyback_shape="half-cosine",
-                  flyback_s=2e-4, direction="backward")
+    w2 = Waveform(
+        frequency_hz=250,
+        amplitude_vpp=120,
+        offset_v=10,
+        flyback_shape="half-cosine",
+        flyback_s=2e-4,
+        direction="backward",
+    )
     path = tmp_path / "w.toml"
     w2.write_toml(path)
     assert load_waveform(path) == w2
 
 
 BAD = {
-    "flyback longer than the period": ('frequency_hz = 100.0\namplitude_vpp = 100.0\n'
-                                       'flyback_shape = "linear"\nflyback_s = 0.02', "flyback_s"),
+    "flyback longer than the period": (
+        'frequency_hz = 100.0\namplitude_vpp = 100.0\nflyback_shape = "linear"\nflyback_s = 0.02',
+        "flyback_s",
+    ),
     "unknown shape": ('shape = "square"\nfrequency_hz = 100.0\namplitude_vpp = 100.0', "shape"),
-    "unknown flyback shape": ('frequency_hz = 100.0\namplitude_vpp = 100.0\nflyback_shape = "cubic"',
-                              "flyback_shape"),
+    "unknown flyback shape": (
+        'frequency_hz = 100.0\namplitude_vpp = 100.0\nflyback_shape = "cubic"',
+        "flyback_shape",
+    ),
     "negative frequency": ("frequency_hz = -100.0\namplitude_vpp = 100.0", "frequency_hz"),
     "text for a number": ('frequency_hz = "fast"\namplitude_vpp = 100.0', "frequency_hz"),
     "unknown field": ("frequency_hz = 100.0\namplitude_vpp = 100.0\ncolour = 3", "colour"),
@@ -100,17 +111,22 @@ def write(tmp_path: Path, body: str) -> Path:
     return path
 
 
-@pytest.mark.parametrize("body", [
-    "frequency_hz = 100.0\namplitude_vpp = 250.0",
-    'frequency_hz = 100.0\namplitude_vpp = 100.0\nflyback_shape = "linear"\nflyback_s = 0.5',
-    'shape = "triangle"\nfrequency_hz = 100.0\namplitude_vpp = 100.0',
-    "frequency_hz = -5.0\namplitude_vpp = 100.0",
-    "not toml at all [",
-])
+@pytest.mark.parametrize(
+    "body",
+    [
+        "frequency_hz = 100.0\namplitude_vpp = 250.0",
+        'frequency_hz = 100.0\namplitude_vpp = 100.0\nflyback_shape = "linear"\nflyback_s = 0.5',
+        'shape = "triangle"\nfrequency_hz = 100.0\namplitude_vpp = 100.0',
+        "frequency_hz = -5.0\namplitude_vpp = 100.0",
+        "not toml at all [",
+    ],
+)
 def test_cli_one_line_error_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str], body: str) -> None:
     path = write(tmp_path, body)
-    for argv in (["waveform", "show", str(path), "--json"],
-                 ["simulate", "--part", "500x500x50", "--waveform", str(path), "--json"]):
+    for argv in (
+        ["waveform", "show", str(path), "--json"],
+        ["simulate", "--part", "500x500x50", "--waveform", str(path), "--json"],
+    ):
         assert main(argv) == 2
         captured = capsys.readouterr()
         assert captured.out == ""
@@ -135,8 +151,9 @@ def test_cli_export_anc300_and_csv(tmp_path: Path, capsys: pytest.CaptureFixture
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split()[:2] == ["setpu", "1"] and len(lines[0].split()) == 258
     out = tmp_path / "table.csv"
-    assert main(["waveform", "export", str(PAPER), "--format", "csv", "--points", "64",
-                 "--out", str(out)]) == 0
+    assert (
+        main(["waveform", "export", str(PAPER), "--format", "csv", "--points", "64", "--out", str(out)]) == 0
+    )
     rows = out.read_text().splitlines()
     assert len(rows) == 65 and rows[0].startswith("phase,")
     assert not list(tmp_path.glob("*.tmp"))

@@ -32,8 +32,13 @@ def register(sub: Any) -> None:
     p = sub.add_parser("adhesion", help="single-asperity adhesion: Hertz, DMT, JKR, Maugis–Dugdale")
     kinds = p.add_subparsers(dest="geometry", required=True, parser_class=type(p))
     s = kinds.add_parser("sphere", help="a sphere on a flat")
-    s.add_argument("--radius", type=float_in(1e-10, 1.0), required=True, metavar="M",
-                   help="sphere radius R in m, 0.1 nm–1 m")
+    s.add_argument(
+        "--radius",
+        type=float_in(1e-10, 1.0),
+        required=True,
+        metavar="M",
+        help="sphere radius R in m, 0.1 nm–1 m",
+    )
     s.add_argument(
         "--modulus",
         type=float_in(1e3, 1e13),
@@ -41,8 +46,13 @@ def register(sub: Any) -> None:
         metavar="PA",
         help="reduced modulus E* in Pa, 1 kPa–10 TPa (1/E* = (1−ν1²)/E1 + (1−ν2²)/E2)",
     )
-    s.add_argument("--adhesion-work", type=adhesion_work, required=True, metavar="J_M2",
-                   help=f"work of adhesion w, {ADHESION_WORK_HELP}")
+    s.add_argument(
+        "--adhesion-work",
+        type=adhesion_work,
+        required=True,
+        metavar="J_M2",
+        help=f"work of adhesion w, {ADHESION_WORK_HELP}",
+    )
     scale = s.add_mutually_exclusive_group()
     scale.add_argument(
         "--tabor",
@@ -58,11 +68,19 @@ def register(sub: Any) -> None:
     )
     s.add_argument("--model", choices=MODELS, default="maugis-dugdale", help="default maugis-dugdale")
     what = s.add_mutually_exclusive_group()
-    what.add_argument("--load", type=float_in(-1e6, 1e6), metavar="N",
-                      help="contact radius and approach at this load (|load| ≤ 1e6 N)")
+    what.add_argument(
+        "--load",
+        type=float_in(-1e6, 1e6),
+        metavar="N",
+        help="contact radius and approach at this load (|load| ≤ 1e6 N)",
+    )
     what.add_argument("--curve", action="store_true", help="the load–radius–approach curve")
-    s.add_argument("--max-load", type=float_in(1e-15, 1e6), metavar="N",
-                   help="top of --curve, 1e-15–1e6 N (default 10 πwR)")
+    s.add_argument(
+        "--max-load",
+        type=float_in(1e-15, 1e6),
+        metavar="N",
+        help="top of --curve, 1e-15–1e6 N (default 10 πwR)",
+    )
     s.add_argument("--plot", type=output_path, metavar="PNG", help="plot the curve (implies --curve)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.set_defaults(handler=run)

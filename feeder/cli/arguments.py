@@ -104,7 +104,8 @@ def input_path(text: str) -> Path:
     try:
         if not path.is_file():
             raise argparse.ArgumentTypeError(
-                f"no such file: {text[:80]!r}" if not path.exists() else f"not a regular file: {text!r}")
+                f"no such file: {text[:80]!r}" if not path.exists() else f"not a regular file: {text!r}"
+            )
     except OSError as err:  # e.g. a name too long
         raise argparse.ArgumentTypeError(f"cannot read {text[:40]!r}: {err.strerror}") from None
     return path
@@ -119,10 +120,11 @@ def _quantity(text: str, units: dict[str, float], what: str, example: str) -> fl
     match = _QUANTITY_RE.match(text)
     if match is None or match.group(2) not in units:
         raise argparse.ArgumentTypeError(
-            f"expected a {what} like {example} (units: {', '.join(u for u in units if u)}), got {text!r}")
-    try:        # in decimal, so 150um is exactly the float 150e-6
+            f"expected a {what} like {example} (units: {', '.join(u for u in units if u)}), got {text!r}"
+        )
+    try:  # in decimal, so 150um is exactly the float 150e-6
         value = float(Decimal(match.group(1)) * Decimal(repr(units[match.group(2)])))
-    except DecimalException:        # an exponent beyond decimal's range
+    except DecimalException:  # an exponent beyond decimal's range
         value = math.inf
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"not a finite {what}: {text!r}")
@@ -163,33 +165,54 @@ def add_part_arguments(
     p: argparse.ArgumentParser, *, part_required: bool = True, example: str = "300x300x50"
 ) -> None:
     """``--part``, ``--support``, ``--surface`` and ``--density``."""
-    p.add_argument("--part", required=part_required,
-                   help=f"LxWxT in µm, e.g. {example}; sides {PART_SIDE_RANGE_UM[0]:g} µm–"
-                        f"{PART_SIDE_RANGE_UM[1]:g} µm, thickness {PART_THICKNESS_RANGE_UM[0]:g} µm–"
-                        f"{PART_THICKNESS_RANGE_UM[1]:g} µm")
+    p.add_argument(
+        "--part",
+        required=part_required,
+        help=f"LxWxT in µm, e.g. {example}; sides {PART_SIDE_RANGE_UM[0]:g} µm–"
+        f"{PART_SIDE_RANGE_UM[1]:g} µm, thickness {PART_THICKNESS_RANGE_UM[0]:g} µm–"
+        f"{PART_THICKNESS_RANGE_UM[1]:g} µm",
+    )
     p.add_argument("--support", default="flat", help="flat or grooved (default flat)")
     p.add_argument("--surface", type=input_path, help="surface TOML (default: the embedded surface)")
-    p.add_argument("--density", type=float_in(*DENSITY_RANGE_KG_M3), default=SILICON_DENSITY_KG_M3,
-                   help=f"part density in kg/m³, {DENSITY_RANGE_KG_M3[0]:g}–{DENSITY_RANGE_KG_M3[1]:g} "
-                        f"(default silicon, {SILICON_DENSITY_KG_M3:g})")
-    p.add_argument("--adhesion-work", type=adhesion_work, metavar="J_M2",
-                   help=f"work of adhesion w in J/m², {ADHESION_WORK_HELP}, for Maugis–Dugdale adhesion per "
-                        "summit (default: "
-                        "the surface file's, else 0 as in the paper); τ is then the one fitted with w")
+    p.add_argument(
+        "--density",
+        type=float_in(*DENSITY_RANGE_KG_M3),
+        default=SILICON_DENSITY_KG_M3,
+        help=f"part density in kg/m³, {DENSITY_RANGE_KG_M3[0]:g}–{DENSITY_RANGE_KG_M3[1]:g} "
+        f"(default silicon, {SILICON_DENSITY_KG_M3:g})",
+    )
+    p.add_argument(
+        "--adhesion-work",
+        type=adhesion_work,
+        metavar="J_M2",
+        help=f"work of adhesion w in J/m², {ADHESION_WORK_HELP}, for Maugis–Dugdale adhesion per "
+        "summit (default: "
+        "the surface file's, else 0 as in the paper); τ is then the one fitted with w",
+    )
 
 
 def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
     """``--tau``, ``--tau-adhesion-work`` (and ``--tau-band``); None = the τ fitted with the surface's w."""
     from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
 
-    p.add_argument("--tau", type=positive_float,
-                   help=f"interfacial shear strength in Pa (default: the paper's, {DEFAULT_TAU_PA:g} "
-                        "at w = 0, fitted again with the surface's w when it has one)")
-    p.add_argument("--tau-adhesion-work", type=adhesion_work, metavar="J_M2",
-                   help="the w the given --tau was fitted with (default 0); must equal the contact's w")
+    p.add_argument(
+        "--tau",
+        type=positive_float,
+        help=f"interfacial shear strength in Pa (default: the paper's, {DEFAULT_TAU_PA:g} "
+        "at w = 0, fitted again with the surface's w when it has one)",
+    )
+    p.add_argument(
+        "--tau-adhesion-work",
+        type=adhesion_work,
+        metavar="J_M2",
+        help="the w the given --tau was fitted with (default 0); must equal the contact's w",
+    )
     if band:
-        p.add_argument("--tau-band", type=float,
-                       help=f"± band of τ in Pa (default {DEFAULT_TAU_BAND_PA / DEFAULT_TAU_PA:.3g}·τ)")
+        p.add_argument(
+            "--tau-band",
+            type=float,
+            help=f"± band of τ in Pa (default {DEFAULT_TAU_BAND_PA / DEFAULT_TAU_PA:.3g}·τ)",
+        )
 
 
 def surface_from(args: argparse.Namespace) -> SurfaceParameters:

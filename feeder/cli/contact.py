@@ -19,11 +19,16 @@ def register(sub: Any) -> None:
     p = sub.add_parser("contact", help="real contact area and breakaway force of a part")
     add_part_arguments(p, part_required=False)
     add_tau_arguments(p)
-    p.add_argument("--placements", type=int_in(0, 10**6), default=DEFAULT_PLACEMENTS,
-                   help="random placements sampled summit by summit for the A_r band, 0–1e6 "
-                        f"(default {DEFAULT_PLACEMENTS}; 0 skips; within the 2 GiB memory budget)")
-    p.add_argument("--table", action="store_true",
-                   help="paper-style table: four parts × two supports, model vs paper")
+    p.add_argument(
+        "--placements",
+        type=int_in(0, 10**6),
+        default=DEFAULT_PLACEMENTS,
+        help="random placements sampled summit by summit for the A_r band, 0–1e6 "
+        f"(default {DEFAULT_PLACEMENTS}; 0 skips; within the 2 GiB memory budget)",
+    )
+    p.add_argument(
+        "--table", action="store_true", help="paper-style table: four parts × two supports, model vs paper"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
 
@@ -36,8 +41,15 @@ def run(args: argparse.Namespace) -> int:
     if not args.part:
         raise InputError("--part", "required (LxWxT in µm, e.g. 300x300x50), or use --table")
     part, support, surface = part_from(args)
-    result = contact(part, support, surface, args.tau, args.tau_band, args.placements,
-                     tau_adhesion_work_j_m2=args.tau_adhesion_work)
+    result = contact(
+        part,
+        support,
+        surface,
+        args.tau,
+        args.tau_band,
+        args.placements,
+        tau_adhesion_work_j_m2=args.tau_adhesion_work,
+    )
     if args.json:
         print_json(result.to_json())
     else:
@@ -54,17 +66,23 @@ def _print_result(r: ContactResult) -> None:
     print(f"  separation d      {r.separation_m * 1e9:.4f} nm")
     print(f"  real area A_r     {r.real_area_m2:.5g} m²  ({r.contacts:.3g} asperities in contact)")
     if r.real_area_band_m2 is not None:
-        print(f"  A_r of placements {r.real_area_band_m2[0]:.5g} – {r.real_area_band_m2[1]:.5g} m²"
-              f" (68 %, mean {r.real_area_sampled_mean_m2:.5g})")
+        print(
+            f"  A_r of placements {r.real_area_band_m2[0]:.5g} – {r.real_area_band_m2[1]:.5g} m²"
+            f" (68 %, mean {r.real_area_sampled_mean_m2:.5g})"
+        )
     print(f"  τ                 {r.tau_pa / 1e9:.4g} ± {r.tau_band_pa / 1e9:.3g} GPa ({r.tau_source})")
     print(f"  plasticity index  {r.plasticity_index:.3g}")
     if r.summit_tabor is not None:
-        print(f"  adhesion          {r.adhesion_n:.4g} N pull, {r.attracted_summits:.4g} summits attracted "
-              f"out of contact, Maugis λ {r.summit_tabor:.3g} per summit, Fuller–Tabor θ "
-              f"{r.adhesion_parameter:.3g}")
+        print(
+            f"  adhesion          {r.adhesion_n:.4g} N pull, {r.attracted_summits:.4g} summits attracted "
+            f"out of contact, Maugis λ {r.summit_tabor:.3g} per summit, Fuller–Tabor θ "
+            f"{r.adhesion_parameter:.3g}"
+        )
     print(f"  breakaway force   {r.breakaway_force_n * 1e6:.4g} µN  [{lo * 1e6:.4g}, {hi * 1e6:.4g}]")
-    print(f"  breakaway accel   {r.breakaway_accel_m_s2:.4g} m/s²  [{alo:.4g}, {ahi:.4g}]"
-          f"  ({r.breakaway_accel_m_s2 / 9.81:.3g} g)")
+    print(
+        f"  breakaway accel   {r.breakaway_accel_m_s2:.4g} m/s²  [{alo:.4g}, {ahi:.4g}]"
+        f"  ({r.breakaway_accel_m_s2 / 9.81:.3g} g)"
+    )
     for w in r.warnings:
         print(f"  warning: {w}")
 
@@ -76,52 +94,75 @@ def _table(surface: SurfaceParameters, args: argparse.Namespace, placements: int
     for label, paper in PAPER_ROWS.items():
         part = Part.parse(label)
         for kind in ("flat", "grooved"):
-            r = contact(part, Support(kind), surface, args.tau, args.tau_band, placements,
-                        tau_adhesion_work_j_m2=args.tau_adhesion_work)
+            r = contact(
+                part,
+                Support(kind),
+                surface,
+                args.tau,
+                args.tau_band,
+                placements,
+                tau_adhesion_work_j_m2=args.tau_adhesion_work,
+            )
             tau, tau_band = r.tau_pa, r.tau_band_pa
             paper_area = paper.real_area_flat_m2 if kind == "flat" else paper.real_area_grooved_m2
-            rows.append({
-                "part": label,
-                "support": kind,
-                "weight_N": r.weight_n,
-                "paper_weight_N": paper.weight_n,
-                "separation_m": r.separation_m,
-                "real_area_m2": r.real_area_m2,
-                "paper_real_area_m2": paper_area,
-                "real_area_deviation": r.real_area_m2 / paper_area - 1.0,
-                "contacts": r.contacts,
-                "real_area_band_m2": r.real_area_band_m2,
-                "real_area_sampled_mean_m2": r.real_area_sampled_mean_m2,
-                "breakaway_force_N": r.breakaway_force_n,
-                "breakaway_accel_m_s2": r.breakaway_accel_m_s2,
-            })
-            warnings += [w for w in r.warnings
-                         if w not in warnings and "asperities" not in w and "placed" not in w]
-    few = [f"{row['part']} {row['support']} ({row['contacts']:.2g})" for row in rows
-           if row["contacts"] < MIN_CONTACTS]
+            rows.append(
+                {
+                    "part": label,
+                    "support": kind,
+                    "weight_N": r.weight_n,
+                    "paper_weight_N": paper.weight_n,
+                    "separation_m": r.separation_m,
+                    "real_area_m2": r.real_area_m2,
+                    "paper_real_area_m2": paper_area,
+                    "real_area_deviation": r.real_area_m2 / paper_area - 1.0,
+                    "contacts": r.contacts,
+                    "real_area_band_m2": r.real_area_band_m2,
+                    "real_area_sampled_mean_m2": r.real_area_sampled_mean_m2,
+                    "breakaway_force_N": r.breakaway_force_n,
+                    "breakaway_accel_m_s2": r.breakaway_accel_m_s2,
+                }
+            )
+            warnings += [
+                w for w in r.warnings if w not in warnings and "asperities" not in w and "placed" not in w
+            ]
+    few = [
+        f"{row['part']} {row['support']} ({row['contacts']:.2g})"
+        for row in rows
+        if row["contacts"] < MIN_CONTACTS
+    ]
     if few:
-        warnings.insert(0, f"fewer than {MIN_CONTACTS:g} asperities in contact, Greenwood–Williamson "
-                           f"statistics unreliable: {', '.join(few)}")
+        warnings.insert(
+            0,
+            f"fewer than {MIN_CONTACTS:g} asperities in contact, Greenwood–Williamson "
+            f"statistics unreliable: {', '.join(few)}",
+        )
     if as_json:
         print_json({"rows": rows, "tau_pa": tau, "tau_band_pa": tau_band, "warnings": warnings})
         return 0
-    print("Greenwood–Williamson + Hertz contact, model vs paper (Table I, Table III); "
-          f"τ = {tau / 1e9:.2f} GPa")
-    header = (f"{'part µm':<12}{'support':<9}{'weight N':>11}{'d nm':>9}{'A_r 1e-17m²':>13}"
-              f"{'paper':>9}{'dev %':>8}{'contacts':>10}{'F_break µN':>12}{'a_break m/s²':>14}"
-              f"{'placed A_r 68 %':>18}")
+    print(
+        f"Greenwood–Williamson + Hertz contact, model vs paper (Table I, Table III); τ = {tau / 1e9:.2f} GPa"
+    )
+    header = (
+        f"{'part µm':<12}{'support':<9}{'weight N':>11}{'d nm':>9}{'A_r 1e-17m²':>13}"
+        f"{'paper':>9}{'dev %':>8}{'contacts':>10}{'F_break µN':>12}{'a_break m/s²':>14}"
+        f"{'placed A_r 68 %':>18}"
+    )
     print(header)
     print("-" * len(header))
     for row in rows:
-        print(f"{row['part']:<12}{row['support']:<9}{row['weight_N']:>11.5g}"
-              f"{row['separation_m'] * 1e9:>9.3f}{row['real_area_m2'] * 1e17:>13.5g}"
-              f"{row['paper_real_area_m2'] * 1e17:>9.5g}{row['real_area_deviation'] * 100:>8.2f}"
-              f"{row['contacts']:>10.3g}{row['breakaway_force_N'] * 1e6:>12.4g}"
-              f"{row['breakaway_accel_m_s2']:>14.4g}{_band_text(row['real_area_band_m2']):>18}")
+        print(
+            f"{row['part']:<12}{row['support']:<9}{row['weight_N']:>11.5g}"
+            f"{row['separation_m'] * 1e9:>9.3f}{row['real_area_m2'] * 1e17:>13.5g}"
+            f"{row['paper_real_area_m2'] * 1e17:>9.5g}{row['real_area_deviation'] * 100:>8.2f}"
+            f"{row['contacts']:>10.3g}{row['breakaway_force_N'] * 1e6:>12.4g}"
+            f"{row['breakaway_accel_m_s2']:>14.4g}{_band_text(row['real_area_band_m2']):>18}"
+        )
     print()
     if placements:
-        print(f"placed A_r: 68 % interval over {placements} random placements sampled summit by summit "
-              "(1e-17 m²); GW's mean field assumes fractional asperities")
+        print(
+            f"placed A_r: 68 % interval over {placements} random placements sampled summit by summit "
+            "(1e-17 m²); GW's mean field assumes fractional asperities"
+        )
     for w in warnings:
         print(f"warning: {w}")
     return 0

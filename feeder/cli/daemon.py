@@ -22,22 +22,36 @@ from feeder.drivers.sensor import SensorLost
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "daemon", help="run the control daemon (no config: on a simulated amplifier)")
+        "daemon", help="run the control daemon (no config: on a simulated amplifier)"
+    )
     parser.add_argument("--config", type=Path, help="TOML configuration (see docs/daemon.md)")
-    parser.add_argument("--transport", choices=TRANSPORTS,
-                        help="amplifier link, overriding the configuration")
+    parser.add_argument(
+        "--transport", choices=TRANSPORTS, help="amplifier link, overriding the configuration"
+    )
     parser.add_argument("--state-dir", type=Path, help="calibration/history database directory")
     parser.add_argument("--socket", type=Path, help="control socket path")
-    parser.add_argument("--sim-arg", action="append", default=[], metavar="ARG",
-                        help="extra firmware_sim argument (repeatable; e.g. --sim-arg=--seed=3)")
-    parser.add_argument("--json", action="store_true",
-                        help="print the ready object (socket, endpoints, ...) as JSON")
-    parser.add_argument("--reset-state", action="store_true",
-                        help="move the state database aside (renamed NAME.TIMESTAMP.bak) and "
-                             "start with a fresh one: calibration and history start empty")
-    parser.add_argument("--log-level", choices=LOG_LEVELS, default="info",
-                        help="log to stderr and to daemon.log in the state directory "
-                             "(default %(default)s)")
+    parser.add_argument(
+        "--sim-arg",
+        action="append",
+        default=[],
+        metavar="ARG",
+        help="extra firmware_sim argument (repeatable; e.g. --sim-arg=--seed=3)",
+    )
+    parser.add_argument(
+        "--json", action="store_true", help="print the ready object (socket, endpoints, ...) as JSON"
+    )
+    parser.add_argument(
+        "--reset-state",
+        action="store_true",
+        help="move the state database aside (renamed NAME.TIMESTAMP.bak) and "
+        "start with a fresh one: calibration and history start empty",
+    )
+    parser.add_argument(
+        "--log-level",
+        choices=LOG_LEVELS,
+        default="info",
+        help="log to stderr and to daemon.log in the state directory (default %(default)s)",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -48,8 +62,10 @@ LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 def setup_logging(level: str, log_file: Path) -> None:
     """The daemon logs to stderr and to ``log_file`` (appended, owner-only)."""
     log_file.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-    handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr),
-                                       logging.FileHandler(log_file, encoding="utf-8")]
+    handlers: list[logging.Handler] = [
+        logging.StreamHandler(sys.stderr),
+        logging.FileHandler(log_file, encoding="utf-8"),
+    ]
     log_file.chmod(0o600)
     logging.basicConfig(level=level.upper(), format=LOG_FORMAT, handlers=handlers, force=True)
 
@@ -63,8 +79,7 @@ def run(args: argparse.Namespace) -> int:
     if args.socket:
         config = dataclasses.replace(config, socket_path=args.socket)
     if args.sim_arg:
-        config = dataclasses.replace(config, simulator_args=(*config.simulator_args,
-                                                             *args.sim_arg))
+        config = dataclasses.replace(config, simulator_args=(*config.simulator_args, *args.sim_arg))
     setup_logging(args.log_level, config.state_dir / "daemon.log")
     if args.reset_state:
         moved = move_aside(config.database_path)
@@ -72,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
             logging.getLogger(__name__).warning("state database moved aside to %s", moved)
     try:
         running = start_daemon(config)
-    except StoreError as err:      # the state file is not ours: bad input, left untouched
+    except StoreError as err:  # the state file is not ours: bad input, left untouched
         print(f"feeder daemon: error: {err}", file=sys.stderr)
         return 2
     except (AmplifierError, SensorLost, LaunchError) as err:
@@ -85,13 +100,19 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
-    ready = {"ready": True, "socket": str(config.socket_path),
-             "database": str(config.database_path), **running.links.describe()}
+    ready = {
+        "ready": True,
+        "socket": str(config.socket_path),
+        "database": str(config.database_path),
+        **running.links.describe(),
+    }
     if args.json:
         print_json(ready)
     else:
-        print(f"feeder daemon: listening on {config.socket_path} "
-              f"({ready['transport']}{', simulated' if ready['simulated'] else ''})")
+        print(
+            f"feeder daemon: listening on {config.socket_path} "
+            f"({ready['transport']}{', simulated' if ready['simulated'] else ''})"
+        )
     sys.stdout.flush()
     while not stop.is_set() and not running.daemon.wait(0.2):
         pass

@@ -34,8 +34,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("demo", help="closed-loop positioning on a simulated amplifier")
     parser.add_argument("--part", default="300x300x50", help="LxWxT in µm")
     parser.add_argument("--transport", choices=TRANSPORTS, default="serial")
-    parser.add_argument("--plot", type=Path, default=Path("out/demo.png"),
-                        help="PNG of position vs time (default %(default)s)")
+    parser.add_argument(
+        "--plot",
+        type=Path,
+        default=Path("out/demo.png"),
+        help="PNG of position vs time (default %(default)s)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON summary")
     parser.set_defaults(handler=run)
 
@@ -78,11 +82,15 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--plot", f"expected a .png path, got {str(args.plot)!r}")
     started = time.monotonic()
     base = Path(tempfile.mkdtemp(prefix="fdemo"))
-    config = DaemonConfig(part=part, state_dir=base / "state",
-                          socket_path=base / "run" / "s.sock").with_transport(args.transport)
+    config = DaemonConfig(
+        part=part, state_dir=base / "state", socket_path=base / "run" / "s.sock"
+    ).with_transport(args.transport)
     if not args.json:
-        print(f"starting the daemon on a simulated amplifier ({args.transport}) ...",
-              file=sys.stderr, flush=True)
+        print(
+            f"starting the daemon on a simulated amplifier ({args.transport}) ...",
+            file=sys.stderr,
+            flush=True,
+        )
     running = start_daemon(config)
     results: list[dict[str, Any]] = []
     traces: list[list[list[float]]] = []
@@ -96,11 +104,14 @@ def run(args: argparse.Namespace) -> int:
                 result["learned_step_m"] = result["estimates"][f"coarse/{direction}"]["step_m"]
                 results.append(result)
                 if not args.json:
-                    print(f"move {i}/{len(DEFAULT_TARGETS_M)}: target {target * 1e6:9.3f} µm  "
-                          f"reached {result['reached_m'] * 1e6:9.3f} µm  error "
-                          f"{result['error_m'] * 1e6:+7.3f} µm  {result['steps']:4d} steps  "
-                          f"learned step {result['learned_step_m'] * 1e6:.3f} µm ({direction})  "
-                          f"{result['duration_s']:.2f} s  {result['status']}", flush=True)
+                    print(
+                        f"move {i}/{len(DEFAULT_TARGETS_M)}: target {target * 1e6:9.3f} µm  "
+                        f"reached {result['reached_m'] * 1e6:9.3f} µm  error "
+                        f"{result['error_m'] * 1e6:+7.3f} µm  {result['steps']:4d} steps  "
+                        f"learned step {result['learned_step_m'] * 1e6:.3f} µm ({direction})  "
+                        f"{result['duration_s']:.2f} s  {result['status']}",
+                        flush=True,
+                    )
                     print(_progress(i, len(DEFAULT_TARGETS_M)), file=sys.stderr, flush=True)
             final = client.request("status")
     finally:
@@ -110,11 +121,26 @@ def run(args: argparse.Namespace) -> int:
     errors = [abs(r["error_m"]) for r in results if r["error_m"] is not None]
     max_error = max(errors) if errors else float("nan")
     duration = time.monotonic() - started
-    ok = (all(r["status"] == "done" for r in results) and len(errors) == len(results)
-          and max_error <= tolerance)
+    ok = (
+        all(r["status"] == "done" for r in results) and len(errors) == len(results) and max_error <= tolerance
+    )
     summary: dict[str, Any] = {
-        "moves": [{k: r[k] for k in ("target_m", "reached_m", "error_m", "steps", "bursts",
-                                     "learned_step_m", "duration_s", "status")} for r in results],
+        "moves": [
+            {
+                k: r[k]
+                for k in (
+                    "target_m",
+                    "reached_m",
+                    "error_m",
+                    "steps",
+                    "bursts",
+                    "learned_step_m",
+                    "duration_s",
+                    "status",
+                )
+            }
+            for r in results
+        ],
         "max_error_m": max_error,
         "tolerance_m": tolerance,
         "all_within_tolerance": ok,
@@ -127,16 +153,19 @@ def run(args: argparse.Namespace) -> int:
         print_json(summary)
     else:
         timing = final["timing"]
-        print(f"{len(results)} moves, max error {max_error * 1e6:.3f} µm "
-              f"(tolerance ±{tolerance * 1e6:.3f} µm), {duration:.1f} s; plot: {args.plot}")
-        print(f"control loop: {timing['ticks']} ticks at {timing['rate_hz']:g} Hz, "
-              f"{timing['overruns']} overruns, jitter p99 {timing['jitter_p99_s'] * 1e3:.2f} ms, "
-              f"max {timing['jitter_max_s'] * 1e3:.2f} ms")
+        print(
+            f"{len(results)} moves, max error {max_error * 1e6:.3f} µm "
+            f"(tolerance ±{tolerance * 1e6:.3f} µm), {duration:.1f} s; plot: {args.plot}"
+        )
+        print(
+            f"control loop: {timing['ticks']} ticks at {timing['rate_hz']:g} Hz, "
+            f"{timing['overruns']} overruns, jitter p99 {timing['jitter_p99_s'] * 1e3:.2f} ms, "
+            f"max {timing['jitter_max_s'] * 1e3:.2f} ms"
+        )
     return 0 if ok else 1
 
 
-def _plot(path: Path, traces: list[list[list[float]]], targets: list[float],
-          tolerance_m: float) -> None:
+def _plot(path: Path, traces: list[list[list[float]]], targets: list[float], tolerance_m: float) -> None:
     """Position vs time, the targets as a staircase, written atomically."""
     import matplotlib
 
@@ -149,10 +178,22 @@ def _plot(path: Path, traces: list[list[list[float]]], targets: list[float],
         if not trace:
             continue
         times = [(t - t0) for t, _ in trace]
-        ax.plot(times, [x * 1e6 for _, x in trace], color="C0", lw=1.2,
-                label="part position (camera)" if i == 0 else "_")
-        ax.hlines(target * 1e6, times[0], times[-1], colors="C3", linestyles="--", lw=1,
-                  label="target" if i == 0 else "_")
+        ax.plot(
+            times,
+            [x * 1e6 for _, x in trace],
+            color="C0",
+            lw=1.2,
+            label="part position (camera)" if i == 0 else "_",
+        )
+        ax.hlines(
+            target * 1e6,
+            times[0],
+            times[-1],
+            colors="C3",
+            linestyles="--",
+            lw=1,
+            label="target" if i == 0 else "_",
+        )
     ax.set_xlabel("time (s)")
     ax.set_ylabel("position (µm)")
     ax.set_title(f"closed-loop moves, tolerance ±{tolerance_m * 1e6:g} µm")

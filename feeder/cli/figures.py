@@ -51,23 +51,50 @@ def tau_rows() -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     for label, paper in PAPER_ROWS.items():
         tau = shear_strength([paper.friction_flat_n], paper.real_area_flat_m2).tau_pa
-        rows.append({"part": label, "support": "flat", "real_area_m2": paper.real_area_flat_m2,
-                     "mean_force_N": paper.friction_flat_n, "tau_recomputed_pa": tau,
-                     "tau_printed_pa": paper.tau_pa})
+        rows.append(
+            {
+                "part": label,
+                "support": "flat",
+                "real_area_m2": paper.real_area_flat_m2,
+                "mean_force_N": paper.friction_flat_n,
+                "tau_recomputed_pa": tau,
+                "tau_printed_pa": paper.tau_pa,
+            }
+        )
     big = PAPER_ROWS[FIG9_PART]
     flat_raw = shear_strength(RAW_FORCES_300_FLAT_N, big.real_area_flat_m2)
     grooved_raw = shear_strength(RAW_FORCES_300_GROOVED_N, big.real_area_grooved_m2)
     assert big.friction_grooved_n is not None
-    rows.append({"part": FIG9_PART, "support": "flat, raw F (Table IV)",
-                 "real_area_m2": big.real_area_flat_m2, "mean_force_N": flat_raw.mean_force_n,
-                 "tau_recomputed_pa": flat_raw.tau_pa, "tau_printed_pa": big.tau_pa})
-    rows.append({"part": FIG9_PART, "support": "grooved (Table VI)", "real_area_m2": big.real_area_grooved_m2,
-                 "mean_force_N": big.friction_grooved_n,
-                 "tau_recomputed_pa": big.friction_grooved_n / big.real_area_grooved_m2,
-                 "tau_printed_pa": TAU_300_GROOVED_PRINTED_PA})
-    rows.append({"part": FIG9_PART, "support": "grooved, raw F (Table IV)",
-                 "real_area_m2": big.real_area_grooved_m2, "mean_force_N": grooved_raw.mean_force_n,
-                 "tau_recomputed_pa": grooved_raw.tau_pa, "tau_printed_pa": TAU_300_GROOVED_PRINTED_PA})
+    rows.append(
+        {
+            "part": FIG9_PART,
+            "support": "flat, raw F (Table IV)",
+            "real_area_m2": big.real_area_flat_m2,
+            "mean_force_N": flat_raw.mean_force_n,
+            "tau_recomputed_pa": flat_raw.tau_pa,
+            "tau_printed_pa": big.tau_pa,
+        }
+    )
+    rows.append(
+        {
+            "part": FIG9_PART,
+            "support": "grooved (Table VI)",
+            "real_area_m2": big.real_area_grooved_m2,
+            "mean_force_N": big.friction_grooved_n,
+            "tau_recomputed_pa": big.friction_grooved_n / big.real_area_grooved_m2,
+            "tau_printed_pa": TAU_300_GROOVED_PRINTED_PA,
+        }
+    )
+    rows.append(
+        {
+            "part": FIG9_PART,
+            "support": "grooved, raw F (Table IV)",
+            "real_area_m2": big.real_area_grooved_m2,
+            "mean_force_N": grooved_raw.mean_force_n,
+            "tau_recomputed_pa": grooved_raw.tau_pa,
+            "tau_printed_pa": TAU_300_GROOVED_PRINTED_PA,
+        }
+    )
     for row in rows:
         row["relative_difference"] = row["tau_recomputed_pa"] / row["tau_printed_pa"] - 1
     return rows
@@ -81,8 +108,10 @@ def tau_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "printed_summary_pa": [TAU_MEAN_PA, TAU_SPREAD_PA],
         "midpoint_half_range_of_19_03_and_25_33_pa": [(19.03e9 + 25.33e9) / 2, (25.33e9 - 19.03e9) / 2],
         "printed_tau_mean_std_pa": [statistics.mean(printed), statistics.stdev(printed)],
-        "printed_tau_range_midpoint_half_range_pa": [(max(printed) + min(printed)) / 2,
-                                                     (max(printed) - min(printed)) / 2],
+        "printed_tau_range_midpoint_half_range_pa": [
+            (max(printed) + min(printed)) / 2,
+            (max(printed) - min(printed)) / 2,
+        ],
         "recomputed_tau_mean_std_pa": [statistics.mean(recomputed), statistics.stdev(recomputed)],
     }
 
@@ -110,19 +139,28 @@ def run(args: argparse.Namespace) -> int:
     summary = tau_summary(rows)
     table_path = out / "tau_tables.png"
     _table_figure(rows, table_path)
-    report: dict[str, Any] = {"files": [fig9.pop("file"), str(table_path)], "fig9": fig9, "tau_table": rows,
-              "tau_summary": summary, "notes": list(NOTES)}
+    report: dict[str, Any] = {
+        "files": [fig9.pop("file"), str(table_path)],
+        "fig9": fig9,
+        "tau_table": rows,
+        "tau_summary": summary,
+        "notes": list(NOTES),
+    }
     if args.json:
         print_json(report)
         return 0
     print(f"wrote {report['files'][0]} and {report['files'][1]}")
-    print(f"Fig. 9 ({FIG9_PART}): d flat {fig9['separation_flat_m'] * 1e9:.3f} nm (paper 34.638), "
-          f"grooved {fig9['separation_grooved_m'] * 1e9:.3f} nm (paper 34.600)")
+    print(
+        f"Fig. 9 ({FIG9_PART}): d flat {fig9['separation_flat_m'] * 1e9:.3f} nm (paper 34.638), "
+        f"grooved {fig9['separation_grooved_m'] * 1e9:.3f} nm (paper 34.600)"
+    )
     print(f"{'part':<11} {'support':<31} {'A_r (m²)':>11} {'F (µN)':>8} {'τ = F/A_r':>10} {'printed':>8}")
     for r in rows:
-        print(f"{r['part']:<11} {r['support']:<31} {r['real_area_m2']:>11.5g} "
-              f"{r['mean_force_N'] * 1e6:>8.5g} {r['tau_recomputed_pa'] / 1e9:>10.2f} "
-              f"{r['tau_printed_pa'] / 1e9:>8.2f}")
+        print(
+            f"{r['part']:<11} {r['support']:<31} {r['real_area_m2']:>11.5g} "
+            f"{r['mean_force_N'] * 1e6:>8.5g} {r['tau_recomputed_pa'] / 1e9:>10.2f} "
+            f"{r['tau_printed_pa'] / 1e9:>8.2f}"
+        )
     for note in NOTES:
         print(f"note: {note}")
     return 0
@@ -147,13 +185,20 @@ def _figure_9(path: Path) -> dict[str, Any]:
         result[f"paper_separation_{support.kind}_m"] = paper_d
         label = f"{support.kind} support (model d = {solved * 1e9:.3f} nm)"
         (line,) = ax.semilogy(d * 1e9, gw.load_n(d), label=label)
-        ax.plot(paper_d * 1e9, part.weight_n, "o", mfc="none", color=line.get_color(),
-                label=f"paper d = {paper_d * 1e9:.3f} nm ({support.kind})")
+        ax.plot(
+            paper_d * 1e9,
+            part.weight_n,
+            "o",
+            mfc="none",
+            color=line.get_color(),
+            label=f"paper d = {paper_d * 1e9:.3f} nm ({support.kind})",
+        )
     ax.axhline(part.weight_n, color="k", lw=0.7, ls=":", label=f"weight {part.weight_n:.4g} N")
     ax.set_xlabel("separation d (nm)")
     ax.set_ylabel("load P_r (N)")
-    ax.set_title(f"Fig. 9: load of a {FIG9_PART} µm part vs separation (embedded default surface)",
-                 fontsize=9)
+    ax.set_title(
+        f"Fig. 9: load of a {FIG9_PART} µm part vs separation (embedded default surface)", fontsize=9
+    )
     ax.legend(fontsize=7)
     fig.tight_layout()
     save_figure(fig, path)
@@ -168,11 +213,27 @@ def _table_figure(rows: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    cells = [[r["part"], r["support"], f"{r['real_area_m2'] * 1e17:.5g}", f"{r['mean_force_N'] * 1e6:.5g}",
-              f"{r['tau_recomputed_pa'] / 1e9:.2f}", f"{r['tau_printed_pa'] / 1e9:.2f}",
-              f"{r['relative_difference']:+.1%}"] for r in rows]
-    header = ["part (µm)", "support", "A_r (1e-17 m²)", "F (µN)", "τ = F/A_r (GPa)", "printed τ (GPa)",
-              "diff"]
+    cells = [
+        [
+            r["part"],
+            r["support"],
+            f"{r['real_area_m2'] * 1e17:.5g}",
+            f"{r['mean_force_N'] * 1e6:.5g}",
+            f"{r['tau_recomputed_pa'] / 1e9:.2f}",
+            f"{r['tau_printed_pa'] / 1e9:.2f}",
+            f"{r['relative_difference']:+.1%}",
+        ]
+        for r in rows
+    ]
+    header = [
+        "part (µm)",
+        "support",
+        "A_r (1e-17 m²)",
+        "F (µN)",
+        "τ = F/A_r (GPa)",
+        "printed τ (GPa)",
+        "diff",
+    ]
     fig, ax = plt.subplots(figsize=(10, 4.6))
     ax.axis("off")
     table = ax.table(cellText=cells, colLabels=header, loc="upper center", cellLoc="center")

@@ -23,10 +23,17 @@ from feeder.friction.force_curves import (
 def add_curve_options(p: argparse.ArgumentParser) -> None:
     """Cantilever and analysis options shared with ``feeder tau``."""
     p.add_argument("--cantilever", help=f"preset for deflection curves: {', '.join(CANTILEVERS)}")
-    p.add_argument("--stiffness", type=float_in(1e-4, 1e4),
-                   help="cantilever stiffness in N/m, 1e-4–1e4 (wins over presets)")
-    p.add_argument("--baseline-fraction", type=float, default=0.2,
-                   help="leading fraction of samples taken as free-approach baseline (default 0.2)")
+    p.add_argument(
+        "--stiffness",
+        type=float_in(1e-4, 1e4),
+        help="cantilever stiffness in N/m, 1e-4–1e4 (wins over presets)",
+    )
+    p.add_argument(
+        "--baseline-fraction",
+        type=float,
+        default=0.2,
+        help="leading fraction of samples taken as free-approach baseline (default 0.2)",
+    )
 
 
 def analyse_files(paths: list[Path], args: argparse.Namespace) -> list[tuple[ForceCurve, FrictionPeak]]:
@@ -38,8 +45,13 @@ def analyse_files(paths: list[Path], args: argparse.Namespace) -> list[tuple[For
 
 def register(sub: Any) -> None:
     p = sub.add_parser("friction", help="static-friction peaks of force curves (CSV)")
-    p.add_argument("curves", nargs="+", type=input_path, metavar="CURVE.csv",
-                   help="force curves: displacement_m and deflection_m or force_n columns")
+    p.add_argument(
+        "curves",
+        nargs="+",
+        type=input_path,
+        metavar="CURVE.csv",
+        help="force curves: displacement_m and deflection_m or force_n columns",
+    )
     add_curve_options(p)
     p.add_argument("--plot", type=output_path, help="PNG of the curves with onset, peak and sliding level")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -68,14 +80,18 @@ def run(args: argparse.Namespace) -> int:
         print_json(report)
         return 0
     for item in report["curves"]:
-        print(f"{item['file']}: static friction {item['static_friction_N'] * 1e6:.4g} µN at "
-              f"{item['peak_displacement_m'] * 1e6:.4g} µm "
-              f"(contact at {item['contact_onset_m'] * 1e6:.4g} µm), "
-              f"sliding {item['sliding_force_N'] * 1e6:.4g} ± {item['sliding_force_std_N'] * 1e6:.2g} µN, "
-              f"noise {item['noise_N'] * 1e9:.3g} nN")
+        print(
+            f"{item['file']}: static friction {item['static_friction_N'] * 1e6:.4g} µN at "
+            f"{item['peak_displacement_m'] * 1e6:.4g} µm "
+            f"(contact at {item['contact_onset_m'] * 1e6:.4g} µm), "
+            f"sliding {item['sliding_force_N'] * 1e6:.4g} ± {item['sliding_force_std_N'] * 1e6:.2g} µN, "
+            f"noise {item['noise_N'] * 1e9:.3g} nN"
+        )
     spread = f" ± {summary.static_friction_std_n * 1e6:.3g} (std)" if summary.count > 1 else ""
-    print(f"mean static friction of {summary.count} curve(s): "
-          f"{summary.mean_static_friction_n * 1e6:.4g}{spread} µN")
+    print(
+        f"mean static friction of {summary.count} curve(s): "
+        f"{summary.mean_static_friction_n * 1e6:.4g}{spread} µN"
+    )
     if args.plot is not None:
         print(f"wrote {args.plot}")
     return 0
@@ -106,17 +122,28 @@ def _plot(analysed: list[tuple[ForceCurve, FrictionPeak]], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for curve, peak in analysed:
         x_um = curve.displacement_m * 1e6
-        line, = ax.plot(x_um, peak.corrected_force_n(curve) * 1e6, lw=0.7,
-                        label=f"{Path(peak.source).name}: {peak.static_friction_n * 1e6:.4g} µN")
+        (line,) = ax.plot(
+            x_um,
+            peak.corrected_force_n(curve) * 1e6,
+            lw=0.7,
+            label=f"{Path(peak.source).name}: {peak.static_friction_n * 1e6:.4g} µN",
+        )
         colour = line.get_color()
         ax.plot(peak.peak_displacement_m * 1e6, peak.static_friction_n * 1e6, "v", color=colour, ms=7)
         ax.axvline(peak.contact_onset_m * 1e6, color=colour, ls=":", lw=0.8)
-        ax.hlines(peak.sliding_force_n * 1e6, x_um[peak.slip_index], x_um[-1], colors=colour, linestyles="--",
-                  lw=0.8)
+        ax.hlines(
+            peak.sliding_force_n * 1e6,
+            x_um[peak.slip_index],
+            x_um[-1],
+            colors=colour,
+            linestyles="--",
+            lw=0.8,
+        )
     ax.set_xlabel("support displacement (µm)")
     ax.set_ylabel("friction force (µN)")
-    ax.set_title("force curves: contact onset (dotted), static-friction peak (▼), sliding level (dashed)",
-                 fontsize=8)
+    ax.set_title(
+        "force curves: contact onset (dotted), static-friction peak (▼), sliding level (dashed)", fontsize=8
+    )
     ax.legend(fontsize=7)
     fig.tight_layout()
     save_figure(fig, path)

@@ -13,7 +13,7 @@ def _plain(value: Any) -> Any:
         return {str(k): _plain(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [_plain(v) for v in value]
-    np = sys.modules.get("numpy")      # no numpy value exists before numpy is imported
+    np = sys.modules.get("numpy")  # no numpy value exists before numpy is imported
     if np is not None and isinstance(value, np.ndarray):
         return [_plain(v) for v in value.tolist()]
     if np is not None and isinstance(value, np.generic):

@@ -52,9 +52,13 @@ def register(sub: Any) -> None:
         help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})",
     )
     p.add_argument("--waveform", type=input_path, help="waveform TOML (full plant, or --ideal)")
-    p.add_argument("--periods", type=int_in(1, MAX_PERIODS), default=20,
-                   help=f"periods to simulate, 1–{MAX_PERIODS:.0e} (default 20; the plant's traces must "
-                        "also fit the 2 GiB memory budget)")
+    p.add_argument(
+        "--periods",
+        type=int_in(1, MAX_PERIODS),
+        default=20,
+        help=f"periods to simulate, 1–{MAX_PERIODS:.0e} (default 20; the plant's traces must "
+        "also fit the 2 GiB memory budget)",
+    )
     p.add_argument(
         "--scatter",
         type=float,

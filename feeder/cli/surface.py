@@ -38,22 +38,40 @@ NOTES = (
 
 def register(sub: Any) -> None:
     p = sub.add_parser("surface", help="summit statistics of AFM scans, GW surface TOML")
-    p.add_argument("scans", nargs="+", type=input_path, metavar="SCAN",
-                   help="one scan (rough surface on a smooth plane) or two (both bodies)")
+    p.add_argument(
+        "scans",
+        nargs="+",
+        type=input_path,
+        metavar="SCAN",
+        help="one scan (rough surface on a smooth plane) or two (both bodies)",
+    )
     p.add_argument("--channel", help="channel index or name (default: the file's height channel)")
-    p.add_argument("--pixel-size", type=float_in(1e-12, 1e-2),
-                   help="pixel size in m, 1 pm–10 mm, for plain .npy/.txt/.csv height maps")
+    p.add_argument(
+        "--pixel-size",
+        type=float_in(1e-12, 1e-2),
+        help="pixel size in m, 1 pm–10 mm, for plain .npy/.txt/.csv height maps",
+    )
     p.add_argument("--height-unit", default="m", help="unit of plain height maps (m, um, nm, ...)")
-    p.add_argument("--youngs-modulus", type=float_in(1e3, 1e13), default=169e9,
-                   help="Young's modulus of both bodies in Pa, 1 kPa–10 TPa (default silicon, 169e9)")
-    p.add_argument("--poisson", type=float_in(-1.0, 0.5), default=0.28,
-                   help="Poisson ratio, −1–0.5 (default 0.28)")
-    p.add_argument("--cutoff-wavelength", type=float_in(1e-10, 1.0), metavar="M",
-                   help="Gaussian low-pass (ISO 16610-61, 50 %% at this wavelength in m, 0.1 nm–1 m) "
-                        "before the "
-                        "statistics; the unfiltered figures are reported beside")
-    p.add_argument("--out", type=output_path,
-                   help="write the surface TOML read by `feeder contact --surface`")
+    p.add_argument(
+        "--youngs-modulus",
+        type=float_in(1e3, 1e13),
+        default=169e9,
+        help="Young's modulus of both bodies in Pa, 1 kPa–10 TPa (default silicon, 169e9)",
+    )
+    p.add_argument(
+        "--poisson", type=float_in(-1.0, 0.5), default=0.28, help="Poisson ratio, −1–0.5 (default 0.28)"
+    )
+    p.add_argument(
+        "--cutoff-wavelength",
+        type=float_in(1e-10, 1.0),
+        metavar="M",
+        help="Gaussian low-pass (ISO 16610-61, 50 %% at this wavelength in m, 0.1 nm–1 m) "
+        "before the "
+        "statistics; the unfiltered figures are reported beside",
+    )
+    p.add_argument(
+        "--out", type=output_path, help="write the surface TOML read by `feeder contact --surface`"
+    )
     p.add_argument("--plot", type=output_path, help="PNG of the height map(s) with the summits marked")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
@@ -68,8 +86,12 @@ def run(args: argparse.Namespace) -> int:
     maps = [read_height_map(p, args.channel, args.pixel_size, args.height_unit) for p in args.scans]
     unfiltered = [surface_statistics(m) for m in maps] if args.cutoff_wavelength else []
     if args.cutoff_wavelength:
-        maps = [dataclasses.replace(m, heights_m=low_pass(remove_plane(m.heights_m), m.pixel_size_m,
-                                                           args.cutoff_wavelength)) for m in maps]
+        maps = [
+            dataclasses.replace(
+                m, heights_m=low_pass(remove_plane(m.heights_m), m.pixel_size_m, args.cutoff_wavelength)
+            )
+            for m in maps
+        ]
     stats = [surface_statistics(m) for m in maps]
     for s in stats:
         if s.summit_count == 0 or not np.isfinite(s.mean_summit_radius_m):
@@ -83,8 +105,10 @@ def run(args: argparse.Namespace) -> int:
     if unfiltered:
         report["cutoff_wavelength_m"] = args.cutoff_wavelength
         report["unfiltered"] = [
-            {key: getattr(u, key) for key in ("sq_m", "summit_density_per_m2", "mean_summit_radius_m",
-                                              "noise_summit_fraction")}
+            {
+                key: getattr(u, key)
+                for key in ("sq_m", "summit_density_per_m2", "mean_summit_radius_m", "noise_summit_fraction")
+            }
             for u in unfiltered
         ]
     if args.plot is not None:
@@ -150,18 +174,26 @@ def _report(stats: list[SurfaceStatistics], surface: SurfaceParameters) -> dict[
 def _print_report(report: dict[str, Any]) -> None:
     for scan in report["scans"]:
         print(f"{scan['file']}  channel {scan['channel'] or '-'}")
-        print(f"  scan {scan['scan_size_m'][0] * 1e6:.4g} × {scan['scan_size_m'][1] * 1e6:.4g} µm, "
-              f"pixel {scan['pixel_size_m'][0] * 1e9:.4g} × {scan['pixel_size_m'][1] * 1e9:.4g} nm")
-        print(f"  Sq {scan['sq_m'] * 1e9:.4g} nm; {scan['summit_count']} summits, "
-              f"η {scan['summit_density_per_m2'] * 1e-12:.4g} µm⁻²")
-        print(f"  summit height mean {scan['mean_summit_height_m'] * 1e9:.4g} nm, "
-              f"std {scan['summit_height_std_m'] * 1e9:.4g} nm; "
-              f"mean radius {scan['mean_summit_radius_m'] * 1e9:.4g} nm "
-              f"(1/mean curvature {scan['radius_from_mean_curvature_m'] * 1e9:.4g} nm)")
+        print(
+            f"  scan {scan['scan_size_m'][0] * 1e6:.4g} × {scan['scan_size_m'][1] * 1e6:.4g} µm, "
+            f"pixel {scan['pixel_size_m'][0] * 1e9:.4g} × {scan['pixel_size_m'][1] * 1e9:.4g} nm"
+        )
+        print(
+            f"  Sq {scan['sq_m'] * 1e9:.4g} nm; {scan['summit_count']} summits, "
+            f"η {scan['summit_density_per_m2'] * 1e-12:.4g} µm⁻²"
+        )
+        print(
+            f"  summit height mean {scan['mean_summit_height_m'] * 1e9:.4g} nm, "
+            f"std {scan['summit_height_std_m'] * 1e9:.4g} nm; "
+            f"mean radius {scan['mean_summit_radius_m'] * 1e9:.4g} nm "
+            f"(1/mean curvature {scan['radius_from_mean_curvature_m'] * 1e9:.4g} nm)"
+        )
     s = report["surface"]
     label = "equivalent surface" if len(report["scans"]) == 2 else "surface"
-    print(f"{label}: σ {s['sigma_m'] * 1e9:.4g} nm, R {s['summit_radius_m'] * 1e9:.4g} nm, "
-          f"η {s['summit_density_per_m2'] * 1e-12:.4g} µm⁻², μ {s['mean_summit_height_m'] * 1e9:.4g} nm")
+    print(
+        f"{label}: σ {s['sigma_m'] * 1e9:.4g} nm, R {s['summit_radius_m'] * 1e9:.4g} nm, "
+        f"η {s['summit_density_per_m2'] * 1e-12:.4g} µm⁻², μ {s['mean_summit_height_m'] * 1e9:.4g} nm"
+    )
     for key in ("surface_toml", "plot"):
         if key in report:
             print(f"wrote {report[key]}")
@@ -185,8 +217,13 @@ def _plot(maps: list[HeightMap], path: Path) -> None:
         d0, d1 = height_map.pixel_size_m
         extent = (0.0, heights.shape[1] * d1 * 1e6, heights.shape[0] * d0 * 1e6, 0.0)
         image = ax.imshow(heights * 1e9, cmap="viridis", extent=extent)
-        ax.plot((cols + 0.5) * d1 * 1e6, (rows + 0.5) * d0 * 1e6, "r.", markersize=1.5,
-                label=f"{rows.size} summits")
+        ax.plot(
+            (cols + 0.5) * d1 * 1e6,
+            (rows + 0.5) * d0 * 1e6,
+            "r.",
+            markersize=1.5,
+            label=f"{rows.size} summits",
+        )
         ax.set_title(Path(height_map.source).name, fontsize=9)
         ax.set_xlabel("µm")
         ax.set_ylabel("µm")

@@ -32,15 +32,28 @@ BAND_NOTE = (
 def register(sub: Any) -> None:
     p = sub.add_parser("tau", help="shear strength τ = F/A_r from friction forces or force curves")
     add_part_arguments(p)
-    p.add_argument("--force", action="append", required=True, metavar="N|CURVE.csv",
-                   help="a static-friction force in N, or a force-curve CSV; repeat for several")
-    p.add_argument("--real-area", type=positive_float,
-                   help="use this real contact area in m² instead of the GW model")
-    p.add_argument("--area-band", type=float,
-                   help="relative half-width of the model's real-area band, e.g. 0.1 (default: A_r over "
-                        "the w band; 0 with --real-area)")
-    p.add_argument("--adhesion-work-band", type=float, metavar="J_M2",
-                   help=f"± uncertainty of --adhesion-work (default {ADHESION_WORK_REL_BAND:g} w)")
+    p.add_argument(
+        "--force",
+        action="append",
+        required=True,
+        metavar="N|CURVE.csv",
+        help="a static-friction force in N, or a force-curve CSV; repeat for several",
+    )
+    p.add_argument(
+        "--real-area", type=positive_float, help="use this real contact area in m² instead of the GW model"
+    )
+    p.add_argument(
+        "--area-band",
+        type=float,
+        help="relative half-width of the model's real-area band, e.g. 0.1 (default: A_r over "
+        "the w band; 0 with --real-area)",
+    )
+    p.add_argument(
+        "--adhesion-work-band",
+        type=float,
+        metavar="J_M2",
+        help=f"± uncertainty of --adhesion-work (default {ADHESION_WORK_REL_BAND:g} w)",
+    )
     add_curve_options(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
@@ -102,8 +115,14 @@ def run(args: argparse.Namespace) -> int:
         else:
             single_scatter, scatter_source = TAU_SPREAD_PA / TAU_MEAN_PA, "paper's relative spread"
     result = shear_strength(forces, area, area_band, single_scatter)
-    checked = contact(part, support, surface, result.tau_pa, min(result.tau_band_pa, 0.999 * result.tau_pa),
-                      tau_adhesion_work_j_m2=w)
+    checked = contact(
+        part,
+        support,
+        surface,
+        result.tau_pa,
+        min(result.tau_band_pa, 0.999 * result.tau_pa),
+        tau_adhesion_work_j_m2=w,
+    )
     report: dict[str, Any] = {
         "tau_pa": result.tau_pa,
         "tau_band_pa": result.tau_band_pa,
@@ -133,8 +152,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(report)
         return 0
-    print(f"part {part.label} µm on {support.kind} support, {len(forces)} force(s), "
-          f"mean {result.mean_force_n * 1e6:.4g} µN (spread {result.force_spread_n * 1e6:.3g} µN)")
+    print(
+        f"part {part.label} µm on {support.kind} support, {len(forces)} force(s), "
+        f"mean {result.mean_force_n * 1e6:.4g} µN (spread {result.force_spread_n * 1e6:.3g} µN)"
+    )
     source = report["inputs"]["real_area_source"]
     print(f"real area A_r {area:.5g} m² ({source})")
     print(f"τ = {result.tau_pa / 1e9:.3f} ± {result.tau_band_pa / 1e9:.3f} GPa")

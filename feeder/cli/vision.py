@@ -31,8 +31,9 @@ def register(sub: Any) -> None:
     vision = p.add_subparsers(dest="vision_command", required=True, parser_class=type(p))
 
     locate = vision.add_parser("locate", help="every part's centre and angle in one image")
-    locate.add_argument("image", type=input_path, metavar="IMAGE",
-                        help="PNG/TIFF/JPEG, grey or colour, 8/16 bit")
+    locate.add_argument(
+        "image", type=input_path, metavar="IMAGE", help="PNG/TIFF/JPEG, grey or colour, 8/16 bit"
+    )
     locate.add_argument(
         "--pixel-size",
         type=length_in(1e-9, 1e-2),
@@ -92,13 +93,17 @@ def register(sub: Any) -> None:
         metavar=("ANGLE", "BEFORE", "AFTER"),
         help="images before and after a plate turn, e.g. 5deg (repeatable): the θ centre",
     )
-    cal.add_argument("--out", type=output_path,
-                     help="write the calibration JSON (read by `locate --calibration`)")
-    cal.add_argument("--save-state", action="store_true",
-                     help="also store it in the daemon's state database, beside the step "
-                          "calibration (see --state-dir)")
-    cal.add_argument("--state-dir", type=Path,
-                     help="the daemon's state directory (default: $XDG_STATE_HOME/feeder)")
+    cal.add_argument(
+        "--out", type=output_path, help="write the calibration JSON (read by `locate --calibration`)"
+    )
+    cal.add_argument(
+        "--save-state",
+        action="store_true",
+        help="also store it in the daemon's state database, beside the step calibration (see --state-dir)",
+    )
+    cal.add_argument(
+        "--state-dir", type=Path, help="the daemon's state directory (default: $XDG_STATE_HOME/feeder)"
+    )
     cal.add_argument("--json", action="store_true", help="print one JSON object")
     cal.set_defaults(handler=run_calibrate)
 
@@ -325,8 +330,7 @@ def _save_state(state_dir: Path | None, report: dict[str, Any]) -> Path:
     except (StoreError, OSError) as err:
         raise InputError("--state-dir", str(err)) from None
     try:
-        store.save_camera_calibration({k: v for k, v in report.items()
-                                       if v is not None and k != "note"})
+        store.save_camera_calibration({k: v for k, v in report.items() if v is not None and k != "note"})
     finally:
         store.close()
     return path

@@ -50,28 +50,46 @@ def register(sub: Any) -> None:
     export = actions.add_parser("export", help="ANC300 256-point tables or a CSV DAC table")
     export.add_argument("file", type=input_path, help="waveform TOML")
     export.add_argument("--format", required=True, choices=("anc300", "csv"))
-    export.add_argument("--points", type=int_in(4, MAX_DAC_POINTS), default=DEFAULT_DAC_POINTS,
-                        help=f"CSV table length, 4–{MAX_DAC_POINTS} (default {DEFAULT_DAC_POINTS})")
-    export.add_argument("--axis", type=int_in(1, 7), default=1,
-                        help="ANC300 axis 1–7 for setpu/setpd (default 1)")
+    export.add_argument(
+        "--points",
+        type=int_in(4, MAX_DAC_POINTS),
+        default=DEFAULT_DAC_POINTS,
+        help=f"CSV table length, 4–{MAX_DAC_POINTS} (default {DEFAULT_DAC_POINTS})",
+    )
+    export.add_argument(
+        "--axis", type=int_in(1, 7), default=1, help="ANC300 axis 1–7 for setpu/setpd (default 1)"
+    )
     export.add_argument("--out", type=output_path, help="write here (atomically) instead of stdout")
     export.add_argument("--json", action="store_true", help="print one JSON object")
     export.set_defaults(handler=run)
     design = actions.add_parser(
-        "design", help="search the waveforms an amplifier can play for the best one (plant model)")
+        "design", help="search the waveforms an amplifier can play for the best one (plant model)"
+    )
     add_part_arguments(design, example="500x500x50")
     add_tau_arguments(design)
-    design.add_argument("--kinetic-ratio", type=positive_float, default=DEFAULT_KINETIC_RATIO,
-                        help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})")
-    design.add_argument("--amplifier", default="paper",
-                        help="anc300, paper (= firmware_sim, 200 V / 2 kHz) or a TOML file of "
-                             "amplifier limits (default paper)")
-    design.add_argument("--objective", default="max-step",
-                        choices=("max-step", "min-scatter", "max-speed"),
-                        help="largest step per period, narrowest relative band, or fastest (m/s)")
-    design.add_argument("--shapes", default=",".join(FLYBACK_SHAPES),
-                        help=f"flyback shapes to search, comma-separated (default all: "
-                             f"{','.join(FLYBACK_SHAPES)})")
+    design.add_argument(
+        "--kinetic-ratio",
+        type=positive_float,
+        default=DEFAULT_KINETIC_RATIO,
+        help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})",
+    )
+    design.add_argument(
+        "--amplifier",
+        default="paper",
+        help="anc300, paper (= firmware_sim, 200 V / 2 kHz) or a TOML file of "
+        "amplifier limits (default paper)",
+    )
+    design.add_argument(
+        "--objective",
+        default="max-step",
+        choices=("max-step", "min-scatter", "max-speed"),
+        help="largest step per period, narrowest relative band, or fastest (m/s)",
+    )
+    design.add_argument(
+        "--shapes",
+        default=",".join(FLYBACK_SHAPES),
+        help=f"flyback shapes to search, comma-separated (default all: {','.join(FLYBACK_SHAPES)})",
+    )
     design.add_argument("--out", type=output_path, required=True, help="design file (TOML) to write")
     design.add_argument("--json", action="store_true", help="print one JSON object")
     design.set_defaults(handler=run_design)
@@ -236,13 +254,20 @@ def run_design(args: argparse.Namespace) -> int:
         return 0
     w, (lo, hi) = design.waveform, design.predicted_step_band_m
     flyback = f"{w.flyback_s * 1e6:.4g} µs " if w.flyback_s else ""
-    print(f"design for part {part.label} µm on {support.kind} support, amplifier {model}, "
-          f"objective {args.objective}: {args.out}")
-    print(f"  waveform   {w.frequency_hz:.5g} Hz, {w.amplitude_vpp:.5g} Vpp, {flyback}"
-          f"{w.flyback_shape} flyback")
-    print(f"  step       {design.predicted_step_m * 1e6:.4g} µm  [{lo * 1e6:.4g}, {hi * 1e6:.4g}], "
-          f"{design.speed_m_s * 1e3:.4g} mm/s")
+    print(
+        f"design for part {part.label} µm on {support.kind} support, amplifier {model}, "
+        f"objective {args.objective}: {args.out}"
+    )
+    print(
+        f"  waveform   {w.frequency_hz:.5g} Hz, {w.amplitude_vpp:.5g} Vpp, {flyback}{w.flyback_shape} flyback"
+    )
+    print(
+        f"  step       {design.predicted_step_m * 1e6:.4g} µm  [{lo * 1e6:.4g}, {hi * 1e6:.4g}], "
+        f"{design.speed_m_s * 1e3:.4g} mm/s"
+    )
     m = design.margins
-    print(f"  margins    flyback {m['flyback_margin']:.3g}×, ramp {m['ramp_margin']:.3g}×, "
-          f"rail {m['rail_margin_v']:.3g} V, current {m['current_margin']:.3g}×")
+    print(
+        f"  margins    flyback {m['flyback_margin']:.3g}×, ramp {m['ramp_margin']:.3g}×, "
+        f"rail {m['rail_margin_v']:.3g} V, current {m['current_margin']:.3g}×"
+    )
     return 0

@@ -105,8 +105,13 @@ def adhesion_parameter(surface: SurfaceParameters) -> float:
 
 
 def _warnings(
-    part: Part, support: Support, surface: SurfaceParameters, contacts: float, tau_pa: float,
-    real_area_m2: float, adhesion_n: float,
+    part: Part,
+    support: Support,
+    surface: SurfaceParameters,
+    contacts: float,
+    tau_pa: float,
+    real_area_m2: float,
+    adhesion_n: float,
 ) -> list[str]:
     out = []
     w = surface.adhesion_work_j_m2
@@ -131,9 +136,12 @@ def _warnings(
     if tau_pa > IDEAL_SHEAR_STRENGTH_PA:
         out.append(
             f"τ = {tau_pa / 1e9:.2f} GPa exceeds silicon's ideal shear strength (≈ 6–10 GPa, "
-            + ("G{111}/2π ≈ 9.6 GPa): the model neglects adhesion, so A_r is underestimated and τ "
-               "absorbs the difference" + hint if not w else
-               f"G{{111}}/2π ≈ 9.6 GPa), even with adhesion w = {w:g} J/m²")
+            + (
+                "G{111}/2π ≈ 9.6 GPa): the model neglects adhesion, so A_r is underestimated and τ "
+                "absorbs the difference" + hint
+                if not w
+                else f"G{{111}}/2π ≈ 9.6 GPa), even with adhesion w = {w:g} J/m²"
+            )
         )
     if w and adhesion_n > part.weight_n:
         out.append(
@@ -154,8 +162,7 @@ def _warnings(
                 f"grooved/flat real-area ratio is {ratio:.3f} in this model, not the paper's "
                 f"{GROOVED_AREA_RATIO}: halving the summits at the same load barely changes A_r in "
                 "GW/Hertz; the measured friction ratio "
-                f"{GROOVED_FRICTION_RATIO} needs adhesion, whose load scales with nominal area"
-                + hint
+                f"{GROOVED_FRICTION_RATIO} needs adhesion, whose load scales with nominal area" + hint
             )
     return out
 
@@ -199,8 +206,9 @@ def contact(
         try:
             sampled = sample_contact(surface, gw.nominal_area_m2, part.weight_n, placements)
         except InputError as err:
-            raise InputError("--placements", f"{err.message} (this part, {placements} placements; "
-                                             "0 skips the sampling)") from None
+            raise InputError(
+                "--placements", f"{err.message} (this part, {placements} placements; 0 skips the sampling)"
+            ) from None
         except ArithmeticError as err:
             raise InputError("--part", f"cannot place this part summit by summit: {err}") from None
         band_m2, sampled_mean = sampled.band_m2(), float(np.mean(sampled.real_area_m2))

@@ -84,8 +84,7 @@ class GreenwoodWilliamson:
         s = surface
         self._h_max = (s.z_max - s.mean_summit_height_m) / s.sigma_m
         self._load_scale = (
-            4.0 / 3.0 * self.summits * s.effective_modulus_pa
-            * math.sqrt(s.summit_radius_m) * s.sigma_m**1.5
+            4.0 / 3.0 * self.summits * s.effective_modulus_pa * math.sqrt(s.summit_radius_m) * s.sigma_m**1.5
         )
         self._area_scale = math.pi * self.summits * s.summit_radius_m * s.sigma_m
         self._table: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None

@@ -115,7 +115,8 @@ class DaemonConfig:
     surface_path: Path | None = None
     tau_pa: float | None = None
     loop: LoopSettings = field(
-        default_factory=lambda: LoopSettings(min_position_m=-5e-3, max_position_m=5e-3))
+        default_factory=lambda: LoopSettings(min_position_m=-5e-3, max_position_m=5e-3)
+    )
     state_dir: Path = field(default_factory=default_state_dir)
     socket_path: Path = field(default_factory=default_socket_path)
 
@@ -143,8 +144,7 @@ def _table(doc: dict[str, Any], name: str, where: str) -> dict[str, Any]:
 
 
 SECTIONS: dict[str, frozenset[str]] = {
-    "amplifier": frozenset({"transport", "model", "port", "axis", "timeout_s", "password",
-                            "limits", "can"}),
+    "amplifier": frozenset({"transport", "model", "port", "axis", "timeout_s", "password", "limits", "can"}),
     "sensor": frozenset({"address", "timeout_s"}),
     "simulator": frozenset({"args"}),
     "part": frozenset({"size", "support", "surface", "tau_pa"}),
@@ -155,30 +155,43 @@ SECTIONS: dict[str, frozenset[str]] = {
 ``[amplifier.can]``: python-can keyword arguments plus ``node_id`` and ``heartbeat_s``)."""
 
 RANGES: dict[str, tuple[float, float]] = {
-    "rate_hz": (1.0, 1000.0), "tolerance_m": (1e-9, 1e-3), "settle_s": (0.0, 10.0),
-    "average_samples": (1, 1000), "max_burst_steps": (1, 100_000), "stall_fraction": (0.0, 1.0),
-    "stall_bursts": (1, 1000), "max_reversals": (1, 1000), "max_bursts": (1, 100_000),
-    "burst_grace_s": (0.0, 60.0), "sensor_noise_m": (0.0, 1e-3),
-    "step_scatter_fraction": (0.0, 1.0), "forgetting": (0.5, 1.0), "position_save_s": (0.0, 3600.0),
-    "hold_timeout_s": (0.0, 60.0), "timeout_s": (1e-3, 60.0), "axis": (1, 7), "node_id": (1, 127),
-    "heartbeat_s": (0.01, 10.0), "min_position_m": (-1.0, 1.0), "max_position_m": (-1.0, 1.0),
+    "rate_hz": (1.0, 1000.0),
+    "tolerance_m": (1e-9, 1e-3),
+    "settle_s": (0.0, 10.0),
+    "average_samples": (1, 1000),
+    "max_burst_steps": (1, 100_000),
+    "stall_fraction": (0.0, 1.0),
+    "stall_bursts": (1, 1000),
+    "max_reversals": (1, 1000),
+    "max_bursts": (1, 100_000),
+    "burst_grace_s": (0.0, 60.0),
+    "sensor_noise_m": (0.0, 1e-3),
+    "step_scatter_fraction": (0.0, 1.0),
+    "forgetting": (0.5, 1.0),
+    "position_save_s": (0.0, 3600.0),
+    "hold_timeout_s": (0.0, 60.0),
+    "timeout_s": (1e-3, 60.0),
+    "axis": (1, 7),
+    "node_id": (1, 127),
+    "heartbeat_s": (0.01, 10.0),
+    "min_position_m": (-1.0, 1.0),
+    "max_position_m": (-1.0, 1.0),
 }
 """Accepted ranges of numeric keys (a value outside is refused, not clipped)."""
 
 
-def check_keys(table: dict[str, Any], known: frozenset[str] | set[str], where: str,
-               prefix: str) -> None:
+def check_keys(table: dict[str, Any], known: frozenset[str] | set[str], where: str, prefix: str) -> None:
     """Refuse an unknown key, naming the nearest known one."""
     for key in table:
         if key not in known:
             near = difflib.get_close_matches(str(key), sorted(known), n=1)
-            hint = (f"; did you mean {prefix}{near[0]}?" if near
-                    else f"; known: {', '.join(sorted(known))}")
+            hint = f"; did you mean {prefix}{near[0]}?" if near else f"; known: {', '.join(sorted(known))}"
             raise InputError(where, f"unknown key {prefix}{key}{hint}")
 
 
-def _number(table: dict[str, Any], key: str, where: str, default: float,
-            positive: bool = False, section: str = "") -> float:
+def _number(
+    table: dict[str, Any], key: str, where: str, default: float, positive: bool = False, section: str = ""
+) -> float:
     """``table[key]`` as a finite float within :data:`RANGES`; errors name ``section + key``."""
     name = section + key
     value = table.get(key, default)
@@ -248,16 +261,18 @@ def load_config(path: Path | None) -> DaemonConfig:
         # python-can keywords without the adapter: a misspelt channel must never fall back
         # to the simulator
         near = difflib.get_close_matches("channel", [str(k) for k in can], n=1)
-        raise InputError(where, "amplifier.can names a bus but no channel"
-                         + (f" (is {near[0]!r} meant to be 'channel'?)" if near else ""))
+        raise InputError(
+            where,
+            "amplifier.can names a bus but no channel"
+            + (f" (is {near[0]!r} meant to be 'channel'?)" if near else ""),
+        )
     model = str(_string(amp, "model", where, DEFAULT_MODELS[str(transport)]))
     try:
         rating = amplifier_model(model)
     except InputError as err:
         raise InputError(where, f"amplifier.model: {err.message}") from None
     limits_t = _table(amp, "limits", where)
-    check_keys(limits_t, {f.name for f in dataclasses.fields(AmplifierLimits)}, where,
-               "amplifier.limits.")
+    check_keys(limits_t, {f.name for f in dataclasses.fields(AmplifierLimits)}, where, "amplifier.limits.")
     for key in limits_t:
         _number(limits_t, key, where, 0.0, section="amplifier.limits.")
     try:
@@ -266,17 +281,24 @@ def load_config(path: Path | None) -> DaemonConfig:
     except InputError as err:
         raise InputError(where, f"amplifier.limits.{err.field}: {err.message}") from None
     amplifier = AmplifierConfig(
-        transport=str(transport), model=model, port=_string(amp, "port", where, None), axis=axis,
+        transport=str(transport),
+        model=model,
+        port=_string(amp, "port", where, None),
+        axis=axis,
         timeout_s=_number(amp, "timeout_s", where, 1.0, positive=True, section="amplifier."),
         password=str(_string(amp, "password", where, "123456")),
-        limits=limits, can=dict(can),
+        limits=limits,
+        can=dict(can),
     )
 
     sensor = _table(doc, "sensor", where)
     sensor_address = _string(sensor, "address", where, None)
     if sensor_address is not None and not sensor_address.startswith("socket://"):
-        raise InputError(where, f"sensor.address must be a socket://HOST:PORT URL (the "
-                         f"amplifier's address syntax), got {sensor_address!r}")
+        raise InputError(
+            where,
+            f"sensor.address must be a socket://HOST:PORT URL (the "
+            f"amplifier's address syntax), got {sensor_address!r}",
+        )
     sim = _table(doc, "simulator", where)
     sim_args = sim.get("args", [])
     if not (isinstance(sim_args, list) and all(isinstance(a, str) for a in sim_args)):
@@ -297,9 +319,9 @@ def load_config(path: Path | None) -> DaemonConfig:
             if isinstance(default, int):
                 loop_fields[f.name] = _integer(control, f.name, where, default, "control.")
             else:
-                loop_fields[f.name] = _number(control, f.name, where, default,
-                                              positive="position" not in f.name,
-                                              section="control.")
+                loop_fields[f.name] = _number(
+                    control, f.name, where, default, positive="position" not in f.name, section="control."
+                )
     loop = dataclasses.replace(defaults, **loop_fields)
     if not loop.min_position_m < loop.max_position_m:
         raise InputError(where, "control.min_position_m must be below control.max_position_m")

@@ -47,8 +47,17 @@ from feeder.daemon.step_estimator import StepEstimate
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSample, PositionSensor, SensorLost
 
-__all__ = ["COARSE", "FINE", "Burst", "ControlLoop", "Job", "JobResult", "LoopSettings",
-           "SensorFeed", "StepMode"]
+__all__ = [
+    "COARSE",
+    "FINE",
+    "Burst",
+    "ControlLoop",
+    "Job",
+    "JobResult",
+    "LoopSettings",
+    "SensorFeed",
+    "StepMode",
+]
 
 log = logging.getLogger(__name__)
 
@@ -126,12 +135,11 @@ class ControlLoop:
         self._sensor_timeout_s = sensor_timeout_s
         self.policy = Policy(modes, settings, estimates)
         self.executor = AmplifierExecutor(amplifier, modes, clock)
-        self.writer = RecordWriter(on_unwritable=self._store_unwritable,
-                                   on_writable=self._store_writable)
+        self.writer = RecordWriter(on_unwritable=self._store_unwritable, on_writable=self._store_writable)
         self._feed = SensorFeed(sensor, sensor_timeout_s, clock)
         self.on_position = on_position
         self.on_fault = on_fault
-        self._lock = threading.Lock()       # guards the policy between tick and API calls
+        self._lock = threading.Lock()  # guards the policy between tick and API calls
         self._shutdown = threading.Event()
         self._thread: threading.Thread | None = None
         self._jitter = collections.deque[float](maxlen=100_000)
@@ -178,10 +186,27 @@ class ControlLoop:
         if self._thread is not None:
             self._thread.join(timeout=5.0)
         job = self.current_job()
-        if job is not None:     # the loop did not get to finish it: say so
-            self._dispatch([Finished(job, JobResult(
-                job.kind, "stopped", "daemon shutting down", job.target_m, job.start_m,
-                self.position_m, job.steps, job.bursts, 0.0, self.estimates_json(), job.trace))])
+        if job is not None:  # the loop did not get to finish it: say so
+            self._dispatch(
+                [
+                    Finished(
+                        job,
+                        JobResult(
+                            job.kind,
+                            "stopped",
+                            "daemon shutting down",
+                            job.target_m,
+                            job.start_m,
+                            self.position_m,
+                            job.steps,
+                            job.bursts,
+                            0.0,
+                            self.estimates_json(),
+                            job.trace,
+                        ),
+                    )
+                ]
+            )
         self.executor.close()
         self._feed.close()
         self.writer.close()
@@ -217,7 +242,7 @@ class ControlLoop:
     def replace_amplifier(self, amplifier: Amplifier) -> None:
         """After a reconnect: use the new link and leave the fault state (no move resumes)."""
         self.executor.replace(amplifier)
-        self.executor.take()        # completions of the old link are void
+        self.executor.take()  # completions of the old link are void
         with self._lock:
             self.policy.link_restored()
 
@@ -242,8 +267,14 @@ class ControlLoop:
         """Tick jitter p50/p99/max (s), ticks and overruns."""
         jitter = np.array(self._jitter, dtype=float)
         if jitter.size == 0:
-            return {"rate_hz": self.settings.rate_hz, "ticks": 0, "overruns": 0,
-                    "jitter_p50_s": 0.0, "jitter_p99_s": 0.0, "jitter_max_s": 0.0}
+            return {
+                "rate_hz": self.settings.rate_hz,
+                "ticks": 0,
+                "overruns": 0,
+                "jitter_p50_s": 0.0,
+                "jitter_p99_s": 0.0,
+                "jitter_max_s": 0.0,
+            }
         return {
             "rate_hz": self.settings.rate_hz,
             "ticks": self.ticks,
@@ -291,8 +322,8 @@ class ControlLoop:
             elif isinstance(out, Started):
                 self.writer.put(functools.partial(self._record_start, out.job))
             elif isinstance(out, Finished):
-                if self.writer.unwritable is not None:    # the caller learns now; the
-                    out.job.result = out.result             # record follows when it can
+                if self.writer.unwritable is not None:  # the caller learns now; the
+                    out.job.result = out.result  # record follows when it can
                     out.job.done.set()
                 self.writer.put(functools.partial(self._record_end, out.job, out.result))
             elif isinstance(out, SavePosition):
@@ -300,9 +331,10 @@ class ControlLoop:
                     self.writer.put(functools.partial(self.on_position, out.position_m))
             elif isinstance(out, Fault):
                 log.warning("%s link lost: %s", out.link, out.message)
-                if self.on_fault is not None:   # it grounds and reconnects: not on the tick
-                    threading.Thread(target=self.on_fault, args=(out.link, out.message),
-                                     name="on-fault", daemon=True).start()
+                if self.on_fault is not None:  # it grounds and reconnects: not on the tick
+                    threading.Thread(
+                        target=self.on_fault, args=(out.link, out.message), name="on-fault", daemon=True
+                    ).start()
 
     def _store_unwritable(self, message: str) -> None:
         """The state store cannot be written: end the move, refuse moves until it can."""

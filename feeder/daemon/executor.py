@@ -33,8 +33,9 @@ CLEARABLE_FAULTS = frozenset({"watchdog"})
 class AmplifierExecutor:
     """Runs amplifier commands on a worker thread; completions come back through :meth:`take`."""
 
-    def __init__(self, amplifier: Amplifier, modes: dict[str, StepMode],
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, amplifier: Amplifier, modes: dict[str, StepMode], clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.amplifier = amplifier
         self.modes = modes
         self._clock = clock
@@ -113,8 +114,7 @@ class AmplifierExecutor:
         except Exception as err:
             # an unforeseen way is reported as a lost link (grounded, reconnected), never lost
             log.exception("amplifier command %s failed unexpectedly", command.kind)
-            return Completion(command, self._clock(), error=f"{type(err).__name__}: {err}",
-                              link_lost=True)
+            return Completion(command, self._clock(), error=f"{type(err).__name__}: {err}", link_lost=True)
 
     @staticmethod
     def _enable(amp: Amplifier) -> None:
@@ -141,9 +141,12 @@ class RecordWriter:
     starts and ``on_writable()`` when it ends.
     """
 
-    def __init__(self, retry_s: float = 1.0,
-                 on_unwritable: Callable[[str], None] | None = None,
-                 on_writable: Callable[[], None] | None = None) -> None:
+    def __init__(
+        self,
+        retry_s: float = 1.0,
+        on_unwritable: Callable[[str], None] | None = None,
+        on_writable: Callable[[], None] | None = None,
+    ) -> None:
         self.retry_s = retry_s
         self.on_unwritable = on_unwritable
         self.on_writable = on_writable
@@ -178,8 +181,7 @@ class RecordWriter:
         self._thread.join(timeout=timeout_s)
         left = self.pending()
         if left:
-            log.error("%d record writes could not be made before shutdown: %s", left,
-                      self.unwritable)
+            log.error("%d record writes could not be made before shutdown: %s", left, self.unwritable)
 
     def _run(self) -> None:
         while True:
@@ -196,7 +198,7 @@ class RecordWriter:
                     if self._closing:
                         self._cond.wait(self.retry_s)
                         if self._closing and self.unwritable is not None:
-                            return      # give up at shutdown; close() logs what is left
+                            return  # give up at shutdown; close() logs what is left
                     else:
                         self._cond.wait(self.retry_s)
                 continue

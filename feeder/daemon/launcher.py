@@ -48,8 +48,9 @@ class Simulator:
     the ready line is drained so the child never blocks on a full pipe.
     """
 
-    def __init__(self, args: Sequence[str], log_path: Path | None = None,
-                 timeout_s: float = READY_TIMEOUT_S) -> None:
+    def __init__(
+        self, args: Sequence[str], log_path: Path | None = None, timeout_s: float = READY_TIMEOUT_S
+    ) -> None:
         self.command = [sys.executable, "-m", "firmware_sim", *args]
         self.log_path = log_path
         self._stderr_lines: deque[str] = deque(maxlen=STDERR_LINES_KEPT)
@@ -57,16 +58,21 @@ class Simulator:
         self._log_start = log.tell() if log_path is not None else 0  # type: ignore[union-attr]
         try:
             self.process = subprocess.Popen(
-                self.command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log,
-                preexec_fn=_die_with_parent, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                self.command,
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.PIPE,
+                stderr=log,
+                preexec_fn=_die_with_parent,
+                env={**os.environ, "PYTHONUNBUFFERED": "1"},
             )
         finally:
             if log_path is not None:
                 log.close()  # type: ignore[union-attr]
         self._stderr_reader: threading.Thread | None = None
         if log_path is None:
-            self._stderr_reader = threading.Thread(target=self._keep_stderr_tail,
-                                                   name="firmware_sim-stderr", daemon=True)
+            self._stderr_reader = threading.Thread(
+                target=self._keep_stderr_tail, name="firmware_sim-stderr", daemon=True
+            )
             self._stderr_reader.start()
         self.ready = self._read_ready(timeout_s)
         self.endpoints: dict[str, Any] = dict(self.ready.get("endpoints", {}))

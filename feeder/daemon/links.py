@@ -36,9 +36,14 @@ loaded host must not miss one (``[amplifier.can] heartbeat_s`` overrides it)."""
 class DriverLinks:
     """Opens (and re-opens, to reconnect) the configured amplifier driver and camera client."""
 
-    def __init__(self, config: DaemonConfig, amplifier_address: str | dict[str, Any],
-                 sensor_address: str, simulator: Simulator | None = None,
-                 log_path: Path | None = None) -> None:
+    def __init__(
+        self,
+        config: DaemonConfig,
+        amplifier_address: str | dict[str, Any],
+        sensor_address: str,
+        simulator: Simulator | None = None,
+        log_path: Path | None = None,
+    ) -> None:
         self.config = config
         self.amplifier_address = amplifier_address
         self.sensor_address = sensor_address
@@ -56,10 +61,10 @@ class DriverLinks:
             if self.simulator is None or self.simulator.alive():
                 return
             self.simulator.stop()
-            log.warning("firmware_sim (pid %d) died; starting a new one",
-                        self.simulator.process.pid)
-            sim = self._spawner.submit(Simulator, simulator_args(self.config),
-                                       log_path=self.log_path).result()
+            log.warning("firmware_sim (pid %d) died; starting a new one", self.simulator.process.pid)
+            sim = self._spawner.submit(
+                Simulator, simulator_args(self.config), log_path=self.log_path
+            ).result()
             try:
                 self.amplifier_address, self.sensor_address = simulator_addresses(self.config, sim)
             except InputError:
@@ -76,11 +81,11 @@ class DriverLinks:
 
             node_id = int(self.amplifier_address.get("node_id", 1))
             heartbeat = float(self.amplifier_address.get("heartbeat_s", CAN_HEARTBEAT_S))
-            bus = {k: v for k, v in self.amplifier_address.items()
-                   if k not in ("node_id", "heartbeat_s")}
+            bus = {k: v for k, v in self.amplifier_address.items() if k not in ("node_id", "heartbeat_s")}
             return CanopenAmplifier(bus, node_id, heartbeat_s=heartbeat, timeout_s=amp.timeout_s)
-        return Anc300Amplifier.open(self.amplifier_address, amp.axis, timeout_s=amp.timeout_s,
-                                    password=amp.password)
+        return Anc300Amplifier.open(
+            self.amplifier_address, amp.axis, timeout_s=amp.timeout_s, password=amp.password
+        )
 
     def open_sensor(self) -> PositionSensor:
         self._simulator_alive()
@@ -90,7 +95,8 @@ class DriverLinks:
         out: dict[str, Any] = {
             "transport": self.config.amplifier.transport,
             "amplifier_model": self.config.amplifier.model,
-            "amplifier": self.amplifier_address, "sensor": self.sensor_address,
+            "amplifier": self.amplifier_address,
+            "sensor": self.sensor_address,
             "simulated": self.simulator is not None,
         }
         if self.simulator is not None:
@@ -110,11 +116,26 @@ class DriverLinks:
 def simulator_args(config: DaemonConfig) -> list[str]:
     """firmware_sim's command line for this configuration (its world = our part)."""
     limits = config.amplifier.limits
-    args = ["--console", "pty", "--dialect", "anc300", "--sensor", "tcp:127.0.0.1:0",
-            "--part", config.part.label, "--support", config.support.kind,
-            "--v-max", repr(limits.v_max_v), "--current-a", repr(limits.current_limit_a),
-            "--slew-v-per-s", repr(limits.slew_rate_v_per_s),
-            "--max-frequency-hz", repr(limits.max_frequency_hz)]
+    args = [
+        "--console",
+        "pty",
+        "--dialect",
+        "anc300",
+        "--sensor",
+        "tcp:127.0.0.1:0",
+        "--part",
+        config.part.label,
+        "--support",
+        config.support.kind,
+        "--v-max",
+        repr(limits.v_max_v),
+        "--current-a",
+        repr(limits.current_limit_a),
+        "--slew-v-per-s",
+        repr(limits.slew_rate_v_per_s),
+        "--max-frequency-hz",
+        repr(limits.max_frequency_hz),
+    ]
     if config.amplifier.transport == "can":
         args += ["--can", "slcan-pty"]
     return [*args, *config.simulator_args]
@@ -124,8 +145,11 @@ def open_links(config: DaemonConfig, log_path: Path | None = None) -> DriverLink
     """The links for ``config``; starts firmware_sim when no hardware is named."""
     amp = config.amplifier
     if amp.simulated != (config.sensor_address is None):
-        raise InputError("config", "name both the amplifier (port or can.channel) and "
-                         "sensor.address for hardware, or neither for the simulator")
+        raise InputError(
+            "config",
+            "name both the amplifier (port or can.channel) and "
+            "sensor.address for hardware, or neither for the simulator",
+        )
     if not amp.simulated:
         assert config.sensor_address is not None
         address: str | dict[str, Any] = dict(amp.can) if amp.transport == "can" else str(amp.port)
@@ -139,8 +163,7 @@ def open_links(config: DaemonConfig, log_path: Path | None = None) -> DriverLink
     return DriverLinks(config, address, sensor, sim, log_path)
 
 
-def simulator_addresses(config: DaemonConfig,
-                        sim: Simulator) -> tuple[str | dict[str, Any], str]:
+def simulator_addresses(config: DaemonConfig, sim: Simulator) -> tuple[str | dict[str, Any], str]:
     """The amplifier address (pty path, or python-can arguments) and the camera URL of a
     started firmware_sim, from its ready line."""
     amp = config.amplifier
@@ -148,9 +171,13 @@ def simulator_addresses(config: DaemonConfig,
     try:
         if amp.transport == "can":
             address: str | dict[str, Any] = {
-                "interface": "slcan", "channel": ends["slcan_pty"], "bitrate": SLCAN_BITRATE,
-                "sleep_after_open": 0, "node_id": int(amp.can.get("node_id", 1)),
-                "heartbeat_s": float(amp.can.get("heartbeat_s", CAN_HEARTBEAT_S))}
+                "interface": "slcan",
+                "channel": ends["slcan_pty"],
+                "bitrate": SLCAN_BITRATE,
+                "sleep_after_open": 0,
+                "node_id": int(amp.can.get("node_id", 1)),
+                "heartbeat_s": float(amp.can.get("heartbeat_s", CAN_HEARTBEAT_S)),
+            }
         else:
             address = ends["console_pty"]
         return address, ends["sensor_tcp"]

@@ -171,11 +171,18 @@ class JobResult:
 
     def as_dict(self, with_trace: bool = False) -> dict[str, Any]:
         out: dict[str, Any] = {
-            "kind": self.kind, "status": self.status, "reason": self.reason,
-            "target_m": self.target_m, "start_m": self.start_m, "reached_m": self.reached_m,
-            "error_m": self.error_m, "steps": self.steps, "bursts": self.bursts,
+            "kind": self.kind,
+            "status": self.status,
+            "reason": self.reason,
+            "target_m": self.target_m,
+            "start_m": self.start_m,
+            "reached_m": self.reached_m,
+            "error_m": self.error_m,
+            "steps": self.steps,
+            "bursts": self.bursts,
             "steps_estimated": self.steps_estimated,
-            "duration_s": self.duration_s, "estimates": self.estimates,
+            "duration_s": self.duration_s,
+            "estimates": self.estimates,
         }
         if with_trace:
             out["trace"] = [[t, x] for t, x in self.trace]
@@ -267,15 +274,19 @@ class _Burst:
     learnable: bool
     reversed: bool
     counter_before: int | None = None
-    end_s: float = math.inf          # acknowledged + steps/f
+    end_s: float = math.inf  # acknowledged + steps/f
     confirming: bool = False
 
 
 class Policy:
     """The loop's state machine over one axis.  See the module docstring."""
 
-    def __init__(self, modes: dict[str, StepMode], settings: LoopSettings,
-                 estimates: dict[str, StepEstimate] | None = None) -> None:
+    def __init__(
+        self,
+        modes: dict[str, StepMode],
+        settings: LoopSettings,
+        estimates: dict[str, StepEstimate] | None = None,
+    ) -> None:
         if set(modes) != {COARSE, FINE}:
             raise ValueError("modes must be exactly 'coarse' and 'fine'")
         self.modes = modes
@@ -289,16 +300,17 @@ class Policy:
                     restored.get(key, mode.seed),
                     sensor_noise_m=settings.sensor_noise_m,
                     step_scatter_m=settings.step_scatter_fraction * mode.predicted_step_m,
-                    forgetting=settings.forgetting)
+                    forgetting=settings.forgetting,
+                )
         self.state = "idle"
         self.job: Job | None = None
         self.position_m: float | None = None
         self.fault: str | None = None
         self.sensor_lost: str | None = None
-        self.store_unwritable: str | None = None   # set by the loop while records cannot be written
+        self.store_unwritable: str | None = None  # set by the loop while records cannot be written
         self.last_result: JobResult | None = None
         self._stop_reason: str | None = None
-        self._pending: Command | None = None      # sent, not yet completed
+        self._pending: Command | None = None  # sent, not yet completed
         self._burst: _Burst | None = None
         self._applied: str | None = None
         self._enabled = False
@@ -306,7 +318,7 @@ class Policy:
         self._settle_until = 0.0
         self._samples: list[float] = []
         self._measured: _Burst | None = None
-        self._finish_as: tuple[str, str] | None = None     # (status, reason) once held
+        self._finish_as: tuple[str, str] | None = None  # (status, reason) once held
         self._hold_until = 0.0
         self._position_saved_s = -math.inf
         self._now = 0.0
@@ -331,8 +343,10 @@ class Policy:
         if job.target_m is not None:
             s = self.settings
             if not (s.min_position_m <= job.target_m <= s.max_position_m):
-                return (f"target {job.target_m:.6g} m is outside the travel limits "
-                        f"[{s.min_position_m:.6g}, {s.max_position_m:.6g}] m")
+                return (
+                    f"target {job.target_m:.6g} m is outside the travel limits "
+                    f"[{s.min_position_m:.6g}, {s.max_position_m:.6g}] m"
+                )
         job.started_s = self._now = now
         self.job = job
         self._stop_reason = None
@@ -381,7 +395,7 @@ class Policy:
             if done.link_lost:
                 self._link_lost(done.error)
             elif kind != "stop":
-                self._enabled = False       # the next job checks the output's state again
+                self._enabled = False  # the next job checks the output's state again
                 self._applied = None
                 if self.job is not None:
                     self._emit_stop()
@@ -394,7 +408,7 @@ class Policy:
             else:
                 self._applied = done.command.mode
             if burst is None and self.job is not None and self._finish_as is None:
-                self._enter_settling(done.at_s)   # the plate's rest moved: measure again
+                self._enter_settling(done.at_s)  # the plate's rest moved: measure again
         elif kind == "step" and burst is not None:
             burst.counter_before = done.counter
             f = self.modes[burst.burst.mode].settings.frequency_hz
@@ -448,7 +462,7 @@ class Policy:
             elif self.state == "holding":
                 self._hold(job, now)
             elif self._finish_as is not None:
-                pass                    # the stop is on its way; hold when it is done
+                pass  # the stop is on its way; hold when it is done
             elif self._pending is None:
                 if self._burst is not None:
                     self._follow_burst(job, now)
@@ -472,7 +486,7 @@ class Policy:
         """End the job with ``status`` once the output stopped and the part settled."""
         self._finish_as = (status, reason)
         if self._burst is not None or self._pending is not None:
-            self._out.append(Command("stop"))      # holding starts when it is done
+            self._out.append(Command("stop"))  # holding starts when it is done
         else:
             self._enter_holding(now)
 
@@ -486,8 +500,7 @@ class Policy:
         self.state = "fault"
 
     def _save_position(self, now: float) -> None:
-        if (self.position_m is not None
-                and now - self._position_saved_s >= self.settings.position_save_s):
+        if self.position_m is not None and now - self._position_saved_s >= self.settings.position_save_s:
             self._position_saved_s = now
             self._out.append(SavePosition(self.position_m))
 
@@ -507,15 +520,19 @@ class Policy:
         s = self.settings
         assert self._finish_as is not None
         status, reason = self._finish_as
-        recent = self._samples[-s.average_samples:]
+        recent = self._samples[-s.average_samples :]
         settled_band = max(s.tolerance_m, 6 * s.sensor_noise_m)
         if len(recent) == s.average_samples and max(recent) - min(recent) <= settled_band:
             x = float(np.mean(recent))
             self._out.append(SavePosition(x))
             self._finish(job, status, reason, x)
         elif now >= self._hold_until:
-            self._finish(job, status, f"{reason}; the part did not settle within "
-                         f"{s.hold_timeout_s:g} s after the output stopped", self.position_m)
+            self._finish(
+                job,
+                status,
+                f"{reason}; the part did not settle within {s.hold_timeout_s:g} s after the output stopped",
+                self.position_m,
+            )
 
     def _follow_burst(self, job: Job, now: float) -> None:
         burst = self._burst
@@ -523,8 +540,7 @@ class Policy:
         s = self.settings
         x = self.position_m
         if x is not None and not (s.min_position_m <= x <= s.max_position_m):
-            self._end_early("limit", f"part seen at {x:.6g} m, outside the travel limits; "
-                            "stopped", now)
+            self._end_early("limit", f"part seen at {x:.6g} m, outside the travel limits; stopped", now)
             return
         if now < burst.end_s or burst.confirming:
             return
@@ -534,14 +550,14 @@ class Policy:
     def _measure(self, job: Job, now: float) -> None:
         s = self.settings
         if not job.recorded:
-            return                      # the record comes first: a crash leaves a trace
+            return  # the record comes first: a crash leaves a trace
         if not self._enabled:
             self.state = "moving"
             self._send(Command("enable"))
             return
         if now < self._settle_until or len(self._samples) < s.average_samples:
             return
-        x = float(np.mean(self._samples[-s.average_samples:]))
+        x = float(np.mean(self._samples[-s.average_samples :]))
         self._samples = []
         self._out.append(SavePosition(x))
         if job.start_m is None:
@@ -573,20 +589,23 @@ class Policy:
             self.state = "moving"
             self._send(Command("apply", mode=nxt.mode))
             if not unmeasured_switch:
-                return                  # measure again once it is applied
+                return  # measure again once it is applied
             if job.target_m is None:
                 job.planned.popleft()
         job.switched = False
         if job.last_direction is not None and nxt.direction != job.last_direction:
             job.reversals += 1
             if job.reversals > s.max_reversals:
-                self._finish(job, "oscillating", f"{job.reversals} direction reversals without "
-                             "reaching the tolerance", x)
+                self._finish(
+                    job,
+                    "oscillating",
+                    f"{job.reversals} direction reversals without reaching the tolerance",
+                    x,
+                )
                 return
-        reversed_ = self._last_direction != nxt.direction   # None: unknown history
+        reversed_ = self._last_direction != nxt.direction  # None: unknown history
         self._last_direction = nxt.direction
-        self._burst = _Burst(nxt, x, learnable=not (reversed_ or unmeasured_switch),
-                             reversed=reversed_)
+        self._burst = _Burst(nxt, x, learnable=not (reversed_ or unmeasured_switch), reversed=reversed_)
         job.steps += nxt.steps
         job.bursts += 1
         job.last_direction = nxt.direction
@@ -624,7 +643,7 @@ class Policy:
         distance = abs(error)
         coarse = self.estimators[f"{COARSE}/{direction}"]
         fine = self.estimators[f"{FINE}/{direction}"]
-        single = fine.estimate.displacement_m(1)       # what one fine step does
+        single = fine.estimate.displacement_m(1)  # what one fine step does
         if distance <= s.tolerance_m:
             # within tolerance; one fine step more when it brings the part closer (once per
             # move, so it can never start hunting)
@@ -642,20 +661,30 @@ class Policy:
         steps = round((distance - fine.estimate.offset_m) / fine.usable_step_m())
         if steps < 1:
             if abs(distance - single) >= distance:
-                return ("unreachable", f"one fine step ({single:.3g} m) cannot reduce the "
-                        f"error {error:.3g} m below the tolerance {s.tolerance_m:.3g} m")
+                return (
+                    "unreachable",
+                    f"one fine step ({single:.3g} m) cannot reduce the "
+                    f"error {error:.3g} m below the tolerance {s.tolerance_m:.3g} m",
+                )
             steps = 1
         return Burst(FINE, direction, min(steps, s.max_burst_steps))
 
     def _finish(self, job: Job, status: str, reason: str, reached_m: float | None) -> None:
         now = self._now
         result = JobResult(
-            kind=job.kind, status=status, reason=reason, target_m=job.target_m,
-            start_m=job.start_m, reached_m=reached_m if reached_m is not None else self.position_m,
-            steps=job.steps, bursts=job.bursts,
+            kind=job.kind,
+            status=status,
+            reason=reason,
+            target_m=job.target_m,
+            start_m=job.start_m,
+            reached_m=reached_m if reached_m is not None else self.position_m,
+            steps=job.steps,
+            bursts=job.bursts,
             duration_s=max(0.0, now - job.started_s),
-            estimates=self.estimates_json(), trace=job.trace,
-            steps_estimated=job.steps_estimated)
+            estimates=self.estimates_json(),
+            trace=job.trace,
+            steps_estimated=job.steps_estimated,
+        )
         self.job = None
         self._burst = None
         self._pending = None
@@ -672,6 +701,13 @@ class Policy:
 
     def estimates_json(self) -> dict[str, dict[str, float]]:
         """Learned step and burst offset per ``mode/direction`` (m), for replies."""
-        return {k: {"step_m": e.step_m, "std_m": e.std_m, "offset_m": e.offset_m,
-                    "offset_std_m": e.offset_std_m, "steps": e.steps}
-                for k, e in self.estimates().items()}
+        return {
+            k: {
+                "step_m": e.step_m,
+                "std_m": e.std_m,
+                "offset_m": e.offset_m,
+                "offset_std_m": e.offset_std_m,
+                "steps": e.steps,
+            }
+            for k, e in self.estimates().items()
+        }

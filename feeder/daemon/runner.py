@@ -33,22 +33,30 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
     socket path, :class:`~feeder.daemon.store.StoreError` for a bad database.
     """
     surface = DEFAULT_SURFACE if config.surface_path is None else load_surface(config.surface_path)
-    try:    # τ comes with the w it was fitted with: a given τ counts as fitted at w = 0
+    try:  # τ comes with the w it was fitted with: a given τ counts as fitted at w = 0
         pair = tau_pair(surface, config.tau_pa)
     except InputError as err:
         raise InputError("part.tau_pa", err.message) from None
-    modes = plan_step_modes(config.part, config.support, surface, config.tau_pa,
-                            config.amplifier.limits, config.loop.tolerance_m)
+    modes = plan_step_modes(
+        config.part, config.support, surface, config.tau_pa, config.amplifier.limits, config.loop.tolerance_m
+    )
     config.state_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     links = open_links(config, log_path=config.state_dir / "firmware_sim.log")
     try:
         setup = DaemonSetup(
-            modes=modes, loop=config.loop, database_path=config.database_path,
+            modes=modes,
+            loop=config.loop,
+            database_path=config.database_path,
             socket_path=config.socket_path,
             calibration_key=calibration_key(config.part, config.support, modes),
-            info={"part": config.part.label, "support": config.support.kind,
-                  "tau_nominal_pa": pair.tau_pa, "tau_source": pair.source,
-                  "adhesion_work_j_m2": pair.adhesion_work_j_m2, **links.describe()},
+            info={
+                "part": config.part.label,
+                "support": config.support.kind,
+                "tau_nominal_pa": pair.tau_pa,
+                "tau_source": pair.source,
+                "adhesion_work_j_m2": pair.adhesion_work_j_m2,
+                **links.describe(),
+            },
             sensor_timeout_s=config.sensor_timeout_s,
         )
         daemon = Daemon(links, setup)

@@ -100,8 +100,10 @@ def prepare_socket_dir(socket_path: Path) -> None:
     if not stat.S_ISDIR(info.st_mode):
         raise PermissionError(f"{directory} is not a directory")
     if info.st_mode & 0o022:
-        raise PermissionError(f"socket directory {directory} is writable by others "
-                              f"(mode {oct(info.st_mode & 0o777)}); refusing it")
+        raise PermissionError(
+            f"socket directory {directory} is writable by others "
+            f"(mode {oct(info.st_mode & 0o777)}); refusing it"
+        )
 
 
 def bind_socket(socket_path: Path) -> socket.socket:
@@ -149,8 +151,11 @@ def calibration_bursts(coarse_steps: int, fine_steps: int) -> tuple[Burst, ...]:
     for mode, total in ((COARSE, coarse_steps), (FINE, fine_steps)):
         short = max(1, total // 4)
         for direction in (FORWARD, BACKWARD):
-            bursts += [Burst(mode, direction, 1), Burst(mode, direction, short),
-                       Burst(mode, direction, total - short)]
+            bursts += [
+                Burst(mode, direction, 1),
+                Burst(mode, direction, short),
+                Burst(mode, direction, total - short),
+            ]
     return tuple(bursts)
 
 
@@ -165,8 +170,7 @@ def lock_state(database_path: Path) -> IO[bytes]:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         handle.close()
-        raise InputError(str(database_path.parent),
-                         "another daemon is using this state directory") from None
+        raise InputError(str(database_path.parent), "another daemon is using this state directory") from None
     return handle
 
 
@@ -191,7 +195,7 @@ class Daemon:
         self._reconnecting: set[str] = set()
         self._server: socket.socket | None = None
         self._state_lock = lock_state(setup.database_path)
-        with contextlib.ExitStack() as undo:      # on failure: release what was opened
+        with contextlib.ExitStack() as undo:  # on failure: release what was opened
             undo.callback(self._state_lock.close)
             self.store = Store(setup.database_path)
             undo.callback(self.store.close)
@@ -202,9 +206,14 @@ class Daemon:
             amplifier.ground()
             sensor = links.open_sensor()
             self.loop = ControlLoop(
-                amplifier, sensor, setup.modes, setup.loop,
-                estimates=self._restored_estimates(), on_position=self.store.save_position,
-                on_fault=self._on_fault, sensor_timeout_s=setup.sensor_timeout_s,
+                amplifier,
+                sensor,
+                setup.modes,
+                setup.loop,
+                estimates=self._restored_estimates(),
+                on_position=self.store.save_position,
+                on_fault=self._on_fault,
+                sensor_timeout_s=setup.sensor_timeout_s,
             )
             undo.pop_all()
 
@@ -262,22 +271,37 @@ class Daemon:
                 name = f"{mode}/{direction}"
                 cal = self.store.calibration(self._key(name))
                 if cal is not None:
-                    out[name] = StepEstimate(cal.step_m, cal.variance_m2, cal.steps,
-                                             cal.offset_m, cal.offset_variance_m2,
-                                             cal.covariance_m2)
+                    out[name] = StepEstimate(
+                        cal.step_m,
+                        cal.variance_m2,
+                        cal.steps,
+                        cal.offset_m,
+                        cal.offset_variance_m2,
+                        cal.covariance_m2,
+                    )
         return out
 
     def _save_estimates(self) -> None:
         now = time.time()
         for name, est in self.loop.estimates().items():
             if est.steps > 0:
-                self.store.save_calibration(Calibration(
-                    self._key(name), est.step_m, est.variance_m2, est.steps, now,
-                    est.offset_m, est.offset_variance_m2, est.covariance_m2))
+                self.store.save_calibration(
+                    Calibration(
+                        self._key(name),
+                        est.step_m,
+                        est.variance_m2,
+                        est.steps,
+                        now,
+                        est.offset_m,
+                        est.offset_variance_m2,
+                        est.covariance_m2,
+                    )
+                )
 
     # -- jobs ----------------------------------------------------------------
-    def _new_job(self, kind: str, target_m: float | None, by_m: float | None,
-                 bursts: tuple[Burst, ...] = ()) -> Job:
+    def _new_job(
+        self, kind: str, target_m: float | None, by_m: float | None, bursts: tuple[Burst, ...] = ()
+    ) -> Job:
         job = Job(kind, target_m=target_m, by_m=by_m, bursts=bursts)
         job.on_start = lambda: self._record_start(job)
         job.on_done = lambda result: self._record_end(job, result)
@@ -288,23 +312,33 @@ class Daemon:
             job.record_id = self.store.begin_move(job.target_m, self.loop.position_m)
 
     def _record_end(self, job: Job, result: JobResult) -> None:
-        log.info("%s %s: %s (target %s m, reached %s m, %d steps in %d bursts)", job.kind,
-                 result.status, result.reason, result.target_m, result.reached_m, result.steps,
-                 result.bursts)
+        log.info(
+            "%s %s: %s (target %s m, reached %s m, %d steps in %d bursts)",
+            job.kind,
+            result.status,
+            result.reason,
+            result.target_m,
+            result.reached_m,
+            result.steps,
+            result.bursts,
+        )
         self._save_estimates()
         if job.record_id is not None:
             est = result.estimates
             self.store.finish_move(
-                job.record_id, status=result.status, reason=result.reason,
-                reached_m=result.reached_m, steps=result.steps, bursts=result.bursts,
+                job.record_id,
+                status=result.status,
+                reason=result.reason,
+                reached_m=result.reached_m,
+                steps=result.steps,
+                bursts=result.bursts,
                 step_forward_m=est[f"{COARSE}/{FORWARD}"]["step_m"],
                 step_backward_m=est[f"{COARSE}/{BACKWARD}"]["step_m"],
                 steps_estimated=result.steps_estimated,
             )
 
     def _refuse_queued(self, job: Job, reason: str) -> None:
-        job.result = JobResult(job.kind, "refused", reason, job.target_m, None, None, 0, 0, 0.0,
-                               {})
+        job.result = JobResult(job.kind, "refused", reason, job.target_m, None, None, 0, 0, 0.0, {})
         job.done.set()
 
     def _dispatch_queue(self) -> None:
@@ -338,8 +372,9 @@ class Daemon:
                     self.loop.amplifier.ground()
             with contextlib.suppress(FeederError, OSError):
                 self.loop.amplifier.close()
-        thread = threading.Thread(target=self._reconnect, args=(kind, record),
-                                  name=f"reconnect-{kind}", daemon=True)
+        thread = threading.Thread(
+            target=self._reconnect, args=(kind, record), name=f"reconnect-{kind}", daemon=True
+        )
         thread.start()
 
     def _reconnect(self, kind: str, record: dict[str, Any]) -> None:
@@ -385,14 +420,23 @@ class Daemon:
         if not isinstance(request, dict):
             return {"ok": False, "error": "a request must be a JSON object"}
         cmd = request.get("cmd")
-        handler: Callable[[dict[str, Any]], dict[str, Any]] | None = {
-            "move": self._cmd_move, "stop": self._cmd_stop, "status": self._cmd_status,
-            "calibrate": self._cmd_calibrate, "history": self._cmd_history,
-            "shutdown": self._cmd_shutdown,
-        }.get(cmd) if isinstance(cmd, str) else None
+        handler: Callable[[dict[str, Any]], dict[str, Any]] | None = (
+            {
+                "move": self._cmd_move,
+                "stop": self._cmd_stop,
+                "status": self._cmd_status,
+                "calibrate": self._cmd_calibrate,
+                "history": self._cmd_history,
+                "shutdown": self._cmd_shutdown,
+            }.get(cmd)
+            if isinstance(cmd, str)
+            else None
+        )
         if handler is None:
-            return {"ok": False, "error": f"unknown cmd {cmd!r}; known: move, stop, status, "
-                                          "calibrate, history, shutdown"}
+            return {
+                "ok": False,
+                "error": f"unknown cmd {cmd!r}; known: move, stop, status, calibrate, history, shutdown",
+            }
         return handler(request)
 
     @staticmethod
@@ -417,8 +461,11 @@ class Daemon:
                 reason = None
             else:
                 position = 0
-                reason = ("moves are queued; add \"queue\": true to join the queue"
-                          if self._queue else self.loop.submit(job))
+                reason = (
+                    'moves are queued; add "queue": true to join the queue'
+                    if self._queue
+                    else self.loop.submit(job)
+                )
         if reason is not None:
             return {"ok": False, "error": reason}
         if request.get("wait", True) is False:
@@ -449,13 +496,23 @@ class Daemon:
             return {"ok": False, "error": allowed}
         limited = steps > allowed
         steps = min(steps, allowed)
-        fine_steps = max(2, round(steps * self.setup.modes[COARSE].predicted_step_m
-                                  / self.setup.modes[FINE].predicted_step_m / 4))
-        reply = self._run_job(self._new_job("calibrate", None, None,
-                                            calibration_bursts(steps, fine_steps)), request)
+        fine_steps = max(
+            2,
+            round(
+                steps
+                * self.setup.modes[COARSE].predicted_step_m
+                / self.setup.modes[FINE].predicted_step_m
+                / 4
+            ),
+        )
+        reply = self._run_job(
+            self._new_job("calibrate", None, None, calibration_bursts(steps, fine_steps)), request
+        )
         if limited:
-            reply["note"] = (f"calibration limited to {steps} coarse steps per direction by the "
-                             "travel left on either side of the part")
+            reply["note"] = (
+                f"calibration limited to {steps} coarse steps per direction by the "
+                "travel left on either side of the part"
+            )
         reply["calibration_steps"] = steps
         return reply
 
@@ -466,19 +523,22 @@ class Daemon:
         it, behind).  A reason string when there is no room or no position."""
         deadline = time.monotonic() + self.setup.sensor_timeout_s
         while self.loop.position_m is None and time.monotonic() < deadline:
-            time.sleep(0.01)    # just started: the first frame is on its way
+            time.sleep(0.01)  # just started: the first frame is on its way
         x = self.loop.position_m
         if x is None:
             return "position uncertain: calibration needs a sensor reading first"
         s = self.loop.settings
         est = self.loop.estimates()[f"{COARSE}/{FORWARD}"]
-        step_high = max(est.step_m + 2 * math.sqrt(est.variance_m2),
-                        self.setup.modes[COARSE].predicted_band_m[1])
+        step_high = max(
+            est.step_m + 2 * math.sqrt(est.variance_m2), self.setup.modes[COARSE].predicted_band_m[1]
+        )
         ahead, behind = s.max_position_m - x, x - s.min_position_m
         allowed = math.floor(min(ahead / 1.25, behind / 0.25) / step_high) - 1
         if allowed < 2:
-            return (f"no room to calibrate: the part at {x:.6g} m is {ahead:.3g} m from the "
-                    f"upper and {behind:.3g} m from the lower travel limit; move it inwards")
+            return (
+                f"no room to calibrate: the part at {x:.6g} m is {ahead:.3g} m from the "
+                f"upper and {behind:.3g} m from the lower travel limit; move it inwards"
+            )
         return allowed
 
     def _cmd_stop(self, request: dict[str, Any]) -> dict[str, Any]:
@@ -524,8 +584,7 @@ class Daemon:
             "position_state": "confirmed" if confirmed else "uncertain",
             "last_known_position_m": None if last_known is None else last_known.position_m,
             "target_m": None if job is None else job.target_m,
-            "fault": loop.fault or (None if loop.sensor_lost is None
-                                    else f"sensor lost: {loop.sensor_lost}"),
+            "fault": loop.fault or (None if loop.sensor_lost is None else f"sensor lost: {loop.sensor_lost}"),
             "reconnecting": reconnecting,
             "faults": faults,
             "queued_moves": queued,
@@ -537,9 +596,10 @@ class Daemon:
             "travel_limits_m": [loop.settings.min_position_m, loop.settings.max_position_m],
             "estimates": loop.estimates_json(),
             "predicted_steps_m": {k: m.predicted_step_m for k, m in self.setup.modes.items()},
-            "waveforms": {k: {**dataclasses.asdict(m.settings),
-                              "predicted_step_band_m": list(m.predicted_band_m)}
-                          for k, m in self.setup.modes.items()},
+            "waveforms": {
+                k: {**dataclasses.asdict(m.settings), "predicted_step_band_m": list(m.predicted_band_m)}
+                for k, m in self.setup.modes.items()
+            },
             "timing": loop.timing(),
             "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
             **self.setup.info,
@@ -567,8 +627,7 @@ class Daemon:
                 self._send(conn, {"ok": False, "error": f"too many clients (max {MAX_CLIENTS})"})
                 conn.close()
                 continue
-            threading.Thread(target=self._serve_client, args=(conn,), name="client",
-                             daemon=True).start()
+            threading.Thread(target=self._serve_client, args=(conn,), name="client", daemon=True).start()
 
     @staticmethod
     def _send(conn: socket.socket, obj: dict[str, Any]) -> None:
@@ -587,9 +646,14 @@ class Daemon:
                     return
                 if len(line) > MAX_LINE_BYTES or not line.endswith(b"\n"):
                     if len(line) <= MAX_LINE_BYTES:
-                        return          # disconnected mid-line
-                    self._send(conn, {"ok": False, "error": f"request longer than "
-                                      f"{MAX_LINE_BYTES} bytes; closing the connection"})
+                        return  # disconnected mid-line
+                    self._send(
+                        conn,
+                        {
+                            "ok": False,
+                            "error": f"request longer than {MAX_LINE_BYTES} bytes; closing the connection",
+                        },
+                    )
                     return
                 if not line.strip():
                     continue
@@ -598,8 +662,10 @@ class Daemon:
                 except (ValueError, RecursionError) as err:
                     # not JSON, not UTF-8, an integer past Python's digit limit, or nested
                     # deeper than the parser's recursion allows
-                    self._send(conn, {"ok": False, "error": "malformed request: "
-                                      f"{type(err).__name__}: {str(err)[:200]}"})
+                    self._send(
+                        conn,
+                        {"ok": False, "error": f"malformed request: {type(err).__name__}: {str(err)[:200]}"},
+                    )
                     continue
                 self._send(conn, self._safe_handle(request))
         except OSError:
@@ -623,6 +689,6 @@ def _brief(value: Any) -> str:
     """``repr`` of a request value, cut short (a 4000-digit integer is no error message)."""
     try:
         text = repr(value)
-    except ValueError:      # an integer beyond the digit limit of str()
+    except ValueError:  # an integer beyond the digit limit of str()
         return f"<{type(value).__name__} too large to print>"
     return text if len(text) <= 40 else text[:37] + "..."

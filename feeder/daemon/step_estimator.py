@@ -102,16 +102,24 @@ class StepEstimator:
             raise ValueError("steps must be positive")
         est = self.estimate
         theta = np.array([est.step_m, est.offset_m])
-        p = np.array([[est.variance_m2, est.covariance_m2],
-                      [est.covariance_m2, est.offset_variance_m2]]) / self.forgetting
+        p = (
+            np.array([[est.variance_m2, est.covariance_m2], [est.covariance_m2, est.offset_variance_m2]])
+            / self.forgetting
+        )
         h = np.array([float(steps), 1.0])
         s = float(h @ p @ h) + self.measurement_variance_m2(steps)
         gain = p @ h / s
         theta = theta + gain * (displacement_m - float(h @ theta))
         p = p - s * np.outer(gain, gain)
         p = 0.5 * (p + p.T)
-        self.estimate = StepEstimate(float(theta[0]), float(p[0, 0]), est.steps + steps,
-                                     float(theta[1]), float(p[1, 1]), float(p[0, 1]))
+        self.estimate = StepEstimate(
+            float(theta[0]),
+            float(p[0, 0]),
+            est.steps + steps,
+            float(theta[1]),
+            float(p[1, 1]),
+            float(p[0, 1]),
+        )
         return self.estimate
 
     def usable_step_m(self) -> float:

@@ -22,8 +22,9 @@ COARSE_PLAN_DISTANCE_M = 1e-3
 
 def _mode(name: str, p: Plan) -> StepMode:
     low, high = sorted(abs(b) for b in p.predicted_step_band_m)
-    settings = DriveSettings(frequency_hz=p.frequency_hz, amplitude_v=p.amplitude_vpp,
-                             flyback_shape=p.flyback_shape)
+    settings = DriveSettings(
+        frequency_hz=p.frequency_hz, amplitude_v=p.amplitude_vpp, flyback_shape=p.flyback_shape
+    )
     return StepMode(name, settings, abs(p.predicted_step_m), (low, high))
 
 
@@ -37,13 +38,11 @@ def plan_step_modes(
 ) -> dict[str, StepMode]:
     """Coarse and fine :class:`StepMode`; :class:`~feeder.errors.InputError` if unplannable."""
     coarse = plan(part, support, surface, tau_pa, amplifier, COARSE_PLAN_DISTANCE_M)
-    fine = plan(part, support, surface, tau_pa, amplifier, tolerance_m,
-                frequency_hz=coarse.frequency_hz)
+    fine = plan(part, support, surface, tau_pa, amplifier, tolerance_m, frequency_hz=coarse.frequency_hz)
     return {COARSE: _mode(COARSE, coarse), FINE: _mode(FINE, fine)}
 
 
 def calibration_key(part: Part, support: Support, modes: dict[str, StepMode]) -> str:
     """Names what a learned step belongs to: part, support and both waveforms."""
     c, f = modes[COARSE].settings, modes[FINE].settings
-    return (f"{part.label}/{support.kind}/{c.frequency_hz:g}Hz/{c.amplitude_v:.3f}V"
-            f"/{f.amplitude_v:.3f}V")
+    return f"{part.label}/{support.kind}/{c.frequency_hz:g}Hz/{c.amplitude_v:.3f}V/{f.amplitude_v:.3f}V"

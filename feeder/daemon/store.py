@@ -83,12 +83,25 @@ COMMIT;
 """Version 3 marks moves whose step count was estimated from time (a stop cut a burst on a
 drive that counts no steps, e.g. the ANC300)."""
 
-CALIBRATION_COLUMNS = ("key, step_m, variance_m2, steps, updated_s, offset_m, offset_variance_m2,"
-                       " covariance_m2")
+CALIBRATION_COLUMNS = (
+    "key, step_m, variance_m2, steps, updated_s, offset_m, offset_variance_m2, covariance_m2"
+)
 
 MOVE_COLUMNS = (
-    "id", "started_s", "finished_s", "start_m", "target_m", "reached_m", "error_m",
-    "steps", "bursts", "status", "reason", "step_forward_m", "step_backward_m", "steps_estimated",
+    "id",
+    "started_s",
+    "finished_s",
+    "start_m",
+    "target_m",
+    "reached_m",
+    "error_m",
+    "steps",
+    "bursts",
+    "status",
+    "reason",
+    "step_forward_m",
+    "step_backward_m",
+    "steps_estimated",
 )
 
 
@@ -136,10 +149,12 @@ class Store:
             if ok != "ok":
                 raise StoreError(f"{self.path}: integrity check failed: {ok}")
             if existed and self._foreign():
-                raise StoreError(f"{self.path}: not a feeder state database (no schema "
-                                 "version); refusing to touch it (feeder daemon --reset-state "
-                                 "moves it aside)")
-            self._conn.execute("PRAGMA journal_mode=WAL")     # writes the header: ours only
+                raise StoreError(
+                    f"{self.path}: not a feeder state database (no schema "
+                    "version); refusing to touch it (feeder daemon --reset-state "
+                    "moves it aside)"
+                )
+            self._conn.execute("PRAGMA journal_mode=WAL")  # writes the header: ours only
             self._conn.execute("PRAGMA synchronous=FULL")
             self._conn.executescript("BEGIN IMMEDIATE;" + _SCHEMA + "COMMIT;")
             version = self._meta("schema_version")
@@ -152,8 +167,11 @@ class Store:
                     self._conn.executescript(_MIGRATE_1_TO_2)
                 if int(version) <= 2:
                     columns = {r[1] for r in self._conn.execute("PRAGMA table_info(moves)")}
-                    alter = ("" if "steps_estimated" in columns else "ALTER TABLE moves ADD "
-                             "COLUMN steps_estimated INTEGER NOT NULL DEFAULT 0;")
+                    alter = (
+                        ""
+                        if "steps_estimated" in columns
+                        else "ALTER TABLE moves ADD COLUMN steps_estimated INTEGER NOT NULL DEFAULT 0;"
+                    )
                     self._conn.executescript(_MIGRATE_2_TO_3.format(alter=alter))
         except sqlite3.DatabaseError as err:
             raise StoreError(f"{self.path}: {err}") from err
@@ -161,14 +179,12 @@ class Store:
 
     def _foreign(self) -> bool:
         """Tables, but no feeder schema version among them: another program's database."""
-        tables = {r[0] for r in self._conn.execute(
-            "SELECT name FROM sqlite_master WHERE type = 'table'")}
+        tables = {r[0] for r in self._conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
         if not tables:
-            return False            # a fresh, empty database: ours to set up
+            return False  # a fresh, empty database: ours to set up
         if "meta" not in tables:
             return True
-        return self._conn.execute(
-            "SELECT count(*) FROM meta WHERE key = 'schema_version'").fetchone()[0] == 0
+        return self._conn.execute("SELECT count(*) FROM meta WHERE key = 'schema_version'").fetchone()[0] == 0
 
     # -- plumbing ---------------------------------------------------------
     def _write(self, sql: str, params: tuple[Any, ...] = ()) -> sqlite3.Cursor:
@@ -205,10 +221,17 @@ class Store:
     # -- calibration ------------------------------------------------------
     def save_calibration(self, cal: Calibration) -> None:
         self._write(
-            f"INSERT OR REPLACE INTO calibration ({CALIBRATION_COLUMNS})"
-            " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-            (cal.key, cal.step_m, cal.variance_m2, cal.steps, cal.updated_s, cal.offset_m,
-             cal.offset_variance_m2, cal.covariance_m2),
+            f"INSERT OR REPLACE INTO calibration ({CALIBRATION_COLUMNS}) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (
+                cal.key,
+                cal.step_m,
+                cal.variance_m2,
+                cal.steps,
+                cal.updated_s,
+                cal.offset_m,
+                cal.offset_variance_m2,
+                cal.covariance_m2,
+            ),
         )
 
     def calibration(self, key: str) -> Calibration | None:
@@ -244,16 +267,29 @@ class Store:
             "UPDATE moves SET finished_s = ?, reached_m = ?, error_m = ?, steps = ?, bursts = ?,"
             " status = ?, reason = ?, step_forward_m = ?, step_backward_m = ?, steps_estimated = ?"
             " WHERE id = ?",
-            (time.time(), reached_m, error, steps, bursts, status, reason,
-             step_forward_m, step_backward_m, int(steps_estimated), move_id),
+            (
+                time.time(),
+                reached_m,
+                error,
+                steps,
+                bursts,
+                status,
+                reason,
+                step_forward_m,
+                step_backward_m,
+                int(steps_estimated),
+                move_id,
+            ),
         )
 
     def interrupt_running_moves(self) -> list[int]:
         """Mark moves left ``running`` by a killed daemon as ``interrupted``; their ids."""
         with self._lock:
             self._conn.execute("BEGIN IMMEDIATE")
-            ids = [int(r[0]) for r in self._conn.execute(
-                "SELECT id FROM moves WHERE status = 'running' ORDER BY id")]
+            ids = [
+                int(r[0])
+                for r in self._conn.execute("SELECT id FROM moves WHERE status = 'running' ORDER BY id")
+            ]
             self._conn.execute(
                 "UPDATE moves SET status = 'interrupted',"
                 " reason = 'daemon stopped during the move (crash or kill)' WHERE status = 'running'"
@@ -263,9 +299,7 @@ class Store:
 
     def moves(self, limit: int = 100) -> list[dict[str, Any]]:
         """The newest ``limit`` moves, oldest first."""
-        rows = self._read(
-            f"SELECT {', '.join(MOVE_COLUMNS)} FROM moves ORDER BY id DESC LIMIT ?", (limit,)
-        )
+        rows = self._read(f"SELECT {', '.join(MOVE_COLUMNS)} FROM moves ORDER BY id DESC LIMIT ?", (limit,))
         return [_move_row(row) for row in reversed(rows)]
 
     def move(self, move_id: int) -> dict[str, Any] | None:
@@ -288,8 +322,9 @@ class Store:
         """The camera-to-plate transform (pixel size, rotation, θ centre), stored beside the
         step calibration."""
         self._write(
-            "INSERT OR REPLACE INTO camera_calibration (id, calibration, updated_s)"
-            " VALUES (1, ?, ?)", (json.dumps(calibration, allow_nan=False), time.time()))
+            "INSERT OR REPLACE INTO camera_calibration (id, calibration, updated_s) VALUES (1, ?, ?)",
+            (json.dumps(calibration, allow_nan=False), time.time()),
+        )
 
     def camera_calibration(self) -> dict[str, Any] | None:
         rows = self._read("SELECT calibration, updated_s FROM camera_calibration WHERE id = 1")
@@ -316,11 +351,14 @@ def check_state_file(path: Path) -> None:
     except OSError as err:
         raise StoreError(f"{path}: cannot read: {err}") from None
     if not header:
-        raise StoreError(f"{path}: empty file (a truncated state database?); refusing to start "
-                         "(feeder daemon --reset-state moves it aside)")
+        raise StoreError(
+            f"{path}: empty file (a truncated state database?); refusing to start "
+            "(feeder daemon --reset-state moves it aside)"
+        )
     if not header.startswith(SQLITE_HEADER) or len(header) < 100:
-        raise StoreError(f"{path}: not an SQLite database; refusing to start (feeder daemon "
-                         "--reset-state moves it aside)")
+        raise StoreError(
+            f"{path}: not an SQLite database; refusing to start (feeder daemon --reset-state moves it aside)"
+        )
 
 
 def move_aside(path: Path) -> Path | None:

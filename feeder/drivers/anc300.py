@@ -75,8 +75,9 @@ class Anc300Link:
     a complete reply; password: sent when the device asks for it.
     """
 
-    def __init__(self, url: str, password: str = DEFAULT_PASSWORD, timeout_s: float = 1.0,
-                 baudrate: int = 115200) -> None:
+    def __init__(
+        self, url: str, password: str = DEFAULT_PASSWORD, timeout_s: float = 1.0, baudrate: int = 115200
+    ) -> None:
         self.url = url
         self.password = password
         self.timeout_s = timeout_s
@@ -133,8 +134,9 @@ class Anc300Link:
         try:
             # pyserial's rfc2217 client has no write timeout
             write_timeout = None if self.url.startswith("rfc2217://") else self.timeout_s
-            port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=self.timeout_s,
-                                         write_timeout=write_timeout)
+            port = serial.serial_for_url(
+                self.url, baudrate=self.baudrate, timeout=self.timeout_s, write_timeout=write_timeout
+            )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise AmplifierLinkLost(f"cannot open: {exc}") from exc
         self._port = port
@@ -186,8 +188,9 @@ class Anc300Link:
             raise AmplifierLinkLost("timeout")
         return raw.decode("ascii", errors="replace").strip().removeprefix(">").strip()
 
-    def _read_reply(self, port: serial.SerialBase, timeout_s: float,
-                    command: str) -> tuple[list[str], str | None]:
+    def _read_reply(
+        self, port: serial.SerialBase, timeout_s: float, command: str
+    ) -> tuple[list[str], str | None]:
         """Data lines and the error message (None after ``OK``)."""
         deadline = time.monotonic() + timeout_s
         lines: list[str] = []
@@ -212,18 +215,17 @@ class Anc300Amplifier(Amplifier):
 
     counts_steps = False
 
-    def __init__(self, link: Anc300Link, axis: int = 1,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, link: Anc300Link, axis: int = 1, clock: Callable[[], float] = time.monotonic) -> None:
         self.link = link
         self.axis = axis
         self._clock = clock
         self._lock = threading.Lock()
-        self._counter = 0               # steps commanded (played, once a burst is over)
-        self._tables: tuple[list[int], list[int]] | None = None   # what the device holds
+        self._counter = 0  # steps commanded (played, once a burst is over)
+        self._tables: tuple[list[int], list[int]] | None = None  # what the device holds
         self._frequency_hz = 0.0
-        self._burst: tuple[float, int] | None = None   # (start s, signed steps) while it runs
+        self._burst: tuple[float, int] | None = None  # (start s, signed steps) while it runs
         self._estimated = False
-        self._continuous = False        # stepu/stepd c: never ends, so never ``stepw``
+        self._continuous = False  # stepu/stepd c: never ends, so never ``stepw``
 
     @classmethod
     def open(cls, url: str, axis: int = 1, **link_options: object) -> Anc300Amplifier:
@@ -235,11 +237,14 @@ class Anc300Amplifier(Amplifier):
         self.link.query(f"setf {a} {settings.frequency_hz:.6f}")
         self._frequency_hz = settings.frequency_hz
         self.link.query(f"setv {a} {settings.amplitude_v:.6f}")
-        tables = Waveform(frequency_hz=settings.frequency_hz, amplitude_vpp=1.0,
-                          flyback_shape=settings.flyback_shape,
-                          flyback_s=settings.flyback_s).anc300_tables()
+        tables = Waveform(
+            frequency_hz=settings.frequency_hz,
+            amplitude_vpp=1.0,
+            flyback_shape=settings.flyback_shape,
+            flyback_s=settings.flyback_s,
+        ).anc300_tables()
         if tables != self._tables:
-            self._tables = None          # unknown until both went through
+            self._tables = None  # unknown until both went through
             self.link.query(f"setpu {a} " + " ".join(map(str, tables[0])))
             self.link.query(f"setpd {a} " + " ".join(map(str, tables[1])))
             self._tables = tables
@@ -311,9 +316,14 @@ class Anc300Amplifier(Amplifier):
         counter, estimated = self.steps_played()
         with self._lock:
             moving = self._burst is not None or self._continuous
-        return AmplifierStatus(mode=mode, frequency_hz=frequency, amplitude_v=amplitude,
-                               step_counter=counter, moving=moving,
-                               counted_by="estimated" if estimated else "host")
+        return AmplifierStatus(
+            mode=mode,
+            frequency_hz=frequency,
+            amplitude_v=amplitude,
+            step_counter=counter,
+            moving=moving,
+            counted_by="estimated" if estimated else "host",
+        )
 
     def close(self) -> None:
         self.link.close()

@@ -74,9 +74,12 @@ class StreamCamera(PositionSensor):
     def read(self, timeout_s: float = 1.0) -> PositionSample:
         with self._cond:
             fresh = self._cond.wait_for(
-                lambda: self._lost is not None
-                or (self._latest is not None and self._latest.sequence > self._returned),
-                timeout_s)
+                lambda: (
+                    self._lost is not None
+                    or (self._latest is not None and self._latest.sequence > self._returned)
+                ),
+                timeout_s,
+            )
             if self._lost is not None:
                 raise SensorLost(f"{self.url}: {self._lost}")
             if not fresh or self._latest is None:
@@ -93,8 +96,8 @@ class StreamCamera(PositionSensor):
 def _parse(line: bytes) -> PositionSample | None:
     try:
         frame = json.loads(line)
-        return PositionSample(time_s=float(frame["time_s"]),
-                              position_m=float(frame["position_m"]),
-                              sequence=int(frame["seq"]))
+        return PositionSample(
+            time_s=float(frame["time_s"]), position_m=float(frame["position_m"]), sequence=int(frame["seq"])
+        )
     except (ValueError, KeyError, TypeError):
         return None

@@ -148,9 +148,7 @@ def read_force_curve(path: Path, stiffness_n_per_m: float | None = None) -> Forc
     if y_name == FORCE:
         return ForceCurve(values[:, 0], values[:, 1], str(path), stiffness)
     if stiffness is None:
-        raise InputError(
-            "--stiffness", f"{path.name} records deflection: give --cantilever or --stiffness"
-        )
+        raise InputError("--stiffness", f"{path.name} records deflection: give --cantilever or --stiffness")
     return ForceCurve(values[:, 0], stiffness * values[:, 1], str(path), stiffness)
 
 

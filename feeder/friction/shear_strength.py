@@ -36,7 +36,9 @@ class ShearStrength:
 
 
 def shear_strength(
-    forces_n: Sequence[float], real_area_m2: float, real_area_rel_band: float = 0.0,
+    forces_n: Sequence[float],
+    real_area_m2: float,
+    real_area_rel_band: float = 0.0,
     single_force_rel_scatter: float = 0.0,
 ) -> ShearStrength:
     """τ = mean(F)/A_r and its band from the force spread and the real-area band.

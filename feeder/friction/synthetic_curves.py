@@ -59,8 +59,10 @@ def synthetic_force_curve(
     since_slip = (u[sliding] - u_peak) / step  # samples since the slip
     kinetic = shape.kinetic_ratio * peak_force_n
     relax = np.exp(-since_slip / shape.slip_time_samples)
-    ripple = shape.ripple * peak_force_n * (
-        (since_slip % shape.ripple_period_samples) / shape.ripple_period_samples - 0.5
+    ripple = (
+        shape.ripple
+        * peak_force_n
+        * ((since_slip % shape.ripple_period_samples) / shape.ripple_period_samples - 0.5)
     )
     force[sliding] = kinetic + (peak_force_n - kinetic) * relax + ripple * (1 - relax)
     drift = shape.drift_m * np.arange(n) / n

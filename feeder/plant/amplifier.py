@@ -68,8 +68,7 @@ class AmplifierLimits:
             field = "amplitude_vpp" if low >= self.v_min_v else "offset_v"
             raise InputError(
                 f"{field_prefix}{field}",
-                f"output {low:g}…{high:g} V leaves the amplifier's rails "
-                f"{self.v_min_v:g}…{self.v_max_v:g} V",
+                f"output {low:g}…{high:g} V leaves the amplifier's rails {self.v_min_v:g}…{self.v_max_v:g} V",
             )
         if not self.min_frequency_hz <= waveform.frequency_hz <= self.max_frequency_hz:
             raise InputError(
@@ -158,8 +157,9 @@ def amplifier_model(name: str, field: str = "model") -> AmplifierLimits:
     try:
         return AMPLIFIER_MODELS[name]
     except KeyError:
-        raise InputError(field, f"unknown amplifier model {name!r}; known: "
-                         f"{', '.join(AMPLIFIER_MODELS)}") from None
+        raise InputError(
+            field, f"unknown amplifier model {name!r}; known: {', '.join(AMPLIFIER_MODELS)}"
+        ) from None
 
 
 def within_rating(limits: AmplifierLimits, rating: AmplifierLimits, model: str) -> None:
@@ -167,16 +167,24 @@ def within_rating(limits: AmplifierLimits, rating: AmplifierLimits, model: str) 
     checks = (
         ("v_max_v", limits.v_max_v > rating.v_max_v, rating.v_max_v, "V"),
         ("v_min_v", limits.v_min_v < rating.v_min_v, rating.v_min_v, "V"),
-        ("max_frequency_hz", limits.max_frequency_hz > rating.max_frequency_hz,
-         rating.max_frequency_hz, "Hz"),
-        ("min_frequency_hz", limits.min_frequency_hz < rating.min_frequency_hz,
-         rating.min_frequency_hz, "Hz"),
+        (
+            "max_frequency_hz",
+            limits.max_frequency_hz > rating.max_frequency_hz,
+            rating.max_frequency_hz,
+            "Hz",
+        ),
+        (
+            "min_frequency_hz",
+            limits.min_frequency_hz < rating.min_frequency_hz,
+            rating.min_frequency_hz,
+            "Hz",
+        ),
     )
     for name, beyond, value, unit in checks:
         if beyond:
-            raise InputError(name, f"{getattr(limits, name):g} {unit} is beyond the {model}'s "
-                             f"rating ({value:g} {unit})")
-
+            raise InputError(
+                name, f"{getattr(limits, name):g} {unit} is beyond the {model}'s rating ({value:g} {unit})"
+            )
 
 
 AMPLIFIER_ALIASES: dict[str, str] = {"paper": "firmware_sim"}

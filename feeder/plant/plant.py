@@ -174,7 +174,7 @@ def run_waveform(
     count = top + 1 + periods * per
     index = np.arange(1, count + 1)
     part, plate = plant.advance_traces(waveform.voltage_at_phase((index % per) / per))
-    tops = part[top :: per]
+    tops = part[top::per]
     return WaveformRun(
         steps_m=np.diff(tops),
         net_displacement_m=float(tops[-1] - tops[0]),

@@ -44,6 +44,7 @@ def kinetic_ratio_band(kinetic_ratio: float) -> tuple[float, float]:
     return (max(0.05, kinetic_ratio - KINETIC_RATIO_SPREAD),
             min(1.0, kinetic_ratio + KINETIC_RATIO_SPREAD))  # fmt: skip
 
+
 _WINDOW = 1024
 _MIN_SLIP_WINDOW = 32
 _SCALAR = 4
@@ -172,8 +173,14 @@ class StickSlip:
 
     def set_state(self, st: np.ndarray) -> None:
         """Take the state back from a kernel."""
-        stuck, self.relative_velocity_m_s, self.relative_position_m, self.slip_time_s, \
-            self.static_accel_m_s2, normal = st.tolist()
+        (
+            stuck,
+            self.relative_velocity_m_s,
+            self.relative_position_m,
+            self.slip_time_s,
+            self.static_accel_m_s2,
+            normal,
+        ) = st.tolist()
         self.stuck = stuck != 0.0
         self._next_normal = int(normal)
 
@@ -345,9 +352,7 @@ def simulate_batch(
     broadcast over the sets.  Returns (s at each interval end, shape
     (sets, intervals); total slip time per set, s).
     """
-    accel, dt, jump = np.broadcast_arrays(
-        np.atleast_2d(accel), np.atleast_2d(dt), np.atleast_2d(jump)
-    )
+    accel, dt, jump = np.broadcast_arrays(np.atleast_2d(accel), np.atleast_2d(dt), np.atleast_2d(jump))
     sets, n = accel.shape
     a_s = np.broadcast_to(np.asarray(static_accel_m_s2, dtype=float), (sets,))
     a_k = np.asarray(kinetic_ratio, dtype=float) * a_s

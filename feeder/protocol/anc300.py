@@ -87,10 +87,25 @@ VERBS: tuple[Verb, ...] = (
 BY_NAME: dict[str, Verb] = {v.name: v for v in VERBS}
 REAL_VERBS: frozenset[str] = frozenset(v.name for v in VERBS if v.real)
 """The verbs a real ANC300 answers."""
-MOVE_PATH: frozenset[str] = frozenset({
-    "echo", "ver", "getser", "setm", "getm", "setf", "getf", "setv", "getv",
-    "stepu", "stepd", "stop", "stepw", "setpu", "setpd",
-})
+MOVE_PATH: frozenset[str] = frozenset(
+    {
+        "echo",
+        "ver",
+        "getser",
+        "setm",
+        "getm",
+        "setf",
+        "getf",
+        "setv",
+        "getv",
+        "stepu",
+        "stepd",
+        "stop",
+        "stepw",
+        "setpu",
+        "setpd",
+    }
+)
 """The verbs the host's move path sends (apply, step, wait, stop, ground, read state)."""
 assert MOVE_PATH <= REAL_VERBS
 
@@ -104,5 +119,4 @@ def verbs_of(dialect: str) -> frozenset[str]:
 
 def fault_names(word: int) -> tuple[str, ...]:
     """Names of the bits set in a fault word, lowest bit first."""
-    return tuple(name for name, bit in sorted(FAULT_BITS.items(), key=lambda kv: kv[1])
-                 if word & bit)
+    return tuple(name for name, bit in sorted(FAULT_BITS.items(), key=lambda kv: kv[1]) if word & bit)

@@ -134,7 +134,11 @@ DEFAULT_SURFACE = SurfaceParameters(
 _REQUIRED_KEYS = ("sigma_m", "summit_radius_m", "summit_density_per_m2", "mean_summit_height_m")
 _SURFACE_KEYS = (*_REQUIRED_KEYS, "z_max_m")
 _MATERIAL_KEYS = (
-    "youngs_modulus_pa", "poisson_ratio", "adhesion_work_j_m2", "adhesion_range_m", "hardness_pa",
+    "youngs_modulus_pa",
+    "poisson_ratio",
+    "adhesion_work_j_m2",
+    "adhesion_range_m",
+    "hardness_pa",
 )
 
 

@@ -106,8 +106,11 @@ def axes_from_moves(plate_moves_m: np.ndarray, image_moves_px: np.ndarray) -> Ax
     except np.linalg.LinAlgError as err:
         raise InputError("moves", f"the axis fit failed: {err}") from None
     if not spread[-1] > 1e-6 * spread[0]:  # also 0 and NaN
-        raise InputError("moves", "the axis fit is singular: the part did not move in the images, "
-                                  "or moved along one line for both axes (--x-move, --y-move)")
+        raise InputError(
+            "moves",
+            "the axis fit is singular: the part did not move in the images, "
+            "or moved along one line for both axes (--x-move, --y-move)",
+        )
     mirrored = bool(np.linalg.det(a) < 0)
     b = a @ np.diag([1.0, -1.0]) if mirrored else a
     rotation = math.atan2(b[1, 0] - b[0, 1], b[0, 0] + b[1, 1])
