@@ -9,11 +9,13 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -25,6 +27,7 @@ from test_control_loop import MODES, SETTINGS, TRUE
 from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
 from test_daemon_hil import ROOT, DaemonProcess, base  # noqa: F401
 
+from feeder.daemon.client import Client
 from feeder.daemon.control_loop import ControlLoop, Job
 from feeder.daemon.store import Store
 from feeder.drivers.sensor import PositionSample
@@ -305,3 +308,25 @@ def test_a_killed_simulator_is_respawned_on_a_fresh_pty(base: Path) -> None:  # 
     assert moved["ok"], moved
     assert len(history) == records + 1  # nothing written before was lost
     assert history[0]["status"] == "done"
+
+
+def test_a_calibration_larger_than_the_travel_plans_within_it() -> None:
+    from test_daemon_service import start
+
+    short = Path(tempfile.mkdtemp(prefix="fd"))  # socket paths stay under 108 bytes
+    daemon, _ = start(short)
+    try:
+        with Client(short / "run" / "f.sock", timeout_s=120) as client:
+            before = len(client.request("history")["moves"])
+            reply = client.request("calibrate", steps=10_000, trace=True)
+            after = client.request("move", target_m=0.0)
+            history = client.request("history")["moves"]
+    finally:
+        daemon.shutdown()
+        shutil.rmtree(short, ignore_errors=True)
+    assert reply["ok"], reply
+    assert 2 <= reply["calibration_steps"] < 10_000 and "limited" in reply["note"]
+    limits = SETTINGS.min_position_m, SETTINGS.max_position_m
+    assert all(limits[0] <= x <= limits[1] for _, x in reply["result"]["trace"])
+    assert after["ok"], after  # nothing left the part out of reach
+    assert len(history) == before + 1  # the move recorded, nothing lost
