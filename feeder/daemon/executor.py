@@ -112,7 +112,8 @@ class AmplifierExecutor:
         except AmplifierError as err:
             return Completion(command, self._clock(), error=str(err))
         except Exception as err:
-            # an unforeseen way is reported as a lost link (grounded, reconnected), never lost
+            # the worker thread's one boundary: a driver failing in an unforeseen way is
+            # reported as a lost link (grounded, reconnected), never lost
             log.exception("amplifier command %s failed unexpectedly", command.kind)
             return Completion(command, self._clock(), error=f"{type(err).__name__}: {err}", link_lost=True)
 

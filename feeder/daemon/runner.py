@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 from feeder.contact.tau_pair import tau_pair
@@ -42,7 +43,8 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
     )
     config.state_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     links = open_links(config, log_path=config.state_dir / "firmware_sim.log")
-    try:
+    with contextlib.ExitStack() as undo:  # on any failure: stop what was started, newest first
+        undo.callback(links.close)
         setup = DaemonSetup(
             modes=modes,
             loop=config.loop,
@@ -60,12 +62,7 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
             sensor_timeout_s=config.sensor_timeout_s,
         )
         daemon = Daemon(links, setup)
-        try:
-            daemon.start()
-        except BaseException:
-            daemon.shutdown()
-            raise
-    except BaseException:
-        links.close()
-        raise
+        undo.callback(daemon.shutdown)
+        daemon.start()
+        undo.pop_all()
     return RunningDaemon(daemon, links)

@@ -386,18 +386,18 @@ class Daemon:
             try:
                 if kind == "amplifier":
                     amp = self.links.open_amplifier()
-                    try:
+                    with contextlib.ExitStack() as undo:  # a link that cannot ground is closed
+                        undo.callback(amp.close)
                         amp.ground()
-                    except BaseException:
-                        amp.close()
-                        raise
+                        undo.pop_all()
                     self.loop.replace_amplifier(amp)
                     self._amplifier_generation = getattr(self.links, "respawns", 0)
                 else:
                     self.loop.replace_sensor(self.links.open_sensor())
             except Exception as err:
-                # stops a link from opening (drivers, python-can, the launcher) is logged and
-                # retried with backoff; the thread must outlive it
+                # this reconnect thread's one boundary: whatever stops a link from opening
+                # (drivers, python-can, the launcher) is logged and retried with backoff; the
+                # thread must outlive it
                 log.info("%s reconnect attempt %d failed: %s", kind, attempts, err)
                 with self._lock:
                     record["reconnect_attempts"] = attempts

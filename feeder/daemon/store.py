@@ -189,15 +189,9 @@ class Store:
     # -- plumbing ---------------------------------------------------------
     def _write(self, sql: str, params: tuple[Any, ...] = ()) -> sqlite3.Cursor:
         """One statement in its own IMMEDIATE transaction."""
-        with self._lock:
+        with self._lock, self._conn:  # COMMIT on success, ROLLBACK on any error
             self._conn.execute("BEGIN IMMEDIATE")
-            try:
-                cur = self._conn.execute(sql, params)
-            except BaseException:
-                self._conn.execute("ROLLBACK")
-                raise
-            self._conn.execute("COMMIT")
-            return cur
+            return self._conn.execute(sql, params)
 
     def _read(self, sql: str, params: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
         with self._lock:

@@ -140,7 +140,8 @@ class Anc300Link:
         except (serial.SerialException, OSError, ValueError) as exc:
             raise AmplifierLinkLost(f"cannot open: {exc}") from exc
         self._port = port
-        try:
+        with contextlib.ExitStack() as undo:  # any failure from here drops the port
+            undo.callback(self._drop)
             port.reset_input_buffer()  # whatever a previous session left unread
             time.sleep(CONNECT_SETTLE_S)
             greeting = self._read_available(port)
@@ -151,13 +152,11 @@ class Anc300Link:
                 port.write(b"echo off\r\n")
                 _, error = self._read_reply(port, self.timeout_s, "echo off")
                 if error is None:
+                    undo.pop_all()
                     return port
                 if "Authorization" in error:
                     self._login(port)
             raise AmplifierLinkLost("device refuses 'echo off'")
-        except BaseException:
-            self._drop()
-            raise
 
     def _login(self, port: serial.SerialBase) -> None:
         port.write(self.password.encode("ascii") + b"\r\n")

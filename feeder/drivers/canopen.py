@@ -127,7 +127,8 @@ class CanopenAmplifier(Amplifier):
         self.network.connect(**dict(bus))
         assert self.network.notifier is not None
         self.network.notifier.add_listener(_BusErrors(self._on_bus_error))
-        try:
+        with contextlib.ExitStack() as undo:  # any failure from here disconnects
+            undo.callback(self.network.disconnect)
             od = eds if eds is not None else object_dictionary(node_id)
             self.node = canopen.RemoteNode(node_id, od)
             self._moving = bit_mask(od, "Status word", "moving")
@@ -136,9 +137,7 @@ class CanopenAmplifier(Amplifier):
             self.network.add_node(self.node)
             self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
             self._start()
-        except BaseException:
-            self.network.disconnect()
-            raise
+            undo.pop_all()
         self._watchdog = threading.Thread(
             target=self._watch_heartbeat, daemon=True, name=f"canopen-heartbeat-{node_id}"
         )

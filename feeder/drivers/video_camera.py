@@ -251,6 +251,7 @@ class GenICamSource(FrameSource):
         max_backoff_s: float = 2.0,
     ) -> None:
         try:
+            from genicam.gentl import GenericException  # harvesters' own dependency
             from harvesters.core import Harvester
         except ImportError as exc:
             raise CameraError(
@@ -261,6 +262,8 @@ class GenICamSource(FrameSource):
         super().__init__(f"genicam:{producer}" + (f"#{serial}" if serial else ""), max_backoff_s)
         self.fetch_timeout_s = fetch_timeout_s
         self.serial = serial
+        # GenTL's own errors (timeouts, lost device) and a buffer of the wrong size
+        self._fetch_errors: tuple[type[Exception], ...] = (GenericException, OSError, ValueError)
         self._harvester = Harvester()
         self._harvester.add_file(str(producer))
         self._acquirer: Any = None
@@ -283,7 +286,7 @@ class GenICamSource(FrameSource):
                 component = buffer.payload.components[0]
                 image = np.array(component.data).reshape(component.height, component.width).copy()
                 stamp = getattr(buffer, "timestamp_ns", None)
-        except Exception as exc:  # harvesters and GenTL producers raise their own exception types
+        except self._fetch_errors as exc:
             raise CameraError(f"fetch failed: {exc}") from exc
         return image, (stamp * 1e-9 if stamp else None)
 

@@ -22,6 +22,7 @@ Every problem is an :class:`~feeder.errors.InputError` naming the file.
 from __future__ import annotations
 
 import math
+import struct
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -127,9 +128,15 @@ def _read_instrument(path: Path, channel: str | None) -> HeightMap:
         raise InputError(
             str(path), "reading instrument files needs the 'afm' extra (pip install 'feeder[afm]')"
         ) from None
+    from SurfaceTopography.Exceptions import ReadFileError, UnknownFileFormat
+
+    # what SurfaceTopography's readers raise on damaged or foreign files: its own errors, and
+    # the parsing errors of the formats it decodes (short reads, bad headers, bad numbers)
+    read_errors = (ReadFileError, UnknownFileFormat, OSError, EOFError, ValueError, KeyError,
+                   IndexError, TypeError, AttributeError, struct.error)  # fmt: skip
     try:
         reader = open_topography(str(path))
-    except Exception as err:  # the package raises many types for damaged/unknown files
+    except read_errors as err:
         if type(err).__name__ == "CannotDetectFileFormat":
             raise InputError(str(path), "not a readable topography file (no reader recognises it)") from None
         raise InputError(str(path), f"cannot read: {_first_line(err)}") from None
@@ -140,7 +147,7 @@ def _read_instrument(path: Path, channel: str | None) -> HeightMap:
         sizes = topography.physical_sizes
         unit = topography.unit
         factor = float(get_unit_conversion_factor(unit, "m"))
-    except Exception as err:
+    except read_errors as err:
         raise InputError(str(path), f"cannot read channel {info.name!r}: {_first_line(err)}") from None
     if np.ma.is_masked(raw):
         raise InputError(str(path), f"channel {info.name!r} has undefined (masked) pixels")
