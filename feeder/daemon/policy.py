@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import collections
 import math
+import threading  # a Job's done event only: the policy never waits on it
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -206,8 +207,6 @@ class Job:
         on_start: Callable[[], None] | None = None,
         on_done: Callable[[JobResult], None] | None = None,
     ) -> None:
-        import threading  # the handle's event only; the policy never waits on it
-
         self.kind = kind
         self.target_m = target_m
         self.by_m = by_m

@@ -153,9 +153,10 @@ AMPLIFIER_MODELS: dict[str, AmplifierLimits] = {
 
 
 def amplifier_model(name: str, field: str = "model") -> AmplifierLimits:
-    """The rating of a named amplifier model; :class:`InputError` names the known ones."""
+    """The rating of a named amplifier model (or an alias, :data:`AMPLIFIER_ALIASES`);
+    :class:`InputError` names the known ones."""
     try:
-        return AMPLIFIER_MODELS[name]
+        return AMPLIFIER_MODELS[AMPLIFIER_ALIASES.get(name, name)]
     except KeyError:
         raise InputError(
             field, f"unknown amplifier model {name!r}; known: {', '.join(AMPLIFIER_MODELS)}"
@@ -234,7 +235,7 @@ def resolve_amplifier(spec: str, field: str = "--amplifier") -> tuple[str, Ampli
     """(model name, limits) for a model name (:data:`AMPLIFIER_MODELS`, ``paper``) or a TOML file."""
     name = AMPLIFIER_ALIASES.get(spec, spec)
     if name in AMPLIFIER_MODELS:
-        return name, AMPLIFIER_MODELS[name]
+        return name, amplifier_model(name, field)
     path = Path(spec)
     try:
         exists = path.exists()
