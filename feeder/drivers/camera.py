@@ -5,6 +5,8 @@ process speaking the same format) is one line per frame::
 
     {"seq": 12, "time_s": 0.12, "position_m": 3.1e-05}
 
+optionally with ``"poses": [[x_m, y_m, psi_rad], ...]`` (one per part, plate frame).
+
 A reader thread keeps the newest frame; :meth:`StreamCamera.read` returns the
 newest frame not yet returned (older unread frames are dropped: the position
 is what matters, not the backlog).
@@ -96,8 +98,12 @@ class StreamCamera(PositionSensor):
 def _parse(line: bytes) -> PositionSample | None:
     try:
         frame = json.loads(line)
+        poses = tuple((float(x), float(y), float(psi)) for x, y, psi in frame.get("poses", ()))
         return PositionSample(
-            time_s=float(frame["time_s"]), position_m=float(frame["position_m"]), sequence=int(frame["seq"])
+            time_s=float(frame["time_s"]),
+            position_m=float(frame["position_m"]),
+            sequence=int(frame["seq"]),
+            poses=poses,
         )
-    except (ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError, AttributeError):
         return None

@@ -20,11 +20,15 @@ class PositionSample:
     time_s: the sensor's timestamp of the exposure (its own clock, seconds).
     position_m: part position along the feed axis, metres.
     sequence: frame number, increasing by one per frame (gaps = dropped frames).
+    poses: every part's pose (x_m, y_m, psi_rad) in the plate frame, in the order of
+        the parts' ids, when the sensor sees poses (a camera); ``position_m`` is then the
+        first part's x.  Empty for a sensor that reads one axis.
     """
 
     time_s: float
     position_m: float
     sequence: int
+    poses: tuple[tuple[float, float, float], ...] = ()
 
 
 class PositionSensor(ABC):
