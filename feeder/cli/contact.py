@@ -7,8 +7,8 @@ from typing import Any
 
 from feeder.cli.arguments import add_part_arguments, add_tau_arguments, int_in, part_from, surface_from
 from feeder.cli.output import print_json
-from feeder.contact.asperity_sampling import DEFAULT_PLACEMENTS
 from feeder.contact.breakaway import MIN_CONTACTS, ContactResult, contact
+from feeder.contact.resting_part import DEFAULT_PLACEMENTS
 from feeder.errors import InputError
 from feeder.paper import PAPER_ROWS
 from feeder.parts import Part, Support
@@ -23,7 +23,8 @@ def register(sub: Any) -> None:
         "--placements",
         type=int_in(0, 10**6),
         default=DEFAULT_PLACEMENTS,
-        help="random placements sampled summit by summit for the A_r band, 0–1e6 "
+        help="random placements of the rigid part, each at rest on ≥ 3 summits (tilted), for the "
+        "A_r band, 0–1e6 "
         f"(default {DEFAULT_PLACEMENTS}; 0 skips; within the 2 GiB memory budget)",
     )
     p.add_argument(
@@ -123,7 +124,7 @@ def _table(surface: SurfaceParameters, args: argparse.Namespace, placements: int
                 }
             )
             warnings += [
-                w for w in r.warnings if w not in warnings and "asperities" not in w and "placed" not in w
+                w for w in r.warnings if w not in warnings and "asperities" not in w and "resting" not in w
             ]
     few = [
         f"{row['part']} {row['support']} ({row['contacts']:.2g})"
@@ -160,8 +161,8 @@ def _table(surface: SurfaceParameters, args: argparse.Namespace, placements: int
     print()
     if placements:
         print(
-            f"placed A_r: 68 % interval over {placements} random placements sampled summit by summit "
-            "(1e-17 m²); GW's mean field assumes fractional asperities"
+            f"placed A_r: 68 % interval over {placements} random placements, the rigid part at rest on "
+            "≥ 3 summits, tilted (1e-17 m²); GW's mean field assumes fractional asperities"
         )
     for w in warnings:
         print(f"warning: {w}")

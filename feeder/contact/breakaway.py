@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from feeder.contact.asperity_sampling import sample_contact
 from feeder.contact.greenwood_williamson import GreenwoodWilliamson
+from feeder.contact.resting_part import rest_part
 from feeder.contact.tau_pair import tau_pair
 from feeder.errors import InputError
 from feeder.paper import GROOVED_AREA_RATIO, GROOVED_FRICTION_RATIO, TAU_MEAN_PA, TAU_SPREAD_PA
@@ -182,9 +182,9 @@ def contact(
     τ and w are a pair (:func:`feeder.contact.tau_pair.tau_pair`): without ``tau_pa``
     the τ fitted with the surface's w is used; a given ``tau_pa`` is fitted with
     ``tau_adhesion_work_j_m2`` (default 0) and refused if that is not the surface's w.
-    ``placements`` > 0 also samples that many random placements summit by summit
-    (:mod:`feeder.contact.asperity_sampling`, ~0.1 s for 2000) for the A_r band
-    (without adhesion only: the sampling balances Hertz loads).
+    ``placements`` > 0 also samples that many random placements of the rigid part,
+    each at rest on ≥ 3 summits with its tilt (:mod:`feeder.contact.resting_part`,
+    ~0.3 s for 2000), for the A_r band (without adhesion only: Hertzian summits).
     """
     pair = tau_pair(surface, tau_pa, tau_band_pa, tau_adhesion_work_j_m2)
     tau_pa, tau_band_pa = pair.tau_pa, pair.tau_band_pa
@@ -204,19 +204,19 @@ def contact(
     sampled_mean: float | None = None
     if placements > 0 and not surface.adhesion_work_j_m2:  # the sampling is Hertz-only
         try:
-            sampled = sample_contact(surface, gw.nominal_area_m2, part.weight_n, placements)
+            sampled = rest_part(surface, part, support, placements=placements)
         except InputError as err:
             raise InputError(
                 "--placements", f"{err.message} (this part, {placements} placements; 0 skips the sampling)"
             ) from None
         except ArithmeticError as err:
-            raise InputError("--part", f"cannot place this part summit by summit: {err}") from None
+            raise InputError("--part", f"cannot find this part's rest on the summits: {err}") from None
         band_m2, sampled_mean = sampled.band_m2(), float(np.mean(sampled.real_area_m2))
         if contacts < MIN_CONTACTS:
             warnings.append(
-                f"placed summit by summit, this part's A_r is {band_m2[0]:.3g}–{band_m2[1]:.3g} m² "
-                f"(68 % of {placements} placements, mean {sampled_mean:.3g}); GW's mean-field value "
-                f"{area:.3g} m² assumes fractional asperities"
+                f"resting tilted on its highest summits (≥ 3, centre of mass inside), this part's A_r is "
+                f"{band_m2[0]:.3g}–{band_m2[1]:.3g} m² (68 % of {placements} placements, mean "
+                f"{sampled_mean:.3g}); GW's mean-field value {area:.3g} m² assumes fractional asperities"
             )
     return ContactResult(
         part=part.label,
