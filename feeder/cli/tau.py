@@ -11,8 +11,8 @@ from typing import Any
 from feeder.cli.arguments import add_part_arguments, part_from, positive_float
 from feeder.cli.friction import add_curve_options, analyse_files
 from feeder.cli.output import print_json
-from feeder.contact.resting_part import DEFAULT_PLACEMENTS
 from feeder.contact.breakaway import contact
+from feeder.contact.resting_part import DEFAULT_PLACEMENTS
 from feeder.contact.tau_pair import ADHESION_WORK_REL_BAND
 from feeder.errors import InputError
 from feeder.friction.shear_strength import shear_strength
@@ -22,9 +22,9 @@ BAND_NOTE = (
     "tau band = tau * sqrt(scatter^2 + (dA/A_r)^2), each source counted once: scatter = s_F/mean F "
     "(sample std, ddof 1) of two or more forces, which already holds the placement-to-placement "
     "scatter of A_r (every measurement is a placement); for one force, the predicted scatter of one "
-    "placement (68 % interval of placements of the rigid part at rest, tilted, w = 0) or the paper's relative "
-    "spread 3.15/22.18 (w > 0). dA/A_r = the model's real-area uncertainty: the half-width of A_r over "
-    "the w band (--adhesion-work-band, default ±8.64 % of w, the band that maps the measured "
+    "placement (68 % interval of placements of the rigid part at rest, tilted, w = 0) or the paper's "
+    "relative spread 3.15/22.18 (w > 0). dA/A_r = the model's real-area uncertainty: the half-width "
+    "of A_r over the w band (--adhesion-work-band, default ±8.64 % of w, the band that maps the measured "
     "grooved/flat ratio 0.70-0.78), or --area-band; 0 with --real-area and no --area-band"
 )
 

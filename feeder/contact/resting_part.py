@@ -88,7 +88,7 @@ def _positions(
     Grooved: lands of ``land_width_m`` every ``groove_period_m`` along x, at a random phase
     per placement (wrapped into the footprint).
     """
-    half_x, half_y = part.length_m / 2, part.width_m / 2
+    half_x = part.length_m / 2
     y = rng.uniform(-1.0, 1.0, (placements, count))
     if support.kind == "flat":
         return rng.uniform(-1.0, 1.0, (placements, count)), y
@@ -186,7 +186,7 @@ def _rest(
     unit_load = np.broadcast_to(np.array([1.0, 0.0, 0.0])[:, None], (rows, 3, 1))
     share = np.linalg.solve(np.swapaxes(corners, 1, 2), unit_load)[:, :, 0]  # barycentric coordinates
     sunk = z[row, touching] - (weight * np.maximum(share, 0.0)) ** (2 / 3)
-    p = np.linalg.solve(corners, sunk[:, :, None])[:, :, 0]  # the plane through the three sunk contacts
+    p = np.asarray(np.linalg.solve(corners, sunk[:, :, None])[:, :, 0], dtype=np.float64)  # the plane
     damping = np.full(rows, 1e-9)
     active = np.arange(rows)
     current = energy(p, active)
@@ -206,7 +206,7 @@ def _rest(
         diagonal = np.diagonal(hessian, axis1=1, axis2=2)
         scale = diagonal + 1e-12 * np.max(diagonal, axis=1, keepdims=True) + 1e-300
         shifted = hessian + (damping[active, None] * scale)[:, :, None] * np.eye(3)
-        step = -np.linalg.solve(shifted, gradient[:, :, None])[:, :, 0]
+        step = np.asarray(-np.linalg.solve(shifted, gradient[:, :, None])[:, :, 0], dtype=np.float64)
         trial = p[active] + step
         trial_energy = energy(trial, active)
         slack = 1e-13 * (np.abs(current[active]) + weight)  # rounding of U near the minimum
