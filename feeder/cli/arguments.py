@@ -26,6 +26,7 @@ from feeder.parts import (
 )
 
 if TYPE_CHECKING:
+    from feeder.materials import Material
     from feeder.surface.parameters import SurfaceParameters
 
 
@@ -177,9 +178,18 @@ def add_part_arguments(
     p.add_argument(
         "--density",
         type=float_in(*DENSITY_RANGE_KG_M3),
-        default=SILICON_DENSITY_KG_M3,
         help=f"part density in kg/m³, {DENSITY_RANGE_KG_M3[0]:g}–{DENSITY_RANGE_KG_M3[1]:g} "
-        f"(default silicon, {SILICON_DENSITY_KG_M3:g})",
+        f"(default the --material's, else silicon, {SILICON_DENSITY_KG_M3:g})",
+    )
+    p.add_argument(
+        "--material",
+        help="the part's material from the library (silicon, silica, glass, sapphire, steel, gold, "
+        "pmma; docs/materials.md): its E, ν, hardness and density (default: the surface file's, silicon)",
+    )
+    p.add_argument(
+        "--support-material",
+        help="the support's material from the library (default: the part's); E* and the softer "
+        "hardness come from the pair",
     )
     p.add_argument(
         "--adhesion-work",
@@ -215,11 +225,43 @@ def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
         )
 
 
+def materials_from(args: argparse.Namespace) -> tuple[Material | None, Material | None]:
+    """The ``--material`` and ``--support-material`` (None where not given)."""
+    from feeder.materials import material
+
+    out: list[Material | None] = []
+    for option in ("material", "support_material"):
+        name = getattr(args, option, None)
+        try:
+            out.append(None if name is None else material(name))
+        except InputError as err:
+            raise InputError("--" + option.replace("_", "-"), err.message) from None
+    return out[0], out[1]
+
+
 def surface_from(args: argparse.Namespace) -> SurfaceParameters:
-    """The ``--surface`` file (or the embedded default), with ``--adhesion-work`` applied."""
+    """The ``--surface`` file (or the embedded default), with the materials and
+    ``--adhesion-work`` applied."""
     from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
 
     surface = load_surface(args.surface) if args.surface else DEFAULT_SURFACE
+    part_material, support_material = materials_from(args)
+    if part_material is not None:
+        surface = replace(
+            surface,
+            youngs_modulus_pa=part_material.youngs_modulus_pa,
+            poisson_ratio=part_material.poisson_ratio,
+            hardness_pa=part_material.hardness_pa,
+            support_youngs_modulus_pa=None,
+            support_poisson_ratio=None,
+        )
+    if support_material is not None:
+        surface = replace(
+            surface,
+            support_youngs_modulus_pa=support_material.youngs_modulus_pa,
+            support_poisson_ratio=support_material.poisson_ratio,
+            hardness_pa=min(surface.hardness_pa, support_material.hardness_pa),
+        )
     if getattr(args, "adhesion_work", None) is None:
         return surface
     try:
@@ -230,7 +272,11 @@ def surface_from(args: argparse.Namespace) -> SurfaceParameters:
 
 def part_from(args: argparse.Namespace) -> tuple[Part, Support, SurfaceParameters]:
     """Part, support and surface from :func:`add_part_arguments`' options."""
-    return Part.parse(args.part, density_kg_m3=args.density), Support.parse(args.support), surface_from(args)
+    density = args.density
+    if density is None:
+        part_material = materials_from(args)[0]
+        density = SILICON_DENSITY_KG_M3 if part_material is None else part_material.density_kg_m3
+    return Part.parse(args.part, density_kg_m3=density), Support.parse(args.support), surface_from(args)
 
 
 def pose(text: str) -> tuple[float, float, float]:

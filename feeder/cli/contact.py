@@ -5,7 +5,14 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from feeder.cli.arguments import add_part_arguments, add_tau_arguments, int_in, part_from, surface_from
+from feeder.cli.arguments import (
+    add_part_arguments,
+    add_tau_arguments,
+    int_in,
+    materials_from,
+    part_from,
+    surface_from,
+)
 from feeder.cli.output import print_json
 from feeder.contact.breakaway import MIN_CONTACTS, ContactResult, contact
 from feeder.contact.resting_part import DEFAULT_PLACEMENTS
@@ -51,11 +58,52 @@ def run(args: argparse.Namespace) -> int:
         args.placements,
         tau_adhesion_work_j_m2=args.tau_adhesion_work,
     )
+    materials, notes = _materials(args, surface)
     if args.json:
-        print_json(result.to_json())
+        out = result.to_json()
+        out.update(materials)
+        out["warnings"] += notes
+        print_json(out)
     else:
         _print_result(result)
+        for key, value in materials.items():
+            print(f"  {key:<18}{value}")
+        for note in notes:
+            print(f"  warning: {note}")
     return 0
+
+
+def _materials(args: argparse.Namespace, surface: SurfaceParameters) -> tuple[dict[str, Any], list[str]]:
+    """The library's view of the pair (``--material``/``--support-material``) and what it implies."""
+    from feeder.materials import adhesion_work, material
+
+    part_material, support_material = materials_from(args)
+    if part_material is None and support_material is None:
+        return {}, []
+    a = part_material or material("silicon")
+    b = support_material or a
+    w, source = adhesion_work(a, b)
+    out = {
+        "part_material": a.name if part_material else None,
+        "support_material": b.name,
+        "effective_modulus_pa": surface.effective_modulus_pa,
+        "hardness_pa": surface.hardness_pa,
+        "material_adhesion_work_j_m2": w,
+        "material_adhesion_work_source": source,
+    }
+    notes = []
+    measured = [m.tau for m, other in ((a, b), (b, a)) if m.tau and m.tau.partner == other.name]
+    if args.tau is None and not measured:
+        notes.append(
+            f"no shear strength is known for {a.name} on {b.name}: τ is the paper's (silicon on "
+            "silicon); give --tau (and --tau-adhesion-work) for this pair"
+        )
+    if not surface.adhesion_work_j_m2:
+        notes.append(
+            f"the library's w for {a.name}/{b.name} is {w:.3g} J/m² ({source}); "
+            f"--adhesion-work {w:.3g} includes Maugis–Dugdale adhesion"
+        )
+    return out, notes
 
 
 def _print_result(r: ContactResult) -> None:

@@ -14,6 +14,8 @@ File format (also written by ``feeder surface --out``)::
     # adhesion_work_j_m2 = 0.1   (optional; Maugis–Dugdale adhesion per summit, default 0)
     # adhesion_range_m = 0.2913e-9   (optional; Dugdale range h0 = w/sigma0, default 0.971 z0)
     # hardness_pa = 12e9   (optional; for the plasticity index, default silicon)
+    # support_youngs_modulus_pa = 345e9, support_poisson_ratio = 0.29
+    #     (optional; the support's own material, default the same as the part's)
 """
 
 from __future__ import annotations
@@ -43,7 +45,9 @@ class SurfaceParameters:
     paper's adhesion-free model), used as Maugis–Dugdale adhesion per summit
     (:mod:`feeder.contact.gw_maugis_dugdale`); adhesion_range_m: its Dugdale range
     h₀ = w/σ₀ (default 0.971·z₀, z₀ = 0.3 nm, Maugis' match to Lennard-Jones);
-    hardness_pa: indentation hardness H of the softer body (plasticity index).
+    hardness_pa: indentation hardness H of the softer body (plasticity index);
+    support_youngs_modulus_pa, support_poisson_ratio: the support's material when it
+    differs from the part's (None = the same).
     """
 
     sigma_m: float
@@ -56,6 +60,8 @@ class SurfaceParameters:
     adhesion_work_j_m2: float = 0.0
     adhesion_range_m: float = DEFAULT_ADHESION_RANGE_M
     hardness_pa: float = SILICON_HARDNESS_PA
+    support_youngs_modulus_pa: float | None = None
+    support_poisson_ratio: float | None = None
 
     def __post_init__(self) -> None:
         positive = ("sigma_m", "summit_radius_m", "summit_density_per_m2", "youngs_modulus_pa", "hardness_pa")
@@ -71,6 +77,14 @@ class SurfaceParameters:
             raise InputError("adhesion_work_j_m2", f"must be ≥ 0, got {self.adhesion_work_j_m2!r}")
         if not (math.isfinite(self.adhesion_range_m) and self.adhesion_range_m > 0):
             raise InputError("adhesion_range_m", f"must be a positive length, got {self.adhesion_range_m!r}")
+        if self.support_youngs_modulus_pa is not None and not (
+            math.isfinite(self.support_youngs_modulus_pa) and self.support_youngs_modulus_pa > 0
+        ):
+            raise InputError("support_youngs_modulus_pa", "must be a positive number")
+        if self.support_poisson_ratio is not None and not (-1.0 < self.support_poisson_ratio < 0.5):
+            raise InputError(
+                "support_poisson_ratio", f"must lie in (-1, 0.5), got {self.support_poisson_ratio!r}"
+            )
         if self.z_max_m is not None and not (
             math.isfinite(self.z_max_m) and self.z_max_m > self.mean_summit_height_m
         ):
@@ -90,8 +104,14 @@ class SurfaceParameters:
 
     @property
     def effective_modulus_pa(self) -> float:
-        """E* for two bodies of the same material: E / (2(1 − ν²))."""
-        return self.youngs_modulus_pa / (2.0 * (1.0 - self.poisson_ratio**2))
+        """E*: 1/E* = (1 − ν₁²)/E₁ + (1 − ν₂²)/E₂; E / (2(1 − ν²)) for one material."""
+        e2 = (
+            self.youngs_modulus_pa
+            if self.support_youngs_modulus_pa is None
+            else self.support_youngs_modulus_pa
+        )
+        nu2 = self.poisson_ratio if self.support_poisson_ratio is None else self.support_poisson_ratio
+        return 1.0 / ((1.0 - self.poisson_ratio**2) / self.youngs_modulus_pa + (1.0 - nu2**2) / e2)
 
     def to_toml(self) -> str:
         lines = [
@@ -115,6 +135,10 @@ class SurfaceParameters:
             lines.append(f"adhesion_range_m = {self.adhesion_range_m!r}")
         if self.hardness_pa != SILICON_HARDNESS_PA:
             lines.append(f"hardness_pa = {self.hardness_pa!r}")
+        if self.support_youngs_modulus_pa is not None:
+            lines.append(f"support_youngs_modulus_pa = {self.support_youngs_modulus_pa!r}")
+        if self.support_poisson_ratio is not None:
+            lines.append(f"support_poisson_ratio = {self.support_poisson_ratio!r}")
         lines.append("")
         return "\n".join(lines)
 
@@ -139,6 +163,8 @@ _MATERIAL_KEYS = (
     "adhesion_work_j_m2",
     "adhesion_range_m",
     "hardness_pa",
+    "support_youngs_modulus_pa",
+    "support_poisson_ratio",
 )
 
 
