@@ -73,6 +73,18 @@ def register(sub: Any) -> None:
         "--out", type=output_path, help="write the surface TOML read by `feeder contact --surface`"
     )
     p.add_argument("--plot", type=output_path, help="PNG of the height map(s) with the summits marked")
+    p.add_argument(
+        "--bem",
+        action="store_true",
+        help="check GW against ContactMechanics' FFT boundary-element solution on the (one) scan at "
+        "the part's nominal pressure and a sweep above it (needs feeder[bem])",
+    )
+    p.add_argument(
+        "--part",
+        default="300x300x50",
+        help="LxWxT in µm of the silicon part whose nominal pressure --bem uses (default 300x300x50)",
+    )
+    p.add_argument("--support", default="flat", help="flat or grooved, for --bem's nominal pressure")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(handler=run)
 
@@ -117,11 +129,44 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         surface.write_toml(args.out)
         report["surface_toml"] = str(args.out)
+    if args.bem:
+        if len(maps) != 1:
+            raise InputError("--bem", "takes one scan (the rough surface on a smooth plane)")
+        report.update(_bem(maps[0], surface, args))
+        report["warnings"] += report["bem_reading"]
     if args.json:
         print_json(report)
     else:
         _print_report(report)
     return 0
+
+
+def _bem(height_map: HeightMap, surface: SurfaceParameters, args: argparse.Namespace) -> dict[str, Any]:
+    """BEM vs GW at the part's nominal pressure and the sweep above it (feeder.contact.bem)."""
+    from feeder.contact.bem import compare_with_gw, reading
+    from feeder.parts import Part, Support
+
+    part, support = Part.parse(args.part), Support.parse(args.support)
+    pressure = part.weight_n / support.nominal_area_m2(part)
+    try:
+        points = compare_with_gw(
+            remove_plane(height_map.heights_m), height_map.pixel_size_m, surface, pressure
+        )
+    except ArithmeticError as err:
+        raise InputError("--bem", str(err)) from None
+    nominal = points[0]
+    return {
+        "bem_part": part.label,
+        "bem_support": support.kind,
+        "bem_nominal_pressure_pa": pressure,
+        "bem_real_area_fraction": nominal.bem_real_area_fraction,
+        "gw_real_area_fraction": nominal.gw_real_area_fraction,
+        "bem_gw_ratio": nominal.ratio,
+        "bem_contact_pixels": nominal.contact_pixels,
+        "bem_resolved": nominal.resolved,
+        "bem_sweep": [p.to_json() for p in points],
+        "bem_reading": reading(points),
+    }
 
 
 def _resolution_warnings(stats: list[SurfaceStatistics], cutoff: float | None) -> list[str]:
@@ -194,6 +239,15 @@ def _print_report(report: dict[str, Any]) -> None:
         f"{label}: σ {s['sigma_m'] * 1e9:.4g} nm, R {s['summit_radius_m'] * 1e9:.4g} nm, "
         f"η {s['summit_density_per_m2'] * 1e-12:.4g} µm⁻², μ {s['mean_summit_height_m'] * 1e9:.4g} nm"
     )
+    if "bem_sweep" in report:
+        print(f"BEM vs GW, part {report['bem_part']} on {report['bem_support']} support:")
+        print(f"  {'pressure Pa':>12}{'BEM A_r/A':>12}{'GW A_r/A':>12}{'BEM/GW':>9}{'pixels':>8}{'GW n':>10}")
+        for p in report["bem_sweep"]:
+            print(
+                f"  {p['pressure_pa']:>12.4g}{p['bem_real_area_fraction']:>12.3g}"
+                f"{p['gw_real_area_fraction']:>12.3g}{p['bem_gw_ratio']:>9.3g}{p['bem_contact_pixels']:>8d}"
+                f"{p['gw_contacts_on_scan']:>10.3g}"
+            )
     for key in ("surface_toml", "plot"):
         if key in report:
             print(f"wrote {report[key]}")
