@@ -149,7 +149,7 @@ def _bem(height_map: HeightMap, surface: SurfaceParameters, args: argparse.Names
     part, support = Part.parse(args.part), Support.parse(args.support)
     pressure = part.weight_n / support.nominal_area_m2(part)
     try:
-        points = compare_with_gw(
+        points, notes = compare_with_gw(
             remove_plane(height_map.heights_m), height_map.pixel_size_m, surface, pressure
         )
     except ArithmeticError as err:
@@ -165,7 +165,7 @@ def _bem(height_map: HeightMap, surface: SurfaceParameters, args: argparse.Names
         "bem_contact_pixels": nominal.contact_pixels,
         "bem_resolved": nominal.resolved,
         "bem_sweep": [p.to_json() for p in points],
-        "bem_reading": reading(points),
+        "bem_reading": reading(points) + notes,
     }
 
 

@@ -35,8 +35,9 @@ RESOLVED_PIXELS = 30
 """Fewer contact pixels than this: the BEM area is pixel-limited (patches not resolved)."""
 PRESSURE_SWEEP = (1.0, 1e6, 1e7, 1e8)
 """Multiples of the nominal pressure at which the comparison is made."""
-_PENETRATION_FRACTION = 1e-5
+_PENETRATION_FRACTION = 1e-4
 """Penetration tolerance of the solver as a fraction of Sq (a fixed length fails on smooth maps)."""
+_MAX_ITERATIONS = 3000
 
 
 @dataclass(frozen=True)
@@ -90,7 +91,7 @@ def bem_contact_fraction(
     system = make_system(substrate="periodic", surface=topography, young=effective_modulus_pa)
     force = pressure_pa * sizes[0] * sizes[1]
     pentol = _PENETRATION_FRACTION * float(np.std(heights_m))
-    result = system.minimize_proxy(external_force=force, pentol=pentol, logger=quiet)
+    result = system.minimize_proxy(external_force=force, pentol=pentol, maxiter=_MAX_ITERATIONS, logger=quiet)
     if not result.success:
         raise ArithmeticError(f"BEM solver did not converge at {pressure_pa:g} Pa: {result.message}")
     pixels = int(np.count_nonzero(system.contact_zone))
@@ -103,12 +104,15 @@ def compare_with_gw(
     surface: SurfaceParameters,
     nominal_pressure_pa: float,
     multiples: tuple[float, ...] = PRESSURE_SWEEP,
-) -> list[BemPoint]:
-    """BEM vs GW (``surface``: the scan's own statistics) at ``nominal_pressure_pa`` × each multiple."""
+) -> tuple[list[BemPoint], list[str]]:
+    """BEM vs GW (``surface``: the scan's own statistics) at ``nominal_pressure_pa`` × each multiple,
+    and notes on where the sweep stopped (a pressure beyond GW's range, or one the solver does not
+    converge at: only the nominal pressure must succeed)."""
     n0, n1 = heights_m.shape
     area = n0 * pixel_size_m[0] * n1 * pixel_size_m[1]
     gw = GreenwoodWilliamson(surface, area)
-    points = []
+    points: list[BemPoint] = []
+    notes: list[str] = []
     for multiple in multiples:
         pressure = nominal_pressure_pa * multiple
         load = pressure * area
@@ -128,7 +132,9 @@ def compare_with_gw(
                 gw_contacts=float(gw.contacts(d)),
             )
         )
-    return points
+    for note in notes:
+        log.info(note)
+    return points, notes
 
 
 def reading(points: list[BemPoint]) -> list[str]:
