@@ -123,12 +123,32 @@ class PlateConfig:
 
     axes: tuple[str, ...] = ("x",)
     axis_map: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_AXIS_MAP))
-    lever_arm_m: float = 2e-3
+    lever_arm_m: float = 1e-3
     parts: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),)
 
     @property
     def planar(self) -> bool:
         return len(self.axes) > 1
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The microscope camera the daemon locates parts with (a plate driven in the plane).
+
+    address: what :func:`feeder.drivers.video_camera.open_camera` opens (an MJPEG
+    URL, a device index, ``genicam:PRODUCER#SERIAL``); None with the simulator (its
+    camera); pixel_size_m, width_px, height_px: the image's scale and size, used
+    (plate origin at the image centre, axes along the image's) until ``feeder vision
+    calibrate --save-state`` stores a measured calibration; fps: the simulated
+    camera's frame rate.
+    """
+
+    address: str | None = None
+    timeout_s: float = 1.0
+    pixel_size_m: float = 2.5e-6
+    width_px: int = 2048
+    height_px: int = 2048
+    fps: float = 30.0
 
 
 @dataclass(frozen=True)
@@ -145,8 +165,7 @@ class DaemonConfig:
         default_factory=lambda: LoopSettings(min_position_m=-5e-3, max_position_m=5e-3)
     )
     plate: PlateConfig = field(default_factory=PlateConfig)
-    camera_address: str | None = None
-    camera_timeout_s: float = 1.0
+    camera: CameraConfig = field(default_factory=CameraConfig)
     state_dir: Path = field(default_factory=default_state_dir)
     socket_path: Path = field(default_factory=default_socket_path)
 
@@ -181,7 +200,7 @@ SECTIONS: dict[str, frozenset[str]] = {
     "control": frozenset(f.name for f in dataclasses.fields(LoopSettings)),
     "state": frozenset({"dir", "socket"}),
     "plate": frozenset({"axes", "axis_map", "lever_arm_m", "parts"}),
-    "camera": frozenset({"address", "timeout_s"}),
+    "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps"}),
 }
 """The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
 ``[amplifier.can]``: python-can keyword arguments plus ``node_id`` and ``heartbeat_s``)."""
@@ -212,6 +231,10 @@ RANGES: dict[str, tuple[float, float]] = {
     "max_y_m": (-1.0, 1.0),
     "tolerance_rad": (1e-6, 0.5),
     "lever_arm_m": (1e-4, 1.0),
+    "pixel_size_m": (1e-9, 1e-3),
+    "width_px": (16, 8192),
+    "height_px": (16, 8192),
+    "fps": (0.1, 1000.0),
 }
 """Accepted ranges of numeric keys (a value outside is refused, not clipped)."""
 
@@ -295,7 +318,9 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
     return PlateConfig(
         axes=tuple(axes),
         axis_map=mapped,
-        lever_arm_m=_number(table, "lever_arm_m", where, 2e-3, positive=True, section="plate."),
+        lever_arm_m=_number(
+            table, "lever_arm_m", where, PlateConfig.lever_arm_m, positive=True, section="plate."
+        ),
         parts=parts,
     )
 
@@ -394,8 +419,18 @@ def load_config(path: Path | None) -> DaemonConfig:
     if not loop.min_y_m < loop.max_y_m:
         raise InputError(where, "control.min_y_m must be below control.max_y_m")
     plate = _plate(_table(doc, "plate", where), where)
-    camera = _table(doc, "camera", where)
-    camera_address = _string(camera, "address", where, None)
+    camera_t = _table(doc, "camera", where)
+    cam = CameraConfig()
+    camera = CameraConfig(
+        address=_string(camera_t, "address", where, None),
+        timeout_s=_number(camera_t, "timeout_s", where, cam.timeout_s, positive=True, section="camera."),
+        pixel_size_m=_number(
+            camera_t, "pixel_size_m", where, cam.pixel_size_m, positive=True, section="camera."
+        ),
+        width_px=_integer(camera_t, "width_px", where, cam.width_px, "camera."),
+        height_px=_integer(camera_t, "height_px", where, cam.height_px, "camera."),
+        fps=_number(camera_t, "fps", where, cam.fps, positive=True, section="camera."),
+    )
 
     state = _table(doc, "state", where)
     base = DaemonConfig()
@@ -410,8 +445,7 @@ def load_config(path: Path | None) -> DaemonConfig:
         tau_pa=tau_pa,
         loop=loop,
         plate=plate,
-        camera_address=camera_address,
-        camera_timeout_s=_number(camera, "timeout_s", where, 1.0, positive=True, section="camera."),
+        camera=camera,
         state_dir=_path(_string(state, "dir", where, None)) or base.state_dir,
         socket_path=_path(_string(state, "socket", where, None)) or base.socket_path,
     )

@@ -211,8 +211,8 @@ class Daemon:
             self.interrupted_moves = self.store.interrupt_running_moves()
             amplifiers = _per_axis(links.open_amplifier())
             self._amplifier_generation = getattr(links, "respawns", 0)
+            undo.callback(_close, amplifiers)
             for amplifier in amplifiers.values():
-                undo.callback(amplifier.close)
                 amplifier.ground()
             sensor = links.open_sensor()
             navigator = None
@@ -267,8 +267,8 @@ class Daemon:
         for amplifier in self.loop.amplifiers.values():
             with contextlib.suppress(FeederError, OSError):  # a dead link must not stop the shutdown
                 amplifier.ground()
-            with contextlib.suppress(FeederError, OSError):
-                amplifier.close()
+        with contextlib.suppress(FeederError, OSError):
+            _close(self.loop.amplifiers)
         if self._server is not None:
             self._server.close()
             with contextlib.suppress(FileNotFoundError):
@@ -405,13 +405,12 @@ class Daemon:
         if kind == "amplifier":
             # ground where the link still allows it (never through a stale simulator pty:
             # another program may own that path now), then free the port for the reconnect
-            grounded = getattr(self.links, "respawns", 0) == self._amplifier_generation
-            for amplifier in self.loop.amplifiers.values():
-                if grounded:
+            if getattr(self.links, "respawns", 0) == self._amplifier_generation:
+                for amplifier in self.loop.amplifiers.values():
                     with contextlib.suppress(FeederError, OSError):
                         amplifier.ground()
-                with contextlib.suppress(FeederError, OSError):
-                    amplifier.close()
+            with contextlib.suppress(FeederError, OSError):
+                _close(self.loop.amplifiers)
         thread = threading.Thread(
             target=self._reconnect, args=(kind, record), name=f"reconnect-{kind}", daemon=True
         )
@@ -427,8 +426,8 @@ class Daemon:
                 if kind == "amplifier":
                     amps = _per_axis(self.links.open_amplifier())
                     with contextlib.ExitStack() as undo:  # a link that cannot ground is closed
+                        undo.callback(_close, amps)
                         for amp in amps.values():
-                            undo.callback(amp.close)
                             amp.ground()
                         undo.pop_all()
                     self.loop.replace_amplifier(amps)
@@ -766,7 +765,17 @@ class Daemon:
 
 
 def _per_axis(amplifiers: Amplifier | dict[str, Amplifier]) -> dict[str, Amplifier]:
-    return {"x": amplifiers} if isinstance(amplifiers, Amplifier) else dict(amplifiers)
+    return {"x": amplifiers} if isinstance(amplifiers, Amplifier) else amplifiers
+
+
+def _close(amplifiers: dict[str, Amplifier]) -> None:
+    """Release the drivers, outputs untouched (a group of axes on one link releases it once)."""
+    release = getattr(amplifiers, "release", None)
+    if callable(release):
+        release()
+        return
+    for amplifier in amplifiers.values():
+        amplifier.close()
 
 
 def _brief(value: Any) -> str:

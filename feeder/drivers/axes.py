@@ -90,9 +90,16 @@ class Axes(dict[str, Amplifier]):
         """Ground every axis (best effort: a lost link cannot), release drivers and link."""
         if self._closed:
             return
-        self._closed = True
         with contextlib.suppress(AmplifierError):
             self.ground()
+        self.release()
+
+    def release(self) -> None:
+        """Release the drivers and the shared link without touching the outputs (a link
+        that may lead to another device now, e.g. a restarted simulator's old pty)."""
+        if self._closed:
+            return
+        self._closed = True
         for amp in self.values():
             amp.close()
         if self._close_link is not None:
