@@ -8,7 +8,7 @@ share one vocabulary:
 
 | route | request |
 |---|---|
-| ``GET /api/status`` | ``{"cmd": "status"}`` |
+| ``GET /api/status`` | ``{"cmd": "status"}`` (shared by the requests within 40 ms) |
 | ``GET /api/history?limit=N`` | ``{"cmd": "history", "limit": N}`` |
 | ``POST /api/move`` | ``{"cmd": "move", ...body}`` (``target_m``/``by_m``, ``x_m``/``y_m``/``angle_rad``/``part``) |
 | ``POST /api/jog`` | ``{"axis", "steps"}``: a relative move by ``steps`` learned steps of one axis |
@@ -64,6 +64,8 @@ log = logging.getLogger(__name__)
 TOKEN_FILE = "http-token"
 LIVE_PERIOD_S = 0.05
 """Status pushes to each live client: 20 per second."""
+STATUS_MAX_AGE_S = 0.04
+"""A status snapshot is shared by the requests within this time of it."""
 CAMERA_PERIOD_S = 1 / 15
 """Camera frames encoded for the live view: at most 15 per second."""
 CAMERA_MAX_SIDE_PX = 1024
@@ -349,25 +351,35 @@ def _image(latest: Any) -> Any:
 
 
 class LiveFeed:
-    """The newest status snapshot, shared by every live client: at most one ``status``
-    request per :data:`LIVE_PERIOD_S` however many pages are open."""
+    """The newest status, shared by every live client and ``/api/status``: at most one
+    ``status`` request reaches the daemon per :data:`STATUS_MAX_AGE_S` however many pages
+    and scripts ask (a burst of requests costs the daemon one)."""
 
     def __init__(self, daemon: Handler) -> None:
         self.daemon = daemon
         self._lock = asyncio.Lock()
+        self._status: dict[str, Any] = {}
         self._message = ""
         self._taken_s = -math.inf
 
-    async def message(self) -> str:
+    async def _refresh(self) -> None:
         async with self._lock:
-            if time.monotonic() - self._taken_s >= LIVE_PERIOD_S * 0.8:
-                self._taken_s = time.monotonic()
+            if time.monotonic() - self._taken_s >= STATUS_MAX_AGE_S:
                 wall = time.time()
-                status = await run_in_threadpool(self.daemon.handle, {"cmd": "status"})
+                self._status = await run_in_threadpool(self.daemon.handle, {"cmd": "status"})
+                self._taken_s = time.monotonic()
                 self._message = json.dumps(
-                    {"type": "status", "time_s": wall, "status": status}, allow_nan=False, default=str
+                    {"type": "status", "time_s": wall, "status": self._status}, allow_nan=False, default=str
                 )
-            return self._message
+
+    async def status(self) -> dict[str, Any]:
+        await self._refresh()
+        return self._status
+
+    async def message(self) -> str:
+        """The status as the live socket's text message (``time_s``: wall clock before it was taken)."""
+        await self._refresh()
+        return self._message
 
 
 # -- application -----------------------------------------------------------------------
@@ -421,7 +433,7 @@ def console_app(
         )
 
     async def status(request: Request) -> Response:
-        return reply(await ask({"cmd": "status"}))
+        return reply(await live.status())
 
     async def history(request: Request) -> Response:
         text = request.query_params.get("limit", "100")
@@ -448,7 +460,7 @@ def console_app(
         if not isinstance(body.get("axis"), str) or "steps" not in body:
             raise ApiError(400, "give axis ('x', 'y' or 'theta') and steps (signed integer)")
         rate_limited()
-        current = await ask({"cmd": "status"})
+        current = await live.status()
         request_ = jog_request(current, body["axis"], body["steps"], body.get("part", 1))
         answer = await ask(request_)
         return reply({**answer, "jog": {k: v for k, v in request_.items() if k != "cmd"}})
