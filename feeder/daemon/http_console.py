@@ -68,7 +68,7 @@ STATUS_MAX_AGE_S = 0.04
 """A status snapshot is shared by the requests within this time of it."""
 CAMERA_PERIOD_S = 1 / 15
 """Camera frames encoded for the live view: at most 15 per second."""
-CAMERA_MAX_SIDE_PX = 1024
+CAMERA_MAX_SIDE_PX = 640
 JPEG_QUALITY = 80
 WS_AUTH_TIMEOUT_S = 5.0
 MAX_JOG_STEPS = 10_000
@@ -299,7 +299,9 @@ class CameraFeed:
 
     def _run(self) -> None:
         cv2 = self._cv2
-        while not self._closed.wait(CAMERA_PERIOD_S):
+        began = -math.inf
+        while not self._closed.wait(max(0.0, began + CAMERA_PERIOD_S - time.monotonic())):
+            began = time.monotonic()
             try:
                 image = self.source()
             except (OSError, RuntimeError) as err:  # CameraLost (a SensorLost), a closed link
@@ -489,8 +491,10 @@ def console_app(
 
         reader = asyncio.create_task(drain())
         sent_frame = 0
+        deadline = time.monotonic()
         try:
             while not closed.is_set() and ws.application_state == WebSocketState.CONNECTED:
+                deadline = max(deadline + LIVE_PERIOD_S, time.monotonic())  # a fixed rate, never a burst
                 await ws.send_text(await live.message())
                 if camera is not None and camera.jpeg is not None and camera.sequence != sent_frame:
                     sent_frame = camera.sequence
@@ -498,7 +502,7 @@ def console_app(
                     await ws.send_text(json.dumps({"type": "frame", "width_px": width, "height_px": height}))
                     await ws.send_bytes(camera.jpeg)
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(closed.wait(), LIVE_PERIOD_S)
+                    await asyncio.wait_for(closed.wait(), max(0.0, deadline - time.monotonic()))
         except (WebSocketDisconnect, RuntimeError, OSError):
             pass
         finally:

@@ -69,7 +69,8 @@ function connect() {
   ws.onmessage = async (event) => {
     if (typeof event.data !== "string") {
       const bitmap = await createImageBitmap(event.data);
-      camera = { bitmap, ...(camera && camera.pending) };
+      if (camera && camera.bitmap) camera.bitmap.close();
+      camera = { bitmap, fresh: true, ...(camera && camera.pending) };
       window.consoleStats.frames += 1;
       schedule();
       return;
@@ -209,7 +210,10 @@ function drawCamera(ctx, f) {
   const b = camera.bitmap;
   if (!cal || !cal.pixel_size_m) {
     side.hidden = false;
-    side.height = side.width * b.height / b.width;
+    if (!camera.fresh) return;
+    camera.fresh = false;
+    const height = Math.round(side.width * b.height / b.width);
+    if (side.height !== height) side.height = height;
     side.getContext("2d").drawImage(b, 0, 0, side.width, side.height);
     note.textContent = "camera (not registered to the plate: no camera calibration; run feeder vision calibrate)";
     return;
