@@ -32,7 +32,9 @@ CHROMIUM_ARGS = [
 ]
 pytestmark = [
     pytest.mark.timeout(120),
-    pytest.mark.skipif(CHROMIUM is None, reason="no Chromium (apt-get install chromium) for the browser tests"),
+    pytest.mark.skipif(
+        CHROMIUM is None, reason="no Chromium (apt-get install chromium) for the browser tests"
+    ),
 ]
 
 
@@ -91,15 +93,19 @@ def test_the_page_shows_the_part_and_a_click_moves_it(page: Any, daemon: DaemonP
     assert shown_x_m(page) == pytest.approx(x0, abs=2e-6)
     # the part is drawn where it is: the canvas pixel at its centre has the part's colour
     r, g, b = page.evaluate(
-        "() => { const c = document.getElementById('view'); const [x, y] = frame(c).toPx(parts()[0].pose[0], 0);"
-        " return Array.from(c.getContext('2d').getImageData(Math.round(x), Math.round(y), 1, 1).data.slice(0, 3)); }"
+        "() => { const c = document.getElementById('view');"
+        " const [x, y] = frame(c).toPx(parts()[0].pose[0], 0);"
+        " const pixel = c.getContext('2d').getImageData(Math.round(x), Math.round(y), 1, 1);"
+        " return Array.from(pixel.data.slice(0, 3)); }"
     )
     assert b > r + 40, (r, g, b)
     # click 600 µm to the right of the part, then Move
     box = page.locator("#view").bounding_box()
     px_per_m = page.evaluate("frame(document.getElementById('view')).scale") * box["width"] / 640
     cx, cy = page.evaluate("frame(document.getElementById('view')).toPx(parts()[0].pose[0], 0)")
-    page.mouse.click(box["x"] + (cx * box["width"] / 640) + 600e-6 * px_per_m, box["y"] + cy * box["height"] / 640)
+    page.mouse.click(
+        box["x"] + (cx * box["width"] / 640) + 600e-6 * px_per_m, box["y"] + cy * box["height"] / 640
+    )
     target_m = float(page.input_value("#target-x")) * 1e-6
     assert target_m - x0 == pytest.approx(600e-6, abs=30e-6)
     page.click("#move")
@@ -150,7 +156,9 @@ def test_live_view_rate_and_pose_overlay_lag(page: Any, daemon: DaemonProcess) -
     x0 = daemon.request("status")["position_m"]
     daemon.request("move", target_m=-3.0e-3 if x0 > 0 else 3.0e-3, wait=False)
     page.wait_for_function("document.getElementById('state').className === 'moving'", timeout=10_000)
-    before = page.evaluate("({...window.consoleStats, lagsMs: window.consoleStats.lagsMs.length, t: performance.now()})")
+    before = page.evaluate(
+        "({...window.consoleStats, lagsMs: window.consoleStats.lagsMs.length, t: performance.now()})"
+    )
     time.sleep(2.0)
     after = page.evaluate("({...window.consoleStats, t: performance.now()})")
     daemon.request("stop")
@@ -163,7 +171,11 @@ def test_live_view_rate_and_pose_overlay_lag(page: Any, daemon: DaemonProcess) -
         f"\nlive view: {view_fps:.1f} redraws/s with a new pose, camera {camera_fps:.1f} frames/s; "
         f"pose overlay lag p50 {lag_p50:.0f} ms, p95 {lag_p95:.0f} ms, max {max(lags):.0f} ms"
     )
-    print(json.dumps({"view_fps": view_fps, "camera_fps": camera_fps, "lag_p50_ms": lag_p50, "lag_p95_ms": lag_p95}))
+    print(
+        json.dumps(
+            {"view_fps": view_fps, "camera_fps": camera_fps, "lag_p50_ms": lag_p50, "lag_p95_ms": lag_p95}
+        )
+    )
     assert view_fps >= 10
     assert camera_fps >= 10
     assert lag_p50 <= 100

@@ -18,12 +18,12 @@ import pytest
 pytest.importorskip("starlette")
 pytest.importorskip("uvicorn")
 
-from test_daemon_service import short_dir, start, wait_for  # noqa: E402, F401  (short_dir: fixture)
+from test_daemon_service import short_dir, start, wait_for  # noqa: F401  (short_dir: fixture)
 
-from feeder.daemon.config import HttpConfig, load_config  # noqa: E402
-from feeder.daemon.http_console import ConsoleServer, RateLimit, start_console  # noqa: E402
-from feeder.daemon.service import Daemon  # noqa: E402
-from feeder.errors import InputError  # noqa: E402
+from feeder.daemon.config import HttpConfig, load_config
+from feeder.daemon.http_console import ConsoleServer, RateLimit, start_console
+from feeder.daemon.service import Daemon
+from feeder.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.timeout(60)
@@ -301,11 +301,15 @@ def test_a_non_loopback_address_needs_allow_remote(tmp_path: Path) -> None:
     assert HttpConfig(allow_remote=True).listening_on("0.0.0.0:8470", "--http").host == "0.0.0.0"
     config = tmp_path / "c.toml"
     config.write_text('[http]\nlisten = "192.168.1.5:8470"\n')
-    with pytest.raises(InputError, match="http.listen: 192.168.1.5 is not a loopback"):
+    with pytest.raises(InputError, match=r"http\.listen: 192\.168\.1\.5 is not a loopback"):
         load_config(config)
     config.write_text('[http]\nlisten = "192.168.1.5:8470"\nallow_remote = true\norigins = ["https://lab"]\n')
     http = load_config(config).http
-    assert http is not None and (http.host, http.port, http.origins) == ("192.168.1.5", 8470, ("https://lab",))
+    assert http is not None and (http.host, http.port, http.origins) == (
+        "192.168.1.5",
+        8470,
+        ("https://lab",),
+    )
     assert load_config(None).http is None  # off by default
     cli = subprocess.run(
         [sys.executable, "-m", "feeder", "daemon", "--http", "0.0.0.0:8470", "--state-dir", str(tmp_path)],

@@ -92,7 +92,9 @@ def run(args: argparse.Namespace) -> int:
     if args.sim_arg:
         config = dataclasses.replace(config, simulator_args=(*config.simulator_args, *args.sim_arg))
     if args.http:
-        config = dataclasses.replace(config, http=(config.http or HttpConfig()).listening_on(args.http, "--http"))
+        config = dataclasses.replace(
+            config, http=(config.http or HttpConfig()).listening_on(args.http, "--http")
+        )
     setup_logging(args.log_level, config.state_dir / "daemon.log")
     if args.reset_state:
         moved = move_aside(config.database_path)
@@ -153,8 +155,13 @@ def start_console(config: DaemonConfig, running: RunningDaemon) -> ConsoleServer
     try:
         from feeder.daemon import http_console
     except ImportError as err:
-        raise InputError("--http", f"the console needs Starlette and uvicorn ({err}): pip install feeder[http]") from None
+        raise InputError(
+            "--http", f"the console needs Starlette and uvicorn ({err}): pip install feeder[http]"
+        ) from None
     camera_http = running.links.describe().get("simulator_endpoints", {}).get("camera_http")
     return http_console.start_console(
-        running.daemon, config.http, config.state_dir, None if camera_http is None else camera_http + "/video.mjpg"
+        running.daemon,
+        config.http,
+        config.state_dir,
+        None if camera_http is None else camera_http + "/video.mjpg",
     )

@@ -10,7 +10,7 @@ share one vocabulary:
 |---|---|
 | ``GET /api/status`` | ``{"cmd": "status"}`` (shared by the requests within 40 ms) |
 | ``GET /api/history?limit=N`` | ``{"cmd": "history", "limit": N}`` |
-| ``POST /api/move`` | ``{"cmd": "move", ...body}`` (``target_m``/``by_m``, ``x_m``/``y_m``/``angle_rad``/``part``) |
+| ``POST /api/move`` | ``{"cmd": "move", ...body}`` (``target_m``, ``by_m``, ``x_m``, ``y_m``, ``angle_rad``, ``part``) |
 | ``POST /api/jog`` | ``{"axis", "steps"}``: a relative move by ``steps`` learned steps of one axis |
 | ``POST /api/stop`` | ``{"cmd": "stop"}`` |
 | ``POST /api/calibrate`` | ``{"cmd": "calibrate", ...body}`` |
@@ -343,7 +343,9 @@ def camera_feed(spec: str | None, daemon: Any) -> CameraFeed | None:
         if callable(latest):
             return CameraFeed(lambda: _image(latest()))
     except ImportError as err:
-        raise InputError("http.camera", f"the live camera needs OpenCV ({err}): pip install feeder[vision]") from None
+        raise InputError(
+            "http.camera", f"the live camera needs OpenCV ({err}): pip install feeder[vision]"
+        ) from None
     return None
 
 
@@ -409,7 +411,9 @@ def console_app(
                 429, f"too many moves: at most {settings.moves_per_s:g}/s; retry in {wait_s:.2f} s"
             )
 
-    def endpoint(handler: Callable[[Request], Awaitable[Response]]) -> Callable[[Request], Awaitable[Response]]:
+    def endpoint(
+        handler: Callable[[Request], Awaitable[Response]],
+    ) -> Callable[[Request], Awaitable[Response]]:
         async def guarded(request: Request) -> Response:
             try:
                 return await handler(request)

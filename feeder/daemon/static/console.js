@@ -22,7 +22,7 @@ window.consoleStats = { draws: 0, frames: 0, lagsMs: [] };
 let status = null;          // the newest status
 let statusTime = 0;         // its snapshot's wall time (s)
 let drawn = -1;             // statusTime of the last drawn status
-let camera = null;          // {bitmap, widthPx, heightPx}
+let camera = null;          // {bitmap, width_px, height_px}: the newest frame, the camera's image size
 let target = null;          // {x, y, angle} (m, m, rad) or null
 let drag = null;
 let trajectory = [];        // [t_s, x_m, y_m, psi_rad] of the current or last move
@@ -70,14 +70,14 @@ function connect() {
     if (typeof event.data !== "string") {
       const bitmap = await createImageBitmap(event.data);
       if (camera && camera.bitmap) camera.bitmap.close();
-      camera = { bitmap, fresh: true, ...(camera && camera.pending) };
+      camera = { ...camera, bitmap, fresh: true };
       window.consoleStats.frames += 1;
       schedule();
       return;
     }
     const message = JSON.parse(event.data);
     if (message.type === "error") refused(message.error);
-    else if (message.type === "frame") camera = { ...camera, pending: message };
+    else if (message.type === "frame") camera = { ...camera, width_px: message.width_px, height_px: message.height_px };
     else if (message.type === "status") {
       status = message.status;
       statusTime = message.time_s;
