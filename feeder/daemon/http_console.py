@@ -10,7 +10,8 @@ share one vocabulary:
 |---|---|
 | ``GET /api/status`` | ``{"cmd": "status"}`` (shared by the requests within 40 ms) |
 | ``GET /api/history?limit=N`` | ``{"cmd": "history", "limit": N}`` |
-| ``POST /api/move`` | ``{"cmd": "move", ...body}`` (``target_m``, ``by_m``, ``x_m``, ``y_m``, ``angle_rad``, ``part``) |
+| ``POST /api/move`` | ``{"cmd": "move", ...body}`` (``target_m``, ``by_m``, or ``x_m``, ``y_m``,
+  ``angle_rad``, ``part``) |
 | ``POST /api/jog`` | ``{"axis", "steps"}``: a relative move by ``steps`` learned steps of one axis |
 | ``POST /api/stop`` | ``{"cmd": "stop"}`` |
 | ``POST /api/calibrate`` | ``{"cmd": "calibrate", ...body}`` |
@@ -249,14 +250,14 @@ def checked(cmd: str, body: dict[str, Any]) -> dict[str, Any]:
 def jog_request(status: dict[str, Any], axis: str, steps: int, part: int) -> dict[str, Any]:
     """The move request for ``steps`` learned steps (sign = direction) of ``axis``.
 
-    With poses (``parts`` in the status): the part's pose plus ``steps`` × the axis' learned
-    step (``axes[axis]["step_m"]``, ``["step_rad"]`` for theta); without: ``by_m`` along the
-    one axis, with the coarse step learned in that direction.
+    On a plane (more than one axis in the status' ``axes``): the part's pose plus ``steps`` ×
+    the axis' learned step (``axes[axis]["step_m"]``, ``["step_rad"]`` for theta); on one axis:
+    ``by_m``, with the coarse step learned in that direction.
     """
     if not 0 < abs(steps) <= MAX_JOG_STEPS:
         raise ApiError(400, f"steps must be a non-zero integer within ±{MAX_JOG_STEPS}, got {steps}")
-    parts = status.get("parts")
-    if not parts:
+    parts = [p for p in status.get("parts") or () if p.get("pose") is not None]
+    if len(status.get("axes") or ()) <= 1:  # one axis: today's feeder
         if axis != "x":
             raise ApiError(409, f"this daemon drives one axis (x); there is no {axis!r} to jog")
         name = "coarse/forward" if steps > 0 else "coarse/backward"

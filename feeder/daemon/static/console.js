@@ -118,13 +118,15 @@ function partSize(label) {  // "300x300x50" (µm) → [L, W] (m)
 
 function parts() {
   if (!status) return [];
-  if (status.parts) return status.parts;
+  if (hasPoses()) return (status.parts || []).filter((p) => p.pose);
   const x = status.position_m ?? status.last_known_position_m;
   if (x === null || x === undefined) return [];
-  return [{ id: 1, pose: [x, 0, 0], shape: "rectangle", size_m: partSize(status.part) }];
+  const info = (status.parts && status.parts[0]) || {};
+  return [{ shape: "rectangle", size_m: partSize(status.part), ...info, id: 1, pose: [x, 0, 0] }];
 }
 
-const hasPoses = () => Boolean(status && status.parts);
+// a plane (more than one axis): poses, pose moves; else one axis: position_m, target_m
+const hasPoses = () => Boolean(status && status.axes && Object.keys(status.axes).length > 1);
 
 function travel() {
   if (status && status.travel_m) return { x: status.travel_m.x, y: status.travel_m.y };
