@@ -672,18 +672,27 @@ class Daemon:
         for i, info in enumerate(self.setup.parts or ({"id": 1},), start=1):
             pose = reading[i - 1] if i <= len(reading) else None
             parts.append({**info, "id": i, "pose": None if pose is None else list(pose)})
+        steps_of = getattr(loop.policy.navigator, "axis_steps", None)
+        learned = steps_of(reading[0] if reading else None) if callable(steps_of) else {}
         return {
             "parts": parts,
             "axes": {
                 axis: {
                     "modes": {k: dataclasses.asdict(m.settings) for k, m in modes.items()},
-                    "applied": loop.policy._applied.get(axis),
+                    "applied": loop.policy.applied(axis),
+                    **learned.get(axis, {}),
                 }
                 for axis, modes in loop.policy.modes.items()
             },
             "tolerance_rad": s.tolerance_rad,
             "travel_m": {"x": [s.min_position_m, s.max_position_m], "y": [s.min_y_m, s.max_y_m]},
         }
+
+    def latest_image(self) -> Any:
+        """The newest camera frame the sensor located parts in (an image array), or None."""
+        latest = getattr(self.loop.sensor, "latest_image", None)
+        frame = latest() if callable(latest) else None
+        return None if frame is None else frame.image
 
     def _live_links(self) -> dict[str, Any]:
         """What may change while running (a respawned simulator's pid and endpoints)."""
