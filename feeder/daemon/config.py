@@ -196,7 +196,7 @@ class CameraConfig:
     """
 
     address: str | None = None
-    timeout_s: float = 1.0
+    timeout_s: float = 2.0
     pixel_size_m: float = 2.5e-6
     width_px: int = 2048
     height_px: int = 2048
@@ -348,6 +348,12 @@ def _string(table: dict[str, Any], key: str, where: str, default: str | None) ->
 
 def _path(value: str | None) -> Path | None:
     return None if value is None else Path(value).expanduser()
+
+
+def uses_camera(config: DaemonConfig) -> bool:
+    """The daemon locates parts in a camera's frames (a plate in the plane without a
+    position stream)."""
+    return config.plate.planar and config.sensor_address is None
 
 
 def _plate(table: dict[str, Any], where: str) -> PlateConfig:

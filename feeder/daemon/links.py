@@ -17,7 +17,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from feeder.daemon.config import DaemonConfig
+from feeder.daemon.config import DaemonConfig, uses_camera
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
@@ -106,7 +106,7 @@ class DriverLinks:
     def open_sensor(self) -> PositionSensor:
         """The JSON-lines stream when one is named, else the camera that locates the parts."""
         self._simulator_alive()
-        if self.sensor_address.startswith("socket://") or not self.config.plate.planar:
+        if not uses_camera(self.config):
             return StreamCamera(self.sensor_address, connect_timeout_s=self.config.sensor_timeout_s)
         from feeder.drivers.pose_camera import CameraPoseSensor, part_template
         from feeder.drivers.video_camera import open_camera

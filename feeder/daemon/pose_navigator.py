@@ -11,6 +11,7 @@ them at their targets, or is refused when the planner cannot do both.
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any
 
@@ -18,6 +19,8 @@ from feeder.daemon.jobs import Burst, Job, LoopSettings, Reading
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.pose import Pose, pose_error
 from feeder.pose_planner import AxisBurst, Finish, PosePlanner
+
+log = logging.getLogger(__name__)
 
 
 class PoseNavigator:
@@ -105,6 +108,7 @@ class PoseNavigator:
     def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
         assert job.target_pose is not None
         nxt = self.planner.next_burst(list(reading), self._targets(job.part, job.target_pose))
+        log.debug("at %s for %s: %s", reading, job.target_pose, nxt)
         if isinstance(nxt, Finish):
             if nxt.status == "done":
                 self.held[job.part] = job.target_pose

@@ -8,7 +8,7 @@ from typing import Any
 
 from feeder.contact.breakaway import contact
 from feeder.contact.tau_pair import tau_pair
-from feeder.daemon.config import DaemonConfig
+from feeder.daemon.config import DaemonConfig, uses_camera
 from feeder.daemon.links import DriverLinks, open_links
 from feeder.daemon.service import Daemon, DaemonSetup
 from feeder.daemon.step_modes import calibration_key, plan_step_modes
@@ -72,7 +72,7 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
                 "adhesion_work_j_m2": pair.adhesion_work_j_m2,
                 **links.describe(),
             },
-            sensor_timeout_s=config.sensor_timeout_s,
+            sensor_timeout_s=config.camera.timeout_s if uses_camera(config) else config.sensor_timeout_s,
             **plane,
         )
         daemon = Daemon(links, setup)
