@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 
 from feeder.plant.planar import PlanarPart
-from feeder.pose import Pose, pose_error
+from feeder.pose import Pose
 from feeder.pose_response import ResponseModel, physical_period_rad
 from feeder.vision.model import angle_difference
 
@@ -116,7 +116,7 @@ class PosePlanner:
 
             return pair_refusal(self, targets, poses)
         pid, target = next(iter(targets.items()))
-        if (self.symmetry_rad > 0 and abs(self._angle_error(poses[pid - 1], target)) > self.tolerance_rad
+        if (self.symmetry_rad > 0 and abs(self.angle_error(poses[pid - 1], target)) > self.tolerance_rad
                 and self.station_radius_m is None):  # fmt: skip
             return "no θ mode turns the part anywhere within the travel"
         return None
@@ -157,8 +157,8 @@ class PosePlanner:
                    anchored: tuple[int, ...] = ()) -> AxisBurst | Finish | None:  # fmt: skip
         """Next burst for part ``i`` alone (None: within tolerance); ``anchored`` parts must not turn."""
         pose = poses[i]
-        distance, _ = pose_error(pose, target, self.symmetry_rad)
-        turn = self._angle_error(pose, target)
+        distance = math.hypot(pose[0] - target[0], pose[1] - target[1])
+        turn = self.angle_error(pose, target)
         if abs(turn) > self.tolerance_rad:
             return self.turn_burst(poses, i, turn, target[:2], anchored)
         if distance > self.tolerance_m:
@@ -173,7 +173,7 @@ class PosePlanner:
         if self.station_radius_m is None:
             return Finish("unreachable", "no θ mode turns the part anywhere within the travel")
         if self._turns_here(pose):
-            burst = self._theta_burst(poses, i, turn, anchored)
+            burst = self.theta_burst(poses, i, turn, anchored)
             if burst is not None:
                 return burst
         station = self._station(poses, i, turn, then_xy)
@@ -229,41 +229,57 @@ class PosePlanner:
             steps = min(steps, math.floor(max(room, 0.0) / high))
         return steps
 
-    def _theta_burst(self, poses: list[Pose], i: int, turn: float,
-                     anchored: tuple[int, ...]) -> AxisBurst | None:  # fmt: skip
-        """A θ burst turning part ``i`` by up to ``turn`` (None: not even one step fits the travel)."""
-        direction = 1 if turn > 0 else -1
-        need = abs(turn) if self.symmetry_rad <= 0 else min(abs(turn), 0.3 * self.symmetry_rad)
+    def theta_burst(self, poses: list[Pose], i: int, amount: float, anchored: tuple[int, ...] = (),
+                    quantity: str = "turn") -> AxisBurst | None:  # fmt: skip
+        """A θ burst that turns (or orbits, ``quantity`` "orbit") part ``i`` by up to ``amount`` rad.
+
+        None: no mode moves it by a useful amount here, or not even one step fits the travel.
+        """
+        direction = 1 if amount > 0 else -1
+        need = abs(amount)
+        if quantity == "turn" and self.symmetry_rad > 0:  # unambiguous to measure modulo the symmetry
+            need = min(need, 0.3 * self.symmetry_rad)
         modes = self.model.modes("theta")
         fine = modes[-1]
         pose = poses[i]
-        fine_turn = abs(self.model.turn_step(direction, fine, *pose).turn_rad)
+        r = math.hypot(pose[0], pose[1])
+
+        def per_step(mode: str) -> tuple[float, float]:
+            s = self.model.turn_step(direction, mode, *pose)
+            if quantity == "turn":
+                return abs(s.turn_rad), s.turn_std_rad
+            return abs(s.orbit_rad), s.orbit_std_rad
+
+        useful = 0.25 * (self.tolerance_rad if quantity == "turn" else self.tolerance_m / max(r, 1e-9))
+        fine_step = per_step(fine)[0]
         for mode in modes:
-            step = self.model.turn_step(direction, mode, *pose)
-            if (mode != fine and abs(step.turn_rad) <= fine_turn) or abs(step.turn_rad) < 0.25 * self.tolerance_rad:
+            step, std = per_step(mode)
+            if (mode != fine and step <= fine_step) or step < useful:
                 continue
-            scale = 1 + 2 * step.turn_std_rad / max(abs(step.turn_rad), 1e-15)
-            steps = self._turn_count(pose, direction, mode, need, scale, short=mode != fine)
+            scale = 1 + 2 * std / step
+            steps = self._theta_count(pose, direction, mode, need, scale, mode != fine, quantity)
             steps = self._theta_within(poses, direction, mode, steps, scale, anchored)
             if steps >= 1:
                 return AxisBurst("theta", direction, steps, mode)
         return None
 
-    def _turn_count(self, pose: Pose, direction: int, mode: str, need: float, scale: float, short: bool) -> int:
-        """Steps that turn by ``need``: the pessimistic count less one (short), or the nearest (fine)."""
+    def _theta_count(self, pose: Pose, direction: int, mode: str, need: float, scale: float, short: bool,
+                     quantity: str = "turn") -> int:  # fmt: skip
+        """Steps that turn (orbit) by ``need``: the pessimistic count less one (short), or the nearest."""
         x, y, psi = pose
-        turned, previous = 0.0, 0.0
+        done, previous = 0.0, 0.0
         for n in range(1, MAX_BURST_STEPS + 1):
             s = self.model.turn_step(direction, mode, x, y, psi)
-            if abs(s.turn_rad) < 1e-9:
+            step = abs(s.turn_rad if quantity == "turn" else s.orbit_rad)
+            if step < 1e-9:
                 return 0
-            turned += abs(s.turn_rad) * (scale if short else 1.0)
+            done += step * (scale if short else 1.0)
             x, y, psi = self.model.predict("theta", direction, mode, 1, (x, y, psi))
-            if short and turned > need:
+            if short and done > need:
                 return n - 2
-            if not short and turned >= need:
-                return n if turned - need < need - previous else n - 1
-            previous = turned
+            if not short and done >= need:
+                return n if done - need < need - previous else n - 1
+            previous = done
         return MAX_BURST_STEPS
 
     def _theta_within(self, poses: list[Pose], direction: int, mode: str, steps: int, scale: float,
@@ -328,7 +344,7 @@ class PosePlanner:
             start = (r_s * math.cos(a), r_s * math.sin(a), pose[2])
             if not self.travel.contains(start[0], start[1]):
                 continue
-            steps = self._turn_count(start, direction, coarse, abs(turn), 1.0, short=False)
+            steps = self._theta_count(start, direction, coarse, abs(turn), 1.0, short=False)
             end, ok = start, True
             for _ in range(steps):  # the whole turn, 30 % long, must fit
                 end = self.model.predict("theta", direction, coarse, 1, end, 1.3)
@@ -343,8 +359,10 @@ class PosePlanner:
                 best = (cost, (start[0], start[1]))
         return None if best is None else best[1]
 
-    def _angle_error(self, pose: Pose, target: Pose) -> float:
-        """Signed turn target − pose (rad) modulo the symmetry; 0 for a disc."""
+    def angle_error(self, pose: Pose, target: Pose) -> float:
+        """Signed turn target − pose (rad) modulo the symmetry; 0 for a disc or a NaN (any) target angle."""
+        if math.isnan(target[2]):
+            return 0.0
         return self._angle_difference(target[2], pose[2])
 
     def _angle_difference(self, a: float, b: float) -> float:
