@@ -98,17 +98,9 @@ def _orbit_plan(planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose
 
 
 def _drift(planner: PosePlanner, pose: Pose, phi: float, mode: str) -> float:
-    """Radial drift (m) of a part orbiting by ``phi`` about O with ``mode``, stepped through the model."""
-    direction = 1 if phi > 0 else -1
-    r0 = math.hypot(pose[0], pose[1])
-    p, turned = pose, 0.0
-    for _ in range(5000):
-        s = planner.model.turn_step(direction, mode, *p)
-        if abs(s.orbit_rad) < 1e-9 or turned + abs(s.orbit_rad) > abs(phi):
-            break
-        turned += abs(s.orbit_rad)
-        p = planner.model.predict("theta", direction, mode, 1, p)
-    return math.hypot(p[0], p[1]) - r0
+    """Radial drift (m) of a part orbiting by ``phi`` about O with ``mode``: drift per step × steps."""
+    s = planner.model.turn_step(1 if phi > 0 else -1, mode, *pose)
+    return 0.0 if s.orbit_rad == 0 else abs(phi / s.orbit_rad) * s.radial_m
 
 
 def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pose]) -> str | None:
@@ -165,8 +157,24 @@ def next_pair_burst(planner: PosePlanner, poses: list[Pose], targets: dict[int, 
         if burst is not None:
             return burst
         return Finish("unreachable", f"part {ib + 1} cannot orbit by {phi:.3g} rad within the travel")
-    # split the relative error between the two: each ends within the tolerance
-    goal = (ta[0] + 0.5 * rel[0], ta[1] + 0.5 * rel[1])
+    # both move alike now: the fine-step offset (up to 3 per axis) that leaves the larger error smallest
+    from feeder.pose_planner import AxisBurst
+
     if max(math.hypot(a[0] - ta[0], a[1] - ta[1]), math.hypot(b[0] - tb[0], b[1] - tb[1])) <= tol:
         return None
-    return planner.translate_burst(poses, ia, goal, exact=True)
+    goal = (ta[0] + 0.5 * rel[0], ta[1] + 0.5 * rel[1])
+    if math.hypot(goal[0] - a[0], goal[1] - a[1]) > 3 * tol:
+        return planner.translate_burst(poses, ia, goal, exact=True)
+    fine = planner.model.modes("x")[-1]
+
+    def shift(axis: str, n: int) -> float:
+        return math.copysign(planner.model.step_m(axis, 1 if n > 0 else -1, fine)[0] * abs(n), n) if n else 0.0
+
+    best = min(((i, j) for i in range(-3, 4) for j in range(-3, 4)),
+               key=lambda ij: max(math.hypot(a[0] + shift("x", ij[0]) - ta[0], a[1] + shift("y", ij[1]) - ta[1]),
+                                  math.hypot(b[0] + shift("x", ij[0]) - tb[0], b[1] + shift("y", ij[1]) - tb[1])))  # fmt: skip
+    if best == (0, 0):
+        return Finish("unreachable", f"parts {ia + 1} and {ib + 1} are {math.hypot(*rel):.3g} m off relative "
+                      "to each other: fine steps cannot put both within the tolerance")  # fmt: skip
+    axis, n = ("x", best[0]) if best[0] else ("y", best[1])
+    return AxisBurst(axis, 1 if n > 0 else -1, abs(n), fine)
