@@ -41,8 +41,10 @@ def anchor_radius_m(planner: PosePlanner) -> float:
             for beta in model.turn[mode].betas_rad:
                 for d in (1, -1):
                     s = model.turn_step(d, mode, r, 0.0, beta)
-                    if abs(s.orbit_rad) * r > ANCHOR_SLACK * planner.tolerance_m or abs(
-                        s.turn_rad) > ANCHOR_SLACK * planner.tolerance_rad:  # fmt: skip
+                    if (
+                        abs(s.orbit_rad) * r > ANCHOR_SLACK * planner.tolerance_m
+                        or abs(s.turn_rad) > ANCHOR_SLACK * planner.tolerance_rad
+                    ):
                         return best
         best = r
     return best
@@ -75,7 +77,9 @@ def _anchor(d: tuple[float, float], d_t: tuple[float, float], drift_m: float) ->
     return ax, ay
 
 
-def _orbit_plan(planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose]) -> tuple[tuple[float, float], float, str]:
+def _orbit_plan(
+    planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose]
+) -> tuple[tuple[float, float], float, str]:
     """(anchor for A, orbit angle B needs about O, mode) with B's predicted radial drift folded in."""
     ia, ib = _order(targets)
     a, b = poses[ia], poses[ib]
@@ -109,11 +113,15 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
     ta, tb = targets[ia + 1], targets[ib + 1]
     if planner.symmetry_rad > 0:
         if not math.isnan(tb[2]):
-            return (f"part {ib + 1}'s angle cannot be chosen when two parts are placed together: its turn is "
-                    "tied to its orbit about O (give it no angle: NaN; docs/pose-control.md)")  # fmt: skip
+            return (
+                f"part {ib + 1}'s angle cannot be chosen when two parts are placed together: its turn is "
+                "tied to its orbit about O (give it no angle: NaN; docs/pose-control.md)"
+            )
         if not math.isnan(ta[2]) and abs(planner.angle_error(poses[ia], ta)) > planner.tolerance_rad:
-            return (f"part {ia + 1} keeps its angle while part {ib + 1} is placed: turn it first on its own "
-                    "or give it no angle (NaN)")  # fmt: skip
+            return (
+                f"part {ia + 1} keeps its angle while part {ib + 1} is placed: turn it first on its own "
+                "or give it no angle (NaN)"
+            )
     size = planner.part.patch.radius_m
     if math.hypot(tb[0] - ta[0], tb[1] - ta[1]) < 2 * size:
         return f"the targets of parts {ia + 1} and {ib + 1} overlap (centres closer than {2 * size:.3g} m)"
@@ -123,19 +131,25 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
     r_anchor = anchor_radius_m(planner)
     reach = math.hypot(*anchor)
     if reach > r_anchor:
-        return (f"part {ib + 1} must orbit O while part {ia + 1} stays held at {reach:.3g} m from O, "
-                f"but only parts within {r_anchor:.3g} m of O stay held: the distance between the parts "
-                "cannot change that much")  # fmt: skip
+        return (
+            f"part {ib + 1} must orbit O while part {ia + 1} stays held at {reach:.3g} m from O, "
+            f"but only parts within {r_anchor:.3g} m of O stay held: the distance between the parts "
+            "cannot change that much"
+        )
     a, b = poses[ia], poses[ib]
     radius = math.hypot(anchor[0] + b[0] - a[0], anchor[1] + b[1] - a[1])
     orbit = max(abs(planner.model.turn_step(d, coarse, radius, 0.0, 0.0).orbit_rad) for d in (1, -1))
     if orbit * radius < planner.tolerance_m:
-        return (f"part {ib + 1} would orbit O at {radius:.3g} m, inside the dead zone where θ steps do "
-                "not move it: the parts are too close together")  # fmt: skip
+        return (
+            f"part {ib + 1} would orbit O at {radius:.3g} m, inside the dead zone where θ steps do "
+            "not move it: the parts are too close together"
+        )
     return None
 
 
-def next_pair_burst(planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose]) -> AxisBurst | Finish | None:
+def next_pair_burst(
+    planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose]
+) -> AxisBurst | Finish | None:
     """Anchor A, orbit B until d = d_t (within the tolerance), then translate both (None: both within it)."""
     from feeder.pose_planner import Finish
 
@@ -147,8 +161,11 @@ def next_pair_burst(planner: PosePlanner, poses: list[Pose], targets: dict[int, 
     if math.hypot(*rel) > tol:
         anchor, phi, _ = _orbit_plan(planner, poses, targets)
         if math.hypot(*anchor) > anchor_radius_m(planner):
-            return Finish("unreachable", f"parts {ia + 1} and {ib + 1} are off by {math.hypot(*rel):.3g} m "
-                          "relative to each other, and no anchor within the dead zone corrects that")  # fmt: skip
+            return Finish(
+                "unreachable",
+                f"parts {ia + 1} and {ib + 1} are off by {math.hypot(*rel):.3g} m "
+                "relative to each other, and no anchor within the dead zone corrects that",
+            )
         if math.hypot(anchor[0] - a[0], anchor[1] - a[1]) > 0.5 * tol:
             move = planner.translate_burst(poses, ia, anchor, exact=True)
             if not isinstance(move, Finish):  # else A is as close to the anchor as fine steps get it
@@ -168,13 +185,22 @@ def next_pair_burst(planner: PosePlanner, poses: list[Pose], targets: dict[int, 
     fine = planner.model.modes("x")[-1]
 
     def shift(axis: str, n: int) -> float:
-        return math.copysign(planner.model.step_m(axis, 1 if n > 0 else -1, fine)[0] * abs(n), n) if n else 0.0
+        return (
+            math.copysign(planner.model.step_m(axis, 1 if n > 0 else -1, fine)[0] * abs(n), n) if n else 0.0
+        )
 
-    best = min(((i, j) for i in range(-3, 4) for j in range(-3, 4)),
-               key=lambda ij: max(math.hypot(a[0] + shift("x", ij[0]) - ta[0], a[1] + shift("y", ij[1]) - ta[1]),
-                                  math.hypot(b[0] + shift("x", ij[0]) - tb[0], b[1] + shift("y", ij[1]) - tb[1])))  # fmt: skip
+    best = min(
+        ((i, j) for i in range(-3, 4) for j in range(-3, 4)),
+        key=lambda ij: max(
+            math.hypot(a[0] + shift("x", ij[0]) - ta[0], a[1] + shift("y", ij[1]) - ta[1]),
+            math.hypot(b[0] + shift("x", ij[0]) - tb[0], b[1] + shift("y", ij[1]) - tb[1]),
+        ),
+    )
     if best == (0, 0):
-        return Finish("unreachable", f"parts {ia + 1} and {ib + 1} are {math.hypot(*rel):.3g} m off relative "
-                      "to each other: fine steps cannot put both within the tolerance")  # fmt: skip
+        return Finish(
+            "unreachable",
+            f"parts {ia + 1} and {ib + 1} are {math.hypot(*rel):.3g} m off relative "
+            "to each other: fine steps cannot put both within the tolerance",
+        )
     axis, n = ("x", best[0]) if best[0] else ("y", best[1])
     return AxisBurst(axis, 1 if n > 0 else -1, abs(n), fine)

@@ -1,4 +1,4 @@
-"""Which axis to step next, which way, in which mode and how often: pose control in the plane (docs/pose-control.md).
+"""Which axis to step next, which way, in which mode, how often: pose control (docs/pose-control.md).
 
 Pure: poses in, a burst (or the verdict) out; no I/O, no clock.  x and y
 steps translate every part equally; a θ step turns the plate about O, which
@@ -56,8 +56,10 @@ class Travel:
     y_m: tuple[float, float]
 
     def contains(self, x_m: float, y_m: float, margin_m: float = 0.0) -> bool:
-        return (self.x_m[0] + margin_m <= x_m <= self.x_m[1] - margin_m
-                and self.y_m[0] + margin_m <= y_m <= self.y_m[1] - margin_m)  # fmt: skip
+        return (
+            self.x_m[0] + margin_m <= x_m <= self.x_m[1] - margin_m
+            and self.y_m[0] + margin_m <= y_m <= self.y_m[1] - margin_m
+        )
 
     def json(self) -> dict[str, list[float]]:
         return {"x": list(self.x_m), "y": list(self.y_m)}
@@ -107,8 +109,10 @@ class PosePlanner:
             if not 1 <= pid <= len(poses):
                 return f"part {pid} is not on the plate ({len(poses)} parts seen)"
             if not self.travel.contains(target[0], target[1]):
-                return (f"target of part {pid} at ({target[0]:.4g}, {target[1]:.4g}) m lies outside the travel "
-                        f"x {self.travel.x_m} m, y {self.travel.y_m} m")  # fmt: skip
+                return (
+                    f"target of part {pid} at ({target[0]:.4g}, {target[1]:.4g}) m lies outside the travel "
+                    f"x {self.travel.x_m} m, y {self.travel.y_m} m"
+                )
         if len(targets) > 2:
             return "at most two parts can be placed together"
         if len(targets) == 2:
@@ -116,8 +120,11 @@ class PosePlanner:
 
             return pair_refusal(self, targets, poses)
         pid, target = next(iter(targets.items()))
-        if (self.symmetry_rad > 0 and abs(self.angle_error(poses[pid - 1], target)) > self.tolerance_rad
-                and self.station_radius_m is None):  # fmt: skip
+        if (
+            self.symmetry_rad > 0
+            and abs(self.angle_error(poses[pid - 1], target)) > self.tolerance_rad
+            and self.station_radius_m is None
+        ):
             return "no θ mode turns the part anywhere within the travel"
         return None
 
@@ -153,8 +160,9 @@ class PosePlanner:
         return {"gains": self.model.estimates_json(), "station_radius_m": self.station_radius_m}
 
     # --- one part ----------------------------------------------------------
-    def part_burst(self, poses: list[Pose], i: int, target: Pose,
-                   anchored: tuple[int, ...] = ()) -> AxisBurst | Finish | None:  # fmt: skip
+    def part_burst(
+        self, poses: list[Pose], i: int, target: Pose, anchored: tuple[int, ...] = ()
+    ) -> AxisBurst | Finish | None:
         """Next burst for part ``i`` alone (None: within tolerance); ``anchored`` parts must not turn."""
         pose = poses[i]
         distance = math.hypot(pose[0] - target[0], pose[1] - target[1])
@@ -165,8 +173,14 @@ class PosePlanner:
             return self.translate_burst(poses, i, (target[0], target[1]), exact=True)
         return None
 
-    def turn_burst(self, poses: list[Pose], i: int, turn: float, then_xy: tuple[float, float],
-                   anchored: tuple[int, ...] = ()) -> AxisBurst | Finish:  # fmt: skip
+    def turn_burst(
+        self,
+        poses: list[Pose],
+        i: int,
+        turn: float,
+        then_xy: tuple[float, float],
+        anchored: tuple[int, ...] = (),
+    ) -> AxisBurst | Finish:
         """Turn part ``i`` by ``turn`` rad: here if it can, else move to a station first."""
         pose = poses[i]
         self.station_radius_m = self._station_radius()
@@ -178,13 +192,17 @@ class PosePlanner:
                 return burst
         station = self._station(poses, i, turn, then_xy)
         if station is None:
-            return Finish("unreachable", "no turning station (radius "
-                          f"{self.station_radius_m:.3g} m) whose turn stays within the travel")  # fmt: skip
+            return Finish(
+                "unreachable",
+                "no turning station (radius "
+                f"{self.station_radius_m:.3g} m) whose turn stays within the travel",
+            )
         return self.translate_burst(poses, i, station, exact=False)
 
-    def translate_burst(self, poses: list[Pose], i: int, goal: tuple[float, float],
-                        exact: bool) -> AxisBurst | Finish:  # fmt: skip
-        """x or y burst bringing part ``i`` towards ``goal``; ``exact``: aim short and finish with fine steps."""
+    def translate_burst(
+        self, poses: list[Pose], i: int, goal: tuple[float, float], exact: bool
+    ) -> AxisBurst | Finish:
+        """x or y burst bringing part ``i`` towards ``goal``; ``exact``: aim short, end with fine steps."""
         pose = poses[i]
         errors = {"x": goal[0] - pose[0], "y": goal[1] - pose[1]}
         for axis in sorted(errors, key=lambda a: -abs(errors[a])):
@@ -197,12 +215,16 @@ class PosePlanner:
                 return burst
         if not exact:  # the station is within a step of here: turn here after all
             return Finish("unreachable", "the turning station is closer than one step")
-        return Finish("unreachable", f"fine steps cannot bring part {i + 1} within {self.tolerance_m:.3g} m "
-                      f"of ({goal[0]:.4g}, {goal[1]:.4g}) m within the travel")  # fmt: skip
+        return Finish(
+            "unreachable",
+            f"fine steps cannot bring part {i + 1} within {self.tolerance_m:.3g} m "
+            f"of ({goal[0]:.4g}, {goal[1]:.4g}) m within the travel",
+        )
 
     # --- pieces ------------------------------------------------------------
-    def _axis_burst(self, poses: list[Pose], axis: str, direction: int, distance: float,
-                    exact: bool) -> AxisBurst | None:  # fmt: skip
+    def _axis_burst(
+        self, poses: list[Pose], axis: str, direction: int, distance: float, exact: bool
+    ) -> AxisBurst | None:
         modes = self.model.modes(axis)
         fine = modes[-1]
         fine_step, _ = self.model.step_m(axis, direction, fine)
@@ -229,8 +251,9 @@ class PosePlanner:
             steps = min(steps, math.floor(max(room, 0.0) / high))
         return steps
 
-    def theta_burst(self, poses: list[Pose], i: int, amount: float, anchored: tuple[int, ...] = (),
-                    quantity: str = "turn") -> AxisBurst | None:  # fmt: skip
+    def theta_burst(
+        self, poses: list[Pose], i: int, amount: float, anchored: tuple[int, ...] = (), quantity: str = "turn"
+    ) -> AxisBurst | None:
         """A θ burst that turns (or orbits, ``quantity`` "orbit") part ``i`` by up to ``amount`` rad.
 
         None: no mode moves it by a useful amount here, or not even one step fits the travel.
@@ -263,8 +286,16 @@ class PosePlanner:
                 return AxisBurst("theta", direction, steps, mode)
         return None
 
-    def _theta_count(self, pose: Pose, direction: int, mode: str, need: float, scale: float, short: bool,
-                     quantity: str = "turn") -> int:  # fmt: skip
+    def _theta_count(
+        self,
+        pose: Pose,
+        direction: int,
+        mode: str,
+        need: float,
+        scale: float,
+        short: bool,
+        quantity: str = "turn",
+    ) -> int:
         """Steps that turn (orbit) by ``need``: the pessimistic count less one (short), or the nearest."""
         x, y, psi = pose
         done, previous = 0.0, 0.0
@@ -282,9 +313,16 @@ class PosePlanner:
             previous = done
         return MAX_BURST_STEPS
 
-    def _theta_within(self, poses: list[Pose], direction: int, mode: str, steps: int, scale: float,
-                      anchored: tuple[int, ...]) -> int:  # fmt: skip
-        """``steps`` cut where some part's pessimistic orbit leaves the travel or an anchored part would move."""
+    def _theta_within(
+        self,
+        poses: list[Pose],
+        direction: int,
+        mode: str,
+        steps: int,
+        scale: float,
+        anchored: tuple[int, ...],
+    ) -> int:
+        """``steps`` cut where some part's pessimistic orbit leaves the travel or an anchored part moves."""
         if steps < 1:
             return steps
         states = list(poses)
@@ -293,8 +331,10 @@ class PosePlanner:
                 nxt = self.model.predict("theta", direction, mode, 1, p, scale)
                 if not self.travel.contains(nxt[0], nxt[1]):
                     return n - 1
-                if k in anchored and (math.hypot(nxt[0] - poses[k][0], nxt[1] - poses[k][1]) > 0.2 * self.tolerance_m
-                                      or abs(nxt[2] - poses[k][2]) > 0.2 * self.tolerance_rad):  # fmt: skip
+                if k in anchored and (
+                    math.hypot(nxt[0] - poses[k][0], nxt[1] - poses[k][1]) > 0.2 * self.tolerance_m
+                    or abs(nxt[2] - poses[k][2]) > 0.2 * self.tolerance_rad
+                ):
                     return n - 1
                 states[k] = nxt
         return steps
@@ -331,8 +371,10 @@ class PosePlanner:
         # the finest turn there is, even if coarser than the tolerance wants
         return min(usable, key=lambda r: ranges[r][1]) if usable else None
 
-    def _station(self, poses: list[Pose], i: int, turn: float, then_xy: tuple[float, float]) -> tuple[float, float] | None:
-        """The point on the station circle nearest the way from here to ``then_xy`` whose turn fits the travel."""
+    def _station(
+        self, poses: list[Pose], i: int, turn: float, then_xy: tuple[float, float]
+    ) -> tuple[float, float] | None:
+        """The point on the station circle on the way to ``then_xy`` whose turn fits the travel."""
         assert self.station_radius_m is not None
         pose = poses[i]
         r_s = self.station_radius_m
@@ -353,8 +395,9 @@ class PosePlanner:
                     break
             if not ok:
                 continue
-            cost = math.hypot(start[0] - pose[0], start[1] - pose[1]) + math.hypot(end[0] - then_xy[0],
-                                                                                  end[1] - then_xy[1])  # fmt: skip
+            cost = math.hypot(start[0] - pose[0], start[1] - pose[1]) + math.hypot(
+                end[0] - then_xy[0], end[1] - then_xy[1]
+            )
             if best is None or cost < best[0]:
                 best = (cost, (start[0], start[1]))
         return None if best is None else best[1]

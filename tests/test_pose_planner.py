@@ -17,10 +17,13 @@ from feeder.pose_response import AxisMode, ResponseModel, seed_response
 
 F_HZ, FLYBACK_S = 100.0, 3.5e-4
 MODES = (
-    AxisMode("x", "coarse", 14e-6, F_HZ, FLYBACK_S), AxisMode("x", "fine", 11e-6, F_HZ, FLYBACK_S),
-    AxisMode("y", "coarse", 14e-6, F_HZ, FLYBACK_S), AxisMode("y", "fine", 11e-6, F_HZ, FLYBACK_S),
-    AxisMode("theta", "coarse", 14e-3, F_HZ, FLYBACK_S), AxisMode("theta", "fine", 7e-3, F_HZ, FLYBACK_S),
-)  # fmt: skip
+    AxisMode("x", "coarse", 14e-6, F_HZ, FLYBACK_S),
+    AxisMode("x", "fine", 11e-6, F_HZ, FLYBACK_S),
+    AxisMode("y", "coarse", 14e-6, F_HZ, FLYBACK_S),
+    AxisMode("y", "fine", 11e-6, F_HZ, FLYBACK_S),
+    AxisMode("theta", "coarse", 14e-3, F_HZ, FLYBACK_S),
+    AxisMode("theta", "fine", 7e-3, F_HZ, FLYBACK_S),
+)
 PART = PlanarPart.from_part(Part.parse("500x300x50"), Friction(105.25, 0.8))
 RADII = (0.0, 0.5e-3, 1.0e-3, 1.25e-3, 1.5e-3, 1.75e-3, 2.0e-3, 2.5e-3, 3.0e-3)
 TRAVEL = Travel((-1.8e-3, 1.8e-3), (-1.8e-3, 1.8e-3))
@@ -41,8 +44,11 @@ class World:
         v = motion.initial_velocity
         ramp = 2e-3
         acc = (v[0] / ramp, v[1] / ramp, v[2] / ramp)
-        segments = (Segment(ramp, (0.0, 0.0, 0.0), acc), *motion.segments,
-                    Segment(ramp, v, (-acc[0], -acc[1], -acc[2])))  # fmt: skip
+        segments = (
+            Segment(ramp, (0.0, 0.0, 0.0), acc),
+            *motion.segments,
+            Segment(ramp, v, (-acc[0], -acc[1], -acc[2])),
+        )
         self.solver.advance(segments, len(segments))
         self.steps += b.steps
 
@@ -76,9 +82,13 @@ def test_five_random_targets_within_tolerance(model_seed: ResponseModel) -> None
     rng = random.Random(16)
     planner = PosePlanner(fresh(), TRAVEL, PART, TOL_M, TOL_RAD)
     world = World([(0.3e-3, -0.2e-3, 0.1)])
-    targets = [(0.05e-3, -0.1e-3, 0.1 + math.radians(35)),  # a turn of 35° near O: out, turn, back
-               (rng.uniform(-1.2e-3, 1.2e-3), rng.uniform(-1.2e-3, 1.2e-3), rng.uniform(0, math.pi))]
-    targets += [(rng.uniform(-0.8e-3, 0.8e-3), rng.uniform(-0.8e-3, 0.8e-3), rng.uniform(0, 0.5)) for _ in range(3)]
+    targets = [
+        (0.05e-3, -0.1e-3, 0.1 + math.radians(35)),  # a turn of 35° near O: out, turn, back
+        (rng.uniform(-1.2e-3, 1.2e-3), rng.uniform(-1.2e-3, 1.2e-3), rng.uniform(0, math.pi)),
+    ]
+    targets += [
+        (rng.uniform(-0.8e-3, 0.8e-3), rng.uniform(-0.8e-3, 0.8e-3), rng.uniform(0, 0.5)) for _ in range(3)
+    ]
     for target in targets:
         verdict = run(planner, world, {1: target})
         assert verdict.status == "done", verdict
