@@ -8,7 +8,8 @@ reads it).
 
 :class:`CameraFeed` renders on its own thread at ``fps`` from a snapshot of the
 world (exposure time, parts in the image) and publishes each frame
-``latency_s`` after its exposure; the firmware tick only ever has its pose read,
+``latency_s`` after its exposure (JPEG-encoded there, once, while an MJPEG
+client is connected; the PNG on the first request); the firmware tick only ever has its pose read,
 so nothing here can make it wait.  :class:`CameraHttpServer` binds 127.0.0.1,
 serves at most ``max_clients`` connections at once (more get 503 at once) and
 drops a client that reads nothing for ``idle_timeout_s``.
@@ -22,7 +23,7 @@ import logging
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
@@ -101,6 +102,7 @@ class CameraFeed:
         self.latency_s = latency_s
         self._cond = threading.Condition()
         self._latest: Published | None = None
+        self._streams = 0  # clients on /video.mjpg
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="camera-render", daemon=True)
         self._thread.start()
@@ -116,12 +118,26 @@ class CameraFeed:
             if release > 0 and self._stop.wait(release):
                 break
             truth = {"sequence": sequence, "time_s": shot.time_s, **shot.truth}
+            published = Published(sequence, image, truth)
+            if self._streams:
+                published.jpeg()  # here, once, while the frame is fresh: the clients only send it
             with self._cond:
-                self._latest = Published(sequence, image, truth)
+                self._latest = published
                 self._cond.notify_all()
             sequence += 1
             deadline = max(deadline + self.period_s, time.monotonic())
             self._stop.wait(deadline - time.monotonic())
+
+    @contextlib.contextmanager
+    def streaming(self) -> Iterator[None]:
+        """While held, a client streams MJPEG: each frame is encoded on the render thread."""
+        with self._cond:
+            self._streams += 1
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._streams -= 1
 
     def latest(self, after: int = -1, timeout_s: float = 5.0) -> Published | None:
         """The newest frame with a sequence above ``after`` (None if none within the timeout)."""
@@ -179,7 +195,7 @@ class _Handler(BaseHTTPRequestHandler):
         self.send_header("Cache-Control", "no-store")
         self.end_headers()
         sequence = -1
-        with contextlib.suppress(OSError):
+        with feed.streaming(), contextlib.suppress(OSError):
             while not self.server.closing.is_set():
                 frame = feed.latest(after=sequence, timeout_s=self.server.idle_timeout_s)
                 if frame is None:
