@@ -30,6 +30,7 @@ BENCHMARKS: tuple[str, ...] = (
     "plant_realtime",
     "plant_realtime_1ms",
     "planar_period",
+    "pose_planner",
     "vision_locate",
     "vision_render",
     "cli_start",

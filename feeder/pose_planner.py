@@ -1,4 +1,4 @@
-"""Which axis to step next, which way, in which mode and how often: pose control in the plane (docs/pose-control.md).
+"""Which axis to step next, which way, in which mode, how often: pose control (docs/pose-control.md).
 
 Pure: poses in, a burst (or the verdict) out; no I/O, no clock.  x and y
 steps translate every part equally; a θ step turns the plate about O, which
@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 
 from feeder.plant.planar import PlanarPart
-from feeder.pose import Pose, pose_error
+from feeder.pose import Pose
 from feeder.pose_response import ResponseModel, physical_period_rad
 from feeder.vision.model import angle_difference
 
@@ -56,8 +56,10 @@ class Travel:
     y_m: tuple[float, float]
 
     def contains(self, x_m: float, y_m: float, margin_m: float = 0.0) -> bool:
-        return (self.x_m[0] + margin_m <= x_m <= self.x_m[1] - margin_m
-                and self.y_m[0] + margin_m <= y_m <= self.y_m[1] - margin_m)  # fmt: skip
+        return (
+            self.x_m[0] + margin_m <= x_m <= self.x_m[1] - margin_m
+            and self.y_m[0] + margin_m <= y_m <= self.y_m[1] - margin_m
+        )
 
     def json(self) -> dict[str, list[float]]:
         return {"x": list(self.x_m), "y": list(self.y_m)}
@@ -107,8 +109,10 @@ class PosePlanner:
             if not 1 <= pid <= len(poses):
                 return f"part {pid} is not on the plate ({len(poses)} parts seen)"
             if not self.travel.contains(target[0], target[1]):
-                return (f"target of part {pid} at ({target[0]:.4g}, {target[1]:.4g}) m lies outside the travel "
-                        f"x {self.travel.x_m} m, y {self.travel.y_m} m")  # fmt: skip
+                return (
+                    f"target of part {pid} at ({target[0]:.4g}, {target[1]:.4g}) m lies outside the travel "
+                    f"x {self.travel.x_m} m, y {self.travel.y_m} m"
+                )
         if len(targets) > 2:
             return "at most two parts can be placed together"
         if len(targets) == 2:
@@ -116,8 +120,11 @@ class PosePlanner:
 
             return pair_refusal(self, targets, poses)
         pid, target = next(iter(targets.items()))
-        if (self.symmetry_rad > 0 and abs(self._angle_error(poses[pid - 1], target)) > self.tolerance_rad
-                and self.station_radius_m is None):  # fmt: skip
+        if (
+            self.symmetry_rad > 0
+            and abs(self.angle_error(poses[pid - 1], target)) > self.tolerance_rad
+            and self.station_radius_m is None
+        ):
             return "no θ mode turns the part anywhere within the travel"
         return None
 
@@ -153,38 +160,49 @@ class PosePlanner:
         return {"gains": self.model.estimates_json(), "station_radius_m": self.station_radius_m}
 
     # --- one part ----------------------------------------------------------
-    def part_burst(self, poses: list[Pose], i: int, target: Pose,
-                   anchored: tuple[int, ...] = ()) -> AxisBurst | Finish | None:  # fmt: skip
+    def part_burst(
+        self, poses: list[Pose], i: int, target: Pose, anchored: tuple[int, ...] = ()
+    ) -> AxisBurst | Finish | None:
         """Next burst for part ``i`` alone (None: within tolerance); ``anchored`` parts must not turn."""
         pose = poses[i]
-        distance, _ = pose_error(pose, target, self.symmetry_rad)
-        turn = self._angle_error(pose, target)
+        distance = math.hypot(pose[0] - target[0], pose[1] - target[1])
+        turn = self.angle_error(pose, target)
         if abs(turn) > self.tolerance_rad:
             return self.turn_burst(poses, i, turn, target[:2], anchored)
         if distance > self.tolerance_m:
             return self.translate_burst(poses, i, (target[0], target[1]), exact=True)
         return None
 
-    def turn_burst(self, poses: list[Pose], i: int, turn: float, then_xy: tuple[float, float],
-                   anchored: tuple[int, ...] = ()) -> AxisBurst | Finish:  # fmt: skip
+    def turn_burst(
+        self,
+        poses: list[Pose],
+        i: int,
+        turn: float,
+        then_xy: tuple[float, float],
+        anchored: tuple[int, ...] = (),
+    ) -> AxisBurst | Finish:
         """Turn part ``i`` by ``turn`` rad: here if it can, else move to a station first."""
         pose = poses[i]
         self.station_radius_m = self._station_radius()
         if self.station_radius_m is None:
             return Finish("unreachable", "no θ mode turns the part anywhere within the travel")
         if self._turns_here(pose):
-            burst = self._theta_burst(poses, i, turn, anchored)
+            burst = self.theta_burst(poses, i, turn, anchored)
             if burst is not None:
                 return burst
         station = self._station(poses, i, turn, then_xy)
         if station is None:
-            return Finish("unreachable", "no turning station (radius "
-                          f"{self.station_radius_m:.3g} m) whose turn stays within the travel")  # fmt: skip
+            return Finish(
+                "unreachable",
+                "no turning station (radius "
+                f"{self.station_radius_m:.3g} m) whose turn stays within the travel",
+            )
         return self.translate_burst(poses, i, station, exact=False)
 
-    def translate_burst(self, poses: list[Pose], i: int, goal: tuple[float, float],
-                        exact: bool) -> AxisBurst | Finish:  # fmt: skip
-        """x or y burst bringing part ``i`` towards ``goal``; ``exact``: aim short and finish with fine steps."""
+    def translate_burst(
+        self, poses: list[Pose], i: int, goal: tuple[float, float], exact: bool
+    ) -> AxisBurst | Finish:
+        """x or y burst bringing part ``i`` towards ``goal``; ``exact``: aim short, end with fine steps."""
         pose = poses[i]
         errors = {"x": goal[0] - pose[0], "y": goal[1] - pose[1]}
         for axis in sorted(errors, key=lambda a: -abs(errors[a])):
@@ -197,12 +215,16 @@ class PosePlanner:
                 return burst
         if not exact:  # the station is within a step of here: turn here after all
             return Finish("unreachable", "the turning station is closer than one step")
-        return Finish("unreachable", f"fine steps cannot bring part {i + 1} within {self.tolerance_m:.3g} m "
-                      f"of ({goal[0]:.4g}, {goal[1]:.4g}) m within the travel")  # fmt: skip
+        return Finish(
+            "unreachable",
+            f"fine steps cannot bring part {i + 1} within {self.tolerance_m:.3g} m "
+            f"of ({goal[0]:.4g}, {goal[1]:.4g}) m within the travel",
+        )
 
     # --- pieces ------------------------------------------------------------
-    def _axis_burst(self, poses: list[Pose], axis: str, direction: int, distance: float,
-                    exact: bool) -> AxisBurst | None:  # fmt: skip
+    def _axis_burst(
+        self, poses: list[Pose], axis: str, direction: int, distance: float, exact: bool
+    ) -> AxisBurst | None:
         modes = self.model.modes(axis)
         fine = modes[-1]
         fine_step, _ = self.model.step_m(axis, direction, fine)
@@ -229,46 +251,78 @@ class PosePlanner:
             steps = min(steps, math.floor(max(room, 0.0) / high))
         return steps
 
-    def _theta_burst(self, poses: list[Pose], i: int, turn: float,
-                     anchored: tuple[int, ...]) -> AxisBurst | None:  # fmt: skip
-        """A θ burst turning part ``i`` by up to ``turn`` (None: not even one step fits the travel)."""
-        direction = 1 if turn > 0 else -1
-        need = abs(turn) if self.symmetry_rad <= 0 else min(abs(turn), 0.3 * self.symmetry_rad)
+    def theta_burst(
+        self, poses: list[Pose], i: int, amount: float, anchored: tuple[int, ...] = (), quantity: str = "turn"
+    ) -> AxisBurst | None:
+        """A θ burst that turns (or orbits, ``quantity`` "orbit") part ``i`` by up to ``amount`` rad.
+
+        None: no mode moves it by a useful amount here, or not even one step fits the travel.
+        """
+        direction = 1 if amount > 0 else -1
+        need = abs(amount)
+        if quantity == "turn" and self.symmetry_rad > 0:  # unambiguous to measure modulo the symmetry
+            need = min(need, 0.3 * self.symmetry_rad)
         modes = self.model.modes("theta")
         fine = modes[-1]
         pose = poses[i]
-        fine_turn = abs(self.model.turn_step(direction, fine, *pose).turn_rad)
+        r = math.hypot(pose[0], pose[1])
+
+        def per_step(mode: str) -> tuple[float, float]:
+            s = self.model.turn_step(direction, mode, *pose)
+            if quantity == "turn":
+                return abs(s.turn_rad), s.turn_std_rad
+            return abs(s.orbit_rad), s.orbit_std_rad
+
+        useful = 0.25 * (self.tolerance_rad if quantity == "turn" else self.tolerance_m / max(r, 1e-9))
+        fine_step = per_step(fine)[0]
         for mode in modes:
-            step = self.model.turn_step(direction, mode, *pose)
-            if (mode != fine and abs(step.turn_rad) <= fine_turn) or abs(step.turn_rad) < 0.25 * self.tolerance_rad:
+            step, std = per_step(mode)
+            if (mode != fine and step <= fine_step) or step < useful:
                 continue
-            scale = 1 + 2 * step.turn_std_rad / max(abs(step.turn_rad), 1e-15)
-            steps = self._turn_count(pose, direction, mode, need, scale, short=mode != fine)
+            scale = 1 + 2 * std / step
+            steps = self._theta_count(pose, direction, mode, need, scale, mode != fine, quantity)
             steps = self._theta_within(poses, direction, mode, steps, scale, anchored)
             if steps >= 1:
                 return AxisBurst("theta", direction, steps, mode)
         return None
 
-    def _turn_count(self, pose: Pose, direction: int, mode: str, need: float, scale: float, short: bool) -> int:
-        """Steps that turn by ``need``: the pessimistic count less one (short), or the nearest (fine)."""
+    def _theta_count(
+        self,
+        pose: Pose,
+        direction: int,
+        mode: str,
+        need: float,
+        scale: float,
+        short: bool,
+        quantity: str = "turn",
+    ) -> int:
+        """Steps that turn (orbit) by ``need``: the pessimistic count less one (short), or the nearest."""
         x, y, psi = pose
-        turned, previous = 0.0, 0.0
+        done, previous = 0.0, 0.0
         for n in range(1, MAX_BURST_STEPS + 1):
             s = self.model.turn_step(direction, mode, x, y, psi)
-            if abs(s.turn_rad) < 1e-9:
+            step = abs(s.turn_rad if quantity == "turn" else s.orbit_rad)
+            if step < 1e-9:
                 return 0
-            turned += abs(s.turn_rad) * (scale if short else 1.0)
+            done += step * (scale if short else 1.0)
             x, y, psi = self.model.predict("theta", direction, mode, 1, (x, y, psi))
-            if short and turned > need:
+            if short and done > need:
                 return n - 2
-            if not short and turned >= need:
-                return n if turned - need < need - previous else n - 1
-            previous = turned
+            if not short and done >= need:
+                return n if done - need < need - previous else n - 1
+            previous = done
         return MAX_BURST_STEPS
 
-    def _theta_within(self, poses: list[Pose], direction: int, mode: str, steps: int, scale: float,
-                      anchored: tuple[int, ...]) -> int:  # fmt: skip
-        """``steps`` cut where some part's pessimistic orbit leaves the travel or an anchored part would move."""
+    def _theta_within(
+        self,
+        poses: list[Pose],
+        direction: int,
+        mode: str,
+        steps: int,
+        scale: float,
+        anchored: tuple[int, ...],
+    ) -> int:
+        """``steps`` cut where some part's pessimistic orbit leaves the travel or an anchored part moves."""
         if steps < 1:
             return steps
         states = list(poses)
@@ -277,8 +331,10 @@ class PosePlanner:
                 nxt = self.model.predict("theta", direction, mode, 1, p, scale)
                 if not self.travel.contains(nxt[0], nxt[1]):
                     return n - 1
-                if k in anchored and (math.hypot(nxt[0] - poses[k][0], nxt[1] - poses[k][1]) > 0.2 * self.tolerance_m
-                                      or abs(nxt[2] - poses[k][2]) > 0.2 * self.tolerance_rad):  # fmt: skip
+                if k in anchored and (
+                    math.hypot(nxt[0] - poses[k][0], nxt[1] - poses[k][1]) > 0.2 * self.tolerance_m
+                    or abs(nxt[2] - poses[k][2]) > 0.2 * self.tolerance_rad
+                ):
                     return n - 1
                 states[k] = nxt
         return steps
@@ -315,8 +371,10 @@ class PosePlanner:
         # the finest turn there is, even if coarser than the tolerance wants
         return min(usable, key=lambda r: ranges[r][1]) if usable else None
 
-    def _station(self, poses: list[Pose], i: int, turn: float, then_xy: tuple[float, float]) -> tuple[float, float] | None:
-        """The point on the station circle nearest the way from here to ``then_xy`` whose turn fits the travel."""
+    def _station(
+        self, poses: list[Pose], i: int, turn: float, then_xy: tuple[float, float]
+    ) -> tuple[float, float] | None:
+        """The point on the station circle on the way to ``then_xy`` whose turn fits the travel."""
         assert self.station_radius_m is not None
         pose = poses[i]
         r_s = self.station_radius_m
@@ -328,7 +386,7 @@ class PosePlanner:
             start = (r_s * math.cos(a), r_s * math.sin(a), pose[2])
             if not self.travel.contains(start[0], start[1]):
                 continue
-            steps = self._turn_count(start, direction, coarse, abs(turn), 1.0, short=False)
+            steps = self._theta_count(start, direction, coarse, abs(turn), 1.0, short=False)
             end, ok = start, True
             for _ in range(steps):  # the whole turn, 30 % long, must fit
                 end = self.model.predict("theta", direction, coarse, 1, end, 1.3)
@@ -337,14 +395,17 @@ class PosePlanner:
                     break
             if not ok:
                 continue
-            cost = math.hypot(start[0] - pose[0], start[1] - pose[1]) + math.hypot(end[0] - then_xy[0],
-                                                                                  end[1] - then_xy[1])  # fmt: skip
+            cost = math.hypot(start[0] - pose[0], start[1] - pose[1]) + math.hypot(
+                end[0] - then_xy[0], end[1] - then_xy[1]
+            )
             if best is None or cost < best[0]:
                 best = (cost, (start[0], start[1]))
         return None if best is None else best[1]
 
-    def _angle_error(self, pose: Pose, target: Pose) -> float:
-        """Signed turn target − pose (rad) modulo the symmetry; 0 for a disc."""
+    def angle_error(self, pose: Pose, target: Pose) -> float:
+        """Signed turn target − pose (rad) modulo the symmetry; 0 for a disc or a NaN (any) target angle."""
+        if math.isnan(target[2]):
+            return 0.0
         return self._angle_difference(target[2], pose[2])
 
     def _angle_difference(self, a: float, b: float) -> float:

@@ -179,7 +179,7 @@ class GainFilter:
 
 @dataclass(frozen=True)
 class TurnStep:
-    """Predicted effect of one θ step on a part: orbit about O (rad), radial drift (m), turn (rad), std of turn."""
+    """Predicted effect of one θ step on a part: orbit about O (rad), radial drift (m), turn (rad), stds."""
 
     orbit_rad: float
     radial_m: float
@@ -216,9 +216,11 @@ class ResponseModel:
                     self._gains[_key("theta", d, mode, quantity)] = GainFilter(table.radii_m)
 
     def turn_range(self, mode: str, r_m: float) -> tuple[float, float]:
-        """(smallest, largest) |turn| per step of ``mode`` over the orientations, at radius r (learned gains)."""
+        """(smallest, largest) |turn| per step of ``mode`` over the orientations at radius r (learned)."""
         table = self.turn[mode]
-        rates = [abs(self.turn_step(d, mode, r_m, 0.0, beta).turn_rad) for beta in table.betas_rad for d in (1, -1)]
+        rates = [
+            abs(self.turn_step(d, mode, r_m, 0.0, beta).turn_rad) for beta in table.betas_rad for d in (1, -1)
+        ]
         return min(rates), max(rates)
 
     def modes(self, axis: str) -> list[str]:
@@ -239,11 +241,23 @@ class ResponseModel:
         orbit, radial, turn = self.turn[mode].at(r, direction * beta)
         g_turn, s_turn = self._gains[_key("theta", direction, mode, "turn")].at(r)
         g_orbit, s_orbit = self._gains[_key("theta", direction, mode, "orbit")].at(r)
-        return TurnStep(direction * g_orbit * orbit, radial, direction * g_turn * turn,
-                        abs(s_turn * turn), abs(s_orbit * orbit))  # fmt: skip
+        return TurnStep(
+            direction * g_orbit * orbit,
+            radial,
+            direction * g_turn * turn,
+            abs(s_turn * turn),
+            abs(s_orbit * orbit),
+        )
 
-    def predict(self, axis: str, direction: int, mode: str, steps: int,
-                pose: tuple[float, float, float], scale: float = 1.0) -> tuple[float, float, float]:  # fmt: skip
+    def predict(
+        self,
+        axis: str,
+        direction: int,
+        mode: str,
+        steps: int,
+        pose: tuple[float, float, float],
+        scale: float = 1.0,
+    ) -> tuple[float, float, float]:
         """Pose after ``steps`` steps (θ: stepped through the table; ``scale`` multiplies every step)."""
         x, y, psi = pose
         if axis != "theta":
@@ -257,8 +271,15 @@ class ResponseModel:
             x, y, psi = r * math.cos(phi), r * math.sin(phi), psi + s.turn_rad * scale
         return x, y, psi
 
-    def learn(self, axis: str, direction: int, mode: str, steps: int,
-              before: tuple[float, float, float], after: tuple[float, float, float]) -> None:  # fmt: skip
+    def learn(
+        self,
+        axis: str,
+        direction: int,
+        mode: str,
+        steps: int,
+        before: tuple[float, float, float],
+        after: tuple[float, float, float],
+    ) -> None:
         """Fold in what a burst of ``steps`` did to one part (plate frame poses before and after)."""
         if steps <= 0:
             return
@@ -281,14 +302,18 @@ class ResponseModel:
             x, y, psi = r * math.cos(phi), r * math.sin(phi), psi + direction * t
         r_mid = 0.5 * (math.hypot(*before[:2]) + math.hypot(*after[:2]))
         turned = direction * (after[2] - before[2])
-        orbited = direction * math.remainder(math.atan2(after[1], after[0]) - math.atan2(before[1], before[0]),
-                                             2 * math.pi)  # fmt: skip
+        orbited = direction * math.remainder(
+            math.atan2(after[1], after[0]) - math.atan2(before[1], before[0]), 2 * math.pi
+        )
         angle_noise = 2 * self.sensor_noise_rad**2
         self._gains[_key("theta", direction, mode, "turn")].update(
-            r_mid, turn_seed, turned, angle_noise + (MODEL_STD * turn_seed) ** 2)
+            r_mid, turn_seed, turned, angle_noise + (MODEL_STD * turn_seed) ** 2
+        )
         if r_mid > 0:
             orbit_noise = 2 * (self.sensor_noise_m / r_mid) ** 2 + (MODEL_STD * orbit_seed) ** 2
-            self._gains[_key("theta", direction, mode, "orbit")].update(r_mid, orbit_seed, orbited, orbit_noise)
+            self._gains[_key("theta", direction, mode, "orbit")].update(
+                r_mid, orbit_seed, orbited, orbit_noise
+            )
 
     def estimates_json(self) -> dict[str, object]:
         """Learned gains per key (θ per radius bin), their std and the number of bursts folded in."""
