@@ -353,7 +353,9 @@ class PosePlanner:
         return r > self.station_radius_m and 0.25 * self.tolerance_rad <= fine <= 2 * self.tolerance_rad
 
     def _station_radius(self) -> float | None:
-        """Grid radius where the fine θ mode turns by ≤ 1.8 tolerances for every orientation (the largest).
+        """Grid radius nearest O where the fine θ mode turns by ¼ … 1.8 tolerances for every
+        orientation (O itself where the drive turns a part in place): the shortest trip out of
+        the dead zone, and the smallest orbit (r·Δφ) for the x and y moves to correct.
 
         From the learned model: a dead zone larger than the seed's moves the station out.
         """
@@ -362,12 +364,12 @@ class PosePlanner:
             return None
         fine = modes[-1]
         corner = max(math.hypot(x, y) for x in self.travel.x_m for y in self.travel.y_m)
-        radii = [r for r in self.model.turn[fine].radii_m if 0 < r < corner]
+        radii = [r for r in self.model.turn[fine].radii_m if 0 <= r < corner]
         ranges = {r: self.model.turn_range(fine, r) for r in radii}
         usable = [r for r in radii if ranges[r][0] >= 0.25 * self.tolerance_rad]
         within = [r for r in usable if ranges[r][1] <= 1.8 * self.tolerance_rad]
         if within:
-            return max(within)
+            return min(within)
         # the finest turn there is, even if coarser than the tolerance wants
         return min(usable, key=lambda r: ranges[r][1]) if usable else None
 
