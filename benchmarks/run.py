@@ -32,6 +32,7 @@ BENCHMARKS: tuple[str, ...] = (
     "planar_period",
     "vision_locate",
     "vision_render",
+    "pose_camera",
     "cli_start",
     "sweep_scaling",
 )
