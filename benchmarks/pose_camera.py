@@ -55,8 +55,11 @@ def run(quick: bool) -> dict[str, float | int]:
     regions = lambda: [sensor._in_region(frame, d) for d in full]  # noqa: E731
     region_s = best_time(regions, repeats)
     full_s = best_time(lambda: locate(frame, template), max(3, repeats // 4))
+    tracked = [d for d in regions() if d is not None]
+    if len(tracked) != len(POSES):
+        raise AssertionError("a part was lost in its region")
     errors = []
-    for found, (x, y, psi) in zip(sorted(regions(), key=lambda d: d.x_px), POSES, strict=True):  # type: ignore[union-attr]
+    for found, (x, y, psi) in zip(sorted(tracked, key=lambda d: d.x_px), POSES, strict=True):
         pose = (*calibration.to_plate(found.x_px, found.y_px), calibration.angle_to_plate(found.angle_rad))
         errors.append(pose_error(pose, (x, y, psi), template.symmetry_rad))
     return {
