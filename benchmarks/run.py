@@ -33,6 +33,7 @@ BENCHMARKS: tuple[str, ...] = (
     "pose_planner",
     "vision_locate",
     "vision_render",
+    "pose_camera",
     "cli_start",
     "sweep_scaling",
 )

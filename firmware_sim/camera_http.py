@@ -21,6 +21,7 @@ import contextlib
 import json
 import logging
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -40,6 +41,9 @@ from firmware_sim.world import World
 log = logging.getLogger(__name__)
 BOUNDARY = "frame"
 JPEG_QUALITY = 90
+RENDER_SWITCH_INTERVAL_S = 0.5e-3
+"""Longest wait of the render thread for the interpreter held by the tick (Python's default 5 ms,
+times the ~20 hand-overs of a frame, would cost a 30 frames/s camera its rate)."""
 
 
 @dataclass
@@ -284,6 +288,8 @@ def serve_world_camera(
     axes along the image axes, the world's part (``world.config.part``) at its true poses, each
     frame released ``latency_s`` after its exposure."""
     camera = camera or CameraModel()
+    # the render thread waits for the interpreter between its OpenCV calls: at most this long
+    sys.setswitchinterval(min(sys.getswitchinterval(), RENDER_SWITCH_INTERVAL_S))
     calibration = CameraCalibration(
         pixel_size_m, origin_x_px=(camera.width_px - 1) / 2, origin_y_px=(camera.height_px - 1) / 2
     )
