@@ -23,6 +23,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -314,6 +315,24 @@ class ResponseModel:
             self._gains[_key("theta", direction, mode, "orbit")].update(
                 r_mid, orbit_seed, orbited, orbit_noise
             )
+
+    def restore(self, estimates: dict[str, Any]) -> int:
+        """Take back gains learned earlier (:meth:`estimates_json`, e.g. kept by the daemon's
+        store); keys or radius bins that no longer match are left at the seed.  The prior's
+        correlation between bins is kept, scaled to the learned std.  Returns how many keys."""
+        taken = 0
+        for key, f in self._gains.items():
+            saved = estimates.get(key)
+            if not isinstance(saved, dict) or saved.get("radii_m") != f.centres_m.tolist():
+                continue
+            gain, std = np.asarray(saved["gain"], dtype=float), np.asarray(saved["gain_std"], dtype=float)
+            if gain.shape != f.gain.shape or std.shape != f.gain.shape or not np.all(np.isfinite(gain)):
+                continue
+            correlation = f.covariance / SEED_STD**2
+            f.gain, f.covariance = gain, correlation * np.outer(std, std)
+            f.updates = int(saved.get("bursts", 0))
+            taken += 1
+        return taken
 
     def estimates_json(self) -> dict[str, object]:
         """Learned gains per key (θ per radius bin), their std and the number of bursts folded in."""

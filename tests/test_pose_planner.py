@@ -171,3 +171,20 @@ def test_unreachable_pairs_refused_with_the_reason(model_seed: ResponseModel) ->
     assert overlap is not None and "overlap" in overlap
     verdict = planner.next_burst(poses, {1: (0.0, 0.0, 0.0), 2: (0.9e-3, 0.0, math.nan)})
     assert isinstance(verdict, Finish) and verdict.status == "unreachable"
+
+
+def test_learned_gains_survive_a_restart_and_mismatched_ones_are_left_at_the_seed() -> None:
+    from feeder.pose_response import ResponseModel
+
+    seeds = {("x", "coarse"): 2e-6, ("y", "coarse"): 2e-6}
+    model = ResponseModel(seeds, {})
+    for _ in range(5):  # the true x step is 30 % longer than the seed
+        model.learn("x", 1, "coarse", 100, (0.0, 0.0, 0.0), (260e-6, 0.0, 0.0))
+    learned = model.step_m("x", 1, "coarse")
+    assert learned[0] == pytest.approx(2.6e-6, rel=0.02)
+    fresh = ResponseModel(seeds, {})
+    saved = model.estimates_json()
+    saved["y/+/coarse/step"] = {"radii_m": [1.0], "gain": [9.0], "gain_std": [0.1], "bursts": 3}  # other bins
+    assert fresh.restore(saved) == len(seeds) * 2 - 1
+    assert fresh.step_m("x", 1, "coarse") == pytest.approx(learned)
+    assert fresh.step_m("y", 1, "coarse")[0] == pytest.approx(2e-6)  # left at the seed

@@ -11,6 +11,7 @@ is seeded with one period of the planar plant per axis and waveform
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from typing import Any
@@ -26,6 +27,8 @@ from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import Friction
 from feeder.pose_planner import PosePlanner, Travel
 from feeder.pose_response import AxisMode, seed_response
+
+log = logging.getLogger(__name__)
 
 SEED_RADII = 8
 """θ response seeded on this many radii from O to the travel's far corner."""
@@ -60,8 +63,9 @@ def ideal_modes(
 def pose_navigator_factory(
     config: DaemonConfig, modes: dict[str, StepMode], static_accel_m_s2: float
 ) -> Callable[[dict[str, Any] | None], PoseNavigator]:
-    """Builds the pose navigator when the daemon starts (``restored``: the learned response
-    the store kept; the planner starts from the plant's seed, see the module doc)."""
+    """Builds the pose navigator when the daemon starts: the planner seeded from the plant
+    (see the module doc) with the gains it learned before (``restored``: what the store kept
+    for the same part and waveforms, or None)."""
     loop = config.loop
     part = PlanarPart.from_part(config.part, Friction(static_accel_m_s2))
     travel = Travel((loop.min_position_m, loop.max_position_m), (loop.min_y_m, loop.max_y_m))
@@ -70,9 +74,10 @@ def pose_navigator_factory(
     ideal = ideal_modes(modes, config.plate.axes, config.amplifier.limits, config.plate.lever_arm_m)
 
     def build(restored: dict[str, Any] | None) -> PoseNavigator:
-        planner = PosePlanner(
-            seed_response(part, ideal, radii), travel, part, loop.tolerance_m, loop.tolerance_rad
-        )
+        model = seed_response(part, ideal, radii)
+        if restored is not None:
+            log.info("pose planner: %d learned gains restored", model.restore(restored.get("gains", {})))
+        planner = PosePlanner(model, travel, part, loop.tolerance_m, loop.tolerance_rad)
         return PoseNavigator(planner, loop, planner.symmetry_rad)
 
     return build

@@ -217,7 +217,9 @@ class Daemon:
             sensor = links.open_sensor()
             navigator = None
             if setup.pose_navigator is not None:
-                navigator = setup.pose_navigator(self.store.pose_response())
+                kept = self.store.pose_response()  # only what was learned with this part and waveforms
+                restored = kept if kept is not None and kept.get("key") == setup.calibration_key else None
+                navigator = setup.pose_navigator(restored)
             self.loop = ControlLoop(
                 amplifiers,
                 sensor,
@@ -299,7 +301,7 @@ class Daemon:
 
     def _save_estimates(self) -> None:
         if self.setup.pose_navigator is not None:
-            self.store.save_pose_response(self.loop.estimates_json())
+            self.store.save_pose_response({"key": self.setup.calibration_key, **self.loop.estimates_json()})
             return
         now = time.time()
         for name, est in self.loop.estimates().items():
