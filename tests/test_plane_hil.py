@@ -4,6 +4,7 @@ locating.  Targets are checked against the simulator's truth, not only the camer
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 import shutil
@@ -63,3 +64,29 @@ def test_a_part_reaches_five_random_poses_by_the_simulators_truth(
     history = client.history(5)
     assert [r.raw["target_pose"] for r in history] == [list(t) for t in random_targets(5, seed=16)]
     assert all(r.status == "done" and r.raw["reached_pose"] is not None for r in history)
+
+
+def test_two_parts_each_reach_their_own_target_or_the_pair_is_refused_with_the_reason() -> None:
+    base = Path(tempfile.mkdtemp(prefix="fplane2"))
+    config = config_for(PART, "serial", base)
+    config = dataclasses.replace(
+        config, plate=dataclasses.replace(config.plate, parts=((-0.3e-3, 0.2e-3, 0.1), (1.2e-3, 0.4e-3, 0.3)))
+    )
+    running = start_daemon(config)
+    try:
+        with Client(config.socket_path, timeout_s=180.0) as client:
+            status = client.status().raw
+            tol_m = status["tolerance_m"]
+            first = client.move_to_pose(-0.2e-3, 0.1e-3, 0.1, part=1, timeout_s=180.0)
+            assert first.error_m is not None and first.error_m <= tol_m
+            reply = client.request("move", part=2, x_m=1.0e-3, y_m=0.9e-3, timeout_s=180.0)
+            truth = true_poses(client.request("status"))
+            if reply["ok"]:  # both where they were sent: part 1 held at its target
+                assert pose_error(truth[1], (1.0e-3, 0.9e-3, 0.0), 0.0)[0] <= tol_m
+                assert pose_error(truth[0], (-0.2e-3, 0.1e-3, 0.1), SQUARE)[0] <= tol_m
+            else:  # refused before a step, with the planner's reason; part 1 untouched
+                assert reply["error"] and "result" not in reply, reply
+                assert pose_error(truth[0], (-0.2e-3, 0.1e-3, 0.1), SQUARE)[0] <= tol_m
+    finally:
+        running.stop()
+        shutil.rmtree(base, ignore_errors=True)
