@@ -1,10 +1,10 @@
 """The daemon's plate in the plane (x, y, θ): every axis' waveforms and the pose navigator.
 
-The three stacks are alike, so every axis steps with the one-axis planner's
-coarse and fine waveforms (:mod:`feeder.daemon.step_modes`); what a step does
-differs: x and y translate every part by the same step, θ turns the plate
-about O (the stack's stroke over the lever arm) and moves each part
-according to where it sits.  The pose planner (:mod:`feeder.pose_planner`)
+The three stacks are alike: x and y step with the one-axis planner's coarse
+and fine waveforms (:mod:`feeder.daemon.step_modes`), θ with the planner's at
+:data:`THETA_FREQUENCY_HZ`.  What a step does differs: x and y translate every
+part by the same step, θ turns the plate about O (the stack's stroke over the
+lever arm) and moves each part according to where it sits.  The pose planner (:mod:`feeder.pose_planner`)
 is seeded with one period of the planar plant per axis and waveform
 (:func:`feeder.pose_response.seed_response`) and learns the rest online.
 """
@@ -31,17 +31,23 @@ from feeder.pose_response import AxisMode, seed_response
 log = logging.getLogger(__name__)
 
 SEED_RADII = 8
+THETA_FREQUENCY_HZ = 1000.0
+"""θ steps at 1 kHz (137 V on the ANC300's rating): three times the stroke per step of the
+translations' fastest waveform, so a turn takes fewer steps; each step of a turning part is
+also what costs a simulated plant most."""
 """θ response seeded on this many radii from O to the travel's far corner."""
 
 
-def axis_modes(modes: dict[str, StepMode], axes: tuple[str, ...]) -> dict[str, dict[str, StepMode]]:
-    """The waveforms of every axis: the one-axis planner's, on each stack."""
-    return {axis: dict(modes) for axis in axes}
+def axis_modes(
+    modes: dict[str, StepMode], theta_modes: dict[str, StepMode], axes: tuple[str, ...]
+) -> dict[str, dict[str, StepMode]]:
+    """The waveforms of every axis: x and y the one-axis planner's, θ its own (``theta_modes``,
+    planned at :data:`THETA_FREQUENCY_HZ`)."""
+    return {axis: dict(theta_modes if axis == "theta" else modes) for axis in axes}
 
 
 def ideal_modes(
-    modes: dict[str, StepMode],
-    axes: tuple[str, ...],
+    modes: dict[str, dict[str, StepMode]],
     limits: AmplifierLimits,
     lever_arm_m: float,
     stack: StackParameters | None = None,
@@ -50,8 +56,8 @@ def ideal_modes(
     current-limited flyback into the stack's capacitance."""
     stack = stack or StackParameters()
     out = []
-    for axis in axes:
-        for name, mode in modes.items():
+    for axis, axis_modes in modes.items():
+        for name, mode in axis_modes.items():
             s = mode.settings
             stroke_m = s.amplitude_v * stack.gain_m_per_v
             flyback_s, _ = limits.current_limited_flyback(s.amplitude_v, s.frequency_hz, stack.capacitance_f)
@@ -61,7 +67,7 @@ def ideal_modes(
 
 
 def pose_navigator_factory(
-    config: DaemonConfig, modes: dict[str, StepMode], static_accel_m_s2: float
+    config: DaemonConfig, modes: dict[str, dict[str, StepMode]], static_accel_m_s2: float
 ) -> Callable[[dict[str, Any] | None], PoseNavigator]:
     """Builds the pose navigator when the daemon starts: the planner seeded from the plant
     (see the module doc) with the gains it learned before (``restored``: what the store kept
@@ -71,7 +77,7 @@ def pose_navigator_factory(
     travel = Travel((loop.min_position_m, loop.max_position_m), (loop.min_y_m, loop.max_y_m))
     far = max(math.hypot(x, y) for x in travel.x_m for y in travel.y_m)
     radii = tuple(float(r) for r in np.linspace(0.0, far, SEED_RADII))
-    ideal = ideal_modes(modes, config.plate.axes, config.amplifier.limits, config.plate.lever_arm_m)
+    ideal = ideal_modes(modes, config.amplifier.limits, config.plate.lever_arm_m)
 
     def build(restored: dict[str, Any] | None) -> PoseNavigator:
         model = seed_response(part, ideal, radii)

@@ -45,13 +45,23 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
     )
     plane: dict[str, Any] = {}
     if config.plate.planar:
-        from feeder.daemon.plane import axis_modes, pose_navigator_factory
+        from feeder.daemon.plane import THETA_FREQUENCY_HZ, axis_modes, pose_navigator_factory
 
         static = contact(config.part, config.support, surface, config.tau_pa).breakaway_accel_m_s2
         size = [config.part.length_m, config.part.width_m]
+        theta_modes = plan_step_modes(
+            config.part,
+            config.support,
+            surface,
+            config.tau_pa,
+            config.amplifier.limits,
+            config.loop.tolerance_m,
+            frequency_hz=THETA_FREQUENCY_HZ,
+        )
+        every_axis = axis_modes(modes, theta_modes, config.plate.axes)
         plane = {
-            "axis_modes": axis_modes(modes, config.plate.axes),
-            "pose_navigator": pose_navigator_factory(config, modes, static),
+            "axis_modes": every_axis,
+            "pose_navigator": pose_navigator_factory(config, every_axis, static),
             "parts": tuple({"shape": "rectangle", "size_m": size} for _ in config.plate.parts),
         }
     config.state_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
