@@ -35,9 +35,13 @@ def plan_step_modes(
     tau_pa: float | None,
     amplifier: AmplifierLimits,
     tolerance_m: float,
+    frequency_hz: float | None = None,
 ) -> dict[str, StepMode]:
-    """Coarse and fine :class:`StepMode`; :class:`~feeder.errors.InputError` if unplannable."""
-    coarse = plan(part, support, surface, tau_pa, amplifier, COARSE_PLAN_DISTANCE_M)
+    """Coarse and fine :class:`StepMode` (at ``frequency_hz``, else the planner's fastest);
+    :class:`~feeder.errors.InputError` if unplannable."""
+    coarse = plan(
+        part, support, surface, tau_pa, amplifier, COARSE_PLAN_DISTANCE_M, frequency_hz=frequency_hz
+    )
     fine = plan(part, support, surface, tau_pa, amplifier, tolerance_m, frequency_hz=coarse.frequency_hz)
     return {COARSE: _mode(COARSE, coarse), FINE: _mode(FINE, fine)}
 
