@@ -117,11 +117,17 @@ def compare_with_gw(
         pressure = nominal_pressure_pa * multiple
         load = pressure * area
         if load > gw.max_load_n:
-            log.info("BEM sweep stops at %g Pa: beyond GW's range", pressure)
+            notes.append(f"BEM sweep stops at {pressure:.3g} Pa: beyond GW's range")
             break
-        fraction, pixels = bem_contact_fraction(
-            heights_m, pixel_size_m, surface.effective_modulus_pa, pressure
-        )
+        try:
+            fraction, pixels = bem_contact_fraction(
+                heights_m, pixel_size_m, surface.effective_modulus_pa, pressure
+            )
+        except ArithmeticError as err:
+            if not points:
+                raise
+            notes.append(f"BEM sweep stops: {err}")
+            break
         d = gw.separation_m(load)
         points.append(
             BemPoint(
