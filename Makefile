@@ -11,6 +11,7 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[all]'
+	$(BIN)/python -m feeder.plant.warm_kernels
 	touch $(STAMP)
 
 demo: $(STAMP)
