@@ -69,7 +69,9 @@ def others_busy_cores(seconds: float = 1.0) -> float:
         fields = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
         return sum(fields), fields[3] + fields[4]  # total, idle + iowait
 
-    (t0, i0), (t1, i1) = sample(), (time.sleep(seconds), sample())[1]
+    t0, i0 = sample()
+    time.sleep(seconds)
+    t1, i1 = sample()
     return (os.cpu_count() or 1) * (1 - (i1 - i0) / max(t1 - t0, 1))
 
 

@@ -337,7 +337,7 @@ def _print_design(args: argparse.Namespace, part: str, support: str, model: str,
     print(
         f"  waveform   {w.frequency_hz:.5g} Hz, {w.amplitude_vpp:.5g} Vpp, {flyback}{w.flyback_shape} flyback"
     )
-    if axis_design.axis == "theta":
+    if axis_design.turn_rad is not None and axis_design.turn_band_rad is not None:
         t_lo, t_hi = axis_design.turn_band_rad
         print(
             f"  turn       {axis_design.turn_rad * 1e3:.4g} mrad  [{t_lo * 1e3:.4g}, {t_hi * 1e3:.4g}] "
