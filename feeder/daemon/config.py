@@ -72,8 +72,14 @@ from feeder.plant.amplifier import (
     amplifier_model,
     within_rating,
 )
+from feeder.pose import parse_poses
 
 TRANSPORTS = ("serial", "can")
+AXES = ("x", "y", "theta")
+"""The plate's axes: translations x and y, rotation θ about the centre O."""
+DEFAULT_AXIS_MAP = {"x": 1, "y": 2, "theta": 3}
+"""ANC300 axis numbers (serial) or CANopen node ids (CAN, one node per axis) of the plate's axes."""
+TRAVEL_KEYS = frozenset({"min_position_m", "max_position_m", "min_y_m", "max_y_m"})
 DEFAULT_MODELS = {"serial": "anc300", "can": "firmware_sim"}
 """The amplifier model a transport gets when the configuration names none."""
 DEFAULT_PART = "300x300x50"
@@ -105,6 +111,27 @@ class AmplifierConfig:
 
 
 @dataclass(frozen=True)
+class PlateConfig:
+    """The plate's axes and parts.
+
+    axes: which axes the daemon drives (``("x",)``: one axis, today's feeder;
+    ``("x", "y", "theta")``: the plane, parts brought to poses); axis_map: each
+    axis' ANC300 axis number or CANopen node id; lever_arm_m: radius about O at
+    which the θ stack drives the plate (simulator); parts: the parts' start poses
+    (m, m, rad; plate frame) in the simulator.
+    """
+
+    axes: tuple[str, ...] = ("x",)
+    axis_map: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_AXIS_MAP))
+    lever_arm_m: float = 2e-3
+    parts: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),)
+
+    @property
+    def planar(self) -> bool:
+        return len(self.axes) > 1
+
+
+@dataclass(frozen=True)
 class DaemonConfig:
     amplifier: AmplifierConfig = field(default_factory=AmplifierConfig)
     sensor_address: str | None = None
@@ -117,6 +144,9 @@ class DaemonConfig:
     loop: LoopSettings = field(
         default_factory=lambda: LoopSettings(min_position_m=-5e-3, max_position_m=5e-3)
     )
+    plate: PlateConfig = field(default_factory=PlateConfig)
+    camera_address: str | None = None
+    camera_timeout_s: float = 1.0
     state_dir: Path = field(default_factory=default_state_dir)
     socket_path: Path = field(default_factory=default_socket_path)
 
@@ -150,6 +180,8 @@ SECTIONS: dict[str, frozenset[str]] = {
     "part": frozenset({"size", "support", "surface", "tau_pa"}),
     "control": frozenset(f.name for f in dataclasses.fields(LoopSettings)),
     "state": frozenset({"dir", "socket"}),
+    "plate": frozenset({"axes", "axis_map", "lever_arm_m", "parts"}),
+    "camera": frozenset({"address", "timeout_s"}),
 }
 """The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
 ``[amplifier.can]``: python-can keyword arguments plus ``node_id`` and ``heartbeat_s``)."""
@@ -176,6 +208,10 @@ RANGES: dict[str, tuple[float, float]] = {
     "heartbeat_s": (0.01, 10.0),
     "min_position_m": (-1.0, 1.0),
     "max_position_m": (-1.0, 1.0),
+    "min_y_m": (-1.0, 1.0),
+    "max_y_m": (-1.0, 1.0),
+    "tolerance_rad": (1e-6, 0.5),
+    "lever_arm_m": (1e-4, 1.0),
 }
 """Accepted ranges of numeric keys (a value outside is refused, not clipped)."""
 
@@ -232,6 +268,36 @@ def _string(table: dict[str, Any], key: str, where: str, default: str | None) ->
 
 def _path(value: str | None) -> Path | None:
     return None if value is None else Path(value).expanduser()
+
+
+def _plate(table: dict[str, Any], where: str) -> PlateConfig:
+    """``[plate]``: axes (any of x, y, theta; x first), axis map, lever arm, simulated parts."""
+    axes = table.get("axes", ["x"])
+    if not (isinstance(axes, list) and axes and all(a in AXES for a in axes) and len(set(axes)) == len(axes)):
+        raise InputError(where, f"plate.axes must be a list of distinct axes among {', '.join(AXES)}")
+    if axes[0] != "x":
+        raise InputError(where, "plate.axes must start with x (the axis one-axis moves address)")
+    axis_map = table.get("axis_map", DEFAULT_AXIS_MAP)
+    if not isinstance(axis_map, dict):
+        raise InputError(where, "plate.axis_map must be a table, e.g. { x = 1, y = 2, theta = 3 }")
+    check_keys(axis_map, set(AXES), where, "plate.axis_map.")
+    numbers = {str(k): _integer(axis_map, k, where, 1, "plate.axis_map.") for k in axis_map}
+    mapped = {**DEFAULT_AXIS_MAP, **numbers}
+    if len({mapped[a] for a in axes}) != len(axes):
+        raise InputError(where, "plate.axis_map gives two axes the same number")
+    parts_text = table.get("parts", "0,0,0")
+    if not isinstance(parts_text, str):
+        raise InputError(where, "plate.parts must be a string X,Y,PSI;X,Y,PSI (m, m, rad)")
+    try:
+        parts = parse_poses(parts_text, "plate.parts")
+    except InputError as err:
+        raise InputError(where, f"plate.parts: {err.message}") from None
+    return PlateConfig(
+        axes=tuple(axes),
+        axis_map=mapped,
+        lever_arm_m=_number(table, "lever_arm_m", where, 2e-3, positive=True, section="plate."),
+        parts=parts,
+    )
 
 
 def load_config(path: Path | None) -> DaemonConfig:
@@ -320,11 +386,16 @@ def load_config(path: Path | None) -> DaemonConfig:
                 loop_fields[f.name] = _integer(control, f.name, where, default, "control.")
             else:
                 loop_fields[f.name] = _number(
-                    control, f.name, where, default, positive="position" not in f.name, section="control."
+                    control, f.name, where, default, positive=f.name not in TRAVEL_KEYS, section="control."
                 )
     loop = dataclasses.replace(defaults, **loop_fields)
     if not loop.min_position_m < loop.max_position_m:
         raise InputError(where, "control.min_position_m must be below control.max_position_m")
+    if not loop.min_y_m < loop.max_y_m:
+        raise InputError(where, "control.min_y_m must be below control.max_y_m")
+    plate = _plate(_table(doc, "plate", where), where)
+    camera = _table(doc, "camera", where)
+    camera_address = _string(camera, "address", where, None)
 
     state = _table(doc, "state", where)
     base = DaemonConfig()
@@ -338,6 +409,9 @@ def load_config(path: Path | None) -> DaemonConfig:
         surface_path=_path(_string(part_t, "surface", where, None)),
         tau_pa=tau_pa,
         loop=loop,
+        plate=plate,
+        camera_address=camera_address,
+        camera_timeout_s=_number(camera, "timeout_s", where, 1.0, positive=True, section="camera."),
         state_dir=_path(_string(state, "dir", where, None)) or base.state_dir,
         socket_path=_path(_string(state, "socket", where, None)) or base.socket_path,
     )
