@@ -284,14 +284,20 @@ def _theta_plant(args: argparse.Namespace, part: Part, friction: Friction) -> tu
         np.ndarray, float, np.ndarray, dict[str, Any]]:  # fmt: skip
     """The waveform on the θ channel of the planar plant (amplifier, stack, planar stick-slip)."""
     from feeder.axis_design import run_axis_waveform
+    from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
+    from feeder.waveform import read_waveform_tables
 
     if args.scatter > 0:
         raise InputError("--scatter", "the planar plant has no scatter (--axis theta)")
     amplifier = file_amplifier(args.waveform)
     waveform = load_checked(args.waveform, amplifier)
     planar = PlanarPart.from_part(part, friction, args.pose, args.part_shape)
-    run_ = run_axis_waveform(planar, waveform, "theta", args.periods, amplifier)
-    extra = {"model": "planar-plant", "waveform": str(args.waveform), "part_shape": args.part_shape}
+    lever_arm_m = read_waveform_tables(args.waveform).get("axis", {}).get("lever_arm_m", DEFAULT_LEVER_ARM_M)
+    run_ = run_axis_waveform(
+        planar, waveform, "theta", args.periods, amplifier, lever_arm_m=float(lever_arm_m)
+    )
+    extra = {"model": "planar-plant", "waveform": str(args.waveform), "part_shape": args.part_shape,
+             "lever_arm_m": lever_arm_m}  # fmt: skip
     return run_.steps_m, run_.slip_fraction, run_.poses[1:], extra
 
 

@@ -22,11 +22,13 @@ from feeder.cli.arguments import (
     part_from,
     pose,
     positive_float,
+    positive_length_m,
 )
 from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure, write_text
 from feeder.plant.amplifier import AmplifierLimits, OutputStage, limits_from_table
+from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
 from feeder.plant.plate_motion import AXES
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
@@ -126,6 +128,9 @@ def register(sub: Any) -> None:
         choices=("rectangle", "disc"),
         help="theta: footprint, rectangle LxW or disc of diameter L (default rectangle)",
     )
+    design.add_argument("--lever-arm-m", type=positive_length_m, default=DEFAULT_LEVER_ARM_M, metavar="L",
+                        help=f"theta: radius at which the θ stack drives the plate about O "
+                             f"(default {DEFAULT_LEVER_ARM_M:g} m, as [plate] lever_arm_m)")  # fmt: skip
     design.add_argument("--out", type=output_path, required=True, help="design file (TOML) to write")
     design.add_argument("--json", action="store_true", help="print one JSON object")
     allow_negative_values(design)
@@ -305,9 +310,10 @@ def run_design(args: argparse.Namespace) -> int:
     for axis in axes:
         translation = next((d for d in designs.values() if d.axis != "theta"), None)
         if axis != "theta" and translation is not None:  # x and y: the same 1-D design (DESIGN §9)
-            designs[axis] = AxisDesign(axis, translation.design, where, part_shape=args.part_shape)
+            designs[axis] = AxisDesign(axis, translation.design, where, args.lever_arm_m, args.part_shape)
         else:
-            designs[axis] = design_axis(problem, axis, args.objective, pose=where, part_shape=args.part_shape,
+            designs[axis] = design_axis(problem, axis, args.objective, pose=where,
+                                        lever_arm_m=args.lever_arm_m, part_shape=args.part_shape,
                                         shapes=shapes, progress=progress)  # fmt: skip
     for axis, design in designs.items():  # written once all are found: nothing half-done on an error
         write_axis_design(paths[axis], problem, design, written_by="feeder waveform design")
