@@ -9,6 +9,11 @@ workers that have imported the package and loaded the compiled kernels
 ``ratio_with_startup`` counts the cluster's start and the warm-up too.  All
 runs' results are checked equal, value for value.
 
+The workers run with :data:`feeder.sweep.WORKER_MALLOC_ENV` (glibc malloc
+thresholds; Dask's own setting costs +47 % CPU per chunk in page faults), and
+so that the comparison stays fair the serial run in this process gets the same
+settings through ``mallopt`` (``serial_has_worker_malloc``).
+
 The machine may be shared.  Other jobs' load changes the speed of a run
 two-fold within a minute, so serial and Dask runs are interleaved (S, D, S, D)
 and the best of each kept, and the run reports what the machine gave it:
@@ -17,11 +22,17 @@ runs, from /proc/stat), ``serial_cpu_per_wall`` (≈ 1: the serial run had a
 core to itself and is single-threaded), and ``capacity`` — a pure-Python loop
 timed alone in this process, then on every worker at once: the speed-up a
 perfectly parallel job could reach now (2 on an idle 2-core machine).
-``efficiency`` = ratio / capacity is the sweep's share of it.
+``efficiency`` = ratio / capacity is the sweep's share of it.  ``cpu_ratio``
+projects the speed-up on free cores from CPU times, not wall times: serial
+CPU over the Dask run's bound (its busiest worker's CPU, or all its CPU —
+workers, scheduler, client and Parquet writes — over the cores); it shows
+whether the work splits evenly and the overhead is small when the machine is
+too busy for the wall-clock ratio to say so.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import tempfile
 import time
@@ -31,9 +42,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from feeder.sweep import DEFAULTS, SweepSettings, SweepSpec, run_sweep, warm_up
+from feeder.sweep import (
+    DEFAULTS,
+    WORKER_MALLOC_ENV,
+    SweepSettings,
+    SweepSpec,
+    local_cluster,
+    run_sweep,
+    warm_up,
+)
 
-PROBE_LOOPS = 3_000_000
+PROBE_LOOPS = 10_000_000
 
 
 def spec(quick: bool) -> SweepSpec:
@@ -62,6 +81,22 @@ def capacity(client: Any) -> float:
     return sum(alone / t for t in together.values())
 
 
+def cpu_s() -> float:
+    """CPU time (s) this process has used (run on each worker with ``client.run``)."""
+    return time.process_time()
+
+
+def same_allocator_here() -> bool:
+    """Give this process (the serial run) the workers' malloc settings, with glibc's mallopt."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:
+        return False
+    m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's malloc.h
+    return bool(libc.mallopt(m_mmap_threshold, WORKER_MALLOC_ENV["MALLOC_MMAP_THRESHOLD_"]) and
+                libc.mallopt(m_trim_threshold, WORKER_MALLOC_ENV["MALLOC_TRIM_THRESHOLD_"]))  # fmt: skip
+
+
 def others_busy_cores(seconds: float = 1.0) -> float:
     """Cores' worth of CPU used by every process on the machine over ``seconds`` (we are idle)."""
 
@@ -76,18 +111,20 @@ def others_busy_cores(seconds: float = 1.0) -> float:
 
 
 def run(quick: bool = False) -> dict[str, object]:
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
     sweep = spec(quick)
     workers = os.cpu_count() or 1
+    same_allocator = same_allocator_here()
     others = others_busy_cores()
     load_before = os.getloadavg()[0]
     serial_times, serial_cpu, dask_times, capacities = [], [], [], []
+    driver_cpu: list[float] = []
+    worker_cpu: list[list[float]] = []
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         t0 = time.perf_counter()
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None)  # fmt: skip
+        cluster = local_cluster(workers)
         client = Client(cluster)
         try:
             client.run(warm_up, sweep.settings)
@@ -99,9 +136,12 @@ def run(quick: bool = False) -> dict[str, object]:
                 run_sweep(sweep, folder / f"serial{k}.parquet", serial=True)
                 serial_times.append(time.perf_counter() - t0)
                 serial_cpu.append(time.process_time() - c0)
-                t0 = time.perf_counter()
+                before, c0, t0 = client.run(cpu_s), time.process_time(), time.perf_counter()
                 run_sweep(sweep, folder / f"dask{k}.parquet", scheduler=cluster.scheduler_address)
                 dask_times.append(time.perf_counter() - t0)
+                driver_cpu.append(time.process_time() - c0)
+                after = client.run(cpu_s)
+                worker_cpu.append([after[w] - before[w] for w in before])
             capacities.append(capacity(client))
         finally:
             client.close()
@@ -113,6 +153,10 @@ def run(quick: bool = False) -> dict[str, object]:
     best = int(np.argmin(serial_times))
     serial_s, dask_s = serial_times[best], min(dask_times)
     ratio = serial_s / dask_s
+    # on `workers` free cores a Dask run lasts at least its busiest worker's CPU time, and at least
+    # all its CPU (workers + this process: scheduler, client, Parquet writes) spread over the cores
+    k = int(np.argmin(dask_times))
+    dask_cpu_bound = max(max(worker_cpu[k]), (sum(worker_cpu[k]) + driver_cpu[k]) / workers)
     return {
         "ratio": ratio,
         "ratio_with_startup": serial_s / (dask_s + startup_s),
@@ -127,8 +171,13 @@ def run(quick: bool = False) -> dict[str, object]:
         "serial_runs_s": serial_times,
         "dask_runs_s": dask_times,
         "serial_cpu_per_wall": serial_cpu[best] / serial_s,
+        "serial_cpu_s": serial_cpu[best],
+        "dask_worker_cpu_s": worker_cpu[k],
+        "dask_driver_cpu_s": driver_cpu[k],
+        "cpu_ratio": serial_cpu[best] / dask_cpu_bound,
         "cluster_startup_s": startup_s,
         "identical_results": same,
+        "serial_has_worker_malloc": same_allocator,
         "others_busy_cores": others,
         "load_average_1min_before": load_before,
         "load_average_1min": os.getloadavg()[0],

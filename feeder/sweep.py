@@ -49,7 +49,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -65,6 +65,9 @@ from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, simulate_batch
 from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters, load_surface
 from feeder.waveform import FLYBACK_SHAPES, Waveform
+
+if TYPE_CHECKING:
+    from dask.distributed import LocalCluster
 
 log = logging.getLogger(__name__)
 
@@ -419,6 +422,30 @@ def run_sweep(
     return SweepReport(len(spec.points), len(chunks), len(todo), cached, out)
 
 
+WORKER_MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": 32 * 2**20, "MALLOC_TRIM_THRESHOLD_": 64 * 2**20}
+"""glibc malloc settings of local workers (bytes): allocations up to 32 MiB from the heap, up to
+64 MiB of it kept free.  Dask's nanny sets ``MALLOC_TRIM_THRESHOLD_=65536``, which switches off
+glibc's dynamic mmap threshold: every MB-sized temporary of a plant point is then a fresh mmap
+paid for in page faults — measured 2× the page faults and +47 % CPU per chunk against a plain
+process, and −30 % with these values (glibc's own dynamic limits on 64-bit)."""
+
+
+def local_cluster(workers: int) -> LocalCluster:
+    """A local Dask cluster: ``workers`` single-threaded processes on 127.0.0.1, no dashboard.
+
+    Processes, not threads: a plant point holds the GIL.  The workers get
+    :data:`WORKER_MALLOC_ENV` (it must be set before they start) and Dask's
+    one BLAS/OpenMP thread each.
+    """
+    import dask
+    from dask.distributed import LocalCluster
+
+    environ = {**dask.config.get("distributed.nanny.pre-spawn-environ"), **WORKER_MALLOC_ENV}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            dashboard_address=None)  # fmt: skip
+
+
 def _evaluate(
     settings: SweepSettings,
     chunks: list[list[dict[str, Any]]],
@@ -432,15 +459,13 @@ def _evaluate(
         for index, rows in zip(indices, chunks, strict=True):
             yield index, evaluate_chunk(settings, rows)
         return
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import Client, as_completed
 
     if scheduler:
         client = Client(scheduler)
         cluster = None
     else:
-        n = workers or os.cpu_count() or 1
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None)  # fmt: skip
+        cluster = local_cluster(workers or os.cpu_count() or 1)
         client = Client(cluster)
     try:
         futures = {client.submit(evaluate_chunk, settings, rows, pure=False): index
