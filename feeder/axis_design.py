@@ -27,6 +27,7 @@ over τ's band × the F_k/F_s spread — is the planar plant's.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -57,6 +58,8 @@ from feeder.plant.plate_motion import AXES
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import Friction, kinetic_ratio_band
 from feeder.waveform import FLYBACK_SHAPES, Waveform
+
+log = logging.getLogger(__name__)
 
 AXIS_CHANNELS = {"x": 1, "y": 2, "theta": 3}
 """Amplifier channel per axis (ANC300 axes 1–3, DESIGN §9)."""
@@ -195,7 +198,7 @@ def design_axis(
     """
     if axis not in AXES:
         raise InputError("axis", f"expected one of {', '.join(AXES)}, got {axis!r}")
-    say = progress or (lambda message: None)
+    say = progress or (lambda message: log.info("%s", message))
     if axis != "theta":
         design = design_waveform(problem, objective, shapes=shapes, progress=progress, **search)
         return AxisDesign(axis, design, pose, lever_arm_m, part_shape)
