@@ -28,7 +28,7 @@ def feeder(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 @pytest.mark.timeout(150)
 def test_demo_json_summary_and_plot(tmp_path: Path) -> None:
     plot = tmp_path / "demo.png"
-    done = feeder("demo", "--json", "--plot", str(plot), cwd=tmp_path)
+    done = feeder("demo", "--line", "--json", "--plot", str(plot), cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     moves = summary["moves"]

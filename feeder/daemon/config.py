@@ -48,6 +48,14 @@ average_samples = 3
 [state]
 dir = "~/.local/state/feeder" # calibration, history, last position (SQLite)
 socket = "/run/user/1000/feeder/feeder.sock"
+
+[http]                        # the browser console (docs/console.md); off without [http] or --http
+listen = "127.0.0.1:8470"     # HOST:PORT (port 0: any free one)
+allow_remote = false          # true: allow a listen address other than loopback
+origins = []                  # further Origin values allowed to change state (a reverse proxy's)
+camera = "http://127.0.0.1:8080/video.mjpg"   # the live view's frames (open_camera spec)
+moves_per_s = 2.0             # rate limit of move, jog and calibrate requests ...
+move_burst = 5                # ... after a burst of this many
 ```
 """
 
@@ -55,6 +63,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import ipaddress
 import math
 import os
 from dataclasses import dataclass, field
@@ -83,6 +92,7 @@ TRAVEL_KEYS = frozenset({"min_position_m", "max_position_m", "min_y_m", "max_y_m
 DEFAULT_MODELS = {"serial": "anc300", "can": "firmware_sim"}
 """The amplifier model a transport gets when the configuration names none."""
 DEFAULT_PART = "300x300x50"
+DEFAULT_HTTP_LISTEN = "127.0.0.1:8470"
 
 
 def default_state_dir() -> Path:
@@ -111,6 +121,48 @@ class AmplifierConfig:
 
 
 @dataclass(frozen=True)
+class HttpConfig:
+    """The browser console's server (:mod:`feeder.daemon.http_console`).
+
+    moves_per_s, move_burst: token bucket over move, jog and calibrate requests.
+    camera: an :func:`~feeder.drivers.video_camera.open_camera` spec for the live view.
+    """
+
+    host: str = "127.0.0.1"
+    port: int = 8470
+    allow_remote: bool = False
+    origins: tuple[str, ...] = ()
+    camera: str | None = None
+    moves_per_s: float = 2.0
+    move_burst: int = 5
+
+    def listening_on(self, listen: str, field: str) -> HttpConfig:
+        """The same settings at ``listen`` (``HOST:PORT``, ``[::1]:PORT``); a host that is not
+        loopback is refused unless ``allow_remote``."""
+        host, sep, port_text = listen.rpartition(":")
+        host = host.removeprefix("[").removesuffix("]")
+        if not sep or not host or not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
+            raise InputError(field, f"expected HOST:PORT (e.g. {DEFAULT_HTTP_LISTEN}), got {listen!r}")
+        if not self.allow_remote and not is_loopback(host):
+            raise InputError(
+                field,
+                f"{host} is not a loopback address; the console serves loopback only "
+                "unless the configuration says [http] allow_remote = true",
+            )
+        return dataclasses.replace(self, host=host, port=int(port_text))
+
+
+def is_loopback(host: str) -> bool:
+    """``localhost`` or a loopback IP address (127.0.0.0/8, ::1)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+@dataclass(frozen=True)
 class PlateConfig:
     """The plate's axes and parts.
 
@@ -123,12 +175,35 @@ class PlateConfig:
 
     axes: tuple[str, ...] = ("x",)
     axis_map: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_AXIS_MAP))
-    lever_arm_m: float = 2e-3
+    lever_arm_m: float = 1e-3
     parts: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),)
 
     @property
     def planar(self) -> bool:
         return len(self.axes) > 1
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The microscope camera the daemon locates parts with (a plate driven in the plane).
+
+    address: what :func:`feeder.drivers.video_camera.open_camera` opens (an MJPEG
+    URL, a device index, ``genicam:PRODUCER#SERIAL``); None with the simulator (its
+    camera); pixel_size_m, width_px, height_px: the image's scale and size, used
+    (plate origin at the image centre, axes along the image's) until ``feeder vision
+    calibrate --save-state`` stores a measured calibration; fps: the simulated
+    camera's frame rate.  The simulator's default, 1024 px at 5 µm/px, sees 5.1 mm
+    (the ±2.5 mm travel) with a 300 µm part 60 px wide (centre ≈ 0.1 µm, angle ≈ 0.04°,
+    docs/vision.md); 2048 px at 30 frames/s costs more to encode and decode than two
+    cores have (35 ms and 54 ms per frame).
+    """
+
+    address: str | None = None
+    timeout_s: float = 2.0
+    pixel_size_m: float = 5e-6
+    width_px: int = 1024
+    height_px: int = 1024
+    fps: float = 15.0
 
 
 @dataclass(frozen=True)
@@ -145,10 +220,11 @@ class DaemonConfig:
         default_factory=lambda: LoopSettings(min_position_m=-5e-3, max_position_m=5e-3)
     )
     plate: PlateConfig = field(default_factory=PlateConfig)
-    camera_address: str | None = None
-    camera_timeout_s: float = 1.0
+    camera: CameraConfig = field(default_factory=CameraConfig)
     state_dir: Path = field(default_factory=default_state_dir)
     socket_path: Path = field(default_factory=default_socket_path)
+    http: HttpConfig | None = None
+    """The browser console; None: off."""
 
     @property
     def database_path(self) -> Path:
@@ -180,8 +256,9 @@ SECTIONS: dict[str, frozenset[str]] = {
     "part": frozenset({"size", "support", "surface", "tau_pa"}),
     "control": frozenset(f.name for f in dataclasses.fields(LoopSettings)),
     "state": frozenset({"dir", "socket"}),
+    "http": frozenset({"listen", "allow_remote", "origins", "camera", "moves_per_s", "move_burst"}),
     "plate": frozenset({"axes", "axis_map", "lever_arm_m", "parts"}),
-    "camera": frozenset({"address", "timeout_s"}),
+    "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps"}),
 }
 """The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
 ``[amplifier.can]``: python-can keyword arguments plus ``node_id`` and ``heartbeat_s``)."""
@@ -208,10 +285,16 @@ RANGES: dict[str, tuple[float, float]] = {
     "heartbeat_s": (0.01, 10.0),
     "min_position_m": (-1.0, 1.0),
     "max_position_m": (-1.0, 1.0),
+    "moves_per_s": (0.01, 1000.0),
+    "move_burst": (1, 1000),
     "min_y_m": (-1.0, 1.0),
     "max_y_m": (-1.0, 1.0),
     "tolerance_rad": (1e-6, 0.5),
     "lever_arm_m": (1e-4, 1.0),
+    "pixel_size_m": (1e-9, 1e-3),
+    "width_px": (16, 8192),
+    "height_px": (16, 8192),
+    "fps": (0.1, 1000.0),
 }
 """Accepted ranges of numeric keys (a value outside is refused, not clipped)."""
 
@@ -270,6 +353,12 @@ def _path(value: str | None) -> Path | None:
     return None if value is None else Path(value).expanduser()
 
 
+def uses_camera(config: DaemonConfig) -> bool:
+    """The daemon locates parts in a camera's frames (a plate in the plane without a
+    position stream)."""
+    return config.plate.planar and config.sensor_address is None
+
+
 def _plate(table: dict[str, Any], where: str) -> PlateConfig:
     """``[plate]``: axes (any of x, y, theta; x first), axis map, lever arm, simulated parts."""
     axes = table.get("axes", ["x"])
@@ -295,7 +384,9 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
     return PlateConfig(
         axes=tuple(axes),
         axis_map=mapped,
-        lever_arm_m=_number(table, "lever_arm_m", where, 2e-3, positive=True, section="plate."),
+        lever_arm_m=_number(
+            table, "lever_arm_m", where, PlateConfig.lever_arm_m, positive=True, section="plate."
+        ),
         parts=parts,
     )
 
@@ -394,11 +485,22 @@ def load_config(path: Path | None) -> DaemonConfig:
     if not loop.min_y_m < loop.max_y_m:
         raise InputError(where, "control.min_y_m must be below control.max_y_m")
     plate = _plate(_table(doc, "plate", where), where)
-    camera = _table(doc, "camera", where)
-    camera_address = _string(camera, "address", where, None)
+    camera_t = _table(doc, "camera", where)
+    cam = CameraConfig()
+    camera = CameraConfig(
+        address=_string(camera_t, "address", where, None),
+        timeout_s=_number(camera_t, "timeout_s", where, cam.timeout_s, positive=True, section="camera."),
+        pixel_size_m=_number(
+            camera_t, "pixel_size_m", where, cam.pixel_size_m, positive=True, section="camera."
+        ),
+        width_px=_integer(camera_t, "width_px", where, cam.width_px, "camera."),
+        height_px=_integer(camera_t, "height_px", where, cam.height_px, "camera."),
+        fps=_number(camera_t, "fps", where, cam.fps, positive=True, section="camera."),
+    )
 
     state = _table(doc, "state", where)
     base = DaemonConfig()
+    http = _http_config(_table(doc, "http", where), where) if "http" in doc else None
     return DaemonConfig(
         amplifier=amplifier,
         sensor_address=sensor_address,
@@ -410,8 +512,30 @@ def load_config(path: Path | None) -> DaemonConfig:
         tau_pa=tau_pa,
         loop=loop,
         plate=plate,
-        camera_address=camera_address,
-        camera_timeout_s=_number(camera, "timeout_s", where, 1.0, positive=True, section="camera."),
+        camera=camera,
         state_dir=_path(_string(state, "dir", where, None)) or base.state_dir,
         socket_path=_path(_string(state, "socket", where, None)) or base.socket_path,
+        http=http,
     )
+
+
+def _http_config(table: dict[str, Any], where: str) -> HttpConfig:
+    """The ``[http]`` section (its presence turns the console on)."""
+    allow_remote = table.get("allow_remote", False)
+    if not isinstance(allow_remote, bool):
+        raise InputError(where, f"http.allow_remote must be true or false, got {allow_remote!r}")
+    origins = table.get("origins", [])
+    if not (isinstance(origins, list) and all(isinstance(o, str) and "://" in o for o in origins)):
+        raise InputError(where, "http.origins must be a list of origins such as 'https://console.lab'")
+    http = HttpConfig(
+        allow_remote=allow_remote,
+        origins=tuple(o.rstrip("/") for o in origins),
+        camera=_string(table, "camera", where, None),
+        moves_per_s=_number(table, "moves_per_s", where, 2.0, positive=True, section="http."),
+        move_burst=_integer(table, "move_burst", where, 5, "http."),
+    )
+    listen = str(_string(table, "listen", where, DEFAULT_HTTP_LISTEN))
+    try:
+        return http.listening_on(listen, "http.listen")
+    except InputError as err:
+        raise InputError(where, f"http.listen: {err.message}") from None

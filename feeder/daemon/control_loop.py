@@ -64,6 +64,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+JITTER_WINDOW = 10_000
+"""Ticks the jitter figures cover (100 s at 100 Hz): enough for a p99, cheap to sort per status."""
+
 
 class SensorFeed:
     """Reads the sensor in its own thread so a slow frame never stalls the tick."""
@@ -147,7 +150,7 @@ class ControlLoop:
         self._lock = threading.Lock()  # guards the policy between tick and API calls
         self._shutdown = threading.Event()
         self._thread: threading.Thread | None = None
-        self._jitter = collections.deque[float](maxlen=100_000)
+        self._jitter = collections.deque[float](maxlen=JITTER_WINDOW)
         self.ticks = 0
         self.overruns = 0
 
@@ -156,6 +159,10 @@ class ControlLoop:
     def amplifier(self) -> Amplifier:
         """The x axis' driver."""
         return self.executor.amplifier
+
+    @property
+    def sensor(self) -> PositionSensor:
+        return self._feed.sensor
 
     @property
     def amplifiers(self) -> dict[str, Amplifier]:
@@ -281,7 +288,7 @@ class ControlLoop:
 
     def timing(self) -> dict[str, float | int]:
         """Tick jitter p50/p99/max (s), ticks and overruns."""
-        jitter = np.array(self._jitter, dtype=float)
+        jitter = np.array(self._jitter, dtype=float)  # the last JITTER_WINDOW ticks
         if jitter.size == 0:
             return {
                 "rate_hz": self.settings.rate_hz,

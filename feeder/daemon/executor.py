@@ -148,11 +148,12 @@ class AmplifierExecutor:
 
 
 def _per_axis(amplifiers: Amplifier | Mapping[str, Amplifier]) -> dict[str, Amplifier]:
+    """One driver per axis; a group of axes (:class:`feeder.drivers.axes.Axes`) is kept as it is."""
     if isinstance(amplifiers, Amplifier):
         return {"x": amplifiers}
     if "x" not in amplifiers:
         raise ValueError("the amplifiers must include the x axis")
-    return dict(amplifiers)
+    return amplifiers if isinstance(amplifiers, dict) else dict(amplifiers)
 
 
 class RecordWriter:

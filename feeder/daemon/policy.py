@@ -159,6 +159,10 @@ class Policy:
         self._now = 0.0
         self._out: list[Output] = []
 
+    def applied(self, axis: str) -> str | None:
+        """The waveform mode loaded on ``axis`` (None: none since the link opened)."""
+        return self._applied.get(axis)
+
     @property
     def position_m(self) -> float | None:
         """The first part's x (m), or None while the position is uncertain."""

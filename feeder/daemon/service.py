@@ -211,13 +211,15 @@ class Daemon:
             self.interrupted_moves = self.store.interrupt_running_moves()
             amplifiers = _per_axis(links.open_amplifier())
             self._amplifier_generation = getattr(links, "respawns", 0)
+            undo.callback(_close, amplifiers)
             for amplifier in amplifiers.values():
-                undo.callback(amplifier.close)
                 amplifier.ground()
             sensor = links.open_sensor()
             navigator = None
             if setup.pose_navigator is not None:
-                navigator = setup.pose_navigator(self.store.pose_response())
+                kept = self.store.pose_response()  # only what was learned with this part and waveforms
+                restored = kept if kept is not None and kept.get("key") == setup.calibration_key else None
+                navigator = setup.pose_navigator(restored)
             self.loop = ControlLoop(
                 amplifiers,
                 sensor,
@@ -267,8 +269,8 @@ class Daemon:
         for amplifier in self.loop.amplifiers.values():
             with contextlib.suppress(FeederError, OSError):  # a dead link must not stop the shutdown
                 amplifier.ground()
-            with contextlib.suppress(FeederError, OSError):
-                amplifier.close()
+        with contextlib.suppress(FeederError, OSError):
+            _close(self.loop.amplifiers)
         if self._server is not None:
             self._server.close()
             with contextlib.suppress(FileNotFoundError):
@@ -299,7 +301,7 @@ class Daemon:
 
     def _save_estimates(self) -> None:
         if self.setup.pose_navigator is not None:
-            self.store.save_pose_response(self.loop.estimates_json())
+            self.store.save_pose_response({"key": self.setup.calibration_key, **self.loop.estimates_json()})
             return
         now = time.time()
         for name, est in self.loop.estimates().items():
@@ -405,13 +407,12 @@ class Daemon:
         if kind == "amplifier":
             # ground where the link still allows it (never through a stale simulator pty:
             # another program may own that path now), then free the port for the reconnect
-            grounded = getattr(self.links, "respawns", 0) == self._amplifier_generation
-            for amplifier in self.loop.amplifiers.values():
-                if grounded:
+            if getattr(self.links, "respawns", 0) == self._amplifier_generation:
+                for amplifier in self.loop.amplifiers.values():
                     with contextlib.suppress(FeederError, OSError):
                         amplifier.ground()
-                with contextlib.suppress(FeederError, OSError):
-                    amplifier.close()
+            with contextlib.suppress(FeederError, OSError):
+                _close(self.loop.amplifiers)
         thread = threading.Thread(
             target=self._reconnect, args=(kind, record), name=f"reconnect-{kind}", daemon=True
         )
@@ -427,8 +428,8 @@ class Daemon:
                 if kind == "amplifier":
                     amps = _per_axis(self.links.open_amplifier())
                     with contextlib.ExitStack() as undo:  # a link that cannot ground is closed
+                        undo.callback(_close, amps)
                         for amp in amps.values():
-                            undo.callback(amp.close)
                             amp.ground()
                         undo.pop_all()
                     self.loop.replace_amplifier(amps)
@@ -673,18 +674,27 @@ class Daemon:
         for i, info in enumerate(self.setup.parts or ({"id": 1},), start=1):
             pose = reading[i - 1] if i <= len(reading) else None
             parts.append({**info, "id": i, "pose": None if pose is None else list(pose)})
+        steps_of = getattr(loop.policy.navigator, "axis_steps", None)
+        learned = steps_of(reading[0] if reading else None) if callable(steps_of) else {}
         return {
             "parts": parts,
             "axes": {
                 axis: {
                     "modes": {k: dataclasses.asdict(m.settings) for k, m in modes.items()},
-                    "applied": loop.policy._applied.get(axis),
+                    "applied": loop.policy.applied(axis),
+                    **learned.get(axis, {}),
                 }
                 for axis, modes in loop.policy.modes.items()
             },
             "tolerance_rad": s.tolerance_rad,
             "travel_m": {"x": [s.min_position_m, s.max_position_m], "y": [s.min_y_m, s.max_y_m]},
         }
+
+    def latest_image(self) -> Any:
+        """The newest camera frame the sensor located parts in (an image array), or None."""
+        latest = getattr(self.loop.sensor, "latest_image", None)
+        frame = latest() if callable(latest) else None
+        return None if frame is None else frame.image
 
     def _live_links(self) -> dict[str, Any]:
         """What may change while running (a respawned simulator's pid and endpoints)."""
@@ -766,7 +776,17 @@ class Daemon:
 
 
 def _per_axis(amplifiers: Amplifier | dict[str, Amplifier]) -> dict[str, Amplifier]:
-    return {"x": amplifiers} if isinstance(amplifiers, Amplifier) else dict(amplifiers)
+    return {"x": amplifiers} if isinstance(amplifiers, Amplifier) else amplifiers
+
+
+def _close(amplifiers: dict[str, Amplifier]) -> None:
+    """Release the drivers, outputs untouched (a group of axes on one link releases it once)."""
+    release = getattr(amplifiers, "release", None)
+    if callable(release):
+        release()
+        return
+    for amplifier in amplifiers.values():
+        amplifier.close()
 
 
 def _brief(value: Any) -> str:

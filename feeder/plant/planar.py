@@ -38,6 +38,7 @@ from scipy.optimize import brentq
 from feeder.errors import InputError
 from feeder.parts import Part
 from feeder.plant import kernels
+from feeder.plant import planar_kernels as pk
 from feeder.plant.limit_surface import Patch
 from feeder.plant.plate_motion import PlanarMotion, Segment
 from feeder.plant.stick_slip import Friction
@@ -386,6 +387,14 @@ class _PartState:
         return seg.duration_s
 
 
+def _params(part: PlanarPart) -> np.ndarray:
+    """The part's parameter row for :mod:`.planar_kernels`."""
+    patch, friction = part.patch, part.friction
+    return pk.part_params(patch.shape == "disc", patch.length_m, patch.width_m, part.mass_kg,
+                          part.inertia_kg_m2, friction.static_accel_m_s2, friction.kinetic_ratio,
+                          patch.area_m2, patch.polar_m3, patch.second_moments_m4)  # fmt: skip
+
+
 class PlanarStickSlip:
     """Several parts on one plate, state kept across calls (plate frame = lab frame at t = 0).
 
@@ -401,32 +410,56 @@ class PlanarStickSlip:
             raise InputError("parts", "at least one part is needed")
         check_overlaps(parts)
         self.parts = list(parts)
+        self.elapsed_s = 0.0
+        self._compiled = kernels.enabled()
         self._states = [_PartState(p) for p in parts]
         self._plate = _Plate(initial_velocity)
-        self.elapsed_s = 0.0
+        # the compiled solver's state (:mod:`.planar_kernels`), used when kernels are enabled
+        self._params = np.array([_params(p) for p in parts])
+        self._array = np.array([pk.initial_state(p.pose, p.patch.radius_m) for p in parts])
+        self._plate_array = np.array([0.0, 0.0, 0.0, *initial_velocity, 0.0])
 
     @property
     def plate_pose(self) -> Pose:
         """(x_O, y_O, θ) of the plate in the lab frame (m, m, rad)."""
+        if self._compiled:
+            x, y, theta = self._plate_array[:3].tolist()
+            return x, y, theta
         return self._plate.pose
 
     @property
     def slip_time_s(self) -> list[float]:
+        if self._compiled:
+            return self._array[:, pk.SLIP].tolist()
         return [s.slip_time_s for s in self._states]
 
     def poses(self) -> list[Pose]:
         """Each part's pose in the plate frame now."""
+        if self._compiled:
+            return [pk.plate_frame_pose(st, *self.plate_pose) for st in self._array]
         return [s.plate_pose(self._plate.pose) for s in self._states]
 
     def lab_poses(self) -> list[Pose]:
         """Each part's pose in the lab frame now (what a camera sees)."""
+        if self._compiled:
+            return [pk.lab_pose(st, *self.plate_pose) for st in self._array]
         return [s.lab_pose(self._plate.pose) for s in self._states]
 
     def stuck(self) -> list[bool]:
+        if self._compiled:
+            return [bool(st[pk.STUCK]) for st in self._array]
         return [s.stuck for s in self._states]
 
     def advance(self, segments: tuple[Segment, ...] | list[Segment], every: int = 1) -> np.ndarray:
         """Run the segments; plate-frame poses (parts, len(segments) // every, 3) every ``every`` segments."""
+        if self._compiled:
+            rows = [[s.duration_s, *s.velocity, *s.accel, *s.cosine, s.kappa] for s in segments]
+            poses = np.empty((len(self.parts), len(rows) // every, 3))
+            pk.run_segments(self._array, self._params, pk.DISC_NODES,
+                            np.array(rows, dtype=float).reshape(len(rows), pk.SEG_SIZE),
+                            self._plate_array, every, poses)  # fmt: skip
+            self.elapsed_s = float(self._plate_array[pk.ELAPSED])
+            return poses
         out = []
         for k, seg in enumerate(segments):
             for state in self._states:
@@ -449,8 +482,15 @@ class PlanarStickSlip:
         v = np.asarray(velocity, dtype=float)
         n = v.shape[1]
         dt = 1.0 / sample_rate_hz
-        start = np.concatenate([np.asarray(self._plate.velocity, dtype=float)[:, None], v[:, :-1]], axis=1)
+        before = self._plate_array[3:6] if self._compiled else np.asarray(self._plate.velocity, dtype=float)
+        start = np.concatenate([before[:, None], v[:, :-1]], axis=1)
         accel = (v - start) * sample_rate_hz  # as :func:`sampled`
+        if self._compiled:
+            lab = np.empty((len(self.parts), n, 3))
+            pk.run_sampled(self._array, self._params, pk.DISC_NODES, start, accel, np.ascontiguousarray(v),
+                           dt, self._plate_array, _SKIP_HELD, lab)  # fmt: skip
+            self.elapsed_s = float(self._plate_array[pk.ELAPSED])
+            return lab
         starts, accels, ends = start.T.tolist(), accel.T.tolist(), v.T.tolist()
         out = np.empty((len(self._states), n, 3))
         held: tuple[list[Pose], np.ndarray] | None = None
