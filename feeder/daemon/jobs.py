@@ -125,7 +125,8 @@ class JobResult:
     set) also gives the part, its start and reached poses, ``pose_trace``
     ((loop time s, pose)) and the errors: ``error_m`` the distance of the
     centre from the target, ``error_rad`` the angle difference modulo the
-    part's symmetry.  ``target_m``/``start_m``/``reached_m`` are the part's x.
+    part's symmetry (None when any angle would do: ``angle_free``).
+    ``target_m``/``start_m``/``reached_m`` are the part's x.
     """
 
     kind: str
@@ -147,6 +148,7 @@ class JobResult:
     symmetry_rad: float = 0.0
     pose_trace: list[tuple[float, Pose]] = field(default_factory=list)
     bursts_per_axis: dict[str, int] = field(default_factory=dict)
+    angle_free: bool = False
 
     @property
     def error_m(self) -> float | None:
@@ -161,8 +163,8 @@ class JobResult:
 
     @property
     def error_rad(self) -> float | None:
-        """Pose move: |angle difference| modulo the part's symmetry; else None."""
-        if self.target_pose is None or self.reached_pose is None:
+        """Pose move: |angle difference| modulo the part's symmetry; else (or any angle) None."""
+        if self.target_pose is None or self.reached_pose is None or self.angle_free:
             return None
         return pose_error(self.reached_pose, self.target_pose, self.symmetry_rad)[1]
 
@@ -188,6 +190,7 @@ class JobResult:
                 start_pose=None if self.start_pose is None else list(self.start_pose),
                 pose=None if self.reached_pose is None else list(self.reached_pose),
                 error_rad=self.error_rad,
+                angle_free=self.angle_free,
                 bursts_per_axis=self.bursts_per_axis,
             )
         if with_trace:
@@ -200,7 +203,8 @@ class JobResult:
 class Job:
     """A move to ``target_m`` (or by ``by_m`` from where the part is when it starts), a move of
     part ``part`` to a pose (``pose_target``: any of ``x_m``, ``y_m``, ``angle_rad``; what is
-    missing keeps the part's value at the start), or a calibration sequence of fixed bursts.
+    missing keeps the part's value at the start, except an angle beside a held part: any),
+    or a calibration sequence of fixed bursts.
     ``on_start`` runs when the loop accepts it (the record is written before the first step:
     the loop sets ``recorded``); ``on_done`` with the result at the end, then ``done`` is set.
     The policy only reads and writes the progress fields; the callbacks and ``done`` belong to the loop."""
@@ -223,6 +227,7 @@ class Job:
         self.pose_target = pose_target
         self.part = part
         self.target_pose: Pose | None = None  # resolved when the loop accepts it
+        self.angle_free = False  # the target's angle is any angle (beside a held part)
         self.planned = collections.deque(bursts)
         self.on_start = on_start
         self.on_done = on_done

@@ -501,6 +501,7 @@ class Policy:
             symmetry_rad=getattr(self.navigator, "symmetry_rad", 0.0),
             pose_trace=job.pose_trace,
             bursts_per_axis=job.bursts_per_axis,
+            angle_free=job.angle_free,
         )
         self.job = None
         self._burst = None

@@ -62,16 +62,20 @@ class PoseNavigator:
                 f"x [{s.min_position_m:.6g}, {s.max_position_m:.6g}] m, "
                 f"y [{s.min_y_m:.6g}, {s.max_y_m:.6g}] m"
             )
-        refused = self.planner.check(self._targets(job.part, target), list(reading))
+        # beside a held part the angle, when not asked for, is left free (the pair strategy
+        # turns the moved part as it orbits it about O)
+        job.angle_free = "angle_rad" not in spec and any(p != job.part for p in self.held)
+        refused = self.planner.check(self._targets(job, target), list(reading))
         if refused is not None:
             return refused
         job.target_pose = target
         job.target_m = target[0]
         return None
 
-    def _targets(self, part: int, target: Pose) -> dict[int, Pose]:
-        targets = {p: pose for p, pose in self.held.items() if p != part}
-        targets[part] = target
+    def _targets(self, job: Job, target: Pose) -> dict[int, Pose]:
+        """The job's target (angle NaN when free) and every other part's held pose."""
+        targets = {p: pose for p, pose in self.held.items() if p != job.part}
+        targets[job.part] = (target[0], target[1], math.nan) if job.angle_free else target
         return targets
 
     def outside(self, reading: Reading) -> str | None:
@@ -107,11 +111,11 @@ class PoseNavigator:
 
     def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
         assert job.target_pose is not None
-        nxt = self.planner.next_burst(list(reading), self._targets(job.part, job.target_pose))
+        nxt = self.planner.next_burst(list(reading), self._targets(job, job.target_pose))
         log.debug("at %s for %s: %s", reading, job.target_pose, nxt)
         if isinstance(nxt, Finish):
             if nxt.status == "done":
-                self.held[job.part] = job.target_pose
+                self.held[job.part] = reading[job.part - 1] if job.angle_free else job.target_pose
             return (nxt.status, nxt.reason)
         return Burst(nxt.mode, FORWARD if nxt.direction > 0 else BACKWARD, nxt.steps, nxt.axis)
 
