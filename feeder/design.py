@@ -355,6 +355,37 @@ def design_waveform(
     if table_points is None:
         table_points = TABLE_POINTS.get(problem.amplifier_model)
     say = progress or (lambda message: log.info("%s", message))
+    search, ranked = ranked_search(problem, objective, table_points, shapes, say, grid_points,
+                                    refine_evaluations)  # fmt: skip
+    wave = ranked[0][1]
+    say(
+        f"best: {wave.flyback_shape}, {wave.frequency_hz:.5g} Hz, {wave.amplitude_vpp:.5g} Vpp; "
+        f"checking over {VERIFY_PERIODS} periods"
+    )
+    prediction = problem._predict(wave, search.a_s, search.a_lo, search.a_hi)
+    check = run_waveform(Friction(search.a_s, problem.kinetic_ratio), wave, VERIFY_PERIODS,
+                         problem.amplifier, problem.stack)  # fmt: skip
+    return Design(
+        objective=objective,
+        waveform=wave,
+        prediction=prediction,
+        margins=margins(wave, problem),
+        verified_step_mean_m=float(np.mean(check.steps_m)),
+        evaluations=search.evaluations + 3,
+        table_points=table_points,
+    )
+
+
+def ranked_search(
+    problem: DesignProblem,
+    objective: str,
+    table_points: int | None,
+    shapes: tuple[str, ...],
+    say: Callable[[str], None],
+    grid_points: tuple[int, int],
+    refine_evaluations: int,
+) -> tuple[_Search, list[tuple[float, Waveform]]]:
+    """Coarse grid, then Nelder–Mead from the best starts: (score, waveform) best first."""
     search = _Search(problem, objective, table_points)
     freqs = np.linspace(search.f_lo, search.f_hi, grid_points[0])
     volts = np.linspace(1.0 / grid_points[1], 1.0, grid_points[1])
@@ -402,21 +433,9 @@ def design_waveform(
             x = x0.copy()
             x[free] = result.x
             best_score, best_shape, best_x = float(result.fun), shape, x
-    wave = search.waveform(best_shape, best_x)
-    assert wave is not None  # the best score is < 0, so the candidate is in the family
-    say(
-        f"best: {best_shape}, {wave.frequency_hz:.5g} Hz, {wave.amplitude_vpp:.5g} Vpp; "
-        f"checking over {VERIFY_PERIODS} periods"
-    )
-    prediction = problem._predict(wave, search.a_s, search.a_lo, search.a_hi)
-    check = run_waveform(Friction(search.a_s, problem.kinetic_ratio), wave, VERIFY_PERIODS,
-                         problem.amplifier, problem.stack)  # fmt: skip
-    return Design(
-        objective=objective,
-        waveform=wave,
-        prediction=prediction,
-        margins=margins(wave, problem),
-        verified_step_mean_m=float(np.mean(check.steps_m)),
-        evaluations=search.evaluations + 3,
-        table_points=table_points,
-    )
+    ranked = [(score, search.waveform(shape, x)) for score, shape, x in candidates if score < 0]
+    best = search.waveform(best_shape, best_x)
+    assert best is not None  # the best score is < 0, so the candidate is in the family
+    ranked.append((best_score, best))
+    ranked.sort(key=lambda c: c[0])
+    return search, [(score, wave) for score, wave in ranked if wave is not None]

@@ -232,3 +232,64 @@ def test_objectives_do_what_they_say():
     # margins are what they claim: the flyback acceleration breaks the part loose
     m = margins(step.waveform, problem)
     assert m["flyback_margin"] > 1.0 and m["ramp_margin"] > 1.0
+
+
+def test_a_translation_axis_of_the_planar_plant_is_the_1d_plant():
+    """DESIGN §9: driving x (or y) alone moves the part exactly as the 1-D plant does."""
+    from feeder.axis_design import run_axis_waveform
+    from feeder.plant.planar import PlanarPart
+    from feeder.plant.plant import run_waveform
+    from feeder.plant.stick_slip import Friction
+
+    friction = Friction(105.0, 0.8)
+    wave = Waveform(frequency_hz=500.0, amplitude_vpp=180.0)
+    part = PlanarPart.from_part(Part.parse("500x500x50"), friction, (1e-3, -2e-3, 0.3))
+    reference = run_waveform(friction, wave, 4).steps_m
+    along_x = run_axis_waveform(part, wave, "x", 4).pose_changes
+    along_y = run_axis_waveform(part, wave, "y", 4).pose_changes
+    assert reference.min() > 1e-6
+    np.testing.assert_allclose(along_x[:, 0], reference, rtol=1e-6)
+    np.testing.assert_allclose(along_y[:, 1], reference, rtol=1e-6)
+    assert np.abs(along_x[:, 1:]).max() < 1e-12 and np.abs(along_y[:, [0, 2]]).max() < 1e-12
+
+
+def test_theta_design_is_confirmed_by_simulate_and_depends_on_the_distance_from_o(tmp_path, capsys):
+    from feeder.axis_design import design_axis, run_axis_waveform, write_axis_design
+    from feeder.plant.planar import PlanarPart
+    from feeder.plant.stick_slip import Friction
+
+    model, limits = resolve_amplifier("paper")
+    problem = DesignProblem(Part.parse("500x500x50"), amplifier_model=model, amplifier=limits)
+    pose = (1.5e-3, 0.0, 0.0)
+    design = design_axis(problem, "theta", pose=pose, shapes=("current-limited",), grid_points=(4, 4),
+                         refine_evaluations=12)  # fmt: skip
+    lo, hi = design.turn_band_rad
+    assert 0 < lo <= design.turn_rad <= hi
+    out = tmp_path / "theta.toml"
+    write_axis_design(out, problem, design)
+    tables = read_waveform_tables(out)
+    expected = {"name": "theta", "channel": 3, "pose": list(pose), "radius_m": 1.5e-3, "lever_arm_m": 2e-3,
+                "part_shape": "rectangle", "model": "planar-plant"}  # fmt: skip
+    assert tables["axis"] == expected
+    assert tables["prediction"]["predicted_turn_rad"] == design.turn_rad
+    sim = run_json(capsys, "simulate", "--part", "500x500x50", "--waveform", str(out), "--axis", "theta",
+                   "--pose", "1.5e-3,0,0", "--periods", "12")  # fmt: skip
+    assert sim["model"] == "planar-plant"
+    assert sim["turn_mean_rad"] == pytest.approx(design.turn_rad, rel=0.01)
+    assert sim["step_mean_m"] == pytest.approx(design.design.predicted_step_m, rel=0.01)
+    # the same waveform barely turns a part sitting on O (the dead zone, DESIGN §9)
+    a_s = problem.breakaway_accel_m_s2()[0]
+    at_o = PlanarPart.from_part(problem.part, Friction(a_s, problem.kinetic_ratio))
+    turn_at_o = run_axis_waveform(at_o, design.design.waveform, "theta", 3, limits).turns_rad.mean()
+    assert abs(turn_at_o) < 0.2 * design.turn_rad
+
+
+def test_axis_design_cli_refuses_bad_axes_before_writing(tmp_path, capsys):
+    out = tmp_path / "F.toml"
+    base = ["waveform", "design", "--part", "500x500x50", "--out", str(out)]
+    assert main([*base, "--axes", "x,q"]) == 2
+    assert "--axes" in capsys.readouterr().err
+    assert main([*base, "--axis", "theta", "--objective", "min-scatter"]) == 2
+    assert "--objective" in capsys.readouterr().err
+    assert main([*base, "--axes", "x,x"]) == 2
+    assert not list(tmp_path.iterdir())

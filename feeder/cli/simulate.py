@@ -87,7 +87,7 @@ def register(sub: Any) -> None:
         "--axis",
         default="x",
         choices=AXES,
-        help="driven plate axis: x, y or theta about O (default x; theta needs --ideal)",
+        help="driven plate axis: x, y or theta about O (default x)",
     )
     p.add_argument(
         "--pose",
@@ -126,8 +126,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--kinetic-ratio", f"must lie in (0, 1], got {args.kinetic_ratio}")
     if not (math.isfinite(args.scatter) and args.scatter >= 0):
         raise InputError("--scatter", f"must be a non-negative number, got {args.scatter}")
-    if args.axis == "theta" and not args.ideal:
-        raise InputError("--axis", "theta needs --ideal (the streaming plant drives x or y)")
+    if args.axis == "theta" and not args.ideal and args.waveform is None:
+        raise InputError("--waveform", "required with --axis theta unless --ideal")
     if args.map is not None and not args.ideal:
         raise InputError("--map", "needs --ideal")
     if not 2 <= args.map_points <= 41:
@@ -142,7 +142,9 @@ def run(args: argparse.Namespace) -> int:
                            "kinetic_accel_m_s2": friction.kinetic_accel_m_s2,
                            "axis": args.axis}  # fmt: skip
     plot = None
-    if args.axis == "theta":
+    if args.axis == "theta" and not args.ideal:
+        steps, slip_fraction, poses, extra = _theta_plant(args, part, friction)
+    elif args.axis == "theta":
         steps, slip_fraction, poses, extra = _theta(args, part, friction)
     else:
         if args.ideal:
@@ -276,6 +278,27 @@ def _theta(args: argparse.Namespace, part: Part, friction: Friction) -> tuple[
         "part_shape": args.part_shape,
     }
     return steps, float(run_.slip_fraction[0]), run_.poses[0], extra
+
+
+def _theta_plant(args: argparse.Namespace, part: Part, friction: Friction) -> tuple[
+        np.ndarray, float, np.ndarray, dict[str, Any]]:  # fmt: skip
+    """The waveform on the θ channel of the planar plant (amplifier, stack, planar stick-slip)."""
+    from feeder.axis_design import run_axis_waveform
+    from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
+    from feeder.waveform import read_waveform_tables
+
+    if args.scatter > 0:
+        raise InputError("--scatter", "the planar plant has no scatter (--axis theta)")
+    amplifier = file_amplifier(args.waveform)
+    waveform = load_checked(args.waveform, amplifier)
+    planar = PlanarPart.from_part(part, friction, args.pose, args.part_shape)
+    lever_arm_m = read_waveform_tables(args.waveform).get("axis", {}).get("lever_arm_m", DEFAULT_LEVER_ARM_M)
+    run_ = run_axis_waveform(
+        planar, waveform, "theta", args.periods, amplifier, lever_arm_m=float(lever_arm_m)
+    )
+    extra = {"model": "planar-plant", "waveform": str(args.waveform), "part_shape": args.part_shape,
+             "lever_arm_m": lever_arm_m}  # fmt: skip
+    return run_.steps_m, run_.slip_fraction, run_.poses[1:], extra
 
 
 def _map(args: argparse.Namespace, part: Part, friction: Friction) -> list[list[float]]:

@@ -7,23 +7,29 @@ import io
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from feeder.cli.arguments import (
     add_part_arguments,
     add_tau_arguments,
+    allow_negative_values,
     input_path,
     int_in,
+    length_m,
     output_path,
     part_from,
+    pose,
     positive_float,
+    positive_length_m,
 )
 from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure, write_text
 from feeder.plant.amplifier import AmplifierLimits, OutputStage, limits_from_table
+from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
+from feeder.plant.plate_motion import AXES
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
 from feeder.waveform import (
@@ -34,6 +40,9 @@ from feeder.waveform import (
     load_waveform,
     read_waveform_tables,
 )
+
+if TYPE_CHECKING:
+    from feeder.axis_design import AxisDesign
 
 PLOT_SAMPLE_RATE_HZ = 100e3
 MAX_DAC_POINTS = 2**20
@@ -90,8 +99,41 @@ def register(sub: Any) -> None:
         default=",".join(FLYBACK_SHAPES),
         help=f"flyback shapes to search, comma-separated (default all: {','.join(FLYBACK_SHAPES)})",
     )
+    axes = design.add_mutually_exclusive_group()
+    axes.add_argument(
+        "--axis",
+        default=None,
+        choices=AXES,
+        help="plate axis the design is for (default x; theta: on the planar plant at --pose)",
+    )
+    axes.add_argument(
+        "--axes", metavar="LIST", help="several axes, e.g. x,y,theta: one file per axis, OUT-<axis>.toml"
+    )
+    where = design.add_mutually_exclusive_group()
+    where.add_argument(
+        "--pose",
+        type=pose,
+        metavar="X,Y,PSI",
+        help="theta: the part's pose in the plate frame, origin at O (m, m, rad; default 0,0,0)",
+    )
+    where.add_argument(
+        "--radius-m",
+        type=length_m,
+        metavar="R",
+        help="theta: the part's distance from O (pose R,0,0; units accepted, e.g. 1.5mm)",
+    )
+    design.add_argument(
+        "--part-shape",
+        default="rectangle",
+        choices=("rectangle", "disc"),
+        help="theta: footprint, rectangle LxW or disc of diameter L (default rectangle)",
+    )
+    design.add_argument("--lever-arm-m", type=positive_length_m, default=DEFAULT_LEVER_ARM_M, metavar="L",
+                        help=f"theta: radius at which the θ stack drives the plate about O "
+                             f"(default {DEFAULT_LEVER_ARM_M:g} m, as [plate] lever_arm_m)")  # fmt: skip
     design.add_argument("--out", type=output_path, required=True, help="design file (TOML) to write")
     design.add_argument("--json", action="store_true", help="print one JSON object")
+    allow_negative_values(design)
     design.set_defaults(handler=run_design)
 
 
@@ -225,8 +267,16 @@ def _plot(waveform: Waveform, amplifier: AmplifierLimits, stack: StackParameters
     save_figure(fig, path)
 
 
+def design_paths(out: Path, axes: list[str], several: bool) -> dict[str, Path]:
+    """Where each axis' design goes: OUT itself, or OUT-<axis>.toml for ``--axes``."""
+    if not several:
+        return {axes[0]: out}
+    return {axis: out.with_name(f"{out.stem}-{axis}{out.suffix or '.toml'}") for axis in axes}
+
+
 def run_design(args: argparse.Namespace) -> int:
-    from feeder.design import DesignProblem, design_waveform, write_design
+    from feeder.axis_design import AxisDesign, design_axis, write_axis_design
+    from feeder.design import DesignProblem
     from feeder.plant.amplifier import resolve_amplifier
 
     part, support, surface = part_from(args)
@@ -237,6 +287,17 @@ def run_design(args: argparse.Namespace) -> int:
         raise InputError("--shapes", f"expected some of {', '.join(FLYBACK_SHAPES)}, got {args.shapes!r}")
     if not args.kinetic_ratio <= 1:
         raise InputError("--kinetic-ratio", f"must lie in (0, 1], got {args.kinetic_ratio}")
+    if args.axes is not None:
+        axes = [a.strip() for a in args.axes.split(",") if a.strip()]
+        if not axes or any(a not in AXES for a in axes) or len(set(axes)) != len(axes):
+            raise InputError("--axes", f"expected distinct axes among {','.join(AXES)}, got {args.axes!r}")
+    else:
+        axes = [args.axis or "x"]
+    if "theta" in axes and args.objective == "min-scatter":
+        raise InputError("--objective", "theta designs max-step or max-speed (min-scatter is for x and y)")
+    if args.radius_m is not None and args.radius_m < 0:
+        raise InputError("--radius-m", f"must not be negative, got {args.radius_m}")
+    where = args.pose or ((args.radius_m, 0.0, 0.0) if args.radius_m is not None else (0.0, 0.0, 0.0))
     problem = DesignProblem(part, support, surface, str(args.surface or "embedded"), args.tau,
                             args.tau_band, args.kinetic_ratio, model, limits,
                             tau_adhesion_work_j_m2=args.tau_adhesion_work)  # fmt: skip
@@ -244,23 +305,50 @@ def run_design(args: argparse.Namespace) -> int:
     def progress(message: str) -> None:
         print(f"design: {message}", file=sys.stderr, flush=True)
 
-    design = design_waveform(problem, args.objective, shapes=shapes, progress=progress)
-    write_design(args.out, problem, design.waveform, design.prediction, design.tables(),
-                 written_by="feeder waveform design")  # fmt: skip
-    out = {"part": part.label, "support": support.kind, "amplifier": model, **design.to_json(),
-           "path": str(args.out)}  # fmt: skip
+    paths = design_paths(args.out, axes, args.axes is not None)
+    designs: dict[str, AxisDesign] = {}
+    for axis in axes:
+        translation = next((d for d in designs.values() if d.axis != "theta"), None)
+        if axis != "theta" and translation is not None:  # x and y: the same 1-D design (DESIGN §9)
+            designs[axis] = AxisDesign(axis, translation.design, where, args.lever_arm_m, args.part_shape)
+        else:
+            designs[axis] = design_axis(problem, axis, args.objective, pose=where,
+                                        lever_arm_m=args.lever_arm_m, part_shape=args.part_shape,
+                                        shapes=shapes, progress=progress)  # fmt: skip
+    for axis, design in designs.items():  # written once all are found: nothing half-done on an error
+        write_axis_design(paths[axis], problem, design, written_by="feeder waveform design")
+    head = {"part": part.label, "support": support.kind, "amplifier": model}
+    if args.axes is None:
+        out = {**head, **designs[axes[0]].to_json(), "path": str(args.out)}
+    else:
+        each = {a: {**d.to_json(), "path": str(paths[a])} for a, d in designs.items()}
+        out = {**head, "axes": axes, "designs": each}
     if args.json:
         print_json(out)
         return 0
+    for axis, axis_design in designs.items():
+        _print_design(args, part.label, support.kind, model, axis_design, paths[axis])
+    return 0
+
+
+def _print_design(args: argparse.Namespace, part: str, support: str, model: str, axis_design: AxisDesign,
+                  path: Path) -> None:  # fmt: skip
+    design = axis_design.design
     w, (lo, hi) = design.waveform, design.predicted_step_band_m
     flyback = f"{w.flyback_s * 1e6:.4g} µs " if w.flyback_s else ""
     print(
-        f"design for part {part.label} µm on {support.kind} support, amplifier {model}, "
-        f"objective {args.objective}: {args.out}"
+        f"design for part {part} µm on {support} support, amplifier {model}, "
+        f"objective {args.objective}, axis {axis_design.axis}: {path}"
     )
     print(
         f"  waveform   {w.frequency_hz:.5g} Hz, {w.amplitude_vpp:.5g} Vpp, {flyback}{w.flyback_shape} flyback"
     )
+    if axis_design.turn_rad is not None and axis_design.turn_band_rad is not None:
+        t_lo, t_hi = axis_design.turn_band_rad
+        print(
+            f"  turn       {axis_design.turn_rad * 1e3:.4g} mrad  [{t_lo * 1e3:.4g}, {t_hi * 1e3:.4g}] "
+            f"per period at {axis_design.radius_m * 1e3:.4g} mm from O (planar plant)"
+        )
     print(
         f"  step       {design.predicted_step_m * 1e6:.4g} µm  [{lo * 1e6:.4g}, {hi * 1e6:.4g}], "
         f"{design.speed_m_s * 1e3:.4g} mm/s"
@@ -270,4 +358,3 @@ def run_design(args: argparse.Namespace) -> int:
         f"  margins    flyback {m['flyback_margin']:.3g}×, ramp {m['ramp_margin']:.3g}×, "
         f"rail {m['rail_margin_v']:.3g} V, current {m['current_margin']:.3g}×"
     )
-    return 0
