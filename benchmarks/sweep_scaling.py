@@ -1,7 +1,7 @@
 """Sweep scaling: the same plant-model sweep serially and on a local Dask cluster (one worker per core).
 
 Points: 2048 current-limited sawtooths on the full plant (amplifier, stack,
-exact stick-slip), 50 periods each with 3 % step scatter: 8 frequencies
+exact stick-slip), 150 periods each with 3 % step scatter: 8 frequencies
 20–400 Hz × 8 amplitudes × two parts × 16 scatter seeds, chunks of 50 points
 (quick: 256 points in chunks of 20).  Headline ``ratio`` = serial time / Dask time, on
 workers that have imported the package and loaded the compiled kernels
@@ -53,6 +53,10 @@ from feeder.sweep import (
 )
 
 PROBE_LOOPS = 10_000_000
+PERIODS = 150
+"""Periods per point: enough plant work per chunk that the driver's share (scheduler, client,
+Parquet writes: ~1.3 s of CPU for the whole sweep, whatever the periods) stays small on
+2 cores; at 50 periods it alone held the projected speed-up to 1.66."""
 
 
 def spec(quick: bool) -> SweepSpec:
@@ -62,7 +66,7 @@ def spec(quick: bool) -> SweepSpec:
     parts = ("300x300x50", "500x500x50")
     points = [{**DEFAULTS, "frequency_hz": f, "amplitude_vpp": v, "part": p, "scatter": 0.03, "seed": s}
               for f in freqs for v in volts for p in parts for s in seeds]  # fmt: skip
-    return SweepSpec(SweepSettings(model="plant", periods=50), points, chunk_size=20 if quick else 50)
+    return SweepSpec(SweepSettings(model="plant", periods=PERIODS), points, chunk_size=20 if quick else 50)
 
 
 def probe(loops: int = PROBE_LOOPS) -> float:
