@@ -71,6 +71,21 @@ def test_move_absolute_and_relative_with_units_then_history(daemon, capsys) -> N
     assert "state: idle" in text and "step coarse/forward" in text and "loop: 100 Hz" in text
 
 
+def test_pose_options_parse_negative_values_and_a_one_axis_daemon_takes_x_only(daemon, capsys) -> None:
+    _, sock = daemon
+    assert main(["move", "--x", "-40um", "--socket", sock, "--json"]) == 0  # x alone: a move along x
+    assert json.loads(capsys.readouterr().out)["target_m"] == -40e-6
+    assert main(["move", "--x=-30um", "--angle", "-5deg", "--socket", sock]) == 1
+    assert "drives one axis (x)" in capsys.readouterr().err
+    assert main(["move", "--y", "10um", "--part", "2", "--socket", sock]) == 1
+    assert "refused" in capsys.readouterr().err
+    assert main(["move", "150um", "--x", "1mm", "--socket", sock]) == 2
+    assert "--x/--y/--angle" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as bad:
+        main(["move", "--angle", "15 parsecs", "--socket", sock])
+    assert bad.value.code == 2 and "expected an angle like 15deg" in capsys.readouterr().err
+
+
 def test_exit_codes_0_1_2_3(daemon, short_dir: Path, capsys) -> None:
     _, sock = daemon
     assert main(["status", "--socket", sock, "--json"]) == 0

@@ -121,7 +121,8 @@ def _quantity(text: str, units: dict[str, float], what: str, example: str) -> fl
     match = _QUANTITY_RE.match(text)
     if match is None or match.group(2) not in units:
         raise argparse.ArgumentTypeError(
-            f"expected a {what} like {example} (units: {', '.join(u for u in units if u)}), got {text!r}"
+            f"expected {'an' if what[0] in 'aeiou' else 'a'} {what} like {example} "
+            f"(units: {', '.join(u for u in units if u)}), got {text!r}"
         )
     try:  # in decimal, so 150um is exactly the float 150e-6
         value = float(Decimal(match.group(1)) * Decimal(repr(units[match.group(2)])))
