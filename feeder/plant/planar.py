@@ -56,6 +56,9 @@ _HELD_MARGIN = 1 - 1e-6
 _NO_DRAWS = np.zeros(0)
 """A twist this small relative to the part's lab velocity is rounding: it has vanished."""
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
+"""Absolute tolerances of (c − c₀, φ − φ₀, v, ω) at :data:`RTOL` (scaled with rtol)."""
+RTOL = 1e-10
+"""Relative tolerance of the slip episodes' integration (:func:`simulate`)."""
 
 
 @dataclass(frozen=True)
@@ -143,8 +146,9 @@ class _Plate:
 class _PartState:
     """One part's running state: stuck (plate-frame pose) or slipping (lab-frame rigid body)."""
 
-    def __init__(self, part: PlanarPart) -> None:
+    def __init__(self, part: PlanarPart, rtol: float) -> None:
         self.part = part
+        self._rtol = rtol
         self.stuck = True
         self.pose = part.pose
         self.lab = [0.0] * 6  # c_x, c_y, φ, v_x, v_y, ω while slipping
@@ -318,7 +322,7 @@ class _PartState:
         factor = 0.9
         for _ in range(1000):
             begin = t
-            stepper = DOP853(rhs, t, y, bound, rtol=1e-10, atol=_ATOL)
+            stepper = DOP853(rhs, t, y, bound, rtol=self._rtol, atol=_ATOL * (self._rtol / RTOL))
             reversed_ = False
             while stepper.status == "running":
                 stepper.step()
@@ -387,12 +391,12 @@ class _PartState:
         return seg.duration_s
 
 
-def _params(part: PlanarPart) -> np.ndarray:
+def _params(part: PlanarPart, rtol: float) -> np.ndarray:
     """The part's parameter row for :mod:`.planar_kernels`."""
     patch, friction = part.patch, part.friction
     return pk.part_params(patch.shape == "disc", patch.length_m, patch.width_m, part.mass_kg,
                           part.inertia_kg_m2, friction.static_accel_m_s2, friction.kinetic_ratio,
-                          patch.area_m2, patch.polar_m3, patch.second_moments_m4)  # fmt: skip
+                          patch.area_m2, patch.polar_m3, patch.second_moments_m4, rtol)  # fmt: skip
 
 
 class PlanarStickSlip:
@@ -404,18 +408,18 @@ class PlanarStickSlip:
     :meth:`feeder.plant.plant.Plant.advance`).
     """
 
-    def __init__(self, parts: list[PlanarPart],
-                 initial_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:  # fmt: skip
+    def __init__(self, parts: list[PlanarPart], initial_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 rtol: float = RTOL) -> None:  # fmt: skip
         if not parts:
             raise InputError("parts", "at least one part is needed")
         check_overlaps(parts)
         self.parts = list(parts)
         self.elapsed_s = 0.0
         self._compiled = kernels.enabled()
-        self._states = [_PartState(p) for p in parts]
+        self._states = [_PartState(p, rtol) for p in parts]
         self._plate = _Plate(initial_velocity)
         # the compiled solver's state (:mod:`.planar_kernels`), used when kernels are enabled
-        self._params = np.array([_params(p) for p in parts])
+        self._params = np.array([_params(p, rtol) for p in parts])
         self._array = np.array([pk.initial_state(p.pose, p.patch.radius_m) for p in parts])
         self._plate_array = np.array([0.0, 0.0, 0.0, *initial_velocity, 0.0])
 
