@@ -602,7 +602,8 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
             d0, d1, d2 = _twist_rate(seg, plate, x0, y0, z[6], z, ks[0])
             shrink = _dot(pp, p0, p1, p2, d0, d1, d2)
             size2 = _dot(pp, p0, p1, p2, p0, p1, p2)
-            if fade and shrink < -_ALIGNED * math.sqrt(size2 * _dot(pp, d0, d1, d2, d0, d1, d2)):
+            aligned = shrink < -_ALIGNED * math.sqrt(size2 * _dot(pp, d0, d1, d2, d0, d1, d2))
+            if fade and aligned and -size2 / shrink < 2 * (t_end - z[6]):  # it vanishes in this segment
                 floor = _ROUNDING * math.sqrt(_dot(pp, z[3], z[4], z[5], z[3], z[4], z[5]))
                 ended = _fade(st, pp, radius, nodes, seg, plate, x0, y0, phi0, z, max(stop, floor), ks)
                 y[:] = z[:6]
