@@ -167,6 +167,38 @@ def plant_run(command: np.ndarray, coef: np.ndarray, z: np.ndarray, plate: np.nd
 
 
 @_jit
+def drive_run(command: np.ndarray, coef: np.ndarray, z: np.ndarray, volts: np.ndarray, scale: np.ndarray,
+              velocity: np.ndarray) -> None:  # fmt: skip
+    """Several channels' output stage and stack filter (as :func:`plant_run`, no contact), one sample at a time.
+
+    command (channels, n) in V; coef, z: per channel as :func:`plant_run`
+    (rows); volts: each output's voltage, updated; scale: each channel's
+    factor from stack velocity to plate velocity; velocity (channels, n) out.
+    """
+    for c in range(command.shape[0]):
+        cf, zc = coef[c], z[c]
+        lo, hi, d = cf[0], cf[1], cf[2]
+        pb0, pb1, pb2, pb3, pa1, pa2, pa3 = cf[3], cf[4], cf[5], cf[6], cf[8], cf[9], cf[10]
+        vb0, vb1, vb2, vb3, va1, va2, va3 = cf[11], cf[12], cf[13], cf[14], cf[16], cf[17], cf[18]
+        p0, p1, p2, q0, q1, q2 = zc[0], zc[1], zc[2], zc[3], zc[4], zc[5]
+        y, k = volts[c], scale[c]
+        for i in range(command.shape[1]):
+            u = min(max(command[c, i], lo), hi)
+            y = min(max(u, y - d), y + d)  # rails, then the slope limit
+            x = pb0 * y + p0
+            p0 = pb1 * y + p1 - pa1 * x
+            p1 = pb2 * y + p2 - pa2 * x
+            p2 = pb3 * y - pa3 * x
+            v = vb0 * y + q0
+            q0 = vb1 * y + q1 - va1 * v
+            q1 = vb2 * y + q2 - va2 * v
+            q2 = vb3 * y - va3 * v
+            velocity[c, i] = v * k
+        zc[0], zc[1], zc[2], zc[3], zc[4], zc[5] = p0, p1, p2, q0, q1, q2
+        volts[c] = y
+
+
+@_jit
 def _asinh_ratio(y: float, x: float, r: float) -> float:
     """asinh(y/|x|) for x ≠ 0, r = √(x² + y²): log1p of an exact small argument (no cancellation)."""
     ax = abs(x)

@@ -615,8 +615,11 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
                 if ended == _NEAR_END:  # try the rest of the segment in one step
                     h_abs = bound - z[6]
                 continue
-            if h_abs <= 0:
+            if h_abs <= 0:  # scipy's guess, at most the twist's own time scale |ξ|/|dξ/dt| (a seed: ~1e-12 s)
                 h_abs = _initial_step(*args, z, ks[0], bound - z[6])
+                rate2 = _dot(pp, d0, d1, d2, d0, d1, d2)
+                if rate2 > 0 and size2 > 0:
+                    h_abs = min(h_abs, math.sqrt(size2 / rate2))
             min_step = 10 * _EPS * abs(z[6])
             rejected = False
             while True:  # one accepted step (scipy's RK45 step control)
