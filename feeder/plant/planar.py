@@ -485,16 +485,15 @@ class PlanarStickSlip:
         """
         v = np.asarray(velocity, dtype=float)
         n = v.shape[1]
-        dt = 1.0 / sample_rate_hz
-        before = self._plate_array[3:6] if self._compiled else np.asarray(self._plate.velocity, dtype=float)
-        start = np.concatenate([before[:, None], v[:, :-1]], axis=1)
-        accel = (v - start) * sample_rate_hz  # as :func:`sampled`
         if self._compiled:
             lab = np.empty((len(self.parts), n, 3))
-            pk.run_sampled(self._array, self._params, pk.DISC_NODES, start, accel, np.ascontiguousarray(v),
-                           dt, self._plate_array, _SKIP_HELD, lab)  # fmt: skip
+            pk.run_sampled(self._array, self._params, pk.DISC_NODES, np.ascontiguousarray(v), float(sample_rate_hz),
+                           self._plate_array, _SKIP_HELD, lab)  # fmt: skip
             self.elapsed_s = float(self._plate_array[pk.ELAPSED])
             return lab
+        dt = 1.0 / sample_rate_hz
+        start = np.concatenate([np.asarray(self._plate.velocity, dtype=float)[:, None], v[:, :-1]], axis=1)
+        accel = (v - start) * sample_rate_hz  # as :func:`sampled`
         starts, accels, ends = start.T.tolist(), accel.T.tolist(), v.T.tolist()
         out = np.empty((len(self._states), n, 3))
         held: tuple[list[Pose], np.ndarray] | None = None
@@ -519,6 +518,21 @@ class PlanarStickSlip:
             out[:, k] = self.lab_poses()
             k += 1
         return out
+
+    @property
+    def compiled(self) -> bool:
+        """True if this solver runs the compiled kernels (:mod:`.planar_kernels`)."""
+        return self._compiled
+
+    def advance_driven(self, command: np.ndarray, coefficients: np.ndarray, filter_states: np.ndarray,
+                       volts: np.ndarray, scale: np.ndarray, sample_rate_hz: float) -> np.ndarray:  # fmt: skip
+        """Compiled only: DAC samples (3, n) through output stages and stack filters
+        (:func:`.kernels.drive_run`; states updated in place) into :meth:`advance_sampled`."""
+        lab = np.empty((len(self.parts), command.shape[1], 3))
+        pk.run_plant(command, coefficients, filter_states, volts, scale, self._array, self._params, pk.DISC_NODES,
+                     float(sample_rate_hz), self._plate_array, _SKIP_HELD, lab)  # fmt: skip
+        self.elapsed_s = float(self._plate_array[pk.ELAPSED])
+        return lab
 
     def _surely_held(self, start: np.ndarray, end: np.ndarray, accel: np.ndarray, k: int) -> np.ndarray:
         """Per sample from ``k`` on (length n): True where no stuck part can break loose.

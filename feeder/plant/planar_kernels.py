@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from feeder.plant.kernels import _jit, contact_interval, rectangle_integrals
+from feeder.plant.kernels import _jit, contact_interval, drive_run, rectangle_integrals
 
 SEG_SIZE = 11
 DURATION, V, A, C, KAPPA = 0, 1, 4, 7, 10
@@ -793,12 +793,11 @@ def run_segments(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, segs
 
 
 @_jit
-def _surely_held(states: np.ndarray, params: np.ndarray, start: np.ndarray, end: np.ndarray,
-                 accel: np.ndarray, k: int) -> bool:  # fmt: skip
+def _surely_held(states: np.ndarray, params: np.ndarray, seg: np.ndarray, end: np.ndarray, k: int) -> bool:
     """No stuck part can break loose in sample k (:meth:`.planar.PlanarStickSlip._surely_held`)."""
-    a_lin = math.hypot(accel[0, k], accel[1, k])
-    alpha = abs(accel[2, k])
-    spin2 = max(start[2, k] ** 2, end[2, k] ** 2)
+    a_lin = math.hypot(seg[A], seg[A + 1])
+    alpha = abs(seg[A + 2])
+    spin2 = max(seg[V + 2] ** 2, end[2, k] ** 2)
     for i in range(states.shape[0]):
         st, pp = states[i], params[i]
         if st[STUCK] == 0:
@@ -812,23 +811,34 @@ def _surely_held(states: np.ndarray, params: np.ndarray, start: np.ndarray, end:
 
 
 @_jit
-def run_sampled(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, start: np.ndarray,
-                accel: np.ndarray, end: np.ndarray, dt: float, plate: np.ndarray, skip: bool,
-                out: np.ndarray) -> None:  # fmt: skip
-    """Samples (3, n) of plate velocity for every part; lab poses (parts, n, 3) into ``out``.
+def run_sampled(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, velocity: np.ndarray,
+                rate: float, plate: np.ndarray, skip: bool, out: np.ndarray) -> None:  # fmt: skip
+    """Plate velocity samples (3, n), acceleration held between them, for every part; lab poses
+    (parts, n, 3) into ``out`` (:meth:`.planar.PlanarStickSlip.advance_sampled`).
 
     A sample where every part is surely held moves the plate only.
     """
     seg = np.zeros(SEG_SIZE)
-    seg[DURATION] = dt
-    for k in range(start.shape[1]):
-        seg[V], seg[V + 1], seg[V + 2] = start[0, k], start[1, k], start[2, k]
-        seg[A], seg[A + 1], seg[A + 2] = accel[0, k], accel[1, k], accel[2, k]
-        if not (skip and _surely_held(states, params, start, end, accel, k)):
+    seg[DURATION] = 1.0 / rate
+    for k in range(velocity.shape[1]):
+        for c in range(3):
+            seg[V + c] = plate[3 + c]
+            seg[A + c] = (velocity[c, k] - plate[3 + c]) * rate
+        if not (skip and _surely_held(states, params, seg, velocity, k)):
             for i in range(states.shape[0]):
                 run_segment(states[i], params[i], nodes, seg, plate)
         finish_segment(seg, plate)
         # the sample itself, not v₀ + a·dt (which rounds differently): no corner at the next one
-        plate[3], plate[4], plate[5] = end[0, k], end[1, k], end[2, k]
+        plate[3], plate[4], plate[5] = velocity[0, k], velocity[1, k], velocity[2, k]
         for i in range(states.shape[0]):
             out[i, k, 0], out[i, k, 1], out[i, k, 2] = lab_pose(states[i], plate[0], plate[1], plate[2])
+
+
+@_jit
+def run_plant(command: np.ndarray, coef: np.ndarray, z: np.ndarray, volts: np.ndarray, scale: np.ndarray,
+              states: np.ndarray, params: np.ndarray, nodes: np.ndarray, rate: float, plate: np.ndarray,
+              skip: bool, out: np.ndarray) -> None:  # fmt: skip
+    """:meth:`.planar_plant.PlanarPlant.advance`: :func:`.kernels.drive_run`, then :func:`run_sampled`."""
+    velocity = np.empty(command.shape)
+    drive_run(command, coef, z, volts, scale, velocity)
+    run_sampled(states, params, nodes, velocity, rate, plate, skip, out)

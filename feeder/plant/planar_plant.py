@@ -55,7 +55,8 @@ class PlanarPlant:
         self.mechanics = [StackFilter(self.stack, sample_rate_hz) for _ in range(3)]
         self.contact = PlanarStickSlip(parts, rtol=rtol)
         self._scale = np.array([[1.0], [1.0], [1.0 / self.lever_arm_m]])  # stack m → plate m, m, rad
-        self._coefficients: np.ndarray | None = None
+        self._drive: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        """Coefficients, filter states and voltages while the compiled path holds them."""
 
     @property
     def plate_pose(self) -> Pose:
@@ -64,6 +65,9 @@ class PlanarPlant:
 
     @property
     def output_voltages_v(self) -> tuple[float, float, float]:
+        if self._drive is not None:
+            x, y, theta = self._drive[2].tolist()
+            return x, y, theta
         return (self.outputs[0].voltage_v, self.outputs[1].voltage_v, self.outputs[2].voltage_v)
 
     def poses(self) -> list[Pose]:
@@ -79,24 +83,32 @@ class PlanarPlant:
         command = np.asarray(command_volts, dtype=float)
         if command.ndim != 2 or command.shape[0] != 3:
             raise InputError("command_volts", f"expected shape (3, n), got {command.shape}")
+        if kernels.enabled() and self.mechanics[0].order == kernels.FILTER_ORDER and self.contact.compiled:
+            return self._advance_compiled(command)
+        self._sync_objects()
         velocity = np.empty(command.shape)
-        if kernels.enabled() and self.mechanics[0].order == kernels.FILTER_ORDER:
-            self._drive_compiled(command, velocity)
-        else:
-            for k in range(3):
-                _, velocity[k] = self.mechanics[k].advance(self.outputs[k].advance(command[k]))
-            velocity *= self._scale
+        for k in range(3):
+            _, velocity[k] = self.mechanics[k].advance(self.outputs[k].advance(command[k]))
+        velocity *= self._scale
         return self.contact.advance_sampled(velocity, self.sample_rate_hz)
 
-    def _drive_compiled(self, command: np.ndarray, velocity: np.ndarray) -> None:
-        """The three output stages and stack filters in one compiled loop (:func:`.kernels.drive_run`)."""
-        if self._coefficients is None:
-            self._coefficients = np.array([np.concatenate([[o.limits.v_min_v, o.limits.v_max_v, o.max_step_v],
-                                                           m.coefficients()])
-                                           for o, m in zip(self.outputs, self.mechanics, strict=True)])  # fmt: skip
-        z = np.array([m.states for m in self.mechanics])
-        volts = np.array([o.voltage_v for o in self.outputs])
-        kernels.drive_run(np.ascontiguousarray(command), self._coefficients, z, volts, self._scale[:, 0], velocity)
-        for k in range(3):
-            self.mechanics[k].states = z[k]
-            self.outputs[k].voltage_v = float(volts[k])
+    def _advance_compiled(self, command: np.ndarray) -> np.ndarray:
+        """:meth:`advance` in one compiled call (:func:`.planar_kernels.run_plant`)."""
+        if self._drive is None:
+            coefficients = np.array([np.concatenate([[o.limits.v_min_v, o.limits.v_max_v, o.max_step_v],
+                                                     m.coefficients()])
+                                     for o, m in zip(self.outputs, self.mechanics, strict=True)])  # fmt: skip
+            self._drive = (coefficients, np.array([m.states for m in self.mechanics]),
+                           np.array([o.voltage_v for o in self.outputs]))  # fmt: skip
+        coefficients, z, volts = self._drive
+        return self.contact.advance_driven(np.ascontiguousarray(command), coefficients, z, volts,
+                                           self._scale[:, 0], self.sample_rate_hz)  # fmt: skip
+
+    def _sync_objects(self) -> None:
+        """Hand the compiled path's filter states and voltages back to the stage objects."""
+        if self._drive is not None:
+            _, z, volts = self._drive
+            for k in range(3):
+                self.mechanics[k].states = z[k].copy()
+                self.outputs[k].voltage_v = float(volts[k])
+            self._drive = None
