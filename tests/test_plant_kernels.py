@@ -153,8 +153,8 @@ def test_planar_plant_compiled_equals_reference_in_1ms_ticks(both) -> None:
     line = waveform.voltage_at_phase((index % 1000) / 1000)
     command = np.stack([line, 0.5 * line, line])
     friction = Friction(105.25, 0.8)
-    parts = [PlanarPart.from_part(PLANAR_PART, friction, (2e-3, 0.0, 0.0)),
-             PlanarPart.from_part(Part.parse("200x200x50"), friction, (-1e-3, 1e-3, 0.0), shape="disc")]  # fmt: skip
+    disc = PlanarPart.from_part(Part.parse("200x200x50"), friction, (-1e-3, 1e-3, 0.0), shape="disc")
+    parts = [PlanarPart.from_part(PLANAR_PART, friction, (2e-3, 0.0, 0.0)), disc]
 
     def run() -> tuple[np.ndarray, list[float], tuple[float, float, float]]:
         plant = PlanarPlant(parts, rtol=1e-10)
@@ -172,9 +172,9 @@ def test_planar_plant_compiled_equals_reference_in_1ms_ticks(both) -> None:
 def test_planar_gauge_compiled_equals_scipy() -> None:
     """The compiled BFGS gauge finds the scipy one's limit-surface point (rectangle and disc)."""
     for patch in (Patch("rectangle", 300e-6, 200e-6), Patch("disc", 200e-6, 200e-6)):
-        params = planar_kernels.part_params(patch.shape == "disc", patch.length_m, patch.width_m, 1e-9, 1e-17,
-                                            100.0, 0.8, patch.area_m2, patch.polar_m3, patch.second_moments_m4,
-                                            1e-10)  # fmt: skip
+        params = planar_kernels.part_params(patch.shape == "disc", patch.length_m, patch.width_m, 1e-9,
+                                            1e-17, 100.0, 0.8, patch.area_m2, patch.polar_m3,
+                                            patch.second_moments_m4, 1e-10)  # fmt: skip
         for wrench in [(1e-7, 0.0, 1e-11), (0.5e-7, 0.3e-7, -2e-11), (1e-8, -2e-9, 3e-13), (0.0, 0.0, 1e-11)]:
             g, wx, wy, om = planar_kernels.gauge(params, patch.radius_m, planar_kernels.DISC_NODES, *wrench)
             ref, _ = patch.gauge(*wrench)

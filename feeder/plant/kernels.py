@@ -169,7 +169,7 @@ def plant_run(command: np.ndarray, coef: np.ndarray, z: np.ndarray, plate: np.nd
 @_jit
 def drive_run(command: np.ndarray, coef: np.ndarray, z: np.ndarray, volts: np.ndarray, scale: np.ndarray,
               velocity: np.ndarray) -> None:  # fmt: skip
-    """Several channels' output stage and stack filter (as :func:`plant_run`, no contact), one sample at a time.
+    """Several channels' output stage and stack filter (as :func:`plant_run`, no contact), sample by sample.
 
     command (channels, n) in V; coef, z: per channel as :func:`plant_run`
     (rows); volts: each output's voltage, updated; scale: each channel's
@@ -211,7 +211,11 @@ def _corners(x: float, y: float) -> tuple[float, float, float]:
     r = math.hypot(x, y)
     lx = _asinh_ratio(y, x, r) if x else 0.0
     ly = _asinh_ratio(x, y, r) if y else 0.0
-    return 0.5 * (y * r + x * x * lx), 0.5 * (x * r + y * y * ly), x * y * r / 3.0 + (x**3 * lx + y**3 * ly) / 6.0
+    return (
+        0.5 * (y * r + x * x * lx),
+        0.5 * (x * r + y * y * ly),
+        x * y * r / 3.0 + (x**3 * lx + y**3 * ly) / 6.0,
+    )
 
 
 @_jit

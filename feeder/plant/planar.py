@@ -23,6 +23,10 @@ x or y drive) the segment is solved in the 1-D closed form of
 :func:`feeder.plant.stick_slip.advance_interval` (its scalar form,
 :func:`feeder.plant.kernels.contact_interval`), so a pure translation is the
 1-D model (DESIGN §4) to rounding.
+
+With numba (extra ``fast``; :func:`feeder.plant.kernels.enabled`) the same
+solver runs compiled on arrays (:mod:`feeder.plant.planar_kernels`); the code
+here is the reference and the fallback.
 """
 
 from __future__ import annotations
@@ -50,11 +54,11 @@ _STOP = 1e-10
 """A slip ends when the twist has fallen below this fraction of its value at the start."""
 _BREAKAWAY_SAMPLES = 16
 _ROUNDING = 1e-14
+"""A twist this small relative to the part's lab velocity is rounding: it has vanished."""
 _SKIP_HELD = True
 """Skip samples in bulk while every part is surely held (tests switch it off to compare)."""
 _HELD_MARGIN = 1 - 1e-6
 _NO_DRAWS = np.zeros(0)
-"""A twist this small relative to the part's lab velocity is rounding: it has vanished."""
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
 """Absolute tolerances of (c − c₀, φ − φ₀, v, ω) at :data:`RTOL` (scaled with rtol)."""
 RTOL = 1e-10
@@ -405,10 +409,12 @@ class PlanarStickSlip:
     Two drivers of the same solver: :meth:`advance` for segments (ideal
     sawtooth, :func:`simulate`), :meth:`advance_sampled` for the plate's three
     motion channels sampled at a fixed rate (the streaming plant, like
-    :meth:`feeder.plant.plant.Plant.advance`).
+    :meth:`feeder.plant.plant.Plant.advance`).  rtol: of the slip episodes.
+    Compiled (:mod:`.planar_kernels`) if the kernels are enabled when it is built.
     """
 
-    def __init__(self, parts: list[PlanarPart], initial_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    def __init__(self, parts: list[PlanarPart],
+                 initial_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0),
                  rtol: float = RTOL) -> None:  # fmt: skip
         if not parts:
             raise InputError("parts", "at least one part is needed")
@@ -487,8 +493,8 @@ class PlanarStickSlip:
         n = v.shape[1]
         if self._compiled:
             lab = np.empty((len(self.parts), n, 3))
-            pk.run_sampled(self._array, self._params, pk.DISC_NODES, np.ascontiguousarray(v), float(sample_rate_hz),
-                           self._plate_array, _SKIP_HELD, lab)  # fmt: skip
+            pk.run_sampled(self._array, self._params, pk.DISC_NODES, np.ascontiguousarray(v),
+                           float(sample_rate_hz), self._plate_array, _SKIP_HELD, lab)  # fmt: skip
             self.elapsed_s = float(self._plate_array[pk.ELAPSED])
             return lab
         dt = 1.0 / sample_rate_hz
@@ -524,13 +530,14 @@ class PlanarStickSlip:
         """True if this solver runs the compiled kernels (:mod:`.planar_kernels`)."""
         return self._compiled
 
-    def advance_driven(self, command: np.ndarray, coefficients: np.ndarray, filter_states: np.ndarray,
-                       volts: np.ndarray, scale: np.ndarray, sample_rate_hz: float) -> np.ndarray:  # fmt: skip
+    def advance_driven(self, command: np.ndarray, coefficients: np.ndarray,
+                       filter_states: np.ndarray, volts: np.ndarray, scale: np.ndarray,
+                       sample_rate_hz: float) -> np.ndarray:  # fmt: skip
         """Compiled only: DAC samples (3, n) through output stages and stack filters
         (:func:`.kernels.drive_run`; states updated in place) into :meth:`advance_sampled`."""
         lab = np.empty((len(self.parts), command.shape[1], 3))
-        pk.run_plant(command, coefficients, filter_states, volts, scale, self._array, self._params, pk.DISC_NODES,
-                     float(sample_rate_hz), self._plate_array, _SKIP_HELD, lab)  # fmt: skip
+        pk.run_plant(command, coefficients, filter_states, volts, scale, self._array, self._params,
+                     pk.DISC_NODES, float(sample_rate_hz), self._plate_array, _SKIP_HELD, lab)  # fmt: skip
         self.elapsed_s = float(self._plate_array[pk.ELAPSED])
         return lab
 

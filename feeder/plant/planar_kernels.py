@@ -46,8 +46,8 @@ _STRAIGHT = 0.5
 """A twist shrinking this straight (cosine of twist and its rate) fades in ln|twist| (:func:`_fade`)."""
 _SERIES_BELOW = 1e-3
 _ATOL = np.array([1e-6, 1e-6, 1e-3, 1e-3, 1e-3, 10.0, 1e-6])
-"""Absolute tolerances per unit rtol of (c − c₀, φ − φ₀, v, ω, t): at rtol 1e-10 the reference's (1e-16 m, ...),
-and 1e-16 s for the time (a part at 0.1 m/s: 1e-17 m)."""
+"""Absolute tolerances per unit rtol of (c − c₀, φ − φ₀, v, ω, t): at rtol 1e-10 the
+reference's (1e-16 m, ...), and 1e-16 s for the time (a part at 0.1 m/s: 1e-17 m)."""
 _NO_DRAWS = np.zeros(0)
 _EPS = float(np.finfo(np.float64).eps)
 
@@ -77,7 +77,8 @@ DISC_NODES = _unit_disc_nodes()
 def part_params(disc: bool, length_m: float, width_m: float, mass_kg: float, inertia_kg_m2: float,
                 static_accel_m_s2: float, kinetic_ratio: float, area_m2: float, polar_m3: float,
                 second_moments_m4: tuple[float, float], rtol: float) -> np.ndarray:  # fmt: skip
-    """A part's parameter row (τ_s = m·a_s/A, τ_k = r·τ_s as :class:`.planar._PartState`; rtol of its slips)."""
+    """A part's parameter row (τ_s = m·a_s/A, τ_k = r·τ_s as :class:`.planar._PartState`; rtol
+    of its slips)."""
     tau_s = mass_kg * static_accel_m_s2 / area_m2
     return np.array([1.0 if disc else 0.0, 0.5 * length_m, 0.5 * width_m, mass_kg, inertia_kg_m2, tau_s,
                      kinetic_ratio * tau_s, static_accel_m_s2, kinetic_ratio, area_m2, polar_m3,
@@ -471,21 +472,33 @@ def _derivative(sigma: bool, pp: np.ndarray, radius: float, nodes: np.ndarray, s
 def _dp5_step(sigma: bool, pp: np.ndarray, radius: float, nodes: np.ndarray, seg: np.ndarray,
               plate: np.ndarray, x0: float, y0: float, phi0: float, z: np.ndarray, h: float,
               ks: np.ndarray, z_new: np.ndarray) -> float:  # fmt: skip
-    """One Dormand-Prince 5(4) step of size h from z (ks[0] = dz/ds there) into z_new, ks[6] = dz/ds at
-    z_new; returns the RMS error relative to atol + rtol·|z| (scipy's RK45), inf if invalid."""
-    k1, k2, k3, k4, k5, k6, k7 = ks[0], ks[1], ks[2], ks[3], ks[4], ks[5], ks[6]
+    """One Dormand-Prince 5(4) step of size h from z (ks[0] = dz/ds there) into z_new, ks[6] =
+    dz/ds at z_new (ks[7]: scratch); returns the RMS error relative to atol + rtol·|z| (scipy's
+    RK45), inf if invalid."""
+    k1, k2, k3, k4, k5, k6, k7, w = ks[0], ks[1], ks[2], ks[3], ks[4], ks[5], ks[6], ks[7]
     args = (sigma, pp, radius, nodes, seg, plate, x0, y0, phi0)
-    if not _derivative(*args, z + h * _A21 * k1, k2):
+    for i in range(7):
+        w[i] = z[i] + h * _A21 * k1[i]
+    if not _derivative(*args, w, k2):
         return np.inf
-    if not _derivative(*args, z + h * (_A31 * k1 + _A32 * k2), k3):
+    for i in range(7):
+        w[i] = z[i] + h * (_A31 * k1[i] + _A32 * k2[i])
+    if not _derivative(*args, w, k3):
         return np.inf
-    if not _derivative(*args, z + h * (_A41 * k1 + _A42 * k2 + _A43 * k3), k4):
+    for i in range(7):
+        w[i] = z[i] + h * (_A41 * k1[i] + _A42 * k2[i] + _A43 * k3[i])
+    if not _derivative(*args, w, k4):
         return np.inf
-    if not _derivative(*args, z + h * (_A51 * k1 + _A52 * k2 + _A53 * k3 + _A54 * k4), k5):
+    for i in range(7):
+        w[i] = z[i] + h * (_A51 * k1[i] + _A52 * k2[i] + _A53 * k3[i] + _A54 * k4[i])
+    if not _derivative(*args, w, k5):
         return np.inf
-    if not _derivative(*args, z + h * (_A61 * k1 + _A62 * k2 + _A63 * k3 + _A64 * k4 + _A65 * k5), k6):
+    for i in range(7):
+        w[i] = z[i] + h * (_A61 * k1[i] + _A62 * k2[i] + _A63 * k3[i] + _A64 * k4[i] + _A65 * k5[i])
+    if not _derivative(*args, w, k6):
         return np.inf
-    z_new[:] = z + h * (_B1 * k1 + _B3 * k3 + _B4 * k4 + _B5 * k5 + _B6 * k6)
+    for i in range(7):
+        z_new[i] = z[i] + h * (_B1 * k1[i] + _B3 * k3[i] + _B4 * k4[i] + _B5 * k5[i] + _B6 * k6[i])
     if not _derivative(*args, z_new, k7):
         return np.inf
     total = 0.0
@@ -584,7 +597,7 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
     """
     radius, t_end = st[RADIUS], seg[DURATION]
     stop = st[STOP]
-    ks = np.empty((7, 7))
+    ks = np.empty((8, 7))
     z, z_new = np.empty(7), np.empty(7)
     z[:6] = y
     z[6] = t
@@ -741,7 +754,9 @@ def _slip(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarray, pl
 
 
 @_jit
-def run_segment(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarray, plate: np.ndarray) -> None:
+def run_segment(
+    st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarray, plate: np.ndarray
+) -> None:
     """One part through ``seg``; ``plate`` holds the plate at its start and the velocity before."""
     tau = 0.0
     px, py, pth = plate[0], plate[1], plate[2]
@@ -788,7 +803,9 @@ def run_segments(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, segs
         finish_segment(seg, plate)
         if (k + 1) % every == 0:
             for i in range(states.shape[0]):
-                out[i, j, 0], out[i, j, 1], out[i, j, 2] = plate_frame_pose(states[i], plate[0], plate[1], plate[2])
+                out[i, j, 0], out[i, j, 1], out[i, j, 2] = plate_frame_pose(
+                    states[i], plate[0], plate[1], plate[2]
+                )
             j += 1
 
 
