@@ -30,8 +30,10 @@ BENCHMARKS: tuple[str, ...] = (
     "plant_realtime",
     "plant_realtime_1ms",
     "planar_period",
+    "pose_planner",
     "vision_locate",
     "vision_render",
+    "pose_camera",
     "cli_start",
     "sweep_scaling",
 )

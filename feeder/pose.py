@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 
+from feeder.errors import InputError
 from feeder.vision.model import angle_difference
 
 Pose = tuple[float, float, float]
@@ -21,3 +22,18 @@ def pose_error(pose: Pose, target: Pose, symmetry_rad: float) -> tuple[float, fl
     if symmetry_rad <= 0:
         return distance, 0.0
     return distance, abs(angle_difference(pose[2], target[2], symmetry_rad))
+
+
+def parse_poses(text: str, option: str) -> tuple[Pose, ...]:
+    """``X,Y,PSI;X,Y,PSI;...`` (m, m, rad, plate frame) → poses; :class:`InputError` names ``option``."""
+    poses = []
+    for item in text.split(";"):
+        fields = item.split(",")
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            values = []
+        if len(values) != 3 or not all(math.isfinite(v) for v in values):
+            raise InputError(option, f"expected X,Y,PSI (m, m, rad) per part, separated by ';', got {item!r}")
+        poses.append((values[0], values[1], values[2]))
+    return tuple(poses)

@@ -67,6 +67,7 @@ MAX_DAC_BUFFER_SAMPLES = 200_000
 MAX_DELAY_S = 10.0
 MAX_WATCHDOG_S = 3600.0
 MAX_CAMERA_RATE_HZ = 10_000.0
+MAX_CAMERA_SIDE_PX = 8192
 MIN_TAU_PA = 1e6
 MAX_TAU_PA = 1e12
 MAX_SEED = 2**63 - 1
@@ -184,6 +185,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_number(ends, "--camera-http-fps", 0, 100, lo_open=True, default=10.0, help="its frame rate, Hz")
     add_number(ends, "--camera-pixel-size-m", 1e-9, 1e-3, default=1e-6, help="its pixel size, m")
+    add_number(
+        ends, "--camera-width-px", 16, MAX_CAMERA_SIDE_PX, integer=True, default=1024, help="its width, px"
+    )
+    add_number(
+        ends, "--camera-height-px", 16, MAX_CAMERA_SIDE_PX, integer=True, default=1024, help="its height, px"
+    )
     add_extra_front_end_arguments(ends)
 
     fw = parser.add_argument_group("firmware")
@@ -456,9 +463,15 @@ def start_endpoints(
 
     if args.camera_http is not None:
         from firmware_sim.camera_http import serve_world_camera  # OpenCV: the optional vision extra
+        from firmware_sim.camera_render import CameraModel
 
         http = serve_world_camera(
-            world, args.camera_http, args.camera_http_fps, args.camera_pixel_size_m, args.camera_latency_s
+            world,
+            args.camera_http,
+            args.camera_http_fps,
+            args.camera_pixel_size_m,
+            args.camera_latency_s,
+            CameraModel(width_px=args.camera_width_px, height_px=args.camera_height_px),
         )
         closers.append(http.close)
         endpoints["camera_http"] = http.url

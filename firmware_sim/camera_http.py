@@ -8,7 +8,8 @@ reads it).
 
 :class:`CameraFeed` renders on its own thread at ``fps`` from a snapshot of the
 world (exposure time, parts in the image) and publishes each frame
-``latency_s`` after its exposure; the firmware tick only ever has its pose read,
+``latency_s`` after its exposure (JPEG-encoded there, once, while an MJPEG
+client is connected; the PNG on the first request); the firmware tick only ever has its pose read,
 so nothing here can make it wait.  :class:`CameraHttpServer` binds 127.0.0.1,
 serves at most ``max_clients`` connections at once (more get 503 at once) and
 drops a client that reads nothing for ``idle_timeout_s``.
@@ -20,9 +21,10 @@ import contextlib
 import json
 import logging
 import socket
+import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
@@ -39,6 +41,9 @@ from firmware_sim.world import World
 log = logging.getLogger(__name__)
 BOUNDARY = "frame"
 JPEG_QUALITY = 90
+RENDER_SWITCH_INTERVAL_S = 0.5e-3
+"""Longest wait of the render thread for the interpreter held by the tick (Python's default 5 ms,
+times the ~20 hand-overs of a frame, would cost a 30 frames/s camera its rate)."""
 
 
 @dataclass
@@ -101,6 +106,7 @@ class CameraFeed:
         self.latency_s = latency_s
         self._cond = threading.Condition()
         self._latest: Published | None = None
+        self._streams = 0  # clients on /video.mjpg
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="camera-render", daemon=True)
         self._thread.start()
@@ -116,12 +122,26 @@ class CameraFeed:
             if release > 0 and self._stop.wait(release):
                 break
             truth = {"sequence": sequence, "time_s": shot.time_s, **shot.truth}
+            published = Published(sequence, image, truth)
+            if self._streams:
+                published.jpeg()  # here, once, while the frame is fresh: the clients only send it
             with self._cond:
-                self._latest = Published(sequence, image, truth)
+                self._latest = published
                 self._cond.notify_all()
             sequence += 1
             deadline = max(deadline + self.period_s, time.monotonic())
             self._stop.wait(deadline - time.monotonic())
+
+    @contextlib.contextmanager
+    def streaming(self) -> Iterator[None]:
+        """While held, a client streams MJPEG: each frame is encoded on the render thread."""
+        with self._cond:
+            self._streams += 1
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._streams -= 1
 
     def latest(self, after: int = -1, timeout_s: float = 5.0) -> Published | None:
         """The newest frame with a sequence above ``after`` (None if none within the timeout)."""
@@ -179,7 +199,7 @@ class _Handler(BaseHTTPRequestHandler):
         self.send_header("Cache-Control", "no-store")
         self.end_headers()
         sequence = -1
-        with contextlib.suppress(OSError):
+        with feed.streaming(), contextlib.suppress(OSError):
             while not self.server.closing.is_set():
                 frame = feed.latest(after=sequence, timeout_s=self.server.idle_timeout_s)
                 if frame is None:
@@ -268,6 +288,8 @@ def serve_world_camera(
     axes along the image axes, the world's part (``world.config.part``) at its true poses, each
     frame released ``latency_s`` after its exposure."""
     camera = camera or CameraModel()
+    # the render thread waits for the interpreter between its OpenCV calls: at most this long
+    sys.setswitchinterval(min(sys.getswitchinterval(), RENDER_SWITCH_INTERVAL_S))
     calibration = CameraCalibration(
         pixel_size_m, origin_x_px=(camera.width_px - 1) / 2, origin_y_px=(camera.height_px - 1) / 2
     )

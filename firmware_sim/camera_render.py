@@ -20,11 +20,13 @@ aliases: the edge would seem shifted by up to 0.1 px depending on its subpixel
 phase, which is not what a lens and a sensor do.  ``blur_px`` is the σ of the
 whole point spread, the pixel's own integration included.
 
-Speed: the blurred support, its noise σ and the illumination are rendered once;
-a frame copies them and redraws (and blurs) only a box around each part; the
-noise comes from a bank of normal deviates two frames long read at a random
-offset per frame (independent from pixel to pixel; drawing 1 M deviates per
-frame would cost more than the whole frame).
+Speed: the blurred support and the illumination are rendered once, and so are
+:data:`BACKGROUND_FRAMES` noisy, quantised frames of the bare support; a frame
+copies the next of these and redraws (blurs, adds noise to, quantises) only a
+box around each part.  The noise comes from a bank of normal deviates two
+frames long read at a random offset (independent from pixel to pixel; drawing
+4 M deviates per frame would cost more than the whole frame).  Away from the
+parts the noise repeats every :data:`BACKGROUND_FRAMES` frames.
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ from scipy.special import ndtr
 from feeder.vision.model import MARK_OFFSET, MARK_RADIUS
 
 EDGE_SIGMA_PX = 1.0  # part outlines are drawn already blurred by this much (see the module doc)
+BACKGROUND_FRAMES = 4
+"""Noisy frames of the bare support made once and used in turn (two frames in a row differ)."""
 
 
 @dataclass(frozen=True)
@@ -123,9 +127,10 @@ class FrameRenderer:
         grain *= camera.texture / max(float(grain.std()), 1e-12)
         self.support_sharp = (self.illumination * camera.support_level * (1.0 + grain)).astype(np.float32)
         self.background = self._blur(self.support_sharp) * np.float32(camera.exposure)
-        self.background_noise = self._noise_sigma(self.background)
         self._bank = rng.standard_normal(2 * h * w, dtype=np.float32)
         self._rng = np.random.default_rng(seed + 1)
+        self._backgrounds: list[np.ndarray] = []
+        self._frame = 0
         self._edge_sigma = min(camera.blur_px, EDGE_SIGMA_PX)
         self._rest_sigma = math.sqrt(max(camera.blur_px**2 - self._edge_sigma**2, 0.0))
 
@@ -152,14 +157,30 @@ class FrameRenderer:
         """One frame: uint8 (8 bits) or uint16 holding 0..4095 (12 bits)."""
         c = self.camera
         h, w = c.height_px, c.width_px
-        offset = int(self._rng.integers(0, self._bank.size - h * w))
-        deviates = self._bank[offset : offset + h * w].reshape(h, w)
-        image: np.ndarray = cv2.multiply(self.background_noise, deviates)
-        cv2.add(image, self.background, dst=image)
+        if not self._backgrounds:  # the noisy, quantised bare support: a few frames, made once
+            self._backgrounds = [
+                self._quantise(self._noisy(self.background)) for _ in range(BACKGROUND_FRAMES)
+            ]
+        image = self._backgrounds[self._frame % BACKGROUND_FRAMES].copy()
+        self._frame += 1
         for box in self._boxes(parts):
             y0, y1, x0, x1 = box
             roi = self.background[y0:y1, x0:x1] + self._part_delta(parts, box)
-            image[y0:y1, x0:x1] = roi + self._noise_sigma(roi) * deviates[y0:y1, x0:x1]
+            image[y0:y1, x0:x1] = self._quantise(self._noisy(roi))
+        assert image.shape == (h, w)
+        return image
+
+    def _noisy(self, signal: np.ndarray) -> np.ndarray:
+        """``signal`` (exposed, full-scale units) plus shot and read noise from the deviate bank."""
+        offset = int(self._rng.integers(0, self._bank.size - signal.size))
+        deviates = self._bank[offset : offset + signal.size].reshape(signal.shape)
+        image: np.ndarray = cv2.multiply(self._noise_sigma(signal), deviates)
+        cv2.add(image, signal, dst=image)
+        return image
+
+    def _quantise(self, image: np.ndarray) -> np.ndarray:
+        """Full-scale float → the sensor's codes (clipped at 0 and full scale)."""
+        c = self.camera
         np.maximum(image, np.float32(0), out=image)
         if c.bits == 8:
             return cv2.convertScaleAbs(image, alpha=c.full_scale)

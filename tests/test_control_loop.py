@@ -271,7 +271,7 @@ def test_a_failing_store_ends_the_move_but_not_the_loop(
 ) -> None:
     """A store that cannot be written (tests/test_daemon_faults.py has the full disk-full case)."""
 
-    def broken(position_m: float) -> None:
+    def broken(position_m: float, poses: object = ()) -> None:
         raise OSError("disk full")
 
     loop, _, _ = make_loop(world, on_position=broken)
@@ -294,7 +294,7 @@ def test_slow_commits_stay_off_the_tick(world: FakeWorld) -> None:
     writes on the tick, each would make a tick at least 45 ms late."""
     writes: list[float] = []
 
-    def slow(position_m: float) -> None:
+    def slow(position_m: float, poses: object = ()) -> None:
         time.sleep(0.05)
         writes.append(position_m)
 

@@ -168,6 +168,13 @@ def test_feeder_daemon_with_a_bad_config_exits_2_in_one_line(tmp_path: Path) -> 
             '[amplifier]\nmodel = "anc300"\n[amplifier.limits]\nv_max_v = 200.0\n',
             "beyond the anc300's rating",
         ),
+        ('[plate]\naxes = ["y", "x"]\n', "plate.axes must start with x"),
+        ('[plate]\naxes = ["x", "z"]\n', "plate.axes must be a list of distinct axes"),
+        ("[plate]\naxis_map = { x = 1, thta = 3 }\n", "did you mean plate.axis_map.theta"),
+        ('[plate]\naxes = ["x", "y"]\naxis_map = { x = 2 }\n', "two axes the same number"),
+        ('[plate]\nparts = "0,0"\n', "plate.parts: expected X,Y,PSI"),
+        ("[control]\nmin_y_m = 1e-3\nmax_y_m = -1e-3\n", "control.min_y_m must be below"),
+        ("[control]\ntolerance_rad = 2.0\n", "control.tolerance_rad = 2 is outside"),
     ],
 )
 def test_misspelt_or_out_of_range_keys_are_refused_by_name(tmp_path: Path, text: str, words: str) -> None:
@@ -177,6 +184,20 @@ def test_misspelt_or_out_of_range_keys_are_refused_by_name(tmp_path: Path, text:
         load_config(path)
     assert words in str(err.value)
     assert "\n" not in str(err.value)
+
+
+def test_the_plate_section_drives_three_axes(tmp_path: Path) -> None:
+    path = tmp_path / "plane.toml"
+    path.write_text(
+        '[plate]\naxes = ["x", "y", "theta"]\naxis_map = { theta = 4 }\nparts = "1e-3,0,0.5;-1e-3,2e-4,0"\n'
+        "[control]\nmin_y_m = -2.5e-3\nmax_y_m = 2.5e-3\ntolerance_rad = 1e-3\n"
+    )
+    config = load_config(path)
+    assert config.plate.planar and config.plate.axes == ("x", "y", "theta")
+    assert config.plate.axis_map == {"x": 1, "y": 2, "theta": 4}
+    assert config.plate.parts == ((1e-3, 0.0, 0.5), (-1e-3, 2e-4, 0.0))
+    assert (config.loop.min_y_m, config.loop.max_y_m, config.loop.tolerance_rad) == (-2.5e-3, 2.5e-3, 1e-3)
+    assert not DaemonConfig().plate.planar  # the one-axis default until a plate is configured
 
 
 def test_a_device_is_not_read_as_a_configuration() -> None:

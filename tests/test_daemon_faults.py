@@ -184,7 +184,7 @@ def test_a_nan_position_is_a_sensor_fault_and_nothing_invalid_is_stored() -> Non
         _GarbageSensor(world, good=60),
         MODES,
         SETTINGS,
-        on_position=saved.append,
+        on_position=lambda x, poses: saved.append(x),
         on_fault=lambda k, m: faults.append(k),
     )
     loop.start()
@@ -215,9 +215,9 @@ class _FillingDisk:
         if self.full:
             raise sqlite3.OperationalError("database or disk is full")
 
-    def save_position(self, x: float) -> None:
+    def save_position(self, x: float, poses: tuple[tuple[float, float, float], ...] = ()) -> None:
         self._check()
-        self.store.save_position(x)
+        self.store.save_position(x, poses)
 
     def begin(self, job: Job) -> None:
         self._check()

@@ -28,7 +28,7 @@ def feeder(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 @pytest.mark.timeout(150)
 def test_demo_json_summary_and_plot(tmp_path: Path) -> None:
     plot = tmp_path / "demo.png"
-    done = feeder("demo", "--json", "--plot", str(plot), cwd=tmp_path)
+    done = feeder("demo", "--line", "--json", "--plot", str(plot), cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     moves = summary["moves"]
@@ -42,6 +42,24 @@ def test_demo_json_summary_and_plot(tmp_path: Path) -> None:
     assert summary["duration_s"] > 0
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert done.stderr == ""  # no progress in --json
+
+
+@pytest.mark.timeout(240)
+def test_the_demo_in_the_plane_brings_the_part_to_poses_by_camera_and_by_truth(tmp_path: Path) -> None:
+    pytest.importorskip("cv2", reason="the camera needs OpenCV (the vision extra)")
+    plot = tmp_path / "plane.png"
+    done = feeder("demo", "--json", "--plot", str(plot), cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = json.loads(done.stdout)
+    moves = out["moves"]
+    assert len(moves) >= 4 and all(m["status"] == "done" for m in moves)
+    for key in ("error_m", "error_rad", "true_error_m", "true_error_rad"):
+        assert out[f"max_{key}"] == max(m[key] for m in moves)
+    assert max(out["max_error_m"], out["max_true_error_m"]) <= out["tolerance_m"] == 1e-6
+    assert max(out["max_error_rad"], out["max_true_error_rad"]) <= out["tolerance_rad"]
+    assert max(abs(b["target"][2] - a["target"][2]) for a, b in itertools.pairwise(moves)) >= 0.52  # 30°
+    assert all(len(m["target"]) == len(m["pose"]) == 3 for m in moves)
+    assert out["duration_s"] > 0 and plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_demo_refuses_a_plot_path_that_is_not_png(tmp_path: Path) -> None:

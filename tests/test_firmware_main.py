@@ -36,12 +36,21 @@ def test_help_documents_the_startup_options() -> None:
         "--serial-login",
         "--dac-buffer-s",
         "--camera-noise-m",
+        "--camera-width-px",
+        "--camera-height-px",
     ):
         assert option in result.stdout
 
 
 @pytest.mark.parametrize(
-    "args", [["--console", "tcp:0.0.0.0:0"], ["--console", "udp:x"], ["--part", "banana"], ["--axes", "9"]]
+    "args",
+    [
+        ["--console", "tcp:0.0.0.0:0"],
+        ["--console", "udp:x"],
+        ["--part", "banana"],
+        ["--axes", "9"],
+        ["--camera-width-px", "8"],
+    ],
 )
 def test_bad_options_exit_2_with_one_line(args: list[str]) -> None:
     result = run_main(*args)

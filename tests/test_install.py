@@ -59,7 +59,9 @@ def test_installed_package_runs_the_demo_from_another_directory(tmp_path: Path) 
     )
     assert all(line.startswith(str(site)) for line in where.stdout.split()), where.stdout
     demo = subprocess.run(
-        [sys.executable, "-m", "feeder", "demo", "--json"],
+        # the one-axis demo: the plane's needs numba's compiled planar kernels, which a fresh
+        # install compiles first (tens of seconds); tests/test_plane_hil.py runs the plane
+        [sys.executable, "-m", "feeder", "demo", "--line", "--json"],
         cwd=elsewhere,
         env=env,
         capture_output=True,

@@ -119,7 +119,7 @@ def test_a_move_goes_idle_moving_settling_and_back_to_idle_done() -> None:
         for o in out:
             if isinstance(o, Command):
                 if o.kind == "step":
-                    rig.position_m += o.steps * (3.0e-6 if rig.policy._applied == COARSE else 0.8e-6)
+                    rig.position_m += o.steps * (3.0e-6 if rig.policy._applied.get("x") == COARSE else 0.8e-6)
                 rig.complete(o, counter=0)
         assert rig.now < 10
     result = rig.finished().result

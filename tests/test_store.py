@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from feeder.daemon.store import Calibration, Store, StoreError
+from feeder.daemon.store import SCHEMA_VERSION, Calibration, Store, StoreError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -152,7 +152,46 @@ def test_a_version_1_database_is_migrated(tmp_path: Path) -> None:
     version = (
         sqlite3.connect(path).execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
     )
-    assert version == "3"
+    assert version == str(SCHEMA_VERSION)
+
+
+def test_a_version_3_database_gains_poses_and_pose_moves_round_trip(tmp_path: Path) -> None:
+    path = tmp_path / "v3.sqlite"
+    Store(path).close()
+    conn = sqlite3.connect(path)  # back to version 3: no pose columns
+    conn.executescript("""
+        ALTER TABLE moves DROP COLUMN part; ALTER TABLE moves DROP COLUMN target_pose;
+        ALTER TABLE moves DROP COLUMN start_pose; ALTER TABLE moves DROP COLUMN reached_pose;
+        ALTER TABLE moves DROP COLUMN error_rad; ALTER TABLE position DROP COLUMN poses;
+        UPDATE meta SET value = '3' WHERE key = 'schema_version';
+    """)
+    conn.close()
+    store = Store(path)
+    move = store.begin_move(1e-3, 0.0, part=2, target_pose=(1e-3, -2e-4, 0.5), start_pose=(0.0, 0.0, 0.1))
+    store.finish_move(
+        move,
+        status="done",
+        reason="within tolerance",
+        reached_m=1.0004e-3,
+        steps=30,
+        bursts=4,
+        step_forward_m=None,
+        step_backward_m=None,
+        reached_pose=(1.0004e-3, -2.003e-4, 0.5005),
+        error_m=5e-7,
+        error_rad=5e-4,
+    )
+    store.save_position(1.0004e-3, ((1.0004e-3, -2.003e-4, 0.5005), (0.0, 1e-3, 0.0)))
+    row = store.move(move)
+    assert row is not None
+    assert row["part"] == 2 and row["target_pose"] == [1e-3, -2e-4, 0.5]
+    assert row["start_pose"] == [0.0, 0.0, 0.1] and row["reached_pose"] == [1.0004e-3, -2.003e-4, 0.5005]
+    assert (row["error_m"], row["error_rad"]) == (5e-7, 5e-4)  # the distance, not reached − target in x
+    known = store.position()
+    assert known is not None and known.poses[1] == (0.0, 1e-3, 0.0)
+    store.save_pose_response({"x/forward/coarse": {"step_m": 1e-6}})
+    assert store.pose_response() == {"x/forward/coarse": {"step_m": 1e-6}}
+    store.close()
 
 
 def test_a_version_2_database_gains_the_steps_estimated_mark(tmp_path: Path) -> None:

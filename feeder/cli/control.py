@@ -8,10 +8,11 @@ become exit codes in :func:`feeder.cli.main`: 1 refused or failed, 2 bad input,
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Callable
 from pathlib import Path
 
-from feeder.cli.arguments import allow_negative_values, length_m, positive_float
+from feeder.cli.arguments import allow_negative_values, angle_rad, int_in, length_m, positive_float
 from feeder.cli.output import print_json
 from feeder.daemon.client import (
     DEFAULT_TIMEOUT_S,
@@ -57,6 +58,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="relative move from the current position, m; or with a unit (--by -20um)",
     )
     move.add_argument(
+        "--x", type=length_m, dest="x_m", metavar="X", help="target x of the part's centre (1.2mm)"
+    )
+    move.add_argument(
+        "--y", type=length_m, dest="y_m", metavar="Y", help="target y of the part's centre (-0.3mm)"
+    )
+    move.add_argument(
+        "--angle",
+        type=angle_rad,
+        dest="angle_rad",
+        metavar="ANGLE",
+        help="target orientation (15deg, or rad)",
+    )
+    move.add_argument(
+        "--part",
+        type=int_in(1, 1000),
+        default=1,
+        metavar="ID",
+        help="which part (default 1; see feeder status)",
+    )
+    move.add_argument(
         "--queue", action="store_true", help="wait for a running move to finish instead of being refused"
     )
     move.add_argument("--no-wait", action="store_true", help="return once the move is accepted")
@@ -93,11 +114,25 @@ def _client(args: argparse.Namespace) -> Client:
     return Client(args.socket, timeout_s=args.timeout)
 
 
+def _pose(pose: tuple[float, float, float] | None) -> str:
+    if pose is None:
+        return "?"
+    return f"({pose[0] * 1e6:.2f}, {pose[1] * 1e6:.2f}) µm, {math.degrees(pose[2]):.3f}°"
+
+
 def _um(value: float | None) -> str:
     return "?" if value is None else f"{value * 1e6:.3f} µm"
 
 
 def _print_result(result: MoveResult) -> None:
+    if result.target_pose is not None:
+        print(
+            f"{result.kind} of part {result.part} {result.status}: {result.reason}; at {_pose(result.pose)}"
+            f" for target {_pose(result.target_pose)} (error {_um(result.error_m)},"
+            f" {math.degrees(result.error_rad or 0.0):.3f}°), {result.steps} steps in {result.bursts} bursts,"
+            f" {result.duration_s:.2f} s"
+        )
+        return
     print(
         f"{result.kind} {result.status}: {result.reason}; reached {_um(result.reached_m)}"
         + (
@@ -134,8 +169,15 @@ def _job(args: argparse.Namespace, cmd: str, start: Callable[[Client, bool], Mov
 
 
 def run_move(args: argparse.Namespace) -> int:
+    pose = {k: getattr(args, k) for k in ("x_m", "y_m", "angle_rad") if getattr(args, k) is not None}
+    if pose:
+        if args.target_m is not None or args.by_m is not None:
+            raise InputError("--x/--y/--angle", "give a pose or TARGET_M/--by, not both")
+        if args.no_wait:
+            raise InputError("--no-wait", "a pose move waits for its end")
+        return _job(args, "move", lambda c, wait: c.move_to_pose(**pose, part=args.part, queue=args.queue))
     if (args.target_m is None) == (args.by_m is None):
-        raise InputError("TARGET_M", "give either TARGET_M or --by DELTA_M")
+        raise InputError("TARGET_M", "give TARGET_M, --by DELTA_M, or a pose (--x, --y, --angle)")
     if args.by_m is not None:
         return _job(args, "move", lambda c, wait: c.move_by(args.by_m, queue=args.queue, wait=wait))
     return _job(args, "move", lambda c, wait: c.move_to(args.target_m, queue=args.queue, wait=wait))
@@ -182,6 +224,9 @@ def run_status(args: argparse.Namespace) -> int:
     )
     if status.target_m is not None:
         print(f"target: {_um(status.target_m)}")
+    if len(reply.get("axes") or {}) > 1:  # a plate driven in the plane: every part's pose
+        for part in status.parts:
+            print(f"part {part.id}: {_pose(part.pose)}")
     lo, hi = status.travel_limits_m
     print(f"tolerance: ±{_um(status.tolerance_m)}, travel limits [{_um(lo)}, {_um(hi)}]")
     predicted = reply.get("predicted_steps_m", {})

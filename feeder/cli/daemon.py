@@ -10,14 +10,19 @@ import sys
 import threading
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from feeder.cli.output import print_json
-from feeder.daemon.config import TRANSPORTS, load_config
+from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, load_config
 from feeder.daemon.launcher import LaunchError
-from feeder.daemon.runner import start_daemon
+from feeder.daemon.runner import RunningDaemon, start_daemon
 from feeder.daemon.store import StoreError, move_aside
 from feeder.drivers.amplifier import AmplifierError
 from feeder.drivers.sensor import SensorLost
+from feeder.errors import InputError
+
+if TYPE_CHECKING:
+    from feeder.daemon.http_console import ConsoleServer
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -39,6 +44,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--json", action="store_true", help="print the ready object (socket, endpoints, ...) as JSON"
+    )
+    parser.add_argument(
+        "--http",
+        metavar="HOST:PORT",
+        help="serve the operator's console in the browser (e.g. 127.0.0.1:8470; loopback only "
+        "unless the configuration's [http] allow_remote; see docs/console.md)",
     )
     parser.add_argument(
         "--reset-state",
@@ -80,6 +91,10 @@ def run(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, socket_path=args.socket)
     if args.sim_arg:
         config = dataclasses.replace(config, simulator_args=(*config.simulator_args, *args.sim_arg))
+    if args.http:
+        config = dataclasses.replace(
+            config, http=(config.http or HttpConfig()).listening_on(args.http, "--http")
+        )
     setup_logging(args.log_level, config.state_dir / "daemon.log")
     if args.reset_state:
         moved = move_aside(config.database_path)
@@ -93,6 +108,11 @@ def run(args: argparse.Namespace) -> int:
     except (AmplifierError, SensorLost, LaunchError) as err:
         print(f"feeder daemon: error: {err}", file=sys.stderr)
         return 1
+    try:
+        console = start_console(config, running)
+    except InputError:
+        running.stop()
+        raise
     stop = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
@@ -105,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         "socket": str(config.socket_path),
         "database": str(config.database_path),
         **running.links.describe(),
+        **({} if console is None else {"console_url": console.token_url}),
     }
     if args.json:
         print_json(ready)
@@ -113,10 +134,34 @@ def run(args: argparse.Namespace) -> int:
             f"feeder daemon: listening on {config.socket_path} "
             f"({ready['transport']}{', simulated' if ready['simulated'] else ''})"
         )
+        if console is not None:
+            print(f"feeder daemon: console at {console.token_url}")
     sys.stdout.flush()
     while not stop.is_set() and not running.daemon.wait(0.2):
         pass
+    if console is not None:
+        console.stop()
     running.stop()
     if not args.json:
         print("feeder daemon: stopped", file=sys.stderr)
     return 0
+
+
+def start_console(config: DaemonConfig, running: RunningDaemon) -> ConsoleServer | None:
+    """The browser console when configured (``--http`` or ``[http]``), else None; shows the
+    embedded simulator's camera when it serves one (``--sim-arg=--camera-http=0``)."""
+    if config.http is None:
+        return None
+    try:
+        from feeder.daemon import http_console
+    except ImportError as err:
+        raise InputError(
+            "--http", f"the console needs Starlette and uvicorn ({err}): pip install feeder[http]"
+        ) from None
+    camera_http = running.links.describe().get("simulator_endpoints", {}).get("camera_http")
+    return http_console.start_console(
+        running.daemon,
+        config.http,
+        config.state_dir,
+        None if camera_http is None else camera_http + "/video.mjpg",
+    )

@@ -1,7 +1,9 @@
-"""``feeder demo``: the daemon on a simulated amplifier moves a part through a set of targets.
+"""``feeder demo``: the daemon on a simulated amplifier brings a part to a set of targets.
 
-Starts the daemon on the embedded default (firmware_sim on a pty, real-time
-clock, its camera on a local port) with a fresh state directory, moves a
+By default in the plane (:mod:`feeder.cli.demo_plane`: poses x, y, ψ from the
+camera, three amplifier axes).  With ``--line``, today's one-axis feeder: the
+daemon on the embedded default (firmware_sim on a pty, real-time clock, its
+position stream on a local port) with a fresh state directory moves a
 300×300×50 µm part to each target in turn (both ways), prints one line per
 move, writes a PNG of position vs time with the targets, shuts everything
 down.  Exit 0 when every move ended within tolerance.
@@ -10,6 +12,7 @@ down.  Exit 0 when every move ended within tolerance.
 from __future__ import annotations
 
 import argparse
+import math
 import shutil
 import sys
 import tempfile
@@ -35,10 +38,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--part", default="300x300x50", help="LxWxT in µm")
     parser.add_argument("--transport", choices=TRANSPORTS, default="serial")
     parser.add_argument(
+        "--line",
+        action="store_true",
+        help="one axis (x) and a position stream instead of poses from a camera",
+    )
+    parser.add_argument(
         "--plot",
         type=Path,
         default=Path("out/demo.png"),
-        help="PNG of position vs time (default %(default)s)",
+        help="PNG of the path and the targets (default %(default)s)",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON summary")
     parser.set_defaults(handler=run)
@@ -80,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
     part = Part.parse(args.part)
     if args.plot.suffix.lower() != ".png":
         raise InputError("--plot", f"expected a .png path, got {str(args.plot)!r}")
+    if not args.line:
+        return run_plane(part, args)
     started = time.monotonic()
     base = Path(tempfile.mkdtemp(prefix="fdemo"))
     config = DaemonConfig(
@@ -163,6 +173,29 @@ def run(args: argparse.Namespace) -> int:
             f"max {timing['jitter_max_s'] * 1e3:.2f} ms"
         )
     return 0 if ok else 1
+
+
+def run_plane(part: Part, args: argparse.Namespace) -> int:
+    """The demo in the plane; prints its moves (as they end) and a summary."""
+    from feeder.cli import demo_plane
+
+    code, summary = demo_plane.run(part, args.transport, args.plot, quiet=args.json)
+    if args.json:
+        print_json(summary)
+    else:
+        timing = summary["loop_timing"]
+        print(
+            f"{len(summary['moves'])} pose moves, max error {summary['max_error_m'] * 1e6:.3f} µm "
+            f"{math.degrees(summary['max_error_rad']):.3f}° by the camera, "
+            f"{summary['max_true_error_m'] * 1e6:.3f} µm {math.degrees(summary['max_true_error_rad']):.3f}° "
+            f"by the simulator's truth (tolerance {summary['tolerance_m'] * 1e6:g} µm, "
+            f"{math.degrees(summary['tolerance_rad']):g}°), {summary['duration_s']:.1f} s; plot: {args.plot}"
+        )
+        print(
+            f"control loop: {timing['ticks']} ticks at {timing['rate_hz']:g} Hz, "
+            f"{timing['overruns']} overruns, jitter p99 {timing['jitter_p99_s'] * 1e3:.2f} ms"
+        )
+    return code
 
 
 def _plot(path: Path, traces: list[list[list[float]]], targets: list[float], tolerance_m: float) -> None:

@@ -46,6 +46,7 @@ from feeder.errors import (
     MoveFailed,
     MoveFaulted,
 )
+from feeder.pose import Pose
 
 MAX_LINE_BYTES = 64 * 1024
 """Longest request line the daemon reads."""
@@ -104,7 +105,12 @@ class LearnedStep:
 
 
 def _learned(d: dict[str, Any]) -> dict[str, LearnedStep]:
-    return {name: LearnedStep.from_dict(est) for name, est in d.items()}
+    """The one-axis steps; a pose planner's response (another shape) stays in ``raw``."""
+    return {
+        name: LearnedStep.from_dict(est)
+        for name, est in d.items()
+        if isinstance(est, dict) and "step_m" in est
+    }
 
 
 def _opt(value: Any) -> float | None:
@@ -118,8 +124,11 @@ class MoveResult:
     status: ``done``, ``stopped``, ``stalled``, ``limit``, ``oscillating``,
     ``unreachable``, ``fault`` or ``refused``; ``reason`` in words.  Positions in m,
     ``duration_s`` in s; ``estimates`` the learned steps after it; ``steps_estimated``:
-    a burst was cut short and its steps estimated from time.  ``raw`` is the daemon's
-    object as it came (fields added later are there).
+    a burst was cut short and its steps estimated from time.  A pose move adds the
+    ``part``, ``target_pose`` and reached ``pose`` ((x_m, y_m, psi_rad), plate frame),
+    ``error_m`` (distance of the centre from the target) and ``error_rad`` (angle modulo
+    the part's symmetry).  ``raw`` is the daemon's object as it came (fields added later
+    are there).
     """
 
     kind: str
@@ -135,6 +144,10 @@ class MoveResult:
     estimates: dict[str, LearnedStep]
     move_id: int | None
     steps_estimated: bool = False
+    part: int | None = None
+    target_pose: Pose | None = None
+    pose: Pose | None = None
+    error_rad: float | None = None
     raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -157,7 +170,30 @@ class MoveResult:
             estimates=_learned(d.get("estimates") or {}),
             move_id=d.get("move_id"),
             steps_estimated=bool(d.get("steps_estimated", False)),
+            part=d.get("part"),
+            target_pose=_pose(d.get("target_pose")),
+            pose=_pose(d.get("pose")),
+            error_rad=_opt(d.get("error_rad")),
             raw=d,
+        )
+
+
+@dataclass(frozen=True)
+class PartPose:
+    """A part on the plate: its id, shape, size (m) and pose (None while unseen)."""
+
+    id: int
+    pose: Pose | None
+    shape: str = "rectangle"
+    size_m: tuple[float, ...] = ()
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PartPose:
+        return cls(
+            id=int(d["id"]),
+            pose=_pose(d.get("pose")),
+            shape=str(d.get("shape", "rectangle")),
+            size_m=tuple(float(v) for v in d.get("size_m") or ()),
         )
 
 
@@ -185,6 +221,7 @@ class Status:
     ``loop_state`` the control policy's (``idle``, ``moving``, ``settling``, ``holding``,
     ``fault``) where the daemon reports it.
 
+    ``parts`` every part's pose (a plate driven in x, y and θ; one part otherwise).
     ``raw`` holds the whole reply (timing, waveforms, transport, ...).
     """
 
@@ -200,6 +237,7 @@ class Status:
     estimates: dict[str, LearnedStep]
     last_result: MoveResult | None
     loop_state: str | None = None
+    parts: tuple[PartPose, ...] = ()
     raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
@@ -219,6 +257,7 @@ class Status:
             estimates=_learned(d.get("estimates") or {}),
             last_result=None if last is None else MoveResult.from_dict(last),
             loop_state=d.get("loop_state"),
+            parts=tuple(PartPose.from_dict(p) for p in d.get("parts") or ()),
             raw=d,
         )
 
@@ -501,6 +540,36 @@ class Client:
         :meth:`move_to`."""
         return self._job("move", {"by_m": _metres("delta_m", delta_m)}, queue, wait, timeout_s)
 
+    def move_to_pose(
+        self,
+        x_m: float | None = None,
+        y_m: float | None = None,
+        angle_rad: float | None = None,
+        *,
+        part: int = 1,
+        queue: bool = False,
+        timeout_s: float | None = None,
+    ) -> MoveResult:
+        """Bring ``part`` to a pose in the plate frame: any of ``x_m``, ``y_m`` (m, centre) and
+        ``angle_rad`` (its first dimension's direction from +x towards +y); what is not given
+        keeps its value.  Waits for the end, as :meth:`move_to` does."""
+        target = {
+            key: _finite(key, value, unit)
+            for key, value, unit in (
+                ("x_m", x_m, "metres"),
+                ("y_m", y_m, "metres"),
+                ("angle_rad", angle_rad, "radians"),
+            )
+            if value is not None
+        }
+        if not target:
+            raise InputError("pose", "give at least one of x_m, y_m and angle_rad")
+        if isinstance(part, bool) or not isinstance(part, int) or part < 1:
+            raise InputError("part", f"must be a part id (an integer >= 1), got {part!r}")
+        result = self._job("move", {**target, "part": part}, queue, True, timeout_s)
+        assert isinstance(result, MoveResult)
+        return result
+
     @overload
     def calibrate(
         self, steps: int = ..., *, queue: bool = ..., wait: Literal[True] = ..., timeout_s: float | None = ...
@@ -583,9 +652,20 @@ def _listening(socket_path: Path) -> bool:
 
 
 def _metres(name: str, value: float) -> float:
+    return _finite(name, value, "metres")
+
+
+def _finite(name: str, value: float, unit: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InputError(name, f"must be a finite number of metres, got {value!r}")
+        raise InputError(name, f"must be a finite number of {unit}, got {value!r}")
     return float(value)
+
+
+def _pose(value: Any) -> Pose | None:
+    if value is None:
+        return None
+    x, y, psi = (float(v) for v in value)
+    return (x, y, psi)
 
 
 def _parse(cmd: str, parse: Callable[[dict[str, Any]], T], reply: dict[str, Any]) -> T:

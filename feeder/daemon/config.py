@@ -48,6 +48,14 @@ average_samples = 3
 [state]
 dir = "~/.local/state/feeder" # calibration, history, last position (SQLite)
 socket = "/run/user/1000/feeder/feeder.sock"
+
+[http]                        # the browser console (docs/console.md); off without [http] or --http
+listen = "127.0.0.1:8470"     # HOST:PORT (port 0: any free one)
+allow_remote = false          # true: allow a listen address other than loopback
+origins = []                  # further Origin values allowed to change state (a reverse proxy's)
+camera = "http://127.0.0.1:8080/video.mjpg"   # the live view's frames (open_camera spec)
+moves_per_s = 2.0             # rate limit of move, jog and calibrate requests ...
+move_burst = 5                # ... after a burst of this many
 ```
 """
 
@@ -55,6 +63,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import ipaddress
 import math
 import os
 from dataclasses import dataclass, field
@@ -72,11 +81,18 @@ from feeder.plant.amplifier import (
     amplifier_model,
     within_rating,
 )
+from feeder.pose import parse_poses
 
 TRANSPORTS = ("serial", "can")
+AXES = ("x", "y", "theta")
+"""The plate's axes: translations x and y, rotation θ about the centre O."""
+DEFAULT_AXIS_MAP = {"x": 1, "y": 2, "theta": 3}
+"""ANC300 axis numbers (serial) or CANopen node ids (CAN, one node per axis) of the plate's axes."""
+TRAVEL_KEYS = frozenset({"min_position_m", "max_position_m", "min_y_m", "max_y_m"})
 DEFAULT_MODELS = {"serial": "anc300", "can": "firmware_sim"}
 """The amplifier model a transport gets when the configuration names none."""
 DEFAULT_PART = "300x300x50"
+DEFAULT_HTTP_LISTEN = "127.0.0.1:8470"
 
 
 def default_state_dir() -> Path:
@@ -105,6 +121,92 @@ class AmplifierConfig:
 
 
 @dataclass(frozen=True)
+class HttpConfig:
+    """The browser console's server (:mod:`feeder.daemon.http_console`).
+
+    moves_per_s, move_burst: token bucket over move, jog and calibrate requests.
+    camera: an :func:`~feeder.drivers.video_camera.open_camera` spec for the live view.
+    """
+
+    host: str = "127.0.0.1"
+    port: int = 8470
+    allow_remote: bool = False
+    origins: tuple[str, ...] = ()
+    camera: str | None = None
+    moves_per_s: float = 2.0
+    move_burst: int = 5
+
+    def listening_on(self, listen: str, field: str) -> HttpConfig:
+        """The same settings at ``listen`` (``HOST:PORT``, ``[::1]:PORT``); a host that is not
+        loopback is refused unless ``allow_remote``."""
+        host, sep, port_text = listen.rpartition(":")
+        host = host.removeprefix("[").removesuffix("]")
+        if not sep or not host or not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
+            raise InputError(field, f"expected HOST:PORT (e.g. {DEFAULT_HTTP_LISTEN}), got {listen!r}")
+        if not self.allow_remote and not is_loopback(host):
+            raise InputError(
+                field,
+                f"{host} is not a loopback address; the console serves loopback only "
+                "unless the configuration says [http] allow_remote = true",
+            )
+        return dataclasses.replace(self, host=host, port=int(port_text))
+
+
+def is_loopback(host: str) -> bool:
+    """``localhost`` or a loopback IP address (127.0.0.0/8, ::1)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+@dataclass(frozen=True)
+class PlateConfig:
+    """The plate's axes and parts.
+
+    axes: which axes the daemon drives (``("x",)``: one axis, today's feeder;
+    ``("x", "y", "theta")``: the plane, parts brought to poses); axis_map: each
+    axis' ANC300 axis number or CANopen node id; lever_arm_m: radius about O at
+    which the θ stack drives the plate (simulator); parts: the parts' start poses
+    (m, m, rad; plate frame) in the simulator.
+    """
+
+    axes: tuple[str, ...] = ("x",)
+    axis_map: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_AXIS_MAP))
+    lever_arm_m: float = 1e-3
+    parts: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),)
+
+    @property
+    def planar(self) -> bool:
+        return len(self.axes) > 1
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The microscope camera the daemon locates parts with (a plate driven in the plane).
+
+    address: what :func:`feeder.drivers.video_camera.open_camera` opens (an MJPEG
+    URL, a device index, ``genicam:PRODUCER#SERIAL``); None with the simulator (its
+    camera); pixel_size_m, width_px, height_px: the image's scale and size, used
+    (plate origin at the image centre, axes along the image's) until ``feeder vision
+    calibrate --save-state`` stores a measured calibration; fps: the simulated
+    camera's frame rate.  The simulator's default, 1024 px at 5 µm/px, sees 5.1 mm
+    (the ±2.5 mm travel) with a 300 µm part 60 px wide (centre ≈ 0.1 µm, angle ≈ 0.04°,
+    docs/vision.md); 2048 px at 30 frames/s costs more to encode and decode than two
+    cores have (35 ms and 54 ms per frame).
+    """
+
+    address: str | None = None
+    timeout_s: float = 2.0
+    pixel_size_m: float = 5e-6
+    width_px: int = 1024
+    height_px: int = 1024
+    fps: float = 15.0
+
+
+@dataclass(frozen=True)
 class DaemonConfig:
     amplifier: AmplifierConfig = field(default_factory=AmplifierConfig)
     sensor_address: str | None = None
@@ -117,8 +219,12 @@ class DaemonConfig:
     loop: LoopSettings = field(
         default_factory=lambda: LoopSettings(min_position_m=-5e-3, max_position_m=5e-3)
     )
+    plate: PlateConfig = field(default_factory=PlateConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
     state_dir: Path = field(default_factory=default_state_dir)
     socket_path: Path = field(default_factory=default_socket_path)
+    http: HttpConfig | None = None
+    """The browser console; None: off."""
 
     @property
     def database_path(self) -> Path:
@@ -150,6 +256,9 @@ SECTIONS: dict[str, frozenset[str]] = {
     "part": frozenset({"size", "support", "surface", "tau_pa"}),
     "control": frozenset(f.name for f in dataclasses.fields(LoopSettings)),
     "state": frozenset({"dir", "socket"}),
+    "http": frozenset({"listen", "allow_remote", "origins", "camera", "moves_per_s", "move_burst"}),
+    "plate": frozenset({"axes", "axis_map", "lever_arm_m", "parts"}),
+    "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps"}),
 }
 """The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
 ``[amplifier.can]``: python-can keyword arguments plus ``node_id`` and ``heartbeat_s``)."""
@@ -176,6 +285,16 @@ RANGES: dict[str, tuple[float, float]] = {
     "heartbeat_s": (0.01, 10.0),
     "min_position_m": (-1.0, 1.0),
     "max_position_m": (-1.0, 1.0),
+    "moves_per_s": (0.01, 1000.0),
+    "move_burst": (1, 1000),
+    "min_y_m": (-1.0, 1.0),
+    "max_y_m": (-1.0, 1.0),
+    "tolerance_rad": (1e-6, 0.5),
+    "lever_arm_m": (1e-4, 1.0),
+    "pixel_size_m": (1e-9, 1e-3),
+    "width_px": (16, 8192),
+    "height_px": (16, 8192),
+    "fps": (0.1, 1000.0),
 }
 """Accepted ranges of numeric keys (a value outside is refused, not clipped)."""
 
@@ -232,6 +351,44 @@ def _string(table: dict[str, Any], key: str, where: str, default: str | None) ->
 
 def _path(value: str | None) -> Path | None:
     return None if value is None else Path(value).expanduser()
+
+
+def uses_camera(config: DaemonConfig) -> bool:
+    """The daemon locates parts in a camera's frames (a plate in the plane without a
+    position stream)."""
+    return config.plate.planar and config.sensor_address is None
+
+
+def _plate(table: dict[str, Any], where: str) -> PlateConfig:
+    """``[plate]``: axes (any of x, y, theta; x first), axis map, lever arm, simulated parts."""
+    axes = table.get("axes", ["x"])
+    if not (isinstance(axes, list) and axes and all(a in AXES for a in axes) and len(set(axes)) == len(axes)):
+        raise InputError(where, f"plate.axes must be a list of distinct axes among {', '.join(AXES)}")
+    if axes[0] != "x":
+        raise InputError(where, "plate.axes must start with x (the axis one-axis moves address)")
+    axis_map = table.get("axis_map", DEFAULT_AXIS_MAP)
+    if not isinstance(axis_map, dict):
+        raise InputError(where, "plate.axis_map must be a table, e.g. { x = 1, y = 2, theta = 3 }")
+    check_keys(axis_map, set(AXES), where, "plate.axis_map.")
+    numbers = {str(k): _integer(axis_map, k, where, 1, "plate.axis_map.") for k in axis_map}
+    mapped = {**DEFAULT_AXIS_MAP, **numbers}
+    if len({mapped[a] for a in axes}) != len(axes):
+        raise InputError(where, "plate.axis_map gives two axes the same number")
+    parts_text = table.get("parts", "0,0,0")
+    if not isinstance(parts_text, str):
+        raise InputError(where, "plate.parts must be a string X,Y,PSI;X,Y,PSI (m, m, rad)")
+    try:
+        parts = parse_poses(parts_text, "plate.parts")
+    except InputError as err:
+        raise InputError(where, f"plate.parts: {err.message}") from None
+    return PlateConfig(
+        axes=tuple(axes),
+        axis_map=mapped,
+        lever_arm_m=_number(
+            table, "lever_arm_m", where, PlateConfig.lever_arm_m, positive=True, section="plate."
+        ),
+        parts=parts,
+    )
 
 
 def load_config(path: Path | None) -> DaemonConfig:
@@ -320,14 +477,30 @@ def load_config(path: Path | None) -> DaemonConfig:
                 loop_fields[f.name] = _integer(control, f.name, where, default, "control.")
             else:
                 loop_fields[f.name] = _number(
-                    control, f.name, where, default, positive="position" not in f.name, section="control."
+                    control, f.name, where, default, positive=f.name not in TRAVEL_KEYS, section="control."
                 )
     loop = dataclasses.replace(defaults, **loop_fields)
     if not loop.min_position_m < loop.max_position_m:
         raise InputError(where, "control.min_position_m must be below control.max_position_m")
+    if not loop.min_y_m < loop.max_y_m:
+        raise InputError(where, "control.min_y_m must be below control.max_y_m")
+    plate = _plate(_table(doc, "plate", where), where)
+    camera_t = _table(doc, "camera", where)
+    cam = CameraConfig()
+    camera = CameraConfig(
+        address=_string(camera_t, "address", where, None),
+        timeout_s=_number(camera_t, "timeout_s", where, cam.timeout_s, positive=True, section="camera."),
+        pixel_size_m=_number(
+            camera_t, "pixel_size_m", where, cam.pixel_size_m, positive=True, section="camera."
+        ),
+        width_px=_integer(camera_t, "width_px", where, cam.width_px, "camera."),
+        height_px=_integer(camera_t, "height_px", where, cam.height_px, "camera."),
+        fps=_number(camera_t, "fps", where, cam.fps, positive=True, section="camera."),
+    )
 
     state = _table(doc, "state", where)
     base = DaemonConfig()
+    http = _http_config(_table(doc, "http", where), where) if "http" in doc else None
     return DaemonConfig(
         amplifier=amplifier,
         sensor_address=sensor_address,
@@ -338,6 +511,31 @@ def load_config(path: Path | None) -> DaemonConfig:
         surface_path=_path(_string(part_t, "surface", where, None)),
         tau_pa=tau_pa,
         loop=loop,
+        plate=plate,
+        camera=camera,
         state_dir=_path(_string(state, "dir", where, None)) or base.state_dir,
         socket_path=_path(_string(state, "socket", where, None)) or base.socket_path,
+        http=http,
     )
+
+
+def _http_config(table: dict[str, Any], where: str) -> HttpConfig:
+    """The ``[http]`` section (its presence turns the console on)."""
+    allow_remote = table.get("allow_remote", False)
+    if not isinstance(allow_remote, bool):
+        raise InputError(where, f"http.allow_remote must be true or false, got {allow_remote!r}")
+    origins = table.get("origins", [])
+    if not (isinstance(origins, list) and all(isinstance(o, str) and "://" in o for o in origins)):
+        raise InputError(where, "http.origins must be a list of origins such as 'https://console.lab'")
+    http = HttpConfig(
+        allow_remote=allow_remote,
+        origins=tuple(o.rstrip("/") for o in origins),
+        camera=_string(table, "camera", where, None),
+        moves_per_s=_number(table, "moves_per_s", where, 2.0, positive=True, section="http."),
+        move_burst=_integer(table, "move_burst", where, 5, "http."),
+    )
+    listen = str(_string(table, "listen", where, DEFAULT_HTTP_LISTEN))
+    try:
+        return http.listening_on(listen, "http.listen")
+    except InputError as err:
+        raise InputError(where, f"http.listen: {err.message}") from None

@@ -22,7 +22,8 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -37,8 +38,10 @@ from feeder.daemon.policy import (
     Job,
     JobResult,
     LoopSettings,
+    Navigator,
     Output,
     Policy,
+    Reading,
     SavePosition,
     Started,
     StepMode,
@@ -60,6 +63,9 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+JITTER_WINDOW = 10_000
+"""Ticks the jitter figures cover (100 s at 100 Hz): enough for a p99, cheap to sort per status."""
 
 
 class SensorFeed:
@@ -117,13 +123,15 @@ class ControlLoop:
 
     def __init__(
         self,
-        amplifier: Amplifier,
+        amplifier: Amplifier | Mapping[str, Amplifier],
         sensor: PositionSensor,
         modes: dict[str, StepMode],
         settings: LoopSettings | None = None,
         *,
         estimates: dict[str, StepEstimate] | None = None,
-        on_position: Callable[[float], None] | None = None,
+        axis_modes: dict[str, dict[str, StepMode]] | None = None,
+        navigator: Navigator | None = None,
+        on_position: Callable[[float, Reading], None] | None = None,
         on_fault: Callable[[str, str], None] | None = None,
         sensor_timeout_s: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
@@ -133,8 +141,8 @@ class ControlLoop:
         self.modes = modes
         self._clock = clock
         self._sensor_timeout_s = sensor_timeout_s
-        self.policy = Policy(modes, settings, estimates)
-        self.executor = AmplifierExecutor(amplifier, modes, clock)
+        self.policy = Policy(modes, settings, estimates, axis_modes=axis_modes, navigator=navigator)
+        self.executor = AmplifierExecutor(amplifier, self.policy.modes, clock)
         self.writer = RecordWriter(on_unwritable=self._store_unwritable, on_writable=self._store_writable)
         self._feed = SensorFeed(sensor, sensor_timeout_s, clock)
         self.on_position = on_position
@@ -142,14 +150,29 @@ class ControlLoop:
         self._lock = threading.Lock()  # guards the policy between tick and API calls
         self._shutdown = threading.Event()
         self._thread: threading.Thread | None = None
-        self._jitter = collections.deque[float](maxlen=100_000)
+        self._jitter = collections.deque[float](maxlen=JITTER_WINDOW)
         self.ticks = 0
         self.overruns = 0
 
     # -- read-only views -----------------------------------------------------------
     @property
     def amplifier(self) -> Amplifier:
+        """The x axis' driver."""
         return self.executor.amplifier
+
+    @property
+    def sensor(self) -> PositionSensor:
+        return self._feed.sensor
+
+    @property
+    def amplifiers(self) -> dict[str, Amplifier]:
+        """Every axis' driver."""
+        return self.executor.amplifiers
+
+    @property
+    def reading(self) -> tuple[tuple[float, float, float], ...] | None:
+        """Every part's latest pose (m, m, rad), or None while uncertain."""
+        return self.policy.reading
 
     @property
     def position_m(self) -> float | None:
@@ -239,7 +262,7 @@ class ControlLoop:
             outputs = self.policy.tick(self._clock())
         self._dispatch(outputs)
 
-    def replace_amplifier(self, amplifier: Amplifier) -> None:
+    def replace_amplifier(self, amplifier: Amplifier | Mapping[str, Amplifier]) -> None:
         """After a reconnect: use the new link and leave the fault state (no move resumes)."""
         self.executor.replace(amplifier)
         self.executor.take()  # completions of the old link are void
@@ -258,14 +281,14 @@ class ControlLoop:
         with self._lock:
             return self.policy.estimates()
 
-    def estimates_json(self) -> dict[str, dict[str, float]]:
+    def estimates_json(self) -> dict[str, Any]:
         """Learned step and burst offset per ``mode/direction`` (m), for replies."""
         with self._lock:
             return self.policy.estimates_json()
 
     def timing(self) -> dict[str, float | int]:
         """Tick jitter p50/p99/max (s), ticks and overruns."""
-        jitter = np.array(self._jitter, dtype=float)
+        jitter = np.array(self._jitter, dtype=float)  # the last JITTER_WINDOW ticks
         if jitter.size == 0:
             return {
                 "rate_hz": self.settings.rate_hz,
@@ -307,7 +330,7 @@ class ControlLoop:
         feed = self._feed
         with self._lock:
             for arrival, sample in feed.take():
-                self.policy.on_sample(sample.position_m, arrival)
+                self.policy.on_sample(sample.position_m, arrival, sample.poses)
             if feed.lost is not None:
                 self.policy.on_sensor_lost(feed.lost)
             for completion in self.executor.take():
@@ -328,7 +351,7 @@ class ControlLoop:
                 self.writer.put(functools.partial(self._record_end, out.job, out.result))
             elif isinstance(out, SavePosition):
                 if self.on_position is not None:
-                    self.writer.put(functools.partial(self.on_position, out.position_m))
+                    self.writer.put(functools.partial(self.on_position, out.position_m, out.poses))
             elif isinstance(out, Fault):
                 log.warning("%s link lost: %s", out.link, out.message)
                 if self.on_fault is not None:  # it grounds and reconnects: not on the tick

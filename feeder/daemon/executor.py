@@ -18,7 +18,7 @@ import logging
 import sqlite3
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 from feeder.daemon.policy import Command, Completion, StepMode
 from feeder.drivers.amplifier import Amplifier, AmplifierError, AmplifierLinkLost
@@ -31,12 +31,19 @@ CLEARABLE_FAULTS = frozenset({"watchdog"})
 
 
 class AmplifierExecutor:
-    """Runs amplifier commands on a worker thread; completions come back through :meth:`take`."""
+    """Runs amplifier commands on a worker thread; completions come back through :meth:`take`.
+
+    amplifiers: one driver per axis (``"x"``, ``"y"``, ``"theta"``), or one driver for x;
+    modes: each axis' waveform modes.  ``enable`` and ``stop`` act on every axis.
+    """
 
     def __init__(
-        self, amplifier: Amplifier, modes: dict[str, StepMode], clock: Callable[[], float] = time.monotonic
+        self,
+        amplifiers: Amplifier | Mapping[str, Amplifier],
+        modes: Mapping[str, Mapping[str, StepMode]],
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        self.amplifier = amplifier
+        self.amplifiers = _per_axis(amplifiers)
         self.modes = modes
         self._clock = clock
         self._cond = threading.Condition()
@@ -62,11 +69,16 @@ class AmplifierExecutor:
             out, self._done = self._done, []
         return out
 
-    def replace(self, amplifier: Amplifier) -> None:
-        """Use a new link (after a reconnect); queued commands are dropped."""
+    @property
+    def amplifier(self) -> Amplifier:
+        """The x axis' driver."""
+        return self.amplifiers["x"]
+
+    def replace(self, amplifiers: Amplifier | Mapping[str, Amplifier]) -> None:
+        """Use new links (after a reconnect); queued commands are dropped."""
         with self._cond:
             self._queue.clear()
-            self.amplifier = amplifier
+            self.amplifiers = _per_axis(amplifiers)
 
     def close(self) -> None:
         with self._cond:
@@ -82,19 +94,21 @@ class AmplifierExecutor:
                 if self._closing:
                     return
                 command = self._queue.popleft()
-                amplifier = self.amplifier
-            completion = self._execute(amplifier, command)
+                amplifiers = self.amplifiers
+            completion = self._execute(amplifiers, command)
             with self._cond:
                 self._done.append(completion)
 
-    def _execute(self, amp: Amplifier, command: Command) -> Completion:
+    def _execute(self, amplifiers: dict[str, Amplifier], command: Command) -> Completion:
         try:
             counter: int | None = None
             estimated = False
+            amp = amplifiers[command.axis]
             if command.kind == "enable":
-                self._enable(amp)
+                for each in amplifiers.values():
+                    self._enable(each)
             elif command.kind == "apply":
-                amp.apply(self.modes[command.mode].settings)
+                amp.apply(self.modes[command.axis][command.mode].settings)
             elif command.kind == "step":
                 counter = amp.steps_played()[0]
                 amp.step(command.steps)
@@ -102,7 +116,8 @@ class AmplifierExecutor:
                 if not amp.wait(command.timeout_s):
                     raise AmplifierError("the amplifier did not finish the burst in time")
             elif command.kind == "stop":
-                amp.stop()
+                for each in (amp, *(a for a in amplifiers.values() if a is not amp)):
+                    each.stop()
                 counter, estimated = amp.steps_played()
             else:
                 raise ValueError(f"unknown command {command.kind!r}")
@@ -130,6 +145,15 @@ class AmplifierExecutor:
                 raise AmplifierError(f"amplifier fault latched: {names}")
             clear()
         amp.enable()
+
+
+def _per_axis(amplifiers: Amplifier | Mapping[str, Amplifier]) -> dict[str, Amplifier]:
+    """One driver per axis; a group of axes (:class:`feeder.drivers.axes.Axes`) is kept as it is."""
+    if isinstance(amplifiers, Amplifier):
+        return {"x": amplifiers}
+    if "x" not in amplifiers:
+        raise ValueError("the amplifiers must include the x axis")
+    return amplifiers if isinstance(amplifiers, dict) else dict(amplifiers)
 
 
 class RecordWriter:

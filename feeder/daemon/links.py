@@ -17,13 +17,14 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from feeder.daemon.config import DaemonConfig
+from feeder.daemon.config import DaemonConfig, uses_camera
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import Amplifier
-from feeder.drivers.anc300 import Anc300Amplifier
+from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
 from feeder.drivers.camera import StreamCamera
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import InputError
+from feeder.vision.calibration import CameraCalibration
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +51,7 @@ class DriverLinks:
         self.simulator = simulator
         self.log_path = log_path
         self.respawns = 0
+        self.stored_calibration: CameraCalibration | None = None
         self._lock = threading.Lock()
         # PR_SET_PDEATHSIG fires when the *thread* that started the child ends: respawns run
         # on this one long-lived thread, never on a reconnect thread that is about to end
@@ -73,23 +75,61 @@ class DriverLinks:
             self.simulator = sim
             self.respawns += 1
 
-    def open_amplifier(self) -> Amplifier:
+    def open_amplifier(self) -> Amplifier | dict[str, Amplifier]:
+        """One axis' driver, or (a plate driven in the plane) one per axis on a shared link."""
         self._simulator_alive()
         amp = self.config.amplifier
+        plate = self.config.plate
+        axis_map = {a: plate.axis_map[a] for a in plate.axes}
         if isinstance(self.amplifier_address, dict):
             from feeder.drivers.canopen import CanopenAmplifier  # python-can only when used
 
             node_id = int(self.amplifier_address.get("node_id", 1))
             heartbeat = float(self.amplifier_address.get("heartbeat_s", CAN_HEARTBEAT_S))
             bus = {k: v for k, v in self.amplifier_address.items() if k not in ("node_id", "heartbeat_s")}
+            if plate.planar:
+                from feeder.drivers.axes import open_canopen_axes
+
+                return open_canopen_axes(
+                    bus, axis_map, node_id, heartbeat_s=heartbeat, timeout_s=amp.timeout_s
+                )
             return CanopenAmplifier(bus, node_id, heartbeat_s=heartbeat, timeout_s=amp.timeout_s)
+        if plate.planar:
+            from feeder.drivers.axes import open_anc300_axes
+
+            link = Anc300Link(self.amplifier_address, password=amp.password, timeout_s=amp.timeout_s)
+            return open_anc300_axes(link, axis_map)
         return Anc300Amplifier.open(
             self.amplifier_address, amp.axis, timeout_s=amp.timeout_s, password=amp.password
         )
 
     def open_sensor(self) -> PositionSensor:
+        """The JSON-lines stream when one is named, else the camera that locates the parts."""
         self._simulator_alive()
-        return StreamCamera(self.sensor_address, connect_timeout_s=self.config.sensor_timeout_s)
+        if not uses_camera(self.config):
+            return StreamCamera(self.sensor_address, connect_timeout_s=self.config.sensor_timeout_s)
+        from feeder.drivers.pose_camera import CameraPoseSensor, part_template
+        from feeder.drivers.video_camera import open_camera
+
+        part = self.config.part
+        calibration = self.camera_calibration
+        return CameraPoseSensor(
+            open_camera(self.sensor_address),
+            calibration,
+            part_template(part.length_m, part.width_m, calibration),
+            parts=len(self.config.plate.parts) if self.simulator is not None else None,
+        )
+
+    @property
+    def camera_calibration(self) -> CameraCalibration:
+        """The stored calibration (``feeder vision calibrate --save-state``), else the
+        configured scale with the plate origin at the image centre."""
+        if self.stored_calibration is not None:
+            return self.stored_calibration
+        cam = self.config.camera
+        return CameraCalibration(
+            cam.pixel_size_m, origin_x_px=(cam.width_px - 1) / 2, origin_y_px=(cam.height_px - 1) / 2
+        )
 
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -138,22 +178,47 @@ def simulator_args(config: DaemonConfig) -> list[str]:
     ]
     if config.amplifier.transport == "can":
         args += ["--can", "slcan-pty"]
+    plate, cam = config.plate, config.camera
+    if plate.planar:
+        parts = ";".join(",".join(repr(v) for v in pose) for pose in plate.parts)
+        args += [
+            "--plant",
+            "planar",
+            f"--parts={parts}",
+            "--lever-arm-m",
+            repr(plate.lever_arm_m),
+            "--camera-http",
+            "0",
+            "--camera-http-fps",
+            repr(cam.fps),
+            "--camera-pixel-size-m",
+            repr(cam.pixel_size_m),
+            "--camera-width-px",
+            str(cam.width_px),
+            "--camera-height-px",
+            str(cam.height_px),
+        ]
     return [*args, *config.simulator_args]
 
 
 def open_links(config: DaemonConfig, log_path: Path | None = None) -> DriverLinks:
     """The links for ``config``; starts firmware_sim when no hardware is named."""
     amp = config.amplifier
-    if amp.simulated != (config.sensor_address is None):
+    sensor = config.sensor_address or config.camera.address
+    if amp.simulated != (sensor is None):
         raise InputError(
             "config",
-            "name both the amplifier (port or can.channel) and "
-            "sensor.address for hardware, or neither for the simulator",
+            "name both the amplifier (port or can.channel) and the sensor (sensor.address, or "
+            "camera.address for a plate driven in the plane) for hardware, or neither for the simulator",
+        )
+    if sensor is not None and not config.plate.planar and config.sensor_address is None:
+        raise InputError(
+            "config", "one axis needs sensor.address (camera.address locates parts in the plane)"
         )
     if not amp.simulated:
-        assert config.sensor_address is not None
+        assert sensor is not None
         address: str | dict[str, Any] = dict(amp.can) if amp.transport == "can" else str(amp.port)
-        return DriverLinks(config, address, config.sensor_address)
+        return DriverLinks(config, address, sensor)
     sim = Simulator(simulator_args(config), log_path=log_path)
     try:
         address, sensor = simulator_addresses(config, sim)
@@ -180,6 +245,8 @@ def simulator_addresses(config: DaemonConfig, sim: Simulator) -> tuple[str | dic
             }
         else:
             address = ends["console_pty"]
+        if config.plate.planar:
+            return address, f"{ends['camera_http']}/video.mjpg"
         return address, ends["sensor_tcp"]
     except KeyError as err:
         raise InputError("firmware_sim", f"its ready line lacks the endpoint {err}") from None

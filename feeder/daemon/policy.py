@@ -1,17 +1,20 @@
-"""The closed loop's decisions as an explicit state machine: measurements in, commands out.
+"""The closed loop as an explicit state machine: measurements in, commands out.
 
-No I/O, no threads, no sleeps: :class:`Policy` is fed sensor samples, the
-executor's completions and the time, and answers with :class:`Command`s for
-the amplifier and :class:`Event`s for the record.  :mod:`feeder.daemon.control_loop`
-runs it on a fixed-rate tick and does the I/O; the unit tests drive it with a
-fake clock.
+No I/O, no threads, no sleeps: :class:`Policy` is fed sensor readings, the
+executor's completions and the time, and answers with
+:class:`~feeder.daemon.jobs.Command`s for the amplifier and events for the
+record.  :mod:`feeder.daemon.control_loop` runs it on a fixed-rate tick and
+does the I/O; the unit tests drive it with a fake clock.  *Where* to step is a
+navigator's decision: :class:`~feeder.daemon.line_navigator.LineNavigator`
+along one axis, :class:`~feeder.daemon.pose_navigator.PoseNavigator` in x, y
+and θ; the policy only measures, steps, stops and records.
 
 States (:data:`STATES`):
 
 - ``idle``: no job.
 - ``moving``: a job is preparing the output or a burst is playing.
 - ``settling``: the burst is over; wait ``settle_s`` (stack ringing, sensor
-  latency), average ``average_samples`` fresh samples, learn, decide.
+  latency), average ``average_samples`` fresh readings, learn, decide.
 - ``holding``: the job is over early (stop, sensor or limit): the output was
   stopped and the part is watched until the sensor reads it settled (the
   last ``average_samples`` readings agree within the tolerance); only then is
@@ -19,249 +22,82 @@ States (:data:`STATES`):
 - ``fault``: the amplifier link or the sensor is lost; no job is accepted
   until the link is restored (:meth:`Policy.link_restored`, :meth:`Policy.sensor_restored`).
 
-A move alternates *measure* and *burst*.  Far from the target the *coarse*
-waveform aims one coarse step short (never past the target); the last stretch
-uses the *fine* waveform, whose step is at most twice the tolerance, so the
-final error is at most half a fine step plus scatter: no overshoot, no hunting.
-A part within tolerance but more than half a fine step away gets one more fine
-step (once per move).  The estimators learn from every burst but the first
-after a direction reversal (or the first of all): that one loses part of a
-step to the plate's state left by the other direction.  Leaving ground or
-changing the waveform moves the plate's rest position, so the loop measures
-again after it (once per burst).
-
-A move ends on request (``stopped``), on stall, on travel limits, on too many
-reversals, on a lost sensor or link (``fault``), or when the target is within
-tolerance (``done``).
+A move alternates *measure* and *burst*.  Leaving ground or changing an
+axis' waveform moves the plate's rest position, so the loop measures again
+after it (once per burst).  A move ends on request (``stopped``), on stall,
+on travel limits, on too many reversals, on a lost sensor or link
+(``fault``), or when the navigator says it is over (``done``,
+``unreachable``).
 """
 
 from __future__ import annotations
 
-import collections
 import math
-import threading  # a Job's done event only: the policy never waits on it
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Protocol
 
-import numpy as np
+from feeder.daemon.jobs import (
+    COMMANDS,
+    Burst,
+    Command,
+    Completion,
+    Fault,
+    Finished,
+    Job,
+    JobResult,
+    LoopSettings,
+    Output,
+    Reading,
+    SavePosition,
+    Started,
+    StepMode,
+)
+from feeder.daemon.line_navigator import COARSE, FINE, LineNavigator, mean_reading
+from feeder.daemon.step_estimator import FORWARD, StepEstimate
 
-from feeder.daemon.step_estimator import BACKWARD, DIRECTIONS, FORWARD, StepEstimate, StepEstimator
-from feeder.drivers.amplifier import DriveSettings
+__all__ = [
+    "COARSE",
+    "COMMANDS",
+    "FINE",
+    "STATES",
+    "Burst",
+    "Command",
+    "Completion",
+    "Fault",
+    "Finished",
+    "Job",
+    "JobResult",
+    "LoopSettings",
+    "Navigator",
+    "Output",
+    "Policy",
+    "Reading",
+    "SavePosition",
+    "Started",
+    "StepMode",
+]
 
-COARSE = "coarse"
-FINE = "fine"
 STATES = ("idle", "moving", "settling", "holding", "fault")
 
 
-@dataclass(frozen=True)
-class StepMode:
-    """A waveform the loop steps with and the planner's predicted step for it (m)."""
+class Navigator(Protocol):
+    """Decides where a job steps next (see :class:`~feeder.daemon.line_navigator.LineNavigator`)."""
 
-    name: str
-    settings: DriveSettings
-    predicted_step_m: float
-    predicted_band_m: tuple[float, float]
+    axes: tuple[str, ...]
 
-    @property
-    def seed(self) -> StepEstimate:
-        """Estimator seed: prediction ± half-width of the band (at least 5 %)."""
-        half = 0.5 * (self.predicted_band_m[1] - self.predicted_band_m[0])
-        return StepEstimate.seed(self.predicted_step_m, max(half, 0.05 * self.predicted_step_m))
+    def prepare(self, job: Job, reading: Reading | None) -> str | None: ...
 
+    def outside(self, reading: Reading) -> str | None: ...
 
-@dataclass(frozen=True)
-class LoopSettings:
-    """Tuning of the loop; lengths in m, times in s."""
+    def settled(self, recent: list[Reading]) -> bool: ...
 
-    rate_hz: float = 100.0
-    tolerance_m: float = 1e-6
-    min_position_m: float = -10e-3
-    max_position_m: float = 10e-3
-    settle_s: float = 0.05
-    average_samples: int = 3
-    max_burst_steps: int = 400
-    stall_fraction: float = 0.3
-    stall_bursts: int = 2
-    max_reversals: int = 4
-    max_bursts: int = 60
-    burst_grace_s: float = 1.0
-    sensor_noise_m: float = 0.1e-6
-    step_scatter_fraction: float = 0.05
-    forgetting: float = 0.98
-    position_save_s: float = 0.25
-    hold_timeout_s: float = 3.0
+    def learn(self, burst: Burst, learnable: bool, before: Reading, after: Reading) -> bool: ...
 
+    def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]: ...
 
-@dataclass(frozen=True)
-class Burst:
-    """One burst of a job: ``steps`` > 0 in ``direction`` with waveform ``mode``."""
+    def estimates(self) -> dict[str, StepEstimate]: ...
 
-    mode: str
-    direction: str
-    steps: int
-
-
-# -- commands to the executor, and what it reports back --------------------------------
-
-
-@dataclass(frozen=True)
-class Command:
-    """An amplifier action for the executor (``kind``: see :data:`COMMANDS`)."""
-
-    kind: str
-    mode: str = ""
-    steps: int = 0
-    timeout_s: float = 0.0
-
-
-COMMANDS = ("enable", "apply", "step", "confirm_end", "stop")
-"""enable: leave ground (clearing a latched transient fault); apply: load a mode's waveform;
-step: start a burst of ``steps`` (signed); confirm_end: check the burst is over (``stepw``);
-stop: stop the output now."""
-
-
-@dataclass(frozen=True)
-class Completion:
-    """The executor's report on a command.
-
-    at_s: loop time when the command was acknowledged; counter: the drive's
-    step count (``steps_played``) *before* a ``step``, *after* a ``stop``;
-    error: None on success; link_lost: the error was a lost link.
-    """
-
-    command: Command
-    at_s: float
-    error: str | None = None
-    link_lost: bool = False
-    counter: int | None = None
-    estimated: bool = False
-
-
-# -- what the record needs --------------------------------------------------------------
-
-
-@dataclass
-class JobResult:
-    """How a move (or calibration) ended.
-
-    status: ``done``, ``stopped``, ``stalled``, ``limit``, ``oscillating``,
-    ``unreachable``, ``fault``.  Positions in m; ``trace`` is (loop time s, m).
-    steps_estimated: the steps of a burst cut short were estimated from time
-    (a drive that counts none, e.g. the ANC300).
-    """
-
-    kind: str
-    status: str
-    reason: str
-    target_m: float | None
-    start_m: float | None
-    reached_m: float | None
-    steps: int
-    bursts: int
-    duration_s: float
-    estimates: dict[str, dict[str, float]]
-    trace: list[tuple[float, float]] = field(default_factory=list)
-    steps_estimated: bool = False
-
-    @property
-    def error_m(self) -> float | None:
-        if self.target_m is None or self.reached_m is None:
-            return None
-        return self.reached_m - self.target_m
-
-    def as_dict(self, with_trace: bool = False) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "kind": self.kind,
-            "status": self.status,
-            "reason": self.reason,
-            "target_m": self.target_m,
-            "start_m": self.start_m,
-            "reached_m": self.reached_m,
-            "error_m": self.error_m,
-            "steps": self.steps,
-            "bursts": self.bursts,
-            "steps_estimated": self.steps_estimated,
-            "duration_s": self.duration_s,
-            "estimates": self.estimates,
-        }
-        if with_trace:
-            out["trace"] = [[t, x] for t, x in self.trace]
-        return out
-
-
-class Job:
-    """A move to ``target_m`` (or by ``by_m`` from where the part is when it starts), or a
-    calibration sequence of fixed bursts.  ``on_start`` runs when the loop accepts it (the
-    record is written before the first step: the loop sets ``recorded``); ``on_done`` with
-    the result at the end, then ``done`` is set.  The policy only reads and writes the
-    progress fields; the callbacks and ``done`` belong to the loop."""
-
-    def __init__(
-        self,
-        kind: str,
-        target_m: float | None = None,
-        bursts: tuple[Burst, ...] = (),
-        *,
-        by_m: float | None = None,
-        on_start: Callable[[], None] | None = None,
-        on_done: Callable[[JobResult], None] | None = None,
-    ) -> None:
-        self.kind = kind
-        self.target_m = target_m
-        self.by_m = by_m
-        self.planned = collections.deque(bursts)
-        self.on_start = on_start
-        self.on_done = on_done
-        self.record_id: int | None = None
-        self.recorded = False
-        self.done = threading.Event()
-        self.result: JobResult | None = None
-        # progress
-        self.started_s = 0.0
-        self.start_m: float | None = None
-        self.steps = 0
-        self.bursts = 0
-        self.stalls = 0
-        self.reversals = 0
-        self.refined = False
-        self.switched = False
-        self.last_direction: str | None = None
-        self.trace: list[tuple[float, float]] = []
-        self.steps_estimated = False
-
-
-@dataclass(frozen=True)
-class Started:
-    """Event: write the job's record (``job.on_start``), then mark it recorded."""
-
-    job: Job
-
-
-@dataclass(frozen=True)
-class Finished:
-    """Event: the job is over; record the result and release the caller."""
-
-    job: Job
-    result: JobResult
-
-
-@dataclass(frozen=True)
-class SavePosition:
-    """Event: persist the part's position (m)."""
-
-    position_m: float
-
-
-@dataclass(frozen=True)
-class Fault:
-    """Event: a link is lost (``link``: ``amplifier`` or ``sensor``)."""
-
-    link: str
-    message: str
-
-
-Output = Command | Started | Finished | SavePosition | Fault
+    def estimates_json(self) -> dict[str, Any]: ...
 
 
 @dataclass
@@ -269,7 +105,7 @@ class _Burst:
     """The burst in flight."""
 
     burst: Burst
-    from_m: float
+    before: Reading
     learnable: bool
     reversed: bool
     counter_before: int | None = None
@@ -278,32 +114,32 @@ class _Burst:
 
 
 class Policy:
-    """The loop's state machine over one axis.  See the module docstring."""
+    """The loop's state machine.  See the module docstring.
+
+    modes: the x axis' ``"coarse"``/``"fine"`` :class:`StepMode`; axis_modes: every
+    axis' modes (``"x"``, ``"y"``, ``"theta"``) when the loop drives more than x;
+    navigator: where to step (default: a :class:`LineNavigator` on ``modes``, restoring
+    ``estimates``).
+    """
 
     def __init__(
         self,
         modes: dict[str, StepMode],
         settings: LoopSettings,
         estimates: dict[str, StepEstimate] | None = None,
+        *,
+        axis_modes: dict[str, dict[str, StepMode]] | None = None,
+        navigator: Navigator | None = None,
     ) -> None:
-        if set(modes) != {COARSE, FINE}:
-            raise ValueError("modes must be exactly 'coarse' and 'fine'")
-        self.modes = modes
+        self.modes = axis_modes or {"x": modes}
         self.settings = settings
-        self.estimators: dict[str, StepEstimator] = {}
-        restored = estimates or {}
-        for name, mode in modes.items():
-            for direction in DIRECTIONS:
-                key = f"{name}/{direction}"
-                self.estimators[key] = StepEstimator(
-                    restored.get(key, mode.seed),
-                    sensor_noise_m=settings.sensor_noise_m,
-                    step_scatter_m=settings.step_scatter_fraction * mode.predicted_step_m,
-                    forgetting=settings.forgetting,
-                )
+        self.navigator: Navigator = navigator or LineNavigator(modes, settings, estimates)
+        missing = set(self.navigator.axes) - set(self.modes)
+        if missing:
+            raise ValueError(f"no waveform modes for axes {sorted(missing)}")
         self.state = "idle"
         self.job: Job | None = None
-        self.position_m: float | None = None
+        self.reading: Reading | None = None
         self.fault: str | None = None
         self.sensor_lost: str | None = None
         self.store_unwritable: str | None = None  # set by the loop while records cannot be written
@@ -311,17 +147,26 @@ class Policy:
         self._stop_reason: str | None = None
         self._pending: Command | None = None  # sent, not yet completed
         self._burst: _Burst | None = None
-        self._applied: str | None = None
+        self._applied: dict[str, str] = {}  # axis → mode loaded
         self._enabled = False
-        self._last_direction: str | None = None
+        self._last_direction: dict[str, str] = {}  # axis → direction of its last burst
         self._settle_until = 0.0
-        self._samples: list[float] = []
+        self._samples: list[Reading] = []
         self._measured: _Burst | None = None
         self._finish_as: tuple[str, str] | None = None  # (status, reason) once held
         self._hold_until = 0.0
         self._position_saved_s = -math.inf
         self._now = 0.0
         self._out: list[Output] = []
+
+    def applied(self, axis: str) -> str | None:
+        """The waveform mode loaded on ``axis`` (None: none since the link opened)."""
+        return self._applied.get(axis)
+
+    @property
+    def position_m(self) -> float | None:
+        """The first part's x (m), or None while the position is uncertain."""
+        return None if self.reading is None else self.reading[0][0]
 
     # -- inputs ----------------------------------------------------------------------
 
@@ -335,17 +180,10 @@ class Policy:
             return self.store_unwritable
         if self.job is not None:
             return f"a {self.job.kind} is in progress"
-        if job.by_m is not None:
-            if self.position_m is None:
-                return "position uncertain: no sensor reading yet for a relative move"
-            job.target_m = self.position_m + job.by_m
-        if job.target_m is not None:
-            s = self.settings
-            if not (s.min_position_m <= job.target_m <= s.max_position_m):
-                return (
-                    f"target {job.target_m:.6g} m is outside the travel limits "
-                    f"[{s.min_position_m:.6g}, {s.max_position_m:.6g}] m"
-                )
+        if job.target_m is not None or job.by_m is not None or job.pose_target is not None:
+            refused = self.navigator.prepare(job, self.reading)
+            if refused is not None:
+                return refused
         job.started_s = self._now = now
         self.job = job
         self._stop_reason = None
@@ -363,21 +201,26 @@ class Policy:
         self._stop_reason = reason
         return True
 
-    def on_sample(self, position_m: float, arrival_s: float) -> None:
-        """A sensor reading (m) that arrived at loop time ``arrival_s``."""
-        self.position_m = position_m
+    def on_sample(self, position_m: float, arrival_s: float, poses: Reading = ()) -> None:
+        """A sensor reading that arrived at loop time ``arrival_s``: every part's pose, or
+        (a one-axis sensor) the position along x (m)."""
+        reading = poses or ((position_m, 0.0, 0.0),)
+        self.reading = reading
         job = self.job
         if job is None:
             return
-        job.trace.append((arrival_s, position_m))
+        part = reading[min(job.part, len(reading)) - 1]
+        job.trace.append((arrival_s, part[0]))
+        if job.target_pose is not None:
+            job.pose_trace.append((arrival_s, part))
         if self.state in ("settling", "holding") and arrival_s >= self._settle_until:
-            self._samples.append(position_m)
+            self._samples.append(reading)
 
     def on_sensor_lost(self, message: str) -> None:
         if self.sensor_lost is not None:
             return
         self.sensor_lost = message
-        self.position_m = None
+        self.reading = None
         self._out.append(Fault("sensor", message))
         if self.job is not None:
             self._emit_stop()
@@ -395,7 +238,7 @@ class Policy:
                 self._link_lost(done.error)
             elif kind != "stop":
                 self._enabled = False  # the next job checks the output's state again
-                self._applied = None
+                self._applied = {}
                 if self.job is not None:
                     self._emit_stop()
                     self._finish(self.job, "fault", f"amplifier refused: {done.error}", None)
@@ -405,13 +248,14 @@ class Policy:
             if kind == "enable":
                 self._enabled = True
             else:
-                self._applied = done.command.mode
+                self._applied[done.command.axis] = done.command.mode
             if burst is None and self.job is not None and self._finish_as is None:
                 self._enter_settling(done.at_s)  # the plate's rest moved: measure again
         elif kind == "step" and burst is not None:
             burst.counter_before = done.counter
-            f = self.modes[burst.burst.mode].settings.frequency_hz
-            burst.end_s = done.at_s + burst.burst.steps / f
+            b = burst.burst
+            f = self.modes[b.axis][b.mode].settings.frequency_hz
+            burst.end_s = done.at_s + b.steps / f
         elif kind == "confirm_end" and burst is not None:
             self._burst = None
             self._measured = burst
@@ -435,7 +279,7 @@ class Policy:
     def link_restored(self) -> None:
         """A new amplifier link (grounded): leave the fault state; no move resumes."""
         self.fault = None
-        self._applied = None
+        self._applied = {}
         self._enabled = False
         self._pending = None
         if self.sensor_lost is None:
@@ -444,7 +288,7 @@ class Policy:
     def sensor_restored(self) -> None:
         """A new sensor link: the position is uncertain until it reports."""
         self.sensor_lost = None
-        self.position_m = None
+        self.reading = None
         if self.fault is None:
             self.state = "idle"
 
@@ -476,16 +320,19 @@ class Policy:
         self._pending = command
         self._out.append(command)
 
+    def _stop_command(self) -> Command:
+        return Command("stop", axis=self._burst.burst.axis if self._burst is not None else "x")
+
     def _emit_stop(self) -> None:
         """Stop the output now if anything may be playing (jumps any command in flight)."""
         if self._burst is not None or self._pending is not None:
-            self._out.append(Command("stop"))
+            self._out.append(self._stop_command())
 
     def _end_early(self, status: str, reason: str, now: float) -> None:
         """End the job with ``status`` once the output stopped and the part settled."""
         self._finish_as = (status, reason)
         if self._burst is not None or self._pending is not None:
-            self._out.append(Command("stop"))  # holding starts when it is done
+            self._out.append(self._stop_command())  # holding starts when it is done
         else:
             self._enter_holding(now)
 
@@ -499,9 +346,9 @@ class Policy:
         self.state = "fault"
 
     def _save_position(self, now: float) -> None:
-        if self.position_m is not None and now - self._position_saved_s >= self.settings.position_save_s:
+        if self.reading is not None and now - self._position_saved_s >= self.settings.position_save_s:
             self._position_saved_s = now
-            self._out.append(SavePosition(self.position_m))
+            self._out.append(SavePosition(self.reading[0][0], self.reading))
 
     def _enter_settling(self, now: float, settle: bool = True) -> None:
         self.state = "settling"
@@ -520,31 +367,29 @@ class Policy:
         assert self._finish_as is not None
         status, reason = self._finish_as
         recent = self._samples[-s.average_samples :]
-        settled_band = max(s.tolerance_m, 6 * s.sensor_noise_m)
-        if len(recent) == s.average_samples and max(recent) - min(recent) <= settled_band:
-            x = float(np.mean(recent))
-            self._out.append(SavePosition(x))
-            self._finish(job, status, reason, x)
+        if len(recent) == s.average_samples and self.navigator.settled(recent):
+            reading = mean_reading(recent)
+            self._out.append(SavePosition(reading[0][0], reading))
+            self._finish(job, status, reason, reading)
         elif now >= self._hold_until:
             self._finish(
                 job,
                 status,
                 f"{reason}; the part did not settle within {s.hold_timeout_s:g} s after the output stopped",
-                self.position_m,
+                self.reading,
             )
 
     def _follow_burst(self, job: Job, now: float) -> None:
         burst = self._burst
         assert burst is not None
         s = self.settings
-        x = self.position_m
-        if x is not None and not (s.min_position_m <= x <= s.max_position_m):
-            self._end_early("limit", f"part seen at {x:.6g} m, outside the travel limits; stopped", now)
+        if self.reading is not None and self.navigator.outside(self.reading) is not None:
+            self._end_early("limit", f"{self.navigator.outside(self.reading)}; stopped", now)
             return
         if now < burst.end_s or burst.confirming:
             return
         burst.confirming = True
-        self._send(Command("confirm_end", timeout_s=s.burst_grace_s))
+        self._send(Command("confirm_end", timeout_s=s.burst_grace_s, axis=burst.burst.axis))
 
     def _measure(self, job: Job, now: float) -> None:
         s = self.settings
@@ -556,133 +401,106 @@ class Policy:
             return
         if now < self._settle_until or len(self._samples) < s.average_samples:
             return
-        x = float(np.mean(self._samples[-s.average_samples :]))
+        reading = mean_reading(self._samples[-s.average_samples :])
         self._samples = []
-        self._out.append(SavePosition(x))
+        self._out.append(SavePosition(reading[0][0], reading))
         if job.start_m is None:
-            job.start_m = x
+            job.start_m = reading[min(job.part, len(reading)) - 1][0]
+            job.start_pose = reading[min(job.part, len(reading)) - 1]
         if self._measured is not None:
-            self._learn(job, self._measured, x)
+            b = self._measured
+            if self.navigator.learn(b.burst, b.learnable, b.before, reading):
+                job.stalls += 1
+            else:
+                job.stalls = 0
             self._measured = None
-        if not (s.min_position_m <= x <= s.max_position_m):
-            self._finish(job, "limit", f"part at {x:.6g} m is outside the travel limits", x)
+        outside = self.navigator.outside(reading)
+        if outside is not None:
+            self._finish(job, "limit", outside, reading)
             return
         if job.stalls >= s.stall_bursts:
-            self._finish(job, "stalled", f"{job.stalls} bursts in a row barely moved the part", x)
+            self._finish(job, "stalled", f"{job.stalls} bursts in a row barely moved the part", reading)
             return
         refined = job.refined
-        nxt = self._next_burst(job, x)
+        nxt = self._next_burst(job, reading)
         if isinstance(nxt, tuple):
-            self._finish(job, nxt[0], nxt[1], x)
+            self._finish(job, nxt[0], nxt[1], reading)
             return
         unmeasured_switch = False
-        if self._applied != nxt.mode:
+        if self._applied.get(nxt.axis) != nxt.mode:
             # changing the amplitude moves the plate's rest position (and the part with it):
             # apply, then measure again before the burst -- once; should the decision then
             # change waveform again, step without re-measuring (and without learning)
             unmeasured_switch = job.switched
-            if job.target_m is None:
+            if job.target_m is None and job.target_pose is None:
                 job.planned.appendleft(nxt)
             job.refined = refined
             job.switched = True
             self.state = "moving"
-            self._send(Command("apply", mode=nxt.mode))
+            self._send(Command("apply", mode=nxt.mode, axis=nxt.axis))
             if not unmeasured_switch:
                 return  # measure again once it is applied
-            if job.target_m is None:
+            if job.target_m is None and job.target_pose is None:
                 job.planned.popleft()
         job.switched = False
         if job.last_direction is not None and nxt.direction != job.last_direction:
             job.reversals += 1
-            if job.reversals > s.max_reversals:
+            if job.reversals > s.max_reversals * len(self.navigator.axes):
                 self._finish(
                     job,
                     "oscillating",
                     f"{job.reversals} direction reversals without reaching the tolerance",
-                    x,
+                    reading,
                 )
                 return
-        reversed_ = self._last_direction != nxt.direction  # None: unknown history
-        self._last_direction = nxt.direction
-        self._burst = _Burst(nxt, x, learnable=not (reversed_ or unmeasured_switch), reversed=reversed_)
+        reversed_ = self._last_direction.get(nxt.axis) != nxt.direction  # None: unknown history
+        self._last_direction[nxt.axis] = nxt.direction
+        self._burst = _Burst(nxt, reading, learnable=not (reversed_ or unmeasured_switch), reversed=reversed_)
         job.steps += nxt.steps
         job.bursts += 1
+        job.bursts_per_axis[nxt.axis] = job.bursts_per_axis.get(nxt.axis, 0) + 1
         job.last_direction = nxt.direction
         self.state = "moving"
         # (after an unmeasured switch the apply is still in flight: the executor runs both
         # in order, and the step is what the policy waits for)
-        self._send(Command("step", steps=nxt.steps if nxt.direction == FORWARD else -nxt.steps))
+        signed = nxt.steps if nxt.direction == FORWARD else -nxt.steps
+        self._send(Command("step", steps=signed, axis=nxt.axis))
 
-    def _learn(self, job: Job, burst: _Burst, x: float) -> None:
-        b = burst.burst
-        sign = 1.0 if b.direction == FORWARD else -1.0
-        moved = sign * (x - burst.from_m)
-        est = self.estimators[f"{b.mode}/{b.direction}"]
-        expected = est.estimate.displacement_m(b.steps)
-        if not burst.learnable:  # e.g. after a reversal: may lose up to a step
-            expected -= est.estimate.step_m
-        if moved < self.settings.stall_fraction * expected:
-            job.stalls += 1
-            return
-        job.stalls = 0
-        if burst.learnable:
-            est.update(b.steps, moved)
-
-    def _next_burst(self, job: Job, x: float) -> Burst | tuple[str, str]:
+    def _next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
         """The next burst, or (status, reason) when the job is over."""
-        s = self.settings
-        if job.target_m is None:
+        if job.target_m is None and job.target_pose is None:
             if not job.planned:
                 return ("done", "calibration complete")
             return job.planned.popleft()
-        if job.bursts >= s.max_bursts:
+        limit = self.settings.max_bursts * len(self.navigator.axes)
+        if job.bursts >= limit:
             return ("unreachable", f"no convergence after {job.bursts} bursts")
-        error = job.target_m - x
-        direction = FORWARD if error > 0 else BACKWARD
-        distance = abs(error)
-        coarse = self.estimators[f"{COARSE}/{direction}"]
-        fine = self.estimators[f"{FINE}/{direction}"]
-        single = fine.estimate.displacement_m(1)  # what one fine step does
-        if distance <= s.tolerance_m:
-            # within tolerance; one fine step more when it brings the part closer (once per
-            # move, so it can never start hunting)
-            if job.refined or distance <= 0.5 * single:
-                return ("done", "within tolerance")
-            job.refined = True
-            return Burst(FINE, direction, 1)
-        # aim one step short with a pessimistic (mean + 2σ) step and offset: never past the target
-        c = coarse.estimate
-        step_high = c.step_m + 2 * c.std_m
-        offset_high = c.offset_m + 2 * c.offset_std_m
-        coarse_steps = math.floor((distance - offset_high) / step_high) - 1
-        if coarse_steps >= 1 and coarse.usable_step_m() > fine.usable_step_m():
-            return Burst(COARSE, direction, min(coarse_steps, s.max_burst_steps))
-        steps = round((distance - fine.estimate.offset_m) / fine.usable_step_m())
-        if steps < 1:
-            if abs(distance - single) >= distance:
-                return (
-                    "unreachable",
-                    f"one fine step ({single:.3g} m) cannot reduce the "
-                    f"error {error:.3g} m below the tolerance {s.tolerance_m:.3g} m",
-                )
-            steps = 1
-        return Burst(FINE, direction, min(steps, s.max_burst_steps))
+        return self.navigator.next_burst(job, reading)
 
-    def _finish(self, job: Job, status: str, reason: str, reached_m: float | None) -> None:
+    def _finish(self, job: Job, status: str, reason: str, reached: Reading | None) -> None:
         now = self._now
+        reached = reached if reached is not None else self.reading
+        pose = None if reached is None else reached[min(job.part, len(reached)) - 1]
         result = JobResult(
             kind=job.kind,
             status=status,
             reason=reason,
             target_m=job.target_m,
             start_m=job.start_m,
-            reached_m=reached_m if reached_m is not None else self.position_m,
+            reached_m=None if pose is None else pose[0],
             steps=job.steps,
             bursts=job.bursts,
             duration_s=max(0.0, now - job.started_s),
             estimates=self.estimates_json(),
             trace=job.trace,
             steps_estimated=job.steps_estimated,
+            part=job.part,
+            target_pose=job.target_pose,
+            start_pose=job.start_pose,
+            reached_pose=pose,
+            symmetry_rad=getattr(self.navigator, "symmetry_rad", 0.0),
+            pose_trace=job.pose_trace,
+            bursts_per_axis=job.bursts_per_axis,
         )
         self.job = None
         self._burst = None
@@ -696,17 +514,8 @@ class Policy:
         self._out.append(Finished(job, result))
 
     def estimates(self) -> dict[str, StepEstimate]:
-        return {k: e.estimate for k, e in self.estimators.items()}
+        return self.navigator.estimates()
 
-    def estimates_json(self) -> dict[str, dict[str, float]]:
-        """Learned step and burst offset per ``mode/direction`` (m), for replies."""
-        return {
-            k: {
-                "step_m": e.step_m,
-                "std_m": e.std_m,
-                "offset_m": e.offset_m,
-                "offset_std_m": e.offset_std_m,
-                "steps": e.steps,
-            }
-            for k, e in self.estimates().items()
-        }
+    def estimates_json(self) -> dict[str, Any]:
+        """What the navigator learned, for replies."""
+        return self.navigator.estimates_json()

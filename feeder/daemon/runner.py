@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass
+from typing import Any
 
+from feeder.contact.breakaway import contact
 from feeder.contact.tau_pair import tau_pair
-from feeder.daemon.config import DaemonConfig
+from feeder.daemon.config import DaemonConfig, uses_camera
 from feeder.daemon.links import DriverLinks, open_links
 from feeder.daemon.service import Daemon, DaemonSetup
 from feeder.daemon.step_modes import calibration_key, plan_step_modes
@@ -41,6 +43,17 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
     modes = plan_step_modes(
         config.part, config.support, surface, config.tau_pa, config.amplifier.limits, config.loop.tolerance_m
     )
+    plane: dict[str, Any] = {}
+    if config.plate.planar:
+        from feeder.daemon.plane import axis_modes, pose_navigator_factory
+
+        static = contact(config.part, config.support, surface, config.tau_pa).breakaway_accel_m_s2
+        size = [config.part.length_m, config.part.width_m]
+        plane = {
+            "axis_modes": axis_modes(modes, config.plate.axes),
+            "pose_navigator": pose_navigator_factory(config, modes, static),
+            "parts": tuple({"shape": "rectangle", "size_m": size} for _ in config.plate.parts),
+        }
     config.state_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     links = open_links(config, log_path=config.state_dir / "firmware_sim.log")
     with contextlib.ExitStack() as undo:  # on any failure: stop what was started, newest first
@@ -59,7 +72,8 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
                 "adhesion_work_j_m2": pair.adhesion_work_j_m2,
                 **links.describe(),
             },
-            sensor_timeout_s=config.sensor_timeout_s,
+            sensor_timeout_s=config.camera.timeout_s if uses_camera(config) else config.sensor_timeout_s,
+            **plane,
         )
         daemon = Daemon(links, setup)
         undo.callback(daemon.shutdown)

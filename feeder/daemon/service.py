@@ -46,6 +46,7 @@ from feeder.daemon.control_loop import (
     Job,
     JobResult,
     LoopSettings,
+    Navigator,
     StepMode,
 )
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
@@ -61,6 +62,8 @@ LISTEN_BACKLOG = 128
 """Connections the kernel holds before accept: bursts of short-lived clients must not find
 the socket full (a client's non-blocking connect then fails at once)."""
 CALIBRATION_STEPS = 20
+POSE_KEYS = ("x_m", "y_m", "angle_rad")
+"""A pose move's target, any subset (m, m, rad; plate frame)."""
 BACKOFF_FIRST_S = 0.2
 BACKOFF_MAX_S = 5.0
 
@@ -68,7 +71,7 @@ BACKOFF_MAX_S = 5.0
 class Links(Protocol):
     """How the daemon reaches its hardware; called again to reconnect."""
 
-    def open_amplifier(self) -> Amplifier: ...
+    def open_amplifier(self) -> Amplifier | dict[str, Amplifier]: ...
 
     def open_sensor(self) -> PositionSensor: ...
 
@@ -80,6 +83,9 @@ class DaemonSetup:
     calibration_key: identifies part, support and waveforms, so a learned step
     is only reused for the same combination.
     info: static facts shown by ``status`` (transport, part, ...).
+    axis_modes, pose_navigator: for a plate driven in x, y and θ, every axis'
+    waveform modes and a factory of the pose navigator (given the learned response
+    the store restored, or None); parts: each part's ``id``, ``shape``, ``size_m``.
     """
 
     modes: dict[str, StepMode]
@@ -89,6 +95,9 @@ class DaemonSetup:
     calibration_key: str
     info: dict[str, Any]
     sensor_timeout_s: float = 1.0
+    axis_modes: dict[str, dict[str, StepMode]] | None = None
+    pose_navigator: Callable[[dict[str, Any] | None], Navigator] | None = None
+    parts: tuple[dict[str, Any], ...] = ()
 
 
 def prepare_socket_dir(socket_path: Path) -> None:
@@ -200,17 +209,25 @@ class Daemon:
             self.store = Store(setup.database_path)
             undo.callback(self.store.close)
             self.interrupted_moves = self.store.interrupt_running_moves()
-            amplifier = links.open_amplifier()
+            amplifiers = _per_axis(links.open_amplifier())
             self._amplifier_generation = getattr(links, "respawns", 0)
-            undo.callback(amplifier.close)
-            amplifier.ground()
+            undo.callback(_close, amplifiers)
+            for amplifier in amplifiers.values():
+                amplifier.ground()
             sensor = links.open_sensor()
+            navigator = None
+            if setup.pose_navigator is not None:
+                kept = self.store.pose_response()  # only what was learned with this part and waveforms
+                restored = kept if kept is not None and kept.get("key") == setup.calibration_key else None
+                navigator = setup.pose_navigator(restored)
             self.loop = ControlLoop(
-                amplifier,
+                amplifiers,
                 sensor,
                 setup.modes,
                 setup.loop,
                 estimates=self._restored_estimates(),
+                axis_modes=setup.axis_modes,
+                navigator=navigator,
                 on_position=self.store.save_position,
                 on_fault=self._on_fault,
                 sensor_timeout_s=setup.sensor_timeout_s,
@@ -249,10 +266,11 @@ class Daemon:
         for job in queued:
             self._refuse_queued(job, "daemon shutting down")
         self.loop.shutdown()
-        with contextlib.suppress(FeederError, OSError):  # a dead link must not stop the shutdown
-            self.loop.amplifier.ground()
+        for amplifier in self.loop.amplifiers.values():
+            with contextlib.suppress(FeederError, OSError):  # a dead link must not stop the shutdown
+                amplifier.ground()
         with contextlib.suppress(FeederError, OSError):
-            self.loop.amplifier.close()
+            _close(self.loop.amplifiers)
         if self._server is not None:
             self._server.close()
             with contextlib.suppress(FileNotFoundError):
@@ -282,6 +300,9 @@ class Daemon:
         return out
 
     def _save_estimates(self) -> None:
+        if self.setup.pose_navigator is not None:
+            self.store.save_pose_response({"key": self.setup.calibration_key, **self.loop.estimates_json()})
+            return
         now = time.time()
         for name, est in self.loop.estimates().items():
             if est.steps > 0:
@@ -300,16 +321,31 @@ class Daemon:
 
     # -- jobs ----------------------------------------------------------------
     def _new_job(
-        self, kind: str, target_m: float | None, by_m: float | None, bursts: tuple[Burst, ...] = ()
+        self,
+        kind: str,
+        target_m: float | None,
+        by_m: float | None,
+        bursts: tuple[Burst, ...] = (),
+        *,
+        pose_target: dict[str, float] | None = None,
+        part: int = 1,
     ) -> Job:
-        job = Job(kind, target_m=target_m, by_m=by_m, bursts=bursts)
+        job = Job(kind, target_m=target_m, by_m=by_m, bursts=bursts, pose_target=pose_target, part=part)
         job.on_start = lambda: self._record_start(job)
         job.on_done = lambda result: self._record_end(job, result)
         return job
 
     def _record_start(self, job: Job) -> None:
         if job.kind == "move" and job.target_m is not None:
-            job.record_id = self.store.begin_move(job.target_m, self.loop.position_m)
+            reading = self.loop.reading
+            start = None if reading is None or job.target_pose is None else reading[job.part - 1]
+            job.record_id = self.store.begin_move(
+                job.target_m,
+                self.loop.position_m if start is None else start[0],
+                part=job.part if job.target_pose is not None else None,
+                target_pose=job.target_pose,
+                start_pose=start,
+            )
 
     def _record_end(self, job: Job, result: JobResult) -> None:
         log.info(
@@ -325,6 +361,7 @@ class Daemon:
         self._save_estimates()
         if job.record_id is not None:
             est = result.estimates
+            forward, backward = (est.get(f"{COARSE}/{d}", {}).get("step_m") for d in (FORWARD, BACKWARD))
             self.store.finish_move(
                 job.record_id,
                 status=result.status,
@@ -332,9 +369,12 @@ class Daemon:
                 reached_m=result.reached_m,
                 steps=result.steps,
                 bursts=result.bursts,
-                step_forward_m=est[f"{COARSE}/{FORWARD}"]["step_m"],
-                step_backward_m=est[f"{COARSE}/{BACKWARD}"]["step_m"],
+                step_forward_m=forward,
+                step_backward_m=backward,
                 steps_estimated=result.steps_estimated,
+                reached_pose=result.reached_pose if result.target_pose is not None else None,
+                error_m=result.error_m,
+                error_rad=result.error_rad,
             )
 
     def _refuse_queued(self, job: Job, reason: str) -> None:
@@ -368,10 +408,11 @@ class Daemon:
             # ground where the link still allows it (never through a stale simulator pty:
             # another program may own that path now), then free the port for the reconnect
             if getattr(self.links, "respawns", 0) == self._amplifier_generation:
-                with contextlib.suppress(FeederError, OSError):
-                    self.loop.amplifier.ground()
+                for amplifier in self.loop.amplifiers.values():
+                    with contextlib.suppress(FeederError, OSError):
+                        amplifier.ground()
             with contextlib.suppress(FeederError, OSError):
-                self.loop.amplifier.close()
+                _close(self.loop.amplifiers)
         thread = threading.Thread(
             target=self._reconnect, args=(kind, record), name=f"reconnect-{kind}", daemon=True
         )
@@ -385,12 +426,13 @@ class Daemon:
             attempts += 1
             try:
                 if kind == "amplifier":
-                    amp = self.links.open_amplifier()
+                    amps = _per_axis(self.links.open_amplifier())
                     with contextlib.ExitStack() as undo:  # a link that cannot ground is closed
-                        undo.callback(amp.close)
-                        amp.ground()
+                        undo.callback(_close, amps)
+                        for amp in amps.values():
+                            amp.ground()
                         undo.pop_all()
-                    self.loop.replace_amplifier(amp)
+                    self.loop.replace_amplifier(amps)
                     self._amplifier_generation = getattr(self.links, "respawns", 0)
                 else:
                     self.loop.replace_sensor(self.links.open_sensor())
@@ -449,7 +491,8 @@ class Daemon:
         except (TypeError, ValueError, OverflowError):
             number = math.nan
         if not isinstance(value, (int, float)) or not math.isfinite(number):
-            raise ValueError(f"{key} must be a finite number of metres, got {_brief(value)}")
+            unit = "radians" if key.endswith("_rad") else "metres"
+            raise ValueError(f"{key} must be a finite number of {unit}, got {_brief(value)}")
         return number
 
     def _run_job(self, job: Job, request: dict[str, Any]) -> dict[str, Any]:
@@ -481,11 +524,26 @@ class Daemon:
         try:
             target = self._finite(request, "target_m")
             by = self._finite(request, "by_m")
+            pose = {k: v for k in POSE_KEYS if (v := self._finite(request, k)) is not None}
         except ValueError as err:
             return {"ok": False, "error": str(err)}
+        part = request.get("part", 1)
+        if not isinstance(part, int) or isinstance(part, bool) or part < 1:
+            return {"ok": False, "error": f"part must be a part id (an integer >= 1), got {_brief(part)}"}
+        if pose:
+            if target is not None or by is not None:
+                return {"ok": False, "error": "give a pose (x_m, y_m, angle_rad) or target_m/by_m, not both"}
+            if self.setup.pose_navigator is not None:
+                return self._run_job(self._new_job("move", None, None, pose_target=pose, part=part), request)
+            if set(pose) != {"x_m"}:
+                return {"ok": False, "error": "this configuration drives one axis (x): give x_m or target_m"}
+            target = pose["x_m"]
         if (target is None) == (by is None):
-            return {"ok": False, "error": "give exactly one of target_m and by_m"}
-        return self._run_job(self._new_job("move", target, by), request)
+            return {
+                "ok": False,
+                "error": "give exactly one of target_m and by_m, or a pose (x_m, y_m, angle_rad)",
+            }
+        return self._run_job(self._new_job("move", target, by, part=part), request)
 
     def _cmd_calibrate(self, request: dict[str, Any]) -> dict[str, Any]:
         steps = request.get("steps", CALIBRATION_STEPS)
@@ -595,6 +653,7 @@ class Daemon:
             "tolerance_m": loop.settings.tolerance_m,
             "travel_limits_m": [loop.settings.min_position_m, loop.settings.max_position_m],
             "estimates": loop.estimates_json(),
+            **self._plane_status(),
             "predicted_steps_m": {k: m.predicted_step_m for k, m in self.setup.modes.items()},
             "waveforms": {
                 k: {**dataclasses.asdict(m.settings), "predicted_step_band_m": list(m.predicted_band_m)}
@@ -605,6 +664,37 @@ class Daemon:
             **self.setup.info,
             **self._live_links(),
         }
+
+    def _plane_status(self) -> dict[str, Any]:
+        """Every part's pose, the axes and the plane's travel and tolerances (pose control)."""
+        loop = self.loop
+        reading = loop.reading or ()
+        s = loop.settings
+        parts = []
+        for i, info in enumerate(self.setup.parts or ({"id": 1},), start=1):
+            pose = reading[i - 1] if i <= len(reading) else None
+            parts.append({**info, "id": i, "pose": None if pose is None else list(pose)})
+        steps_of = getattr(loop.policy.navigator, "axis_steps", None)
+        learned = steps_of(reading[0] if reading else None) if callable(steps_of) else {}
+        return {
+            "parts": parts,
+            "axes": {
+                axis: {
+                    "modes": {k: dataclasses.asdict(m.settings) for k, m in modes.items()},
+                    "applied": loop.policy.applied(axis),
+                    **learned.get(axis, {}),
+                }
+                for axis, modes in loop.policy.modes.items()
+            },
+            "tolerance_rad": s.tolerance_rad,
+            "travel_m": {"x": [s.min_position_m, s.max_position_m], "y": [s.min_y_m, s.max_y_m]},
+        }
+
+    def latest_image(self) -> Any:
+        """The newest camera frame the sensor located parts in (an image array), or None."""
+        latest = getattr(self.loop.sensor, "latest_image", None)
+        frame = latest() if callable(latest) else None
+        return None if frame is None else frame.image
 
     def _live_links(self) -> dict[str, Any]:
         """What may change while running (a respawned simulator's pid and endpoints)."""
@@ -683,6 +773,20 @@ class Daemon:
         except (ValueError, TypeError, OverflowError, RecursionError) as err:
             # a value no handler expected (NaN in a reply, an integer too large for a float)
             return {"ok": False, "error": f"cannot answer: {type(err).__name__}: {str(err)[:200]}"}
+
+
+def _per_axis(amplifiers: Amplifier | dict[str, Amplifier]) -> dict[str, Amplifier]:
+    return {"x": amplifiers} if isinstance(amplifiers, Amplifier) else amplifiers
+
+
+def _close(amplifiers: dict[str, Amplifier]) -> None:
+    """Release the drivers, outputs untouched (a group of axes on one link releases it once)."""
+    release = getattr(amplifiers, "release", None)
+    if callable(release):
+        release()
+        return
+    for amplifier in amplifiers.values():
+        amplifier.close()
 
 
 def _brief(value: Any) -> str:

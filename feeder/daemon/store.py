@@ -17,8 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from feeder.errors import FeederError
+from feeder.pose import Pose
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (
@@ -49,11 +50,22 @@ CREATE TABLE IF NOT EXISTS moves (
     reason TEXT NOT NULL DEFAULT '',
     step_forward_m REAL,
     step_backward_m REAL,
-    steps_estimated INTEGER NOT NULL DEFAULT 0
+    steps_estimated INTEGER NOT NULL DEFAULT 0,
+    part INTEGER,
+    target_pose TEXT,
+    start_pose TEXT,
+    reached_pose TEXT,
+    error_rad REAL
 );
 CREATE TABLE IF NOT EXISTS position (
     id INTEGER PRIMARY KEY CHECK (id = 1),
     position_m REAL NOT NULL,
+    updated_s REAL NOT NULL,
+    poses TEXT
+);
+CREATE TABLE IF NOT EXISTS pose_response (
+    id INTEGER PRIMARY KEY CHECK (id = 1),
+    estimates TEXT NOT NULL,
     updated_s REAL NOT NULL
 );
 CREATE TABLE IF NOT EXISTS camera_calibration (
@@ -83,6 +95,17 @@ COMMIT;
 """Version 3 marks moves whose step count was estimated from time (a stop cut a burst on a
 drive that counts no steps, e.g. the ANC300)."""
 
+_ADDED_IN_4 = (
+    ("moves", "part", "INTEGER"),
+    ("moves", "target_pose", "TEXT"),
+    ("moves", "start_pose", "TEXT"),
+    ("moves", "reached_pose", "TEXT"),
+    ("moves", "error_rad", "REAL"),
+    ("position", "poses", "TEXT"),
+)
+"""Version 4 records poses (x_m, y_m, psi_rad as JSON) beside the x positions, and the pose
+planner's learned response (table ``pose_response``, created by the schema)."""
+
 CALIBRATION_COLUMNS = (
     "key, step_m, variance_m2, steps, updated_s, offset_m, offset_variance_m2, covariance_m2"
 )
@@ -102,7 +125,13 @@ MOVE_COLUMNS = (
     "step_forward_m",
     "step_backward_m",
     "steps_estimated",
+    "part",
+    "target_pose",
+    "start_pose",
+    "reached_pose",
+    "error_rad",
 )
+_POSE_COLUMNS = ("target_pose", "start_pose", "reached_pose")
 
 
 class StoreError(FeederError, RuntimeError):
@@ -125,10 +154,12 @@ class Calibration:
 
 @dataclass(frozen=True)
 class KnownPosition:
-    """The last position the sensor confirmed (m) and when (Unix time, s)."""
+    """The last position the sensor confirmed (m) and when (Unix time, s); every part's pose
+    when the sensor sees poses."""
 
     position_m: float
     updated_s: float
+    poses: tuple[Pose, ...] = ()
 
 
 class Store:
@@ -173,9 +204,20 @@ class Store:
                         else "ALTER TABLE moves ADD COLUMN steps_estimated INTEGER NOT NULL DEFAULT 0;"
                     )
                     self._conn.executescript(_MIGRATE_2_TO_3.format(alter=alter))
+                if int(version) <= 3:
+                    self._migrate_to_4()
         except sqlite3.DatabaseError as err:
             raise StoreError(f"{self.path}: {err}") from err
         self.path.chmod(0o600)
+
+    def _migrate_to_4(self) -> None:
+        with self._conn:
+            self._conn.execute("BEGIN IMMEDIATE")
+            for table, column, kind in _ADDED_IN_4:
+                columns = {r[1] for r in self._conn.execute(f"PRAGMA table_info({table})")}
+                if column not in columns:
+                    self._conn.execute(f"ALTER TABLE {table} ADD COLUMN {column} {kind}")
+            self._conn.execute("UPDATE meta SET value = '4' WHERE key = 'schema_version'")
 
     def _foreign(self) -> bool:
         """Tables, but no feeder schema version among them: another program's database."""
@@ -233,11 +275,20 @@ class Store:
         return Calibration(*rows[0]) if rows else None
 
     # -- moves ------------------------------------------------------------
-    def begin_move(self, target_m: float, start_m: float | None) -> int:
-        """Record a move as ``running``; returns its id."""
+    def begin_move(
+        self,
+        target_m: float,
+        start_m: float | None,
+        *,
+        part: int | None = None,
+        target_pose: Pose | None = None,
+        start_pose: Pose | None = None,
+    ) -> int:
+        """Record a move as ``running`` (a pose move with its part and poses); returns its id."""
         cur = self._write(
-            "INSERT INTO moves (started_s, start_m, target_m, status) VALUES (?, ?, ?, 'running')",
-            (time.time(), start_m, target_m),
+            "INSERT INTO moves (started_s, start_m, target_m, status, part, target_pose, start_pose)"
+            " VALUES (?, ?, ?, 'running', ?, ?, ?)",
+            (time.time(), start_m, target_m, part, _pose_json(target_pose), _pose_json(start_pose)),
         )
         return int(cur.lastrowid or 0)
 
@@ -253,14 +304,20 @@ class Store:
         step_forward_m: float | None,
         step_backward_m: float | None,
         steps_estimated: bool = False,
+        reached_pose: Pose | None = None,
+        error_m: float | None = None,
+        error_rad: float | None = None,
     ) -> None:
-        """Close a move: status ``done``/``stopped``/``stalled``/``limit``/``fault``."""
-        rows = self._read("SELECT target_m FROM moves WHERE id = ?", (move_id,))
-        error = None if reached_m is None or not rows else reached_m - float(rows[0][0])
+        """Close a move: status ``done``/``stopped``/``stalled``/``limit``/``fault``.  A pose
+        move gives its reached pose and errors (distance, angle); else the error is along x."""
+        error = error_m
+        if reached_pose is None:
+            rows = self._read("SELECT target_m FROM moves WHERE id = ?", (move_id,))
+            error = None if reached_m is None or not rows else reached_m - float(rows[0][0])
         self._write(
             "UPDATE moves SET finished_s = ?, reached_m = ?, error_m = ?, steps = ?, bursts = ?,"
-            " status = ?, reason = ?, step_forward_m = ?, step_backward_m = ?, steps_estimated = ?"
-            " WHERE id = ?",
+            " status = ?, reason = ?, step_forward_m = ?, step_backward_m = ?, steps_estimated = ?,"
+            " reached_pose = ?, error_rad = ? WHERE id = ?",
             (
                 time.time(),
                 reached_m,
@@ -272,6 +329,8 @@ class Store:
                 step_forward_m,
                 step_backward_m,
                 int(steps_estimated),
+                _pose_json(reached_pose),
+                error_rad,
                 move_id,
             ),
         )
@@ -301,15 +360,30 @@ class Store:
         return _move_row(rows[0]) if rows else None
 
     # -- position ---------------------------------------------------------
-    def save_position(self, position_m: float) -> None:
+    def save_position(self, position_m: float, poses: tuple[Pose, ...] = ()) -> None:
+        """The part's x (m) and, from a pose sensor, every part's pose."""
         self._write(
-            "INSERT OR REPLACE INTO position (id, position_m, updated_s) VALUES (1, ?, ?)",
-            (position_m, time.time()),
+            "INSERT OR REPLACE INTO position (id, position_m, updated_s, poses) VALUES (1, ?, ?, ?)",
+            (position_m, time.time(), json.dumps([list(p) for p in poses]) if poses else None),
         )
 
     def position(self) -> KnownPosition | None:
-        rows = self._read("SELECT position_m, updated_s FROM position WHERE id = 1")
-        return KnownPosition(*rows[0]) if rows else None
+        rows = self._read("SELECT position_m, updated_s, poses FROM position WHERE id = 1")
+        if not rows:
+            return None
+        poses = tuple(tuple(p) for p in json.loads(rows[0][2])) if rows[0][2] else ()
+        return KnownPosition(rows[0][0], rows[0][1], poses)
+
+    # -- the pose planner's learned response ---------------------------------
+    def save_pose_response(self, estimates: dict[str, Any]) -> None:
+        self._write(
+            "INSERT OR REPLACE INTO pose_response (id, estimates, updated_s) VALUES (1, ?, ?)",
+            (json.dumps(estimates, allow_nan=False), time.time()),
+        )
+
+    def pose_response(self) -> dict[str, Any] | None:
+        rows = self._read("SELECT estimates FROM pose_response WHERE id = 1")
+        return json.loads(rows[0][0]) if rows else None
 
     # -- camera calibration (feeder vision calibrate --save-state) ------------
     def save_camera_calibration(self, calibration: dict[str, Any]) -> None:
@@ -327,9 +401,15 @@ class Store:
         return {**json.loads(rows[0][0]), "updated_s": rows[0][1]}
 
 
+def _pose_json(pose: Pose | None) -> str | None:
+    return None if pose is None else json.dumps(list(pose), allow_nan=False)
+
+
 def _move_row(row: tuple[Any, ...]) -> dict[str, Any]:
     out = dict(zip(MOVE_COLUMNS, row, strict=True))
     out["steps_estimated"] = bool(out["steps_estimated"])
+    for key in _POSE_COLUMNS:
+        out[key] = None if out[key] is None else json.loads(out[key])
     return out
 
 

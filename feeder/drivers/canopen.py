@@ -93,6 +93,9 @@ class CanopenAmplifier(Amplifier):
         mid-move gets the axis grounded (``host_watchdog``) after
         :data:`HOST_SILENCE_PERIODS` periods.  Off by default, like the
         firmware's ``--host-watchdog-s``.
+    network: a connected :class:`canopen.Network` to share with other axes'
+        drivers (one bus, several nodes; ``bus`` is then ignored); the caller
+        disconnects it.  Default: the driver connects its own.
     """
 
     def __init__(
@@ -104,6 +107,7 @@ class CanopenAmplifier(Amplifier):
         timeout_s: float = 0.5,
         supervise_host: bool = False,
         host_id: int = 127,
+        network: canopen.Network | None = None,
     ) -> None:
         self.node_id = node_id
         self.supervise_host = supervise_host
@@ -122,13 +126,17 @@ class CanopenAmplifier(Amplifier):
         self._ack = 0
         self._sequence = 0
         self._closing = threading.Event()
-        self.network = canopen.Network()
-        self.network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
-        self.network.connect(**dict(bus))
+        self._owns_network = network is None
+        if network is None:
+            network = canopen.Network()
+            network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
+            network.connect(**dict(bus))
+        self.network = network
         assert self.network.notifier is not None
         self.network.notifier.add_listener(_BusErrors(self._on_bus_error))
-        with contextlib.ExitStack() as undo:  # any failure from here disconnects
-            undo.callback(self.network.disconnect)
+        with contextlib.ExitStack() as undo:  # any failure from here disconnects (our own network)
+            if self._owns_network:
+                undo.callback(self.network.disconnect)
             od = eds if eds is not None else object_dictionary(node_id)
             self.node = canopen.RemoteNode(node_id, od)
             self._moving = bit_mask(od, "Status word", "moving")
@@ -374,6 +382,8 @@ class CanopenAmplifier(Amplifier):
         self._closing.set()
         if self._watchdog.is_alive():
             self._watchdog.join(timeout=1.0)
+        if not self._owns_network:
+            return
         # the adapter may be gone already (e.g. its pty closed): nothing left to release
         with contextlib.suppress(can.CanError, OSError):
             self.network.disconnect()

@@ -51,9 +51,17 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return image
 
 
-def _shrink_factor(gray: np.ndarray) -> int:
+MIN_SHRUNK_SIDE_PX = 40
+"""The search shrinks the image at most so far that a part's short side keeps this many
+pixels: fewer, and pixelation makes a rotated rectangle's blob look like touching parts."""
+
+
+def _shrink_factor(gray: np.ndarray, template: PartTemplate | None) -> int:
     side = min(gray.shape)
-    return 4 if side >= 512 else 2 if side >= 128 else 1
+    f = 4 if side >= 512 else 2 if side >= 128 else 1
+    if template is not None:
+        f = min(f, max(1, int(min(template.length_px, template.width_px) // MIN_SHRUNK_SIDE_PX)))
+    return f
 
 
 def _as_uint8(small: np.ndarray) -> np.ndarray:
@@ -73,7 +81,7 @@ def locate(image: np.ndarray, template: PartTemplate | None = None, polarity: st
     """
     gray = to_gray(image)
     h, w = gray.shape
-    f = _shrink_factor(gray)
+    f = _shrink_factor(gray, template)
     shrunk = cv2.resize(gray, (w // f, h // f), interpolation=cv2.INTER_LINEAR) if f > 1 else gray
     small = _as_uint8(shrunk)
     threshold, _ = cv2.threshold(small, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)

@@ -1,0 +1,281 @@
+"""What the closed loop works on: jobs, bursts, commands to the amplifier and events for the record.
+
+Plain data shared by the policy (:mod:`feeder.daemon.policy`), its navigators
+and the loop that does the I/O.  Lengths in m, angles in rad, times in s.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading  # a Job's done event only: the policy never waits on it
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from feeder.daemon.step_estimator import StepEstimate
+from feeder.drivers.amplifier import DriveSettings
+from feeder.pose import Pose, pose_error
+
+Reading = tuple[Pose, ...]
+"""Every part's pose (m, m, rad) at one instant; a one-axis sensor gives ((x, 0, 0),)."""
+
+
+@dataclass(frozen=True)
+class StepMode:
+    """A waveform the loop steps with and the planner's predicted step for it (m)."""
+
+    name: str
+    settings: DriveSettings
+    predicted_step_m: float
+    predicted_band_m: tuple[float, float]
+
+    @property
+    def seed(self) -> StepEstimate:
+        """Estimator seed: prediction ± half-width of the band (at least 5 %)."""
+        half = 0.5 * (self.predicted_band_m[1] - self.predicted_band_m[0])
+        return StepEstimate.seed(self.predicted_step_m, max(half, 0.05 * self.predicted_step_m))
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    """Tuning of the loop; lengths in m, angles in rad, times in s.  The travel is
+    [min_position_m, max_position_m] in x and [min_y_m, max_y_m] in y (plate frame)."""
+
+    rate_hz: float = 100.0
+    tolerance_m: float = 1e-6
+    tolerance_rad: float = 1.7453292519943296e-3  # 0.1°
+    min_position_m: float = -10e-3
+    max_position_m: float = 10e-3
+    min_y_m: float = -10e-3
+    max_y_m: float = 10e-3
+    settle_s: float = 0.05
+    average_samples: int = 3
+    max_burst_steps: int = 400
+    stall_fraction: float = 0.3
+    stall_bursts: int = 2
+    max_reversals: int = 4
+    max_bursts: int = 60
+    burst_grace_s: float = 1.0
+    sensor_noise_m: float = 0.1e-6
+    step_scatter_fraction: float = 0.05
+    forgetting: float = 0.98
+    position_save_s: float = 0.25
+    hold_timeout_s: float = 3.0
+
+
+@dataclass(frozen=True)
+class Burst:
+    """One burst of a job: ``steps`` > 0 in ``direction`` with ``axis``' waveform ``mode``."""
+
+    mode: str
+    direction: str
+    steps: int
+    axis: str = "x"
+
+
+# -- commands to the executor, and what it reports back --------------------------------
+
+
+@dataclass(frozen=True)
+class Command:
+    """An amplifier action for the executor (``kind``: see :data:`COMMANDS`)."""
+
+    kind: str
+    mode: str = ""
+    steps: int = 0
+    timeout_s: float = 0.0
+    axis: str = "x"
+
+
+COMMANDS = ("enable", "apply", "step", "confirm_end", "stop")
+"""enable: leave ground on every axis (clearing a latched transient fault); apply: load a
+mode's waveform on ``axis``; step: start a burst of ``steps`` (signed) on ``axis``;
+confirm_end: check the burst on ``axis`` is over (``stepw``); stop: stop every axis now
+(the counter reported is ``axis``')."""
+
+
+@dataclass(frozen=True)
+class Completion:
+    """The executor's report on a command.
+
+    at_s: loop time when the command was acknowledged; counter: the drive's
+    step count (``steps_played``) *before* a ``step``, *after* a ``stop``;
+    error: None on success; link_lost: the error was a lost link.
+    """
+
+    command: Command
+    at_s: float
+    error: str | None = None
+    link_lost: bool = False
+    counter: int | None = None
+    estimated: bool = False
+
+
+# -- what the record needs --------------------------------------------------------------
+
+
+@dataclass
+class JobResult:
+    """How a move (or calibration) ended.
+
+    status: ``done``, ``stopped``, ``stalled``, ``limit``, ``oscillating``,
+    ``unreachable``, ``fault``.  Positions in m; ``trace`` is (loop time s, m).
+    steps_estimated: the steps of a burst cut short were estimated from time
+    (a drive that counts none, e.g. the ANC300).  A pose move (``target_pose``
+    set) also gives the part, its start and reached poses, ``pose_trace``
+    ((loop time s, pose)) and the errors: ``error_m`` the distance of the
+    centre from the target, ``error_rad`` the angle difference modulo the
+    part's symmetry.  ``target_m``/``start_m``/``reached_m`` are the part's x.
+    """
+
+    kind: str
+    status: str
+    reason: str
+    target_m: float | None
+    start_m: float | None
+    reached_m: float | None
+    steps: int
+    bursts: int
+    duration_s: float
+    estimates: dict[str, dict[str, float]]
+    trace: list[tuple[float, float]] = field(default_factory=list)
+    steps_estimated: bool = False
+    part: int = 1
+    target_pose: Pose | None = None
+    start_pose: Pose | None = None
+    reached_pose: Pose | None = None
+    symmetry_rad: float = 0.0
+    pose_trace: list[tuple[float, Pose]] = field(default_factory=list)
+    bursts_per_axis: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def error_m(self) -> float | None:
+        """Pose move: distance of the centre from the target (≥ 0); else reached − target along x."""
+        if self.target_pose is not None:
+            if self.reached_pose is None:
+                return None
+            return pose_error(self.reached_pose, self.target_pose, self.symmetry_rad)[0]
+        if self.target_m is None or self.reached_m is None:
+            return None
+        return self.reached_m - self.target_m
+
+    @property
+    def error_rad(self) -> float | None:
+        """Pose move: |angle difference| modulo the part's symmetry; else None."""
+        if self.target_pose is None or self.reached_pose is None:
+            return None
+        return pose_error(self.reached_pose, self.target_pose, self.symmetry_rad)[1]
+
+    def as_dict(self, with_trace: bool = False) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "kind": self.kind,
+            "status": self.status,
+            "reason": self.reason,
+            "target_m": self.target_m,
+            "start_m": self.start_m,
+            "reached_m": self.reached_m,
+            "error_m": self.error_m,
+            "steps": self.steps,
+            "bursts": self.bursts,
+            "steps_estimated": self.steps_estimated,
+            "duration_s": self.duration_s,
+            "estimates": self.estimates,
+        }
+        if self.target_pose is not None:
+            out.update(
+                part=self.part,
+                target_pose=list(self.target_pose),
+                start_pose=None if self.start_pose is None else list(self.start_pose),
+                pose=None if self.reached_pose is None else list(self.reached_pose),
+                error_rad=self.error_rad,
+                bursts_per_axis=self.bursts_per_axis,
+            )
+        if with_trace:
+            out["trace"] = [[t, x] for t, x in self.trace]
+            if self.target_pose is not None:
+                out["pose_trace"] = [[t, *p] for t, p in self.pose_trace]
+        return out
+
+
+class Job:
+    """A move to ``target_m`` (or by ``by_m`` from where the part is when it starts), a move of
+    part ``part`` to a pose (``pose_target``: any of ``x_m``, ``y_m``, ``angle_rad``; what is
+    missing keeps the part's value at the start), or a calibration sequence of fixed bursts.
+    ``on_start`` runs when the loop accepts it (the record is written before the first step:
+    the loop sets ``recorded``); ``on_done`` with the result at the end, then ``done`` is set.
+    The policy only reads and writes the progress fields; the callbacks and ``done`` belong to the loop."""
+
+    def __init__(
+        self,
+        kind: str,
+        target_m: float | None = None,
+        bursts: tuple[Burst, ...] = (),
+        *,
+        by_m: float | None = None,
+        pose_target: dict[str, float] | None = None,
+        part: int = 1,
+        on_start: Callable[[], None] | None = None,
+        on_done: Callable[[JobResult], None] | None = None,
+    ) -> None:
+        self.kind = kind
+        self.target_m = target_m
+        self.by_m = by_m
+        self.pose_target = pose_target
+        self.part = part
+        self.target_pose: Pose | None = None  # resolved when the loop accepts it
+        self.planned = collections.deque(bursts)
+        self.on_start = on_start
+        self.on_done = on_done
+        self.record_id: int | None = None
+        self.recorded = False
+        self.done = threading.Event()
+        self.result: JobResult | None = None
+        # progress
+        self.started_s = 0.0
+        self.start_m: float | None = None
+        self.steps = 0
+        self.bursts = 0
+        self.stalls = 0
+        self.reversals = 0
+        self.refined = False
+        self.switched = False
+        self.last_direction: str | None = None
+        self.trace: list[tuple[float, float]] = []
+        self.pose_trace: list[tuple[float, Pose]] = []
+        self.start_pose: Pose | None = None
+        self.bursts_per_axis: dict[str, int] = {}
+        self.steps_estimated = False
+
+
+@dataclass(frozen=True)
+class Started:
+    """Event: write the job's record (``job.on_start``), then mark it recorded."""
+
+    job: Job
+
+
+@dataclass(frozen=True)
+class Finished:
+    """Event: the job is over; record the result and release the caller."""
+
+    job: Job
+    result: JobResult
+
+
+@dataclass(frozen=True)
+class SavePosition:
+    """Event: persist the part's position (m; part 1's x) and every part's pose."""
+
+    position_m: float
+    poses: Reading = ()
+
+
+@dataclass(frozen=True)
+class Fault:
+    """Event: a link is lost (``link``: ``amplifier`` or ``sensor``)."""
+
+    link: str
+    message: str
+
+
+Output = Command | Started | Finished | SavePosition | Fault

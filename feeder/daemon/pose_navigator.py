@@ -1,0 +1,139 @@
+"""The closed loop's decisions in the plane: which axis (x, y, θ) to step to bring a part to a pose.
+
+:class:`PoseNavigator` adapts the pose planner (:mod:`feeder.pose_planner`,
+pure: poses in, an axis burst out) to the policy's navigator interface
+(:class:`~feeder.daemon.policy.Navigator`).  Targets given in part (any of
+``x_m``, ``y_m``, ``angle_rad``) keep the part's current value for the rest;
+a one-axis move (``target_m``/``by_m``) is a move of part 1's x.  Parts
+brought to a target stay *held* there: a later move of another part keeps
+them at their targets, or is refused when the planner cannot do both.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+from feeder.daemon.jobs import Burst, Job, LoopSettings, Reading
+from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
+from feeder.pose import Pose, pose_error
+from feeder.pose_planner import AxisBurst, Finish, PosePlanner
+
+log = logging.getLogger(__name__)
+
+
+class PoseNavigator:
+    """Decisions over the plate's x, y and θ axes (see the module doc).
+
+    planner: the pose planner (travel, tolerances, the parts and the learned response);
+    settings: the loop's tuning (travel and tolerances for the checks done here);
+    symmetry_rad: the part's angular symmetry (π rectangle, π/2 square, 0 disc).
+    """
+
+    axes: tuple[str, ...] = ("x", "y", "theta")
+
+    def __init__(self, planner: PosePlanner, settings: LoopSettings, symmetry_rad: float) -> None:
+        self.planner = planner
+        self.settings = settings
+        self.symmetry_rad = symmetry_rad
+        self.held: dict[int, Pose] = {}
+
+    # -- the job's target --------------------------------------------------------------
+
+    def prepare(self, job: Job, reading: Reading | None) -> str | None:
+        if reading is None:
+            return "position uncertain: no camera reading yet"
+        if not 1 <= job.part <= len(reading):
+            return f"part {job.part} is not on the plate (the camera sees {len(reading)} part(s))"
+        spec = dict(job.pose_target or {})
+        if job.by_m is not None:
+            spec["x_m"] = reading[job.part - 1][0] + job.by_m
+        elif job.target_m is not None:
+            spec["x_m"] = job.target_m
+        now = reading[job.part - 1]
+        target = (spec.get("x_m", now[0]), spec.get("y_m", now[1]), spec.get("angle_rad", now[2]))
+        if not all(math.isfinite(v) for v in target):
+            return "the target pose must be finite"
+        s = self.settings
+        if not (s.min_position_m <= target[0] <= s.max_position_m and s.min_y_m <= target[1] <= s.max_y_m):
+            return (
+                f"target ({target[0]:.6g}, {target[1]:.6g}) m is outside the travel "
+                f"x [{s.min_position_m:.6g}, {s.max_position_m:.6g}] m, "
+                f"y [{s.min_y_m:.6g}, {s.max_y_m:.6g}] m"
+            )
+        refused = self.planner.check(self._targets(job.part, target), list(reading))
+        if refused is not None:
+            return refused
+        job.target_pose = target
+        job.target_m = target[0]
+        return None
+
+    def _targets(self, part: int, target: Pose) -> dict[int, Pose]:
+        targets = {p: pose for p, pose in self.held.items() if p != part}
+        targets[part] = target
+        return targets
+
+    def outside(self, reading: Reading) -> str | None:
+        s = self.settings
+        for i, (x, y, _) in enumerate(reading, start=1):
+            if not (s.min_position_m <= x <= s.max_position_m and s.min_y_m <= y <= s.max_y_m):
+                return f"part {i} at ({x:.6g}, {y:.6g}) m is outside the travel limits"
+        return None
+
+    def settled(self, recent: list[Reading]) -> bool:
+        """Every part's readings agree within the tolerances (or six sensor sigmas)."""
+        s = self.settings
+        band_m = max(s.tolerance_m, 6 * s.sensor_noise_m)
+        first = recent[0]
+        for reading in recent[1:]:
+            for a, b in zip(first, reading, strict=False):
+                distance, angle = pose_error(a, b, 2 * math.pi)
+                if distance > band_m or angle > s.tolerance_rad:
+                    return False
+        return True
+
+    # -- bursts -----------------------------------------------------------------------
+
+    def learn(self, burst: Burst, learnable: bool, before: Reading, after: Reading) -> bool:
+        """Teach the planner what the burst did; True when no part moved beyond the noise."""
+        if learnable:
+            self.planner.learn(_axis_burst(burst), list(before), list(after))
+        noise_m = max(3 * self.settings.sensor_noise_m, 0.1 * self.settings.tolerance_m)
+        return all(
+            pose_error(a, b, 2 * math.pi)[0] <= noise_m and pose_error(a, b, 2 * math.pi)[1] <= 1e-4
+            for a, b in zip(before, after, strict=False)
+        )
+
+    def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
+        assert job.target_pose is not None
+        nxt = self.planner.next_burst(list(reading), self._targets(job.part, job.target_pose))
+        log.debug("at %s for %s: %s", reading, job.target_pose, nxt)
+        if isinstance(nxt, Finish):
+            if nxt.status == "done":
+                self.held[job.part] = job.target_pose
+            return (nxt.status, nxt.reason)
+        return Burst(nxt.mode, FORWARD if nxt.direction > 0 else BACKWARD, nxt.steps, nxt.axis)
+
+    # -- what it learned ---------------------------------------------------------------
+
+    def axis_steps(self, pose: Pose | None) -> dict[str, dict[str, float]]:
+        """Each axis' learned coarse step forward: x and y in m; θ: the turn (rad) of a part
+        at ``pose`` (None: not seen)."""
+        model = self.planner.model
+        out: dict[str, dict[str, float]] = {
+            axis: {"step_m": model.step_m(axis, 1, "coarse")[0]} for axis in ("x", "y") if axis in self.axes
+        }
+        if "theta" in self.axes and pose is not None and "coarse" in model.modes("theta"):
+            out["theta"] = {"step_rad": model.turn_step(1, "coarse", *pose).turn_rad}
+        return out
+
+    def estimates(self) -> dict[str, StepEstimate]:
+        return {}
+
+    def estimates_json(self) -> dict[str, Any]:
+        return self.planner.estimates_json()
+
+
+def _axis_burst(burst: Burst) -> AxisBurst:
+    return AxisBurst(burst.axis, 1 if burst.direction == FORWARD else -1, burst.steps, burst.mode)

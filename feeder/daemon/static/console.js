@@ -1,0 +1,496 @@
+// The feeder operator's console (docs/console.md).  Talks to the daemon's /api with the token
+// from the address' fragment (#token=...), which it then removes from the address bar.
+"use strict";
+
+const TOKEN_KEY = "feeder-console-token";
+const UM = 1e6, DEG = 180 / Math.PI;
+const $ = (id) => document.getElementById(id);
+
+function takeToken() {
+  const match = location.hash.match(/token=([^&]+)/);
+  if (match) {
+    sessionStorage.setItem(TOKEN_KEY, decodeURIComponent(match[1]));
+    history.replaceState(null, "", location.pathname + location.search);
+  }
+  return sessionStorage.getItem(TOKEN_KEY) || "";
+}
+const token = takeToken();
+
+// what the tests read: live view redraws, camera frames, pose overlay lag (ms)
+window.consoleStats = { draws: 0, frames: 0, lagsMs: [] };
+
+let status = null;          // the newest status
+let statusTime = 0;         // its snapshot's wall time (s)
+let drawn = -1;             // statusTime of the last drawn status
+let camera = null;          // {bitmap, width_px, height_px}: the newest frame, the camera's image size
+let target = null;          // {x, y, angle} (m, m, rad) or null
+let drag = null;
+let trajectory = [];        // [t_s, x_m, y_m, psi_rad] of the current or last move
+let lastState = null;
+
+// -- API ---------------------------------------------------------------------------------
+async function api(method, path, body) {
+  const init = { method, headers: { Authorization: "Bearer " + token } };
+  if (body !== undefined) {
+    init.headers["Content-Type"] = "application/json";
+    init.body = JSON.stringify(body);
+  }
+  let response;
+  try {
+    response = await fetch(path, init);
+  } catch (err) {
+    say("daemon unreachable: " + err.message, true);
+    return null;
+  }
+  const answer = await response.json().catch(() => ({ ok: false, error: response.statusText }));
+  if (response.status === 401) refused(answer.error);
+  else if (!answer.ok) say(answer.error || response.statusText, true);
+  return answer;
+}
+
+function say(text, bad) {
+  $("message").textContent = text;
+  $("message").className = bad ? "fault" : "hint";
+}
+
+function refused(text) {
+  $("auth").style.display = "block";
+  if (text) $("auth-text").textContent = text;
+  $("state").textContent = "not authorised";
+  $("state").className = "offline";
+}
+
+// -- live state ------------------------------------------------------------------------------
+function connect() {
+  const scheme = location.protocol === "https:" ? "wss://" : "ws://";
+  const ws = new WebSocket(scheme + location.host + "/api/live");
+  ws.binaryType = "blob";
+  ws.onopen = () => ws.send(JSON.stringify({ token }));
+  ws.onmessage = async (event) => {
+    if (typeof event.data !== "string") {
+      const bitmap = await createImageBitmap(event.data);
+      if (camera && camera.bitmap) camera.bitmap.close();
+      camera = { ...camera, bitmap, fresh: true };
+      window.consoleStats.frames += 1;
+      schedule();
+      return;
+    }
+    const message = JSON.parse(event.data);
+    if (message.type === "error") refused(message.error);
+    else if (message.type === "frame") camera = { ...camera, width_px: message.width_px, height_px: message.height_px };
+    else if (message.type === "status") {
+      status = message.status;
+      statusTime = message.time_s;
+      onStatus();
+      schedule();
+    }
+  };
+  ws.onclose = (event) => {
+    if (event.code === 4401) { refused("The daemon refused the token."); return; }
+    $("state").textContent = "offline";
+    $("state").className = "offline";
+    setTimeout(connect, 1000);
+  };
+}
+
+let scheduled = false;
+function schedule() {
+  if (scheduled) return;
+  scheduled = true;
+  requestAnimationFrame(() => {
+    scheduled = false;
+    drawView();
+    if (status && statusTime !== drawn) {
+      drawn = statusTime;
+      const stats = window.consoleStats;
+      stats.draws += 1;
+      stats.lagsMs.push(Date.now() - statusTime * 1000);
+      if (stats.lagsMs.length > 500) stats.lagsMs.shift();
+    }
+  });
+}
+
+// -- the model the page draws: parts with poses, travel -------------------------------------
+function partSize(label) {  // "300x300x50" (µm) → [L, W] (m)
+  const dims = String(label || "300x300").split("x").map(Number);
+  return [dims[0] / UM, (dims[1] || dims[0]) / UM];
+}
+
+function parts() {
+  if (!status) return [];
+  if (hasPoses()) return (status.parts || []).filter((p) => p.pose);
+  const x = status.position_m ?? status.last_known_position_m;
+  if (x === null || x === undefined) return [];
+  const info = (status.parts && status.parts[0]) || {};
+  return [{ shape: "rectangle", size_m: partSize(status.part), ...info, id: 1, pose: [x, 0, 0] }];
+}
+
+// a plane (more than one axis): poses, pose moves; else one axis: position_m, target_m
+const hasPoses = () => Boolean(status && status.axes && Object.keys(status.axes).length > 1);
+
+function travel() {
+  if (status && status.travel_m) return { x: status.travel_m.x, y: status.travel_m.y };
+  const [lo, hi] = (status && status.travel_limits_m) || [-5e-3, 5e-3];
+  return { x: [lo, hi], y: [-(hi - lo) / 2, (hi - lo) / 2] };
+}
+
+function frame(canvas) {  // plate (m) ↔ canvas (px): square, the travel plus a margin
+  const t = travel();
+  const span = 1.1 * Math.max(t.x[1] - t.x[0], t.y[1] - t.y[0]);
+  const cx = (t.x[0] + t.x[1]) / 2, cy = (t.y[0] + t.y[1]) / 2;
+  const scale = canvas.width / span;
+  return {
+    scale,
+    toPx: (x, y) => [(x - cx) * scale + canvas.width / 2, canvas.height / 2 - (y - cy) * scale],
+    toPlate: (px, py) => [cx + (px - canvas.width / 2) / scale, cy + (canvas.height / 2 - py) / scale],
+  };
+}
+
+// -- the plate view ------------------------------------------------------------------------------
+function drawView() {
+  const canvas = $("view"), ctx = canvas.getContext("2d");
+  const f = frame(canvas);
+  ctx.setTransform(1, 0, 0, 1, 0, 0);
+  ctx.fillStyle = "#37474f";
+  ctx.fillRect(0, 0, canvas.width, canvas.height);
+  drawCamera(ctx, f);
+  const t = travel();
+  const [ax, ay] = f.toPx(t.x[0], t.y[1]), [bx, by] = f.toPx(t.x[1], t.y[0]);
+  ctx.strokeStyle = "#90a4ae";
+  ctx.setLineDash([6, 4]);
+  ctx.strokeRect(ax, ay, bx - ax, by - ay);
+  ctx.setLineDash([]);
+  const [ox, oy] = f.toPx(0, 0);
+  ctx.strokeStyle = "#b0bec5";
+  ctx.beginPath();
+  ctx.moveTo(ox - 8, oy); ctx.lineTo(ox + 8, oy); ctx.moveTo(ox, oy - 8); ctx.lineTo(ox, oy + 8);
+  ctx.stroke();
+  if (trajectory.length > 1) {
+    ctx.strokeStyle = "#ffca28";
+    ctx.beginPath();
+    trajectory.forEach(([, x, y], i) => { const [px, py] = f.toPx(x, y); i ? ctx.lineTo(px, py) : ctx.moveTo(px, py); });
+    ctx.stroke();
+  }
+  for (const part of parts()) drawPart(ctx, f, part, "#4fc3f7", "rgba(79,195,247,0.35)", String(part.id));
+  if (target) {
+    const part = parts().find((p) => p.id === selectedPart()) || parts()[0];
+    const ghost = { ...(part || { shape: "rectangle", size_m: partSize() }), pose: [target.x, target.y, target.angle] };
+    drawPart(ctx, f, ghost, "#ff7043", "rgba(255,112,67,0.15)", "target");
+  }
+}
+
+function drawPart(ctx, f, part, stroke, fill, label) {
+  const [x, y, psi] = part.pose;
+  const [px, py] = f.toPx(x, y);
+  const [length, width] = (part.size_m || partSize()).map((s) => Math.max(4, s * f.scale));
+  ctx.save();
+  ctx.translate(px, py);
+  ctx.rotate(-psi);
+  ctx.fillStyle = fill;
+  ctx.strokeStyle = stroke;
+  ctx.lineWidth = 2;
+  ctx.beginPath();
+  if (part.shape === "disc") ctx.arc(0, 0, length / 2, 0, 2 * Math.PI);
+  else ctx.rect(-length / 2, -width / 2, length, width);
+  ctx.fill();
+  ctx.stroke();
+  ctx.beginPath();  // heading mark: the part's +x
+  ctx.moveTo(0, 0);
+  ctx.lineTo(Math.max(length / 2, 10), 0);
+  ctx.stroke();
+  ctx.restore();
+  ctx.fillStyle = stroke;
+  ctx.font = "12px system-ui";
+  ctx.fillText(`${label} (${(x * UM).toFixed(1)}, ${(y * UM).toFixed(1)}) µm ${(psi * DEG).toFixed(2)}°`, px + 10, py - 10);
+}
+
+function drawCamera(ctx, f) {
+  // with a stored camera calibration the image is drawn in plate coordinates; without, beside
+  const cal = status && status.camera_calibration;
+  const note = $("camera-note"), side = $("camera");
+  if (!camera || !camera.bitmap) { note.textContent = ""; side.hidden = true; return; }
+  const b = camera.bitmap;
+  if (!cal || !cal.pixel_size_m) {
+    side.hidden = false;
+    if (!camera.fresh) return;
+    camera.fresh = false;
+    const height = Math.round(side.width * b.height / b.width);
+    if (side.height !== height) side.height = height;
+    side.getContext("2d").drawImage(b, 0, 0, side.width, side.height);
+    note.textContent = "camera (not registered to the plate: no camera calibration; run feeder vision calibrate)";
+    return;
+  }
+  side.hidden = true;
+  note.textContent = "";
+  // image px (full resolution) → plate: inverse of CameraCalibration.to_image
+  const shrink = (camera.width_px || b.width) / b.width;
+  const c = Math.cos(cal.rotation_rad || 0), s = Math.sin(cal.rotation_rad || 0);
+  const flip = cal.mirrored ? -1 : 1, p = cal.pixel_size_m;
+  // plate = R^-1 (u - u0) p with R = [[c, -s flip], [s, c flip]]: R^-1 = [[c, s], [-s flip, c flip]]
+  const a11 = c * p, a12 = s * p, a21 = -s * flip * p, a22 = c * flip * p;
+  const u0 = cal.origin_x_px || 0, v0 = cal.origin_y_px || 0;
+  const [tx, ty] = f.toPx(0, 0);
+  const k = f.scale * shrink;
+  ctx.save();
+  // canvas = toPx(plate) = (x k' + tx, -y k' + ty), plate = A (u shrink - u0)
+  ctx.setTransform(a11 * k, -a21 * k, a12 * k, -a22 * k,
+    tx - f.scale * (a11 * u0 + a12 * v0), ty + f.scale * (a21 * u0 + a22 * v0));
+  ctx.drawImage(b, 0, 0);
+  ctx.restore();
+}
+
+// -- click to set the target position, drag to set its angle ----------------------------------
+function canvasPoint(event) {
+  const canvas = $("view"), box = canvas.getBoundingClientRect();
+  return [(event.clientX - box.left) * canvas.width / box.width, (event.clientY - box.top) * canvas.height / box.height];
+}
+
+$("view").addEventListener("pointerdown", (event) => {
+  const f = frame($("view"));
+  const [px, py] = canvasPoint(event);
+  const [x, y] = f.toPlate(px, py);
+  const part = parts().find((p) => p.id === selectedPart());
+  target = { x, y: hasPoses() ? y : 0, angle: part ? part.pose[2] : 0 };
+  drag = [px, py];
+  $("view").setPointerCapture(event.pointerId);
+  showTarget();
+});
+$("view").addEventListener("pointermove", (event) => {
+  if (!drag || !hasPoses()) return;
+  const [px, py] = canvasPoint(event);
+  if (Math.hypot(px - drag[0], py - drag[1]) < 6) return;
+  target.angle = Math.atan2(-(py - drag[1]), px - drag[0]);
+  showTarget();
+});
+$("view").addEventListener("pointerup", () => { drag = null; });
+
+function showTarget() {
+  $("target-x").value = (target.x * UM).toFixed(1);
+  $("target-y").value = (target.y * UM).toFixed(1);
+  $("target-angle").value = (target.angle * DEG).toFixed(2);
+  schedule();
+}
+for (const id of ["target-x", "target-y", "target-angle"]) {
+  $(id).addEventListener("input", () => {
+    target = { x: Number($("target-x").value) / UM, y: Number($("target-y").value) / UM, angle: Number($("target-angle").value) / DEG };
+    schedule();
+  });
+}
+
+const selectedPart = () => Number($("part").value) || 1;
+
+$("move").addEventListener("click", async () => {
+  if (!target) { say("click the plate to set a target first", true); return; }
+  const request = hasPoses()
+    ? { x_m: target.x, y_m: target.y, angle_rad: target.angle, part: selectedPart(), wait: false }
+    : { target_m: target.x, wait: false };
+  const answer = await api("POST", "/api/move", request);
+  if (answer && answer.ok) say(`moving to ${(target.x * UM).toFixed(1)} µm`);
+});
+
+async function stop() {
+  const answer = await api("POST", "/api/stop");
+  if (answer && answer.ok) say(answer.stopped ? "stopped" : "nothing to stop");
+}
+$("stop").addEventListener("click", stop);
+document.addEventListener("keydown", (event) => { if (event.key === "Escape") stop(); });
+
+$("calibrate").addEventListener("click", async () => {
+  const answer = await api("POST", "/api/calibrate", { steps: Number($("cal-steps").value), wait: false });
+  if (answer && answer.ok) say("calibrating");
+});
+
+function jog(axis, sign) {
+  const steps = sign * Math.max(1, Math.round(Number($("jog-steps").value)));
+  api("POST", "/api/jog", { axis, steps, part: selectedPart() }).then((answer) => {
+    if (answer && answer.ok) say(`jog ${axis} ${steps > 0 ? "+" : ""}${steps} steps`);
+  });
+}
+
+// -- panels ------------------------------------------------------------------------------------
+const um = (m) => (m === null || m === undefined ? "–" : (m * UM).toFixed(2) + " µm");
+const deg = (rad) => (rad === null || rad === undefined ? "–" : (rad * DEG).toFixed(3) + "°");
+
+function axisNames() { return hasPoses() && status.axes ? Object.keys(status.axes) : ["x"]; }
+
+function onStatus() {
+  const state = status.state;
+  $("state").textContent = state + (status.position_state === "uncertain" ? " (position uncertain)" : "");
+  $("state").className = state;
+  const part = parts().find((p) => p.id === selectedPart()) || parts()[0];
+  $("position").textContent = part ? `part ${part.id}: x ${um(part.pose[0])}` + (hasPoses() ? `, y ${um(part.pose[1])}, ${deg(part.pose[2])}` : "") : "position unknown";
+  for (const el of document.querySelectorAll(".pose-only")) el.hidden = !hasPoses();
+  updatePartChoice();
+  updateAxes(part);
+  updateCalibration();
+  updateFaults();
+  updateResult();
+  if (state === "moving" || state === "calibrating") {
+    if (lastState !== state) trajectory = [];
+    if (part) trajectory.push([statusTime, ...part.pose]);
+  } else if (lastState === "moving" || lastState === "calibrating") {
+    loadHistory();
+    drawTrajectory();
+  }
+  if (trajectory.length % 5 === 1) drawTrajectory();
+  lastState = state;
+}
+
+function updatePartChoice() {
+  const ids = parts().map((p) => String(p.id));
+  const select = $("part");
+  if ([...select.options].map((o) => o.value).join() === ids.join()) return;
+  select.replaceChildren(...ids.map((id) => new Option(id, id)));
+}
+
+function updateAxes(part) {
+  const rows = [];
+  const names = axisNames();
+  if (jogAxes !== names.join()) buildJog(names);
+  for (const axis of names) {
+    let position = "–", goal = "–", forward = "–", backward = "–";
+    if (hasPoses()) {
+      const a = status.axes[axis] || {};
+      const index = { x: 0, y: 1, theta: 2 }[axis];
+      const show = axis === "theta" ? deg : um;
+      if (part && index !== undefined) position = show(part.pose[index]);
+      const t = status.target_pose || (status.targets && status.targets[String(selectedPart())]);
+      if (t && index !== undefined) goal = show(t[index]);
+      forward = a.step_m !== undefined ? um(a.step_m) : a.step_rad !== undefined ? deg(a.step_rad) : summary(a);
+    } else {
+      position = um(status.position_m);
+      goal = um(status.target_m);
+      const e = status.estimates || {};
+      forward = e["coarse/forward"] ? um(e["coarse/forward"].step_m) : "–";
+      backward = e["coarse/backward"] ? um(e["coarse/backward"].step_m) : "–";
+    }
+    rows.push(`<tr><td>${axis}</td><td>${position}</td><td>${goal}</td><td>${forward}</td><td>${backward}</td></tr>`);
+  }
+  $("axes").tBodies[0].innerHTML = rows.join("");
+}
+
+function summary(obj) {
+  return escapeHtml(Object.entries(obj).filter(([, v]) => typeof v !== "object").map(([k, v]) => `${k} ${typeof v === "number" ? v.toPrecision(3) : v}`).join(", ")) || "–";
+}
+
+let jogAxes = "";
+function buildJog(names) {
+  jogAxes = names.join();
+  $("jog").replaceChildren(...names.map((axis) => {
+    const row = document.createElement("div");
+    row.className = "row";
+    const minus = document.createElement("button"), plus = document.createElement("button");
+    minus.textContent = `${axis} −N`;
+    plus.textContent = `${axis} +N`;
+    minus.dataset.jog = `${axis}-`;
+    plus.dataset.jog = `${axis}+`;
+    minus.onclick = () => jog(axis, -1);
+    plus.onclick = () => jog(axis, 1);
+    row.append(minus, plus);
+    return row;
+  }));
+}
+
+function updateCalibration() {
+  const lines = [];
+  for (const [name, e] of Object.entries(status.estimates || {})) {
+    lines.push(`${name}: ${um(e.step_m)} ± ${um(e.std_m)} per step, learned from ${e.steps} steps`);
+  }
+  const cal = status.camera_calibration;
+  lines.push(cal ? `camera: ${(cal.pixel_size_m * UM).toFixed(3)} µm/px, rotation ${deg(cal.rotation_rad || 0)}` : "camera: not calibrated (feeder vision calibrate)");
+  $("calibration").innerHTML = lines.map((l) => `<div>${escapeHtml(l)}</div>`).join("");
+}
+
+const ADVICE = [
+  [/amplifier/i, "Output grounded. Check the amplifier's cable and power; the daemon reconnects by itself. No move resumes: send it again."],
+  [/sensor|camera/i, "The position sensor stopped sending. Check the camera's cable or stream; the daemon reconnects by itself."],
+  [/unwritable|disk/i, "The state database cannot be written (disk full or read-only?). Free space; moves are refused until then."],
+];
+const RESULT_ADVICE = {
+  stalled: "The part did not move: check it lies on the plate and nothing blocks it; then calibrate.",
+  limit: "The target is beyond the travel: choose one inside the dashed box.",
+  oscillating: "The part overshoots back and forth: calibrate, or ask for a larger tolerance.",
+  unreachable: "The daemon cannot reach it within its bursts: calibrate, or choose a target the part can reach.",
+  fault: "A link was lost during the move; see Faults.",
+  stopped: "Stopped on request.",
+};
+
+function updateFaults() {
+  const items = [];
+  const current = status.fault ? [status.fault] : [];
+  if (status.store_unwritable) current.push("state store unwritable: " + status.store_unwritable);
+  for (const text of current) items.push([text, true]);
+  for (const f of (status.faults || []).slice(-5).reverse()) {
+    const back = f.reconnected_after_attempts ? ` (back after ${f.reconnected_after_attempts} attempts)` : f.last_error ? ` (retrying: ${f.last_error})` : "";
+    items.push([`${new Date(f.time_s * 1000).toLocaleTimeString()} ${f.link}: ${f.message}${back}`, false]);
+  }
+  if (status.position_state === "uncertain") items.push(["position uncertain: waiting for the sensor to confirm it", true]);
+  $("faults").innerHTML = items.length ? items.map(([text, now]) => {
+    const advice = (ADVICE.find(([re]) => re.test(text)) || [null, ""])[1];
+    return `<div class="${now ? "fault" : ""}">${escapeHtml(text)}</div>` + (now && advice ? `<div class="advice">${escapeHtml(advice)}</div>` : "");
+  }).join("") : "none";
+}
+
+function updateResult() {
+  const r = status.last_result;
+  if (!r) return;
+  const error = r.error_m !== undefined && r.error_m !== null ? ` error ${um(r.error_m)}` : "";
+  const angle = r.error_rad !== undefined && r.error_rad !== null ? `, ${deg(r.error_rad)}` : "";
+  const text = `${r.kind} ${r.status}: ${r.reason}.${error}${angle}, ${r.steps} steps in ${r.bursts} bursts, ${(r.duration_s || 0).toFixed(2)} s`;
+  const advice = r.status === "done" ? "" : RESULT_ADVICE[r.status] || "";
+  $("result").innerHTML = `<div class="result-status" data-status="${escapeHtml(r.status)}">${escapeHtml(text)}</div>` + (advice ? `<div class="advice">${escapeHtml(advice)}</div>` : "");
+}
+
+function escapeHtml(text) {
+  return String(text).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" }[c]));
+}
+
+// -- plots ----------------------------------------------------------------------------------------
+function plot(canvas, series, xLabel) {
+  // series: [{points: [[x, y]...], color, dots}]
+  const ctx = canvas.getContext("2d"), w = canvas.width, h = canvas.height, m = 40;
+  ctx.clearRect(0, 0, w, h);
+  const all = series.flatMap((s) => s.points);
+  ctx.fillStyle = "#666";
+  ctx.font = "11px system-ui";
+  if (all.length === 0) { ctx.fillText("no data yet", w / 2 - 30, h / 2); return; }
+  let [x0, x1] = [Math.min(...all.map((p) => p[0])), Math.max(...all.map((p) => p[0]))];
+  let [y0, y1] = [Math.min(...all.map((p) => p[1])), Math.max(...all.map((p) => p[1]))];
+  if (x1 === x0) x1 = x0 + 1;
+  if (y1 === y0) { y0 -= 1; y1 += 1; }
+  const X = (x) => m + (x - x0) / (x1 - x0) * (w - m - 10), Y = (y) => h - 20 - (y - y0) / (y1 - y0) * (h - 30);
+  ctx.strokeStyle = "#ccc";
+  ctx.strokeRect(m, 10, w - m - 10, h - 30);
+  ctx.fillText(y1.toPrecision(3), 2, 14);
+  ctx.fillText(y0.toPrecision(3), 2, h - 20);
+  ctx.fillText(xLabel, w / 2 - 20, h - 4);
+  for (const s of series) {
+    ctx.strokeStyle = ctx.fillStyle = s.color;
+    ctx.beginPath();
+    s.points.forEach(([x, y], i) => {
+      if (s.dots) ctx.fillRect(X(x) - 2, Y(y) - 2, 4, 4);
+      else i ? ctx.lineTo(X(x), Y(y)) : ctx.moveTo(X(x), Y(y));
+    });
+    if (!s.dots) ctx.stroke();
+  }
+}
+
+async function loadHistory() {
+  const answer = await api("GET", "/api/history?limit=50");
+  if (!answer || !answer.ok) return;
+  const moves = answer.moves.filter((m) => m.reached_m !== null && m.target_m !== null);
+  plot($("history"), [
+    { points: moves.map((m) => [m.id, (m.reached_m - m.target_m) * UM]), color: "#1565c0", dots: true },
+  ], "move id");
+}
+
+function drawTrajectory() {
+  const t0 = trajectory.length ? trajectory[0][0] : 0;
+  const series = [{ points: trajectory.map((p) => [p[0] - t0, p[1] * UM]), color: "#1565c0" }];
+  if (hasPoses()) series.push({ points: trajectory.map((p) => [p[0] - t0, p[2] * UM]), color: "#2e7d32" });
+  plot($("trajectory"), series, "time (s)" + (hasPoses() ? ": x blue, y green" : ""));
+}
+
+connect();
+loadHistory();
+drawTrajectory();

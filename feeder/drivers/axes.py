@@ -1,0 +1,149 @@
+"""The plate's three axes (x, y, θ) on one amplifier: one driver per axis, one shared link.
+
+- ANC300 (serial or TCP console): :func:`open_anc300_axes` puts one
+  :class:`~feeder.drivers.anc300.Anc300Amplifier` per axis on one
+  :class:`~feeder.drivers.anc300.Anc300Link` (its lock serialises the axes'
+  commands); only a real ANC300's verbs are sent (the strict dialect).
+- CANopen: :func:`open_canopen_axes` puts one
+  :class:`~feeder.drivers.canopen.CanopenAmplifier` per axis on one
+  :class:`canopen.Network`: one axis per node (the packaged EDS), node id =
+  ``node_id`` + axis − 1, as firmware_sim's ``--can-node-id-base``.
+
+Both take the same ``axis_map`` (plate axis name → amplifier axis number) and
+return an :class:`Axes`, a ``dict[str, Amplifier]`` that also stops and
+grounds every axis at once and grounds them all when closed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Mapping
+from types import TracebackType
+from typing import Any
+
+import canopen
+
+from feeder.drivers.amplifier import Amplifier, AmplifierError
+from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
+from feeder.drivers.canopen import CanopenAmplifier
+from feeder.errors import InputError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_AXIS_MAP: Mapping[str, int] = {"x": 1, "y": 2, "theta": 3}
+"""Plate axis → amplifier axis (ANC300 axes 1–3; CAN: node base + n − 1, or axis n of one node)."""
+PLATE_AXES = tuple(DEFAULT_AXIS_MAP)
+MAX_AXIS = 7
+"""An ANC300 rack has 7 slots; firmware_sim has as many."""
+
+
+def check_axis_map(axis_map: Mapping[str, int], field: str = "axis_map") -> dict[str, int]:
+    """``axis_map`` checked: plate axes of :data:`PLATE_AXES`, distinct numbers in 1..7."""
+    unknown = sorted(set(axis_map) - set(PLATE_AXES))
+    if unknown:
+        raise InputError(field, f"unknown plate axis {unknown[0]!r} (expected {', '.join(PLATE_AXES)})")
+    numbers = list(axis_map.values())
+    for name, number in axis_map.items():
+        if isinstance(number, bool) or not isinstance(number, int) or not 1 <= number <= MAX_AXIS:
+            raise InputError(f"{field}.{name}", f"expected an axis number 1..{MAX_AXIS}, got {number!r}")
+    if len(set(numbers)) != len(numbers):
+        raise InputError(field, f"two plate axes on one amplifier axis: {dict(axis_map)}")
+    if not axis_map:
+        raise InputError(field, "no axis")
+    return dict(axis_map)
+
+
+class Axes(dict[str, Amplifier]):
+    """The plate's axes by name (``"x"``, ``"y"``, ``"theta"``): a dict of drivers.
+
+    :meth:`stop` and :meth:`ground` act on every axis (each axis is tried even when
+    another fails; the first error is raised after).  :meth:`close` grounds every
+    axis (the safe state), then releases the drivers and the shared link.
+    """
+
+    def __init__(self, drivers: Mapping[str, Amplifier], close_link: Any = None) -> None:
+        super().__init__(drivers)
+        self._close_link = close_link
+        self._closed = False
+
+    def stop(self) -> None:
+        """Stop every axis."""
+        self._each(lambda amp: amp.stop())
+
+    def ground(self) -> None:
+        """Ground every axis."""
+        self._each(lambda amp: amp.ground())
+
+    def _each(self, action: Any) -> None:
+        first: AmplifierError | None = None
+        for name, amp in self.items():
+            try:
+                action(amp)
+            except AmplifierError as exc:
+                log.warning("axis %s: %s", name, exc)
+                first = first or exc
+        if first is not None:
+            raise first
+
+    def close(self) -> None:
+        """Ground every axis (best effort: a lost link cannot), release drivers and link."""
+        if self._closed:
+            return
+        with contextlib.suppress(AmplifierError):
+            self.ground()
+        self.release()
+
+    def release(self) -> None:
+        """Release the drivers and the shared link without touching the outputs (a link
+        that may lead to another device now, e.g. a restarted simulator's old pty)."""
+        if self._closed:
+            return
+        self._closed = True
+        for amp in self.values():
+            amp.close()
+        if self._close_link is not None:
+            self._close_link()
+
+    def __enter__(self) -> Axes:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+def open_anc300_axes(link: Anc300Link, axis_map: Mapping[str, int] = DEFAULT_AXIS_MAP) -> Axes:
+    """One :class:`Anc300Amplifier` per plate axis on the shared ``link`` (ANC300 axes 1–3 by default)."""
+    axes = check_axis_map(axis_map)
+    return Axes({name: Anc300Amplifier(link, axis=number) for name, number in axes.items()}, link.close)
+
+
+def open_canopen_axes(
+    bus: Mapping[str, Any],
+    axis_map: Mapping[str, int] = DEFAULT_AXIS_MAP,
+    node_id: int = 1,
+    **options: Any,
+) -> Axes:
+    """One :class:`CanopenAmplifier` per plate axis on one shared network.
+
+    bus: python-can keyword arguments; node_id: the node of amplifier axis 1 (axis n
+    is node ``node_id`` + n − 1, one axis per node as the packaged EDS says);
+    options: :class:`CanopenAmplifier`'s (heartbeat_s, timeout_s, supervise_host, ...).
+    """
+    axes = check_axis_map(axis_map)
+    if not 1 <= node_id <= 128 - max(axes.values()):
+        raise InputError("node_id", f"node ids from {node_id} for axes {axes} leave CANopen's 1..127")
+    network = canopen.Network()
+    network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
+    network.connect(**dict(bus))
+    drivers: dict[str, Amplifier] = {}
+    with contextlib.ExitStack() as undo:  # a node that does not answer: release the others
+        undo.callback(network.disconnect)
+        for name, number in axes.items():
+            driver = CanopenAmplifier(bus, node_id + number - 1, network=network, **options)
+            undo.callback(driver.close)
+            drivers[name] = driver
+        undo.pop_all()
+    return Axes(drivers, network.disconnect)

@@ -1,0 +1,416 @@
+"""Which axis to step next, which way, in which mode, how often: pose control (docs/pose-control.md).
+
+Pure: poses in, a burst (or the verdict) out; no I/O, no clock.  x and y
+steps translate every part equally; a θ step turns the plate about O, which
+turns and orbits the parts outside the dead zone and leaves those inside it
+stuck (:mod:`feeder.pose_response`).  One part: turn first (at a *station*
+outside the dead zone, moving there if needed), then translate to the target
+(the turn's orbit is corrected by the translations; translations never turn).
+Every burst aims short with a pessimistic (mean + 2σ) step, like the 1-D
+policy, and is cut where its pessimistic path would leave the travel.
+Two parts: see :mod:`feeder.pose_pair`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from feeder.plant.planar import PlanarPart
+from feeder.pose import Pose
+from feeder.pose_response import ResponseModel, physical_period_rad
+from feeder.vision.model import angle_difference
+
+AXES = ("x", "y", "theta")
+DEFAULT_TOLERANCE_M = 1e-6
+DEFAULT_TOLERANCE_RAD = math.radians(0.1)
+STATION_BAND_M = 40e-6
+"""A part within this of its turning station's radius turns there."""
+STATION_DIRECTIONS = 36
+MAX_BURST_STEPS = 2000
+
+
+@dataclass(frozen=True)
+class AxisBurst:
+    """``steps`` steps of ``axis`` in ``direction`` (+1/−1) with the waveform ``mode`` (coarse|fine)."""
+
+    axis: str
+    direction: int
+    steps: int
+    mode: str
+
+
+@dataclass(frozen=True)
+class Finish:
+    """The move is over: status "done" (every target within tolerance) or "unreachable" with the reason."""
+
+    status: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class Travel:
+    """Where a part's centre may go, plate frame: (lo, hi) in x and in y (m)."""
+
+    x_m: tuple[float, float]
+    y_m: tuple[float, float]
+
+    def contains(self, x_m: float, y_m: float, margin_m: float = 0.0) -> bool:
+        return (
+            self.x_m[0] + margin_m <= x_m <= self.x_m[1] - margin_m
+            and self.y_m[0] + margin_m <= y_m <= self.y_m[1] - margin_m
+        )
+
+    def json(self) -> dict[str, list[float]]:
+        return {"x": list(self.x_m), "y": list(self.y_m)}
+
+
+@dataclass
+class _Job:
+    targets: dict[int, Pose]
+    bursts: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+class PosePlanner:
+    """The next burst from measured poses and target poses (part id → pose; ids count from 1).
+
+    model: per-step response, seeded from the plant and learned online.
+    travel: the centre's allowed range.  tolerance_m: radius around the target
+    centre; tolerance_rad: angle, modulo ``symmetry_rad`` (default: the part's
+    physical symmetry; 2π for a marked part, 0 for a disc: any angle).
+    part: the geometry (footprint, for the symmetry and the overlap check).
+    """
+
+    def __init__(
+        self,
+        model: ResponseModel,
+        travel: Travel,
+        part: PlanarPart,
+        tolerance_m: float = DEFAULT_TOLERANCE_M,
+        tolerance_rad: float = DEFAULT_TOLERANCE_RAD,
+        symmetry_rad: float | None = None,
+        max_bursts: int = 400,
+    ) -> None:
+        self.model = model
+        self.travel = travel
+        self.part = part
+        self.tolerance_m = tolerance_m
+        self.tolerance_rad = tolerance_rad
+        self.symmetry_rad = physical_period_rad(part) if symmetry_rad is None else symmetry_rad
+        self.max_bursts = max_bursts
+        self._job: _Job | None = None
+        self.station_radius_m = self._station_radius()
+
+    # --- the contract ------------------------------------------------------
+    def check(self, targets: dict[int, Pose], poses: list[Pose]) -> str | None:
+        """Why these targets cannot be reached from these poses, or None."""
+        for pid, target in targets.items():
+            if not 1 <= pid <= len(poses):
+                return f"part {pid} is not on the plate ({len(poses)} parts seen)"
+            if not self.travel.contains(target[0], target[1]):
+                return (
+                    f"target of part {pid} at ({target[0]:.4g}, {target[1]:.4g}) m lies outside the travel "
+                    f"x {self.travel.x_m} m, y {self.travel.y_m} m"
+                )
+        if len(targets) > 2:
+            return "at most two parts can be placed together"
+        if len(targets) == 2:
+            from feeder.pose_pair import pair_refusal
+
+            return pair_refusal(self, targets, poses)
+        pid, target = next(iter(targets.items()))
+        if (
+            self.symmetry_rad > 0
+            and abs(self.angle_error(poses[pid - 1], target)) > self.tolerance_rad
+            and self.station_radius_m is None
+        ):
+            return "no θ mode turns the part anywhere within the travel"
+        return None
+
+    def next_burst(self, poses: list[Pose], targets: dict[int, Pose]) -> AxisBurst | Finish:
+        """The next burst towards ``targets``, or Finish."""
+        if self._job is None or self._job.targets != targets:
+            self._job = _Job(dict(targets))
+            reason = self.check(targets, poses)
+            if reason is not None:
+                return Finish("unreachable", reason)
+        if self._job.bursts >= self.max_bursts:
+            return Finish("unreachable", f"no convergence after {self._job.bursts} bursts")
+        if len(targets) == 2:
+            from feeder.pose_pair import next_pair_burst
+
+            nxt = next_pair_burst(self, poses, targets)
+        else:
+            pid, target = next(iter(targets.items()))
+            nxt = self.part_burst(poses, pid - 1, target)
+        if nxt is None:
+            return Finish("done", "every part within tolerance")
+        if isinstance(nxt, AxisBurst):
+            self._job.bursts += 1
+        return nxt
+
+    def learn(self, burst: AxisBurst, before: list[Pose], after: list[Pose]) -> None:
+        """Fold in what ``burst`` did to every part."""
+        for b, a in zip(before, after, strict=True):
+            unwrapped = (a[0], a[1], b[2] + self._angle_difference(a[2], b[2]))
+            self.model.learn(burst.axis, burst.direction, burst.mode, burst.steps, b, unwrapped)
+
+    def estimates_json(self) -> dict[str, object]:
+        return {"gains": self.model.estimates_json(), "station_radius_m": self.station_radius_m}
+
+    # --- one part ----------------------------------------------------------
+    def part_burst(
+        self, poses: list[Pose], i: int, target: Pose, anchored: tuple[int, ...] = ()
+    ) -> AxisBurst | Finish | None:
+        """Next burst for part ``i`` alone (None: within tolerance); ``anchored`` parts must not turn."""
+        pose = poses[i]
+        distance = math.hypot(pose[0] - target[0], pose[1] - target[1])
+        turn = self.angle_error(pose, target)
+        if abs(turn) > self.tolerance_rad:
+            return self.turn_burst(poses, i, turn, target[:2], anchored)
+        if distance > self.tolerance_m:
+            return self.translate_burst(poses, i, (target[0], target[1]), exact=True)
+        return None
+
+    def turn_burst(
+        self,
+        poses: list[Pose],
+        i: int,
+        turn: float,
+        then_xy: tuple[float, float],
+        anchored: tuple[int, ...] = (),
+    ) -> AxisBurst | Finish:
+        """Turn part ``i`` by ``turn`` rad: here if it can, else move to a station first."""
+        pose = poses[i]
+        self.station_radius_m = self._station_radius()
+        if self.station_radius_m is None:
+            return Finish("unreachable", "no θ mode turns the part anywhere within the travel")
+        if self._turns_here(pose):
+            burst = self.theta_burst(poses, i, turn, anchored)
+            if burst is not None:
+                return burst
+        station = self._station(poses, i, turn, then_xy)
+        if station is None:
+            return Finish(
+                "unreachable",
+                "no turning station (radius "
+                f"{self.station_radius_m:.3g} m) whose turn stays within the travel",
+            )
+        return self.translate_burst(poses, i, station, exact=False)
+
+    def translate_burst(
+        self, poses: list[Pose], i: int, goal: tuple[float, float], exact: bool
+    ) -> AxisBurst | Finish:
+        """x or y burst bringing part ``i`` towards ``goal``; ``exact``: aim short, end with fine steps."""
+        pose = poses[i]
+        errors = {"x": goal[0] - pose[0], "y": goal[1] - pose[1]}
+        for axis in sorted(errors, key=lambda a: -abs(errors[a])):
+            error = errors[axis]
+            if error == 0:
+                continue
+            direction = 1 if error > 0 else -1
+            burst = self._axis_burst(poses, axis, direction, abs(error), exact)
+            if burst is not None:
+                return burst
+        if not exact:  # the station is within a step of here: turn here after all
+            return Finish("unreachable", "the turning station is closer than one step")
+        return Finish(
+            "unreachable",
+            f"fine steps cannot bring part {i + 1} within {self.tolerance_m:.3g} m "
+            f"of ({goal[0]:.4g}, {goal[1]:.4g}) m within the travel",
+        )
+
+    # --- pieces ------------------------------------------------------------
+    def _axis_burst(
+        self, poses: list[Pose], axis: str, direction: int, distance: float, exact: bool
+    ) -> AxisBurst | None:
+        modes = self.model.modes(axis)
+        fine = modes[-1]
+        fine_step, _ = self.model.step_m(axis, direction, fine)
+        for mode in modes:
+            step, std = self.model.step_m(axis, direction, mode)
+            high = step + 2 * std
+            if mode != fine and step > fine_step:
+                steps = math.floor(distance / high) - 1 if exact else round(distance / step)
+            elif mode == fine:
+                steps = round(distance / max(step, 1e-12))
+            else:
+                continue
+            steps = self._within_travel(poses, axis, direction, high, min(steps, MAX_BURST_STEPS))
+            if steps >= 1:
+                return AxisBurst(axis, direction, steps, mode)
+        return None
+
+    def _within_travel(self, poses: list[Pose], axis: str, direction: int, high: float, steps: int) -> int:
+        """``steps`` cut so that every part's pessimistic end stays within the travel."""
+        k = 0 if axis == "x" else 1
+        lo, hi = self.travel.x_m if axis == "x" else self.travel.y_m
+        for p in poses:
+            room = (hi - p[k]) if direction > 0 else (p[k] - lo)
+            steps = min(steps, math.floor(max(room, 0.0) / high))
+        return steps
+
+    def theta_burst(
+        self, poses: list[Pose], i: int, amount: float, anchored: tuple[int, ...] = (), quantity: str = "turn"
+    ) -> AxisBurst | None:
+        """A θ burst that turns (or orbits, ``quantity`` "orbit") part ``i`` by up to ``amount`` rad.
+
+        None: no mode moves it by a useful amount here, or not even one step fits the travel.
+        """
+        direction = 1 if amount > 0 else -1
+        need = abs(amount)
+        if quantity == "turn" and self.symmetry_rad > 0:  # unambiguous to measure modulo the symmetry
+            need = min(need, 0.3 * self.symmetry_rad)
+        modes = self.model.modes("theta")
+        fine = modes[-1]
+        pose = poses[i]
+        r = math.hypot(pose[0], pose[1])
+
+        def per_step(mode: str) -> tuple[float, float]:
+            s = self.model.turn_step(direction, mode, *pose)
+            if quantity == "turn":
+                return abs(s.turn_rad), s.turn_std_rad
+            return abs(s.orbit_rad), s.orbit_std_rad
+
+        useful = 0.25 * (self.tolerance_rad if quantity == "turn" else self.tolerance_m / max(r, 1e-9))
+        fine_step = per_step(fine)[0]
+        for mode in modes:
+            step, std = per_step(mode)
+            if (mode != fine and step <= fine_step) or step < useful:
+                continue
+            scale = 1 + 2 * std / step
+            steps = self._theta_count(pose, direction, mode, need, scale, mode != fine, quantity)
+            steps = self._theta_within(poses, direction, mode, steps, scale, anchored)
+            if steps >= 1:
+                return AxisBurst("theta", direction, steps, mode)
+        return None
+
+    def _theta_count(
+        self,
+        pose: Pose,
+        direction: int,
+        mode: str,
+        need: float,
+        scale: float,
+        short: bool,
+        quantity: str = "turn",
+    ) -> int:
+        """Steps that turn (orbit) by ``need``: the pessimistic count less one (short), or the nearest."""
+        x, y, psi = pose
+        done, previous = 0.0, 0.0
+        for n in range(1, MAX_BURST_STEPS + 1):
+            s = self.model.turn_step(direction, mode, x, y, psi)
+            step = abs(s.turn_rad if quantity == "turn" else s.orbit_rad)
+            if step < 1e-9:
+                return 0
+            done += step * (scale if short else 1.0)
+            x, y, psi = self.model.predict("theta", direction, mode, 1, (x, y, psi))
+            if short and done > need:
+                return n - 2
+            if not short and done >= need:
+                return n if done - need < need - previous else n - 1
+            previous = done
+        return MAX_BURST_STEPS
+
+    def _theta_within(
+        self,
+        poses: list[Pose],
+        direction: int,
+        mode: str,
+        steps: int,
+        scale: float,
+        anchored: tuple[int, ...],
+    ) -> int:
+        """``steps`` cut where some part's pessimistic orbit leaves the travel or an anchored part moves."""
+        if steps < 1:
+            return steps
+        states = list(poses)
+        for n in range(1, steps + 1):
+            for k, p in enumerate(states):
+                nxt = self.model.predict("theta", direction, mode, 1, p, scale)
+                if not self.travel.contains(nxt[0], nxt[1]):
+                    return n - 1
+                if k in anchored and (
+                    math.hypot(nxt[0] - poses[k][0], nxt[1] - poses[k][1]) > 0.2 * self.tolerance_m
+                    or abs(nxt[2] - poses[k][2]) > 0.2 * self.tolerance_rad
+                ):
+                    return n - 1
+                states[k] = nxt
+        return steps
+
+    def turn_rate(self, pose: Pose, mode: str) -> float:
+        """|turn| per step of ``mode`` at ``pose`` (the larger of the two directions)."""
+        return max(abs(self.model.turn_step(d, mode, *pose).turn_rad) for d in (1, -1))
+
+    def _turns_here(self, pose: Pose) -> bool:
+        """At (or beyond) the station radius the fine θ mode turns the part by 1/4 … 2 tolerances per step."""
+        assert self.station_radius_m is not None
+        r = math.hypot(pose[0], pose[1])
+        if abs(r - self.station_radius_m) <= STATION_BAND_M:
+            return True
+        fine = self.turn_rate(pose, self.model.modes("theta")[-1])
+        return r > self.station_radius_m and 0.25 * self.tolerance_rad <= fine <= 2 * self.tolerance_rad
+
+    def _station_radius(self) -> float | None:
+        """Grid radius nearest O where the fine θ mode turns by ¼ … 1.8 tolerances for every
+        orientation (O itself where the drive turns a part in place): the shortest trip out of
+        the dead zone, and the smallest orbit (r·Δφ) for the x and y moves to correct.
+
+        From the learned model: a dead zone larger than the seed's moves the station out.
+        """
+        modes = self.model.modes("theta")
+        if not modes:
+            return None
+        fine = modes[-1]
+        corner = max(math.hypot(x, y) for x in self.travel.x_m for y in self.travel.y_m)
+        radii = [r for r in self.model.turn[fine].radii_m if 0 <= r < corner]
+        ranges = {r: self.model.turn_range(fine, r) for r in radii}
+        usable = [r for r in radii if ranges[r][0] >= 0.25 * self.tolerance_rad]
+        within = [r for r in usable if ranges[r][1] <= 1.8 * self.tolerance_rad]
+        if within:
+            return min(within)
+        # the finest turn there is, even if coarser than the tolerance wants
+        return min(usable, key=lambda r: ranges[r][1]) if usable else None
+
+    def _station(
+        self, poses: list[Pose], i: int, turn: float, then_xy: tuple[float, float]
+    ) -> tuple[float, float] | None:
+        """The point on the station circle on the way to ``then_xy`` whose turn fits the travel."""
+        assert self.station_radius_m is not None
+        pose = poses[i]
+        r_s = self.station_radius_m
+        direction = 1 if turn > 0 else -1
+        coarse = self.model.modes("theta")[0]
+        best: tuple[float, tuple[float, float]] | None = None
+        for k in range(STATION_DIRECTIONS):
+            a = 2 * math.pi * k / STATION_DIRECTIONS
+            start = (r_s * math.cos(a), r_s * math.sin(a), pose[2])
+            if not self.travel.contains(start[0], start[1]):
+                continue
+            steps = self._theta_count(start, direction, coarse, abs(turn), 1.0, short=False)
+            end, ok = start, True
+            for _ in range(steps):  # the whole turn, 30 % long, must fit
+                end = self.model.predict("theta", direction, coarse, 1, end, 1.3)
+                if not self.travel.contains(end[0], end[1]):
+                    ok = False
+                    break
+            if not ok:
+                continue
+            cost = math.hypot(start[0] - pose[0], start[1] - pose[1]) + math.hypot(
+                end[0] - then_xy[0], end[1] - then_xy[1]
+            )
+            if best is None or cost < best[0]:
+                best = (cost, (start[0], start[1]))
+        return None if best is None else best[1]
+
+    def angle_error(self, pose: Pose, target: Pose) -> float:
+        """Signed turn target − pose (rad) modulo the symmetry; 0 for a disc or a NaN (any) target angle."""
+        if math.isnan(target[2]):
+            return 0.0
+        return self._angle_difference(target[2], pose[2])
+
+    def _angle_difference(self, a: float, b: float) -> float:
+        if self.symmetry_rad <= 0:
+            return 0.0
+        return angle_difference(a, b, self.symmetry_rad)

@@ -1,0 +1,65 @@
+"""Hardware in the loop in the plane: the daemon ↔ three amplifier axes (strict ANC300 console
+on a pty, or CANopen over slcan) ↔ firmware_sim's planar plant ↔ its camera ↔ the daemon's
+locating.  Targets are checked against the simulator's truth, not only the camera."""
+
+from __future__ import annotations
+
+import math
+import random
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from feeder.cli.demo_plane import config_for, true_poses
+from feeder.daemon.client import Client
+from feeder.daemon.runner import RunningDaemon, start_daemon
+from feeder.parts import Part
+from feeder.pose import Pose, pose_error
+
+pytest.importorskip("cv2", reason="the camera needs OpenCV (the vision extra)")
+pytestmark = pytest.mark.timeout(420)
+
+PART = Part.parse("300x300x50")
+SQUARE = math.pi / 2
+
+
+def random_targets(count: int, seed: int) -> list[Pose]:
+    """Reachable targets: centres within ±1.5 mm (the travel is ±2.5 mm), angles within ±40°."""
+    rng = random.Random(seed)
+    return [
+        (rng.uniform(-1.5e-3, 1.5e-3), rng.uniform(-1.5e-3, 1.5e-3), rng.uniform(-0.7, 0.7))
+        for _ in range(count)
+    ]
+
+
+@pytest.fixture(params=["serial", "can"])
+def plane(request: pytest.FixtureRequest) -> Iterator[tuple[RunningDaemon, Client]]:
+    base = Path(tempfile.mkdtemp(prefix="fplane"))
+    running = start_daemon(config_for(PART, request.param, base))
+    try:
+        with Client(running.daemon.setup.socket_path, timeout_s=180.0) as client:
+            yield running, client
+    finally:
+        running.stop()
+        shutil.rmtree(base, ignore_errors=True)
+
+
+def test_a_part_reaches_five_random_poses_by_the_simulators_truth(
+    plane: tuple[RunningDaemon, Client],
+) -> None:
+    _, client = plane
+    status = client.status().raw
+    tol_m, tol_rad = status["tolerance_m"], status["tolerance_rad"]
+    for target in random_targets(5, seed=16):
+        result = client.move_to_pose(*target, timeout_s=180.0)
+        truth = true_poses(client.request("status"))[0]
+        true_m, true_rad = pose_error(truth, target, SQUARE)
+        assert result.error_m is not None and result.error_rad is not None
+        assert result.error_m <= tol_m and result.error_rad <= tol_rad, result.raw
+        assert true_m <= tol_m and true_rad <= tol_rad, (target, truth, result.raw)
+    history = client.history(5)
+    assert [r.raw["target_pose"] for r in history] == [list(t) for t in random_targets(5, seed=16)]
+    assert all(r.status == "done" and r.raw["reached_pose"] is not None for r in history)
