@@ -563,7 +563,7 @@ def _fade(st: np.ndarray, pp: np.ndarray, radius: float, nodes: np.ndarray, seg:
         norm = _dp5_step(True, *args, z, h, ks, z_new)
         if norm == np.inf:  # a stage where the twist turns
             h *= 0.25
-            if h < 1e-4:
+            if h < 1e-2:  # turning: it will not vanish straight, continue in time
                 return _LEFT
             continue
         if norm >= 1:
