@@ -1,4 +1,5 @@
-"""The compiled kernels (numba, extra ``fast``) against the numpy path: same results to rounding."""
+"""The compiled kernels (numba, extra ``fast``) against the numpy/scipy path: same results to rounding
+(1-D) or to the integrators' tolerance (planar)."""
 
 from __future__ import annotations
 
@@ -7,9 +8,14 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from feeder.plant import kernels
+from feeder.parts import Part
+from feeder.plant import kernels, planar_kernels
 from feeder.plant.ideal_plate import sawtooth_motion
+from feeder.plant.limit_surface import Patch
+from feeder.plant.planar import PlanarPart, simulate
+from feeder.plant.planar_plant import PlanarPlant
 from feeder.plant.plant import Plant
+from feeder.plant.plate_motion import sawtooth as planar_sawtooth
 from feeder.plant.stick_slip import Friction, StickSlip
 from feeder.waveform import Waveform
 
@@ -112,3 +118,66 @@ def test_rectangle_integrals_compiled_equal_plain_python() -> None:
         slow = kernels.rectangle_integrals.py_func(wx, wy, omega, 150e-6, 100e-6)
         np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=0)
         assert fast[3] > 0  # dissipated power
+
+
+# --- planar stick-slip: the compiled solver (planar_kernels) against the scipy reference -----------
+
+
+PLANAR_PART = Part.parse("300x200x50")
+
+
+@pytest.mark.parametrize("pose, stroke, shape, ratio", [
+    ((2e-3, 0.0, 0.0), (0.0, 0.0, 7e-3), "linear", 0.8),  # far from O: orbits and turns
+    ((0.0, 0.0, 0.2), (0.0, 0.0, 0.1), "linear", 0.8),  # at O: turns in place
+    ((2e-3, 0.0, 0.0), (0.0, 0.0, 7e-3), "half-cosine", 1.0),  # breakaway from stick (Brent, gauge)
+    ((1e-3, -1e-3, 0.0), (5e-6, 0.0, 7e-3), "linear", 0.8),  # x and θ at once
+    ((1e-3, 0.5e-3, 0.6), (14e-6, 0.0, 0.0), "half-cosine", 1.0),  # x through the general integrator
+])  # fmt: skip
+def test_planar_compiled_equals_reference(both, pose, stroke, shape, ratio) -> None:
+    part = PlanarPart.from_part(PLANAR_PART, Friction(105.25, ratio), pose)
+    motion = planar_sawtooth(stroke, 100.0, 3.5e-4, shape, 3)
+    slow, fast = both(lambda: simulate([part], motion))
+    step = np.abs(slow.changes).max(axis=(0, 1))
+    assert step.max() > 1e-6  # it moved
+    # integrators of different order (DP5, DOP853) at rtol 1e-10: within 1e-7 of a step
+    np.testing.assert_allclose(fast.changes[..., :2], slow.changes[..., :2], rtol=0,
+                               atol=1e-7 * max(step[:2].max(), 1e-6))  # fmt: skip
+    np.testing.assert_allclose(fast.changes[..., 2], slow.changes[..., 2], rtol=0, atol=1e-7 * step[2])
+    np.testing.assert_allclose(fast.slip_fraction, slow.slip_fraction, rtol=1e-6)
+
+
+def test_planar_plant_compiled_equals_reference_in_1ms_ticks(both) -> None:
+    """PlanarPlant, firmware-like chunks, x, y and θ live, two parts (one a disc) at rtol 1e-10."""
+    waveform = Waveform(frequency_hz=100.0, amplitude_vpp=200.0)
+    index = np.arange(1, 2501)
+    line = waveform.voltage_at_phase((index % 1000) / 1000)
+    command = np.stack([line, 0.5 * line, line])
+    friction = Friction(105.25, 0.8)
+    disc = PlanarPart.from_part(Part.parse("200x200x50"), friction, (-1e-3, 1e-3, 0.0), shape="disc")
+    parts = [PlanarPart.from_part(PLANAR_PART, friction, (2e-3, 0.0, 0.0)), disc]
+
+    def run() -> tuple[np.ndarray, list[float], tuple[float, float, float]]:
+        plant = PlanarPlant(parts, rtol=1e-10)
+        lab = np.concatenate([plant.advance(c) for c in np.split(command, 25, axis=1)], axis=1)
+        return lab, plant.contact.slip_time_s, plant.output_voltages_v
+
+    (slow, slip0, v0), (fast, slip1, v1) = both(run)
+    assert np.ptp(slow[0, :, 2]) > 1e-3 and min(slip0) > 0  # both parts slipped, the first turned
+    np.testing.assert_allclose(fast[..., :2], slow[..., :2], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast[..., 2], slow[..., 2], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(slip1, slip0, rtol=1e-6)
+    np.testing.assert_allclose(v1, v0, rtol=0, atol=1e-9)
+
+
+def test_planar_gauge_compiled_equals_scipy() -> None:
+    """The compiled BFGS gauge finds the scipy one's limit-surface point (rectangle and disc)."""
+    for patch in (Patch("rectangle", 300e-6, 200e-6), Patch("disc", 200e-6, 200e-6)):
+        params = planar_kernels.part_params(patch.shape == "disc", patch.length_m, patch.width_m, 1e-9,
+                                            1e-17, 100.0, 0.8, patch.area_m2, patch.polar_m3,
+                                            patch.second_moments_m4, 1e-10)  # fmt: skip
+        for wrench in [(1e-7, 0.0, 1e-11), (0.5e-7, 0.3e-7, -2e-11), (1e-8, -2e-9, 3e-13), (0.0, 0.0, 1e-11)]:
+            g, wx, wy, om = planar_kernels.gauge(params, patch.radius_m, planar_kernels.DISC_NODES, *wrench)
+            ref, _ = patch.gauge(*wrench)
+            assert g == pytest.approx(ref, rel=1e-9)
+            ux, uy, mu, _ = patch.integrals(wx, wy, om)
+            np.testing.assert_allclose(np.array([ux, uy, mu]) * g, wrench, rtol=1e-6, atol=1e-6 * max(wrench))

@@ -167,34 +167,61 @@ def plant_run(command: np.ndarray, coef: np.ndarray, z: np.ndarray, plate: np.nd
 
 
 @_jit
-def _corner_x(x: float, y: float) -> float:
-    """Corner function of ∫∫ x/r dx dy."""
-    r = math.hypot(x, y)
-    return 0.5 * (y * r + (x * x * math.asinh(y / abs(x)) if x else 0.0))
+def drive_run(command: np.ndarray, coef: np.ndarray, z: np.ndarray, volts: np.ndarray, scale: np.ndarray,
+              velocity: np.ndarray) -> None:  # fmt: skip
+    """Several channels' output stage and stack filter (as :func:`plant_run`, no contact), sample by sample.
+
+    command (channels, n) in V; coef, z: per channel as :func:`plant_run`
+    (rows); volts: each output's voltage, updated; scale: each channel's
+    factor from stack velocity to plate velocity; velocity (channels, n) out.
+    """
+    for c in range(command.shape[0]):
+        cf, zc = coef[c], z[c]
+        lo, hi, d = cf[0], cf[1], cf[2]
+        pb0, pb1, pb2, pb3, pa1, pa2, pa3 = cf[3], cf[4], cf[5], cf[6], cf[8], cf[9], cf[10]
+        vb0, vb1, vb2, vb3, va1, va2, va3 = cf[11], cf[12], cf[13], cf[14], cf[16], cf[17], cf[18]
+        p0, p1, p2, q0, q1, q2 = zc[0], zc[1], zc[2], zc[3], zc[4], zc[5]
+        y, k = volts[c], scale[c]
+        for i in range(command.shape[1]):
+            u = min(max(command[c, i], lo), hi)
+            y = min(max(u, y - d), y + d)  # rails, then the slope limit
+            x = pb0 * y + p0
+            p0 = pb1 * y + p1 - pa1 * x
+            p1 = pb2 * y + p2 - pa2 * x
+            p2 = pb3 * y - pa3 * x
+            v = vb0 * y + q0
+            q0 = vb1 * y + q1 - va1 * v
+            q1 = vb2 * y + q2 - va2 * v
+            q2 = vb3 * y - va3 * v
+            velocity[c, i] = v * k
+        zc[0], zc[1], zc[2], zc[3], zc[4], zc[5] = p0, p1, p2, q0, q1, q2
+        volts[c] = y
 
 
 @_jit
-def _corner_r(x: float, y: float) -> float:
-    """Corner function of ∫∫ r dx dy."""
-    r = math.hypot(x, y)
-    out = x * y * r / 3.0
-    if x:
-        out += x**3 * math.asinh(y / abs(x)) / 6.0
-    if y:
-        out += y**3 * math.asinh(x / abs(y)) / 6.0
-    return out
+def _asinh_ratio(y: float, x: float, r: float) -> float:
+    """asinh(y/|x|) for x ≠ 0, r = √(x² + y²): log1p of an exact small argument (no cancellation)."""
+    ax = abs(x)
+    return math.copysign(math.log1p((abs(y) + y * y / (r + ax)) / ax), y)
 
 
 @_jit
-def _box_x(x1: float, x2: float, y1: float, y2: float) -> float:
-    """∫∫ x/r over [x1, x2] × [y1, y2]."""
-    return _corner_x(x2, y2) - _corner_x(x1, y2) - _corner_x(x2, y1) + _corner_x(x1, y1)
+def _corners(x: float, y: float) -> tuple[float, float, float]:
+    """Corner functions of ∫∫ x/r, ∫∫ y/r and ∫∫ r dx dy at (x, y), sharing r and the two logarithms."""
+    r = math.hypot(x, y)
+    lx = _asinh_ratio(y, x, r) if x else 0.0
+    ly = _asinh_ratio(x, y, r) if y else 0.0
+    return (
+        0.5 * (y * r + x * x * lx),
+        0.5 * (x * r + y * y * ly),
+        x * y * r / 3.0 + (x**3 * lx + y**3 * ly) / 6.0,
+    )
 
 
 @_jit
 def box_r(x1: float, x2: float, y1: float, y2: float) -> float:
     """∫∫ r over [x1, x2] × [y1, y2]."""
-    return _corner_r(x2, y2) - _corner_r(x1, y2) - _corner_r(x2, y1) + _corner_r(x1, y1)
+    return _corners(x2, y2)[2] - _corners(x1, y2)[2] - _corners(x2, y1)[2] + _corners(x1, y1)[2]
 
 
 @_jit
@@ -203,13 +230,15 @@ def rectangle_integrals(wx: float, wy: float, omega: float, a: float,
     """:meth:`feeder.plant.limit_surface.Patch.integrals` of the rectangle [−a, a] × [−b, b], ω ≠ 0.
 
     In closed form about the instantaneous centre of rotation ρ_c = ẑ×w/ω
-    (corner functions of ∫∫x/r and ∫∫r).
+    (corner functions of ∫∫x/r, ∫∫y/r and ∫∫r at the four corners).
     """
     xc, yc = -wy / omega, wx / omega
     x1, x2, y1, y2 = -a - xc, a - xc, -b - yc, b - yc
-    ix = _box_x(x1, x2, y1, y2)
-    iy = _box_x(y1, y2, x1, x2)  # ∫∫ y/r: the same function, axes swapped
-    ir = box_r(x1, x2, y1, y2)
+    ax, ay, ar = _corners(x2, y2)
+    bx, by, br = _corners(x1, y2)
+    cx, cy, cr = _corners(x2, y1)
+    dx, dy, dr = _corners(x1, y1)
+    ix, iy, ir = ax - bx - cx + dx, ay - by - cy + dy, ar - br - cr + dr
     sign = math.copysign(1.0, omega)
     return -sign * iy, sign * ix, sign * (ir + xc * ix + yc * iy), abs(omega) * ir
 

@@ -23,6 +23,10 @@ x or y drive) the segment is solved in the 1-D closed form of
 :func:`feeder.plant.stick_slip.advance_interval` (its scalar form,
 :func:`feeder.plant.kernels.contact_interval`), so a pure translation is the
 1-D model (DESIGN §4) to rounding.
+
+With numba (extra ``fast``; :func:`feeder.plant.kernels.enabled`) the same
+solver runs compiled on arrays (:mod:`feeder.plant.planar_kernels`); the code
+here is the reference and the fallback.
 """
 
 from __future__ import annotations
@@ -50,12 +54,15 @@ _STOP = 1e-10
 """A slip ends when the twist has fallen below this fraction of its value at the start."""
 _BREAKAWAY_SAMPLES = 16
 _ROUNDING = 1e-14
+"""A twist this small relative to the part's lab velocity is rounding: it has vanished."""
 _SKIP_HELD = True
 """Skip samples in bulk while every part is surely held (tests switch it off to compare)."""
 _HELD_MARGIN = 1 - 1e-6
 _NO_DRAWS = np.zeros(0)
-"""A twist this small relative to the part's lab velocity is rounding: it has vanished."""
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
+"""Absolute tolerances of (c − c₀, φ − φ₀, v, ω) at :data:`RTOL` (scaled with rtol)."""
+RTOL = 1e-10
+"""Relative tolerance of the slip episodes' integration (:func:`simulate`)."""
 
 
 @dataclass(frozen=True)
@@ -143,8 +150,9 @@ class _Plate:
 class _PartState:
     """One part's running state: stuck (plate-frame pose) or slipping (lab-frame rigid body)."""
 
-    def __init__(self, part: PlanarPart) -> None:
+    def __init__(self, part: PlanarPart, rtol: float) -> None:
         self.part = part
+        self._rtol = rtol
         self.stuck = True
         self.pose = part.pose
         self.lab = [0.0] * 6  # c_x, c_y, φ, v_x, v_y, ω while slipping
@@ -318,7 +326,7 @@ class _PartState:
         factor = 0.9
         for _ in range(1000):
             begin = t
-            stepper = DOP853(rhs, t, y, bound, rtol=1e-10, atol=_ATOL)
+            stepper = DOP853(rhs, t, y, bound, rtol=self._rtol, atol=_ATOL * (self._rtol / RTOL))
             reversed_ = False
             while stepper.status == "running":
                 stepper.step()
@@ -387,12 +395,12 @@ class _PartState:
         return seg.duration_s
 
 
-def _params(part: PlanarPart) -> np.ndarray:
+def _params(part: PlanarPart, rtol: float) -> np.ndarray:
     """The part's parameter row for :mod:`.planar_kernels`."""
     patch, friction = part.patch, part.friction
     return pk.part_params(patch.shape == "disc", patch.length_m, patch.width_m, part.mass_kg,
                           part.inertia_kg_m2, friction.static_accel_m_s2, friction.kinetic_ratio,
-                          patch.area_m2, patch.polar_m3, patch.second_moments_m4)  # fmt: skip
+                          patch.area_m2, patch.polar_m3, patch.second_moments_m4, rtol)  # fmt: skip
 
 
 class PlanarStickSlip:
@@ -401,21 +409,23 @@ class PlanarStickSlip:
     Two drivers of the same solver: :meth:`advance` for segments (ideal
     sawtooth, :func:`simulate`), :meth:`advance_sampled` for the plate's three
     motion channels sampled at a fixed rate (the streaming plant, like
-    :meth:`feeder.plant.plant.Plant.advance`).
+    :meth:`feeder.plant.plant.Plant.advance`).  rtol: of the slip episodes.
+    Compiled (:mod:`.planar_kernels`) if the kernels are enabled when it is built.
     """
 
     def __init__(self, parts: list[PlanarPart],
-                 initial_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:  # fmt: skip
+                 initial_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 rtol: float = RTOL) -> None:  # fmt: skip
         if not parts:
             raise InputError("parts", "at least one part is needed")
         check_overlaps(parts)
         self.parts = list(parts)
         self.elapsed_s = 0.0
         self._compiled = kernels.enabled()
-        self._states = [_PartState(p) for p in parts]
+        self._states = [_PartState(p, rtol) for p in parts]
         self._plate = _Plate(initial_velocity)
         # the compiled solver's state (:mod:`.planar_kernels`), used when kernels are enabled
-        self._params = np.array([_params(p) for p in parts])
+        self._params = np.array([_params(p, rtol) for p in parts])
         self._array = np.array([pk.initial_state(p.pose, p.patch.radius_m) for p in parts])
         self._plate_array = np.array([0.0, 0.0, 0.0, *initial_velocity, 0.0])
 
@@ -481,16 +491,15 @@ class PlanarStickSlip:
         """
         v = np.asarray(velocity, dtype=float)
         n = v.shape[1]
-        dt = 1.0 / sample_rate_hz
-        before = self._plate_array[3:6] if self._compiled else np.asarray(self._plate.velocity, dtype=float)
-        start = np.concatenate([before[:, None], v[:, :-1]], axis=1)
-        accel = (v - start) * sample_rate_hz  # as :func:`sampled`
         if self._compiled:
             lab = np.empty((len(self.parts), n, 3))
-            pk.run_sampled(self._array, self._params, pk.DISC_NODES, start, accel, np.ascontiguousarray(v),
-                           dt, self._plate_array, _SKIP_HELD, lab)  # fmt: skip
+            pk.run_sampled(self._array, self._params, pk.DISC_NODES, np.ascontiguousarray(v),
+                           float(sample_rate_hz), self._plate_array, _SKIP_HELD, lab)  # fmt: skip
             self.elapsed_s = float(self._plate_array[pk.ELAPSED])
             return lab
+        dt = 1.0 / sample_rate_hz
+        start = np.concatenate([np.asarray(self._plate.velocity, dtype=float)[:, None], v[:, :-1]], axis=1)
+        accel = (v - start) * sample_rate_hz  # as :func:`sampled`
         starts, accels, ends = start.T.tolist(), accel.T.tolist(), v.T.tolist()
         out = np.empty((len(self._states), n, 3))
         held: tuple[list[Pose], np.ndarray] | None = None
@@ -515,6 +524,22 @@ class PlanarStickSlip:
             out[:, k] = self.lab_poses()
             k += 1
         return out
+
+    @property
+    def compiled(self) -> bool:
+        """True if this solver runs the compiled kernels (:mod:`.planar_kernels`)."""
+        return self._compiled
+
+    def advance_driven(self, command: np.ndarray, coefficients: np.ndarray,
+                       filter_states: np.ndarray, volts: np.ndarray, scale: np.ndarray,
+                       sample_rate_hz: float) -> np.ndarray:  # fmt: skip
+        """Compiled only: DAC samples (3, n) through output stages and stack filters
+        (:func:`.kernels.drive_run`; states updated in place) into :meth:`advance_sampled`."""
+        lab = np.empty((len(self.parts), command.shape[1], 3))
+        pk.run_plant(command, coefficients, filter_states, volts, scale, self._array, self._params,
+                     pk.DISC_NODES, float(sample_rate_hz), self._plate_array, _SKIP_HELD, lab)  # fmt: skip
+        self.elapsed_s = float(self._plate_array[pk.ELAPSED])
+        return lab
 
     def _surely_held(self, start: np.ndarray, end: np.ndarray, accel: np.ndarray, k: int) -> np.ndarray:
         """Per sample from ``k`` on (length n): True where no stuck part can break loose.

@@ -25,27 +25,29 @@ import math
 
 import numpy as np
 
-from feeder.plant.kernels import _jit, contact_interval, rectangle_integrals
+from feeder.plant.kernels import _jit, contact_interval, drive_run, rectangle_integrals
 
 SEG_SIZE = 11
 DURATION, V, A, C, KAPPA = 0, 1, 4, 7, 10
 PLATE_SIZE = 7
 ELAPSED = 6
-PARAM_SIZE = 13
-DISC, HALF_A, HALF_B, MASS, INERTIA, TAU_S, TAU_K, A_S, RATIO, AREA, POLAR, JXX, JYY = range(PARAM_SIZE)
-STATE_SIZE = 14
-STUCK, POSE, LAB, SLIP, STOP, STEP = 0, 1, 4, 10, 11, 12
-RADIUS = 13
-"""State slot holding the patch radius (constant; kept with the state to spare an argument)."""
+PARAM_SIZE = 14
+DISC, HALF_A, HALF_B, MASS, INERTIA, TAU_S, TAU_K, A_S, RATIO, AREA, POLAR, JXX, JYY, RTOL = range(PARAM_SIZE)
+STATE_SIZE = 15
+STUCK, POSE, LAB, SLIP, STOP, STEP, RADIUS, FADE_STEP = 0, 1, 4, 10, 11, 12, 13, 14
 
 _SEED_TIME_S = 1e-12
 _STOP = 1e-10
 _BREAKAWAY_SAMPLES = 16
 _ROUNDING = 1e-14
 _HELD_MARGIN = 1 - 1e-6
+_ALIGNED = 0.9
+_STRAIGHT = 0.5
+"""A twist shrinking this straight (cosine of twist and its rate) fades in ln|twist| (:func:`_fade`)."""
 _SERIES_BELOW = 1e-3
-_RTOL = 1e-10
-_ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
+_ATOL = np.array([1e-6, 1e-6, 1e-3, 1e-3, 1e-3, 10.0, 1e-6])
+"""Absolute tolerances per unit rtol of (c − c₀, φ − φ₀, v, ω, t): at rtol 1e-10 the
+reference's (1e-16 m, ...), and 1e-16 s for the time (a part at 0.1 m/s: 1e-17 m)."""
 _NO_DRAWS = np.zeros(0)
 _EPS = float(np.finfo(np.float64).eps)
 
@@ -74,12 +76,13 @@ DISC_NODES = _unit_disc_nodes()
 
 def part_params(disc: bool, length_m: float, width_m: float, mass_kg: float, inertia_kg_m2: float,
                 static_accel_m_s2: float, kinetic_ratio: float, area_m2: float, polar_m3: float,
-                second_moments_m4: tuple[float, float]) -> np.ndarray:  # fmt: skip
-    """A part's parameter row (τ_s = m·a_s/A, τ_k = r·τ_s as :class:`.planar._PartState`)."""
+                second_moments_m4: tuple[float, float], rtol: float) -> np.ndarray:  # fmt: skip
+    """A part's parameter row (τ_s = m·a_s/A, τ_k = r·τ_s as :class:`.planar._PartState`; rtol
+    of its slips)."""
     tau_s = mass_kg * static_accel_m_s2 / area_m2
     return np.array([1.0 if disc else 0.0, 0.5 * length_m, 0.5 * width_m, mass_kg, inertia_kg_m2, tau_s,
                      kinetic_ratio * tau_s, static_accel_m_s2, kinetic_ratio, area_m2, polar_m3,
-                     second_moments_m4[0], second_moments_m4[1]])  # fmt: skip
+                     second_moments_m4[0], second_moments_m4[1], rtol])  # fmt: skip
 
 
 def initial_state(pose: tuple[float, float, float], radius_m: float) -> np.ndarray:
@@ -439,35 +442,145 @@ def _twist_rate(seg: np.ndarray, plate: np.ndarray, x0: float, y0: float, t: flo
 
 
 @_jit
-def _rms(err: np.ndarray, y: np.ndarray, y_new: np.ndarray) -> float:
-    total = 0.0
+def _derivative(sigma: bool, pp: np.ndarray, radius: float, nodes: np.ndarray, seg: np.ndarray,
+                plate: np.ndarray, x0: float, y0: float, phi0: float, z: np.ndarray,
+                out: np.ndarray) -> bool:  # fmt: skip
+    """dz/ds for z = (y, t): s is t itself, or with ``sigma`` s = −ln|twist| (dt/ds = −|ξ|²/(ξ·dξ/dt)).
+
+    False (in ``sigma``) where the twist does not shrink nearly straight (the cosine of
+    twist and rate below _STRAIGHT): near a turn of |twist|, s is no coordinate.
+    """
+    t = z[6]
+    _rhs(pp, radius, nodes, seg, plate, x0, y0, phi0, t, z, out)
+    if not sigma:
+        out[6] = 1.0
+        return True
+    p0, p1, p2 = _rel_twist(seg, plate, x0, y0, t, z)
+    d0, d1, d2 = _twist_rate(seg, plate, x0, y0, t, z, out)
+    shrink = _dot(pp, p0, p1, p2, d0, d1, d2)
+    size2 = _dot(pp, p0, p1, p2, p0, p1, p2)
+    if not shrink < -_STRAIGHT * math.sqrt(size2 * _dot(pp, d0, d1, d2, d0, d1, d2)):
+        return False
+    q = -size2 / shrink
     for i in range(6):
-        scale = _ATOL[i] + max(abs(y[i]), abs(y_new[i])) * _RTOL
-        total += (err[i] / scale) ** 2
-    return math.sqrt(total / 6)
+        out[i] *= q
+    out[6] = q
+    return True
+
+
+@_jit
+def _dp5_step(sigma: bool, pp: np.ndarray, radius: float, nodes: np.ndarray, seg: np.ndarray,
+              plate: np.ndarray, x0: float, y0: float, phi0: float, z: np.ndarray, h: float,
+              ks: np.ndarray, z_new: np.ndarray) -> float:  # fmt: skip
+    """One Dormand-Prince 5(4) step of size h from z (ks[0] = dz/ds there) into z_new, ks[6] =
+    dz/ds at z_new (ks[7]: scratch); returns the RMS error relative to atol + rtol·|z| (scipy's
+    RK45), inf if invalid."""
+    k1, k2, k3, k4, k5, k6, k7, w = ks[0], ks[1], ks[2], ks[3], ks[4], ks[5], ks[6], ks[7]
+    args = (sigma, pp, radius, nodes, seg, plate, x0, y0, phi0)
+    for i in range(7):
+        w[i] = z[i] + h * _A21 * k1[i]
+    if not _derivative(*args, w, k2):
+        return np.inf
+    for i in range(7):
+        w[i] = z[i] + h * (_A31 * k1[i] + _A32 * k2[i])
+    if not _derivative(*args, w, k3):
+        return np.inf
+    for i in range(7):
+        w[i] = z[i] + h * (_A41 * k1[i] + _A42 * k2[i] + _A43 * k3[i])
+    if not _derivative(*args, w, k4):
+        return np.inf
+    for i in range(7):
+        w[i] = z[i] + h * (_A51 * k1[i] + _A52 * k2[i] + _A53 * k3[i] + _A54 * k4[i])
+    if not _derivative(*args, w, k5):
+        return np.inf
+    for i in range(7):
+        w[i] = z[i] + h * (_A61 * k1[i] + _A62 * k2[i] + _A63 * k3[i] + _A64 * k4[i] + _A65 * k5[i])
+    if not _derivative(*args, w, k6):
+        return np.inf
+    for i in range(7):
+        z_new[i] = z[i] + h * (_B1 * k1[i] + _B3 * k3[i] + _B4 * k4[i] + _B5 * k5[i] + _B6 * k6[i])
+    if not _derivative(*args, z_new, k7):
+        return np.inf
+    total = 0.0
+    for i in range(7):
+        err = h * (_E1 * k1[i] + _E3 * k3[i] + _E4 * k4[i] + _E5 * k5[i] + _E6 * k6[i] + _E7 * k7[i])
+        total += (err / ((_ATOL[i] + max(abs(z[i]), abs(z_new[i]))) * pp[RTOL])) ** 2
+    return math.sqrt(total / 7)
 
 
 @_jit
 def _initial_step(pp: np.ndarray, radius: float, nodes: np.ndarray, seg: np.ndarray, plate: np.ndarray,
-                  x0: float, y0: float, phi0: float, t: float, y: np.ndarray, f: np.ndarray,
+                  x0: float, y0: float, phi0: float, z: np.ndarray, f: np.ndarray,
                   interval: float) -> float:  # fmt: skip
-    """scipy's ``select_initial_step`` for an error estimator of order 4."""
+    """scipy's ``select_initial_step`` (error estimator of order 4), in time."""
     d0 = d1 = 0.0
     for i in range(6):
-        scale = _ATOL[i] + abs(y[i]) * _RTOL
-        d0 += (y[i] / scale) ** 2
+        scale = (_ATOL[i] + abs(z[i])) * pp[RTOL]
+        d0 += (z[i] / scale) ** 2
         d1 += (f[i] / scale) ** 2
     d0, d1 = math.sqrt(d0 / 6), math.sqrt(d1 / 6)
     h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
     h0 = min(h0, interval)
-    f1 = np.empty(6)
-    _rhs(pp, radius, nodes, seg, plate, x0, y0, phi0, t + h0, y + h0 * f, f1)
+    f1 = np.empty(7)
+    _derivative(False, pp, radius, nodes, seg, plate, x0, y0, phi0, z + h0 * f, f1)
     d2 = 0.0
     for i in range(6):
-        d2 += ((f1[i] - f[i]) / (_ATOL[i] + abs(y[i]) * _RTOL)) ** 2
+        d2 += ((f1[i] - f[i]) / ((_ATOL[i] + abs(z[i])) * pp[RTOL])) ** 2
     d2 = math.sqrt(d2 / 6) / h0
     h1 = max(1e-6, h0 * 1e-3) if d1 <= 1e-15 and d2 <= 1e-15 else (0.01 / max(d1, d2)) ** 0.2
     return min(100 * h0, h1, interval)
+
+
+_STOPPED, _LEFT, _NEAR_END = 0, 1, 2
+
+
+@_jit
+def _fade(st: np.ndarray, pp: np.ndarray, radius: float, nodes: np.ndarray, seg: np.ndarray,
+          plate: np.ndarray, x0: float, y0: float, phi0: float, z: np.ndarray, target: float,
+          ks: np.ndarray) -> int:  # fmt: skip
+    """A shrinking twist down to ``target`` in s = −ln|twist| (z updated); returns how it ended.
+
+    Near a re-stick the sliding direction turns at a rate ∝ 1/|twist|, so steps
+    in time shrink with the time left; in ln|twist| the motion is smooth and
+    the stop threshold is a fixed end point.  _STOPPED: the twist reached
+    ``target``; _NEAR_END: the segment ends within the next step; _LEFT: the
+    twist stopped shrinking straight (both continue in time).  The step size
+    carries over.
+    """
+    t_end = seg[DURATION]
+    p0, p1, p2 = _rel_twist(seg, plate, x0, y0, z[6], z)
+    size = math.sqrt(_dot(pp, p0, p1, p2, p0, p1, p2))
+    if not size > target:
+        return _STOPPED
+    args = (pp, radius, nodes, seg, plate, x0, y0, phi0)
+    if not _derivative(True, *args, z, ks[0]):
+        return _LEFT
+    z_new = np.empty(7)
+    s, s_end = 0.0, math.log(size / target)
+    h = st[FADE_STEP] if st[FADE_STEP] > 0 else 1.0
+    for _ in range(100_000):
+        h = min(h, s_end - s)
+        norm = _dp5_step(True, *args, z, h, ks, z_new)
+        if norm == np.inf:  # a stage where the twist turns
+            h *= 0.25
+            if h < 1e-2:  # turning: it will not vanish straight, continue in time
+                return _LEFT
+            continue
+        if norm >= 1:
+            h *= max(0.2, 0.9 * norm**-0.2)
+            continue
+        grow = 10.0 if norm == 0 else min(10.0, 0.9 * norm**-0.2)
+        if z_new[6] > t_end:  # the segment ends within the step: its rest in time
+            st[FADE_STEP] = h
+            return _NEAR_END
+        s = s_end if h >= s_end - s else s + h
+        z[:] = z_new
+        ks[0, :] = ks[6]
+        if s >= s_end:
+            st[FADE_STEP] = h
+            return _STOPPED
+        h *= grow
+    raise RuntimeError("planar stick-slip: the twist does not fade")
 
 
 @_jit
@@ -475,46 +588,59 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
                x0: float, y0: float, phi0: float, t: float, y: np.ndarray) -> tuple[float, bool]:  # fmt: skip
     """From t towards the segment's end until the twist vanishes; y updated, returns (time, vanished).
 
-    As :meth:`.planar._PartState._integrate`: a step that reverses the twist is
+    In time (scipy's RK45 step control) while the twist grows, as
+    :meth:`.planar._PartState._integrate` (a step that reverses the twist is
     dropped and the integration aims at 0.9 of the linearly predicted time to
-    zero (halved while no step fits).
+    zero); in ln|twist| (:func:`_fade`) once it shrinks faster than the steps
+    in time can follow.  Ends at the same threshold: the twist below _STOP of
+    its start (or at the velocities' rounding floor).
     """
     radius, t_end = st[RADIUS], seg[DURATION]
     stop = st[STOP]
-    ks = np.empty((7, 6))
-    k1, k2, k3, k4, k5, k6, k7 = ks[0], ks[1], ks[2], ks[3], ks[4], ks[5], ks[6]
-    y_new, err = np.empty(6), np.empty(6)
+    ks = np.empty((8, 7))
+    z, z_new = np.empty(7), np.empty(7)
+    z[:6] = y
+    z[6] = t
+    args = (pp, radius, nodes, seg, plate, x0, y0, phi0)
     bound = t_end
-    p0, p1, p2 = _rel_twist(seg, plate, x0, y0, t, y)
+    p0, p1, p2 = _rel_twist(seg, plate, x0, y0, t, z)
     factor = 0.9
     h_abs = st[STEP]
-    _rhs(pp, radius, nodes, seg, plate, x0, y0, phi0, t, y, k1)
+    fade = True
+    _derivative(False, *args, z, ks[0])
     for _ in range(1000):
-        begin = t
+        begin = z[6]
         reversed_ = False
-        if h_abs <= 0:
-            h_abs = _initial_step(pp, radius, nodes, seg, plate, x0, y0, phi0, t, y, k1, bound - t)
-        while t < bound:
-            min_step = 10 * _EPS * abs(t)
+        while z[6] < bound:
+            d0, d1, d2 = _twist_rate(seg, plate, x0, y0, z[6], z, ks[0])
+            shrink = _dot(pp, p0, p1, p2, d0, d1, d2)
+            size2 = _dot(pp, p0, p1, p2, p0, p1, p2)
+            aligned = shrink < -_ALIGNED * math.sqrt(size2 * _dot(pp, d0, d1, d2, d0, d1, d2))
+            if fade and aligned and -size2 / shrink < 2 * (t_end - z[6]):  # it vanishes in this segment
+                floor = _ROUNDING * math.sqrt(_dot(pp, z[3], z[4], z[5], z[3], z[4], z[5]))
+                ended = _fade(st, pp, radius, nodes, seg, plate, x0, y0, phi0, z, max(stop, floor), ks)
+                y[:] = z[:6]
+                if ended == _STOPPED:
+                    return z[6], True
+                p0, p1, p2 = _rel_twist(seg, plate, x0, y0, z[6], z)
+                _derivative(False, *args, z, ks[0])
+                fade = False
+                if ended == _NEAR_END:  # try the rest of the segment in one step
+                    h_abs = bound - z[6]
+                continue
+            if h_abs <= 0:  # scipy's guess, at most the twist's own time scale |ξ|/|dξ/dt| (a seed: ~1e-12 s)
+                h_abs = _initial_step(*args, z, ks[0], bound - z[6])
+                rate2 = _dot(pp, d0, d1, d2, d0, d1, d2)
+                if rate2 > 0 and size2 > 0:
+                    h_abs = min(h_abs, math.sqrt(size2 / rate2))
+            min_step = 10 * _EPS * abs(z[6])
             rejected = False
             while True:  # one accepted step (scipy's RK45 step control)
                 if h_abs < min_step:
                     raise RuntimeError("planar stick-slip: integration step too small")
-                t_new = min(t + h_abs, bound)
-                h = t_new - t
-                _rhs(pp, radius, nodes, seg, plate, x0, y0, phi0, t + _C2 * h, y + h * _A21 * k1, k2)
-                _rhs(pp, radius, nodes, seg, plate, x0, y0, phi0, t + _C3 * h,
-                     y + h * (_A31 * k1 + _A32 * k2), k3)  # fmt: skip
-                _rhs(pp, radius, nodes, seg, plate, x0, y0, phi0, t + _C4 * h,
-                     y + h * (_A41 * k1 + _A42 * k2 + _A43 * k3), k4)  # fmt: skip
-                _rhs(pp, radius, nodes, seg, plate, x0, y0, phi0, t + _C5 * h,
-                     y + h * (_A51 * k1 + _A52 * k2 + _A53 * k3 + _A54 * k4), k5)  # fmt: skip
-                _rhs(pp, radius, nodes, seg, plate, x0, y0, phi0, t + h,
-                     y + h * (_A61 * k1 + _A62 * k2 + _A63 * k3 + _A64 * k4 + _A65 * k5), k6)  # fmt: skip
-                y_new[:] = y + h * (_B1 * k1 + _B3 * k3 + _B4 * k4 + _B5 * k5 + _B6 * k6)
-                _rhs(pp, radius, nodes, seg, plate, x0, y0, phi0, t_new, y_new, k7)
-                err[:] = h * (_E1 * k1 + _E3 * k3 + _E4 * k4 + _E5 * k5 + _E6 * k6 + _E7 * k7)
-                norm = _rms(err, y, y_new)
+                t_new = min(z[6] + h_abs, bound)
+                h = t_new - z[6]
+                norm = _dp5_step(False, *args, z, h, ks, z_new)
                 if norm < 1:
                     grow = 10.0 if norm == 0 else min(10.0, 0.9 * norm**-0.2)
                     if rejected:
@@ -524,22 +650,26 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
                     break
                 h_abs *= max(0.2, 0.9 * norm**-0.2)
                 rejected = True
-            n0, n1, n2 = _rel_twist(seg, plate, x0, y0, t_new, y_new)
+            z_new[6] = t_new
+            n0, n1, n2 = _rel_twist(seg, plate, x0, y0, t_new, z_new)
             if _dot(pp, n0, n1, n2, p0, p1, p2) <= 0:
                 reversed_ = True
                 break
-            t = t_new
-            y[:] = y_new
-            k1[:] = k7
+            z[:] = z_new
+            ks[0, :] = ks[6]
             p0, p1, p2 = n0, n1, n2
-            floor = _ROUNDING * math.sqrt(_dot(pp, y[3], y[4], y[5], y[3], y[4], y[5]))
+            fade = True
+            floor = _ROUNDING * math.sqrt(_dot(pp, z[3], z[4], z[5], z[3], z[4], z[5]))
             if math.sqrt(_dot(pp, n0, n1, n2, n0, n1, n2)) <= max(stop, floor):
+                y[:] = z[:6]
                 st[STEP] = h_abs
-                return t, True
+                return z[6], True
+        y[:] = z[:6]
+        t = z[6]
         if not reversed_ and t >= t_end:
             st[STEP] = h_abs
             return t, False
-        d0, d1, d2 = _twist_rate(seg, plate, x0, y0, t, y, k1)
+        d0, d1, d2 = _twist_rate(seg, plate, x0, y0, t, z, ks[0])
         to_zero = -_dot(pp, p0, p1, p2, d0, d1, d2) / _dot(pp, d0, d1, d2, d0, d1, d2)
         if not to_zero > 0:
             st[STEP] = h_abs
@@ -624,7 +754,9 @@ def _slip(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarray, pl
 
 
 @_jit
-def run_segment(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarray, plate: np.ndarray) -> None:
+def run_segment(
+    st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarray, plate: np.ndarray
+) -> None:
     """One part through ``seg``; ``plate`` holds the plate at its start and the velocity before."""
     tau = 0.0
     px, py, pth = plate[0], plate[1], plate[2]
@@ -671,17 +803,18 @@ def run_segments(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, segs
         finish_segment(seg, plate)
         if (k + 1) % every == 0:
             for i in range(states.shape[0]):
-                out[i, j, 0], out[i, j, 1], out[i, j, 2] = plate_frame_pose(states[i], plate[0], plate[1], plate[2])
+                out[i, j, 0], out[i, j, 1], out[i, j, 2] = plate_frame_pose(
+                    states[i], plate[0], plate[1], plate[2]
+                )
             j += 1
 
 
 @_jit
-def _surely_held(states: np.ndarray, params: np.ndarray, start: np.ndarray, end: np.ndarray,
-                 accel: np.ndarray, k: int) -> bool:  # fmt: skip
+def _surely_held(states: np.ndarray, params: np.ndarray, seg: np.ndarray, end: np.ndarray, k: int) -> bool:
     """No stuck part can break loose in sample k (:meth:`.planar.PlanarStickSlip._surely_held`)."""
-    a_lin = math.hypot(accel[0, k], accel[1, k])
-    alpha = abs(accel[2, k])
-    spin2 = max(start[2, k] ** 2, end[2, k] ** 2)
+    a_lin = math.hypot(seg[A], seg[A + 1])
+    alpha = abs(seg[A + 2])
+    spin2 = max(seg[V + 2] ** 2, end[2, k] ** 2)
     for i in range(states.shape[0]):
         st, pp = states[i], params[i]
         if st[STUCK] == 0:
@@ -695,23 +828,34 @@ def _surely_held(states: np.ndarray, params: np.ndarray, start: np.ndarray, end:
 
 
 @_jit
-def run_sampled(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, start: np.ndarray,
-                accel: np.ndarray, end: np.ndarray, dt: float, plate: np.ndarray, skip: bool,
-                out: np.ndarray) -> None:  # fmt: skip
-    """Samples (3, n) of plate velocity for every part; lab poses (parts, n, 3) into ``out``.
+def run_sampled(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, velocity: np.ndarray,
+                rate: float, plate: np.ndarray, skip: bool, out: np.ndarray) -> None:  # fmt: skip
+    """Plate velocity samples (3, n), acceleration held between them, for every part; lab poses
+    (parts, n, 3) into ``out`` (:meth:`.planar.PlanarStickSlip.advance_sampled`).
 
     A sample where every part is surely held moves the plate only.
     """
     seg = np.zeros(SEG_SIZE)
-    seg[DURATION] = dt
-    for k in range(start.shape[1]):
-        seg[V], seg[V + 1], seg[V + 2] = start[0, k], start[1, k], start[2, k]
-        seg[A], seg[A + 1], seg[A + 2] = accel[0, k], accel[1, k], accel[2, k]
-        if not (skip and _surely_held(states, params, start, end, accel, k)):
+    seg[DURATION] = 1.0 / rate
+    for k in range(velocity.shape[1]):
+        for c in range(3):
+            seg[V + c] = plate[3 + c]
+            seg[A + c] = (velocity[c, k] - plate[3 + c]) * rate
+        if not (skip and _surely_held(states, params, seg, velocity, k)):
             for i in range(states.shape[0]):
                 run_segment(states[i], params[i], nodes, seg, plate)
         finish_segment(seg, plate)
         # the sample itself, not v₀ + a·dt (which rounds differently): no corner at the next one
-        plate[3], plate[4], plate[5] = end[0, k], end[1, k], end[2, k]
+        plate[3], plate[4], plate[5] = velocity[0, k], velocity[1, k], velocity[2, k]
         for i in range(states.shape[0]):
             out[i, k, 0], out[i, k, 1], out[i, k, 2] = lab_pose(states[i], plate[0], plate[1], plate[2])
+
+
+@_jit
+def run_plant(command: np.ndarray, coef: np.ndarray, z: np.ndarray, volts: np.ndarray, scale: np.ndarray,
+              states: np.ndarray, params: np.ndarray, nodes: np.ndarray, rate: float, plate: np.ndarray,
+              skip: bool, out: np.ndarray) -> None:  # fmt: skip
+    """:meth:`.planar_plant.PlanarPlant.advance`: :func:`.kernels.drive_run`, then :func:`run_sampled`."""
+    velocity = np.empty(command.shape)
+    drive_run(command, coef, z, volts, scale, velocity)
+    run_sampled(states, params, nodes, velocity, rate, plate, skip, out)

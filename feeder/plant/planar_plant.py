@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from feeder.errors import InputError
+from feeder.plant import kernels
 from feeder.plant.amplifier import AmplifierLimits, OutputStage
 from feeder.plant.planar import PlanarPart, PlanarStickSlip, Pose
 from feeder.plant.plant import DEFAULT_SAMPLE_RATE_HZ
@@ -21,6 +22,9 @@ from feeder.plant.stack import StackFilter, StackParameters
 
 DEFAULT_LEVER_ARM_M = 2e-3
 """Radius at which the θ stack drives the plate: 14 µm of stroke turn it by 7 mrad."""
+STREAMING_RTOL = 1e-8
+"""Relative tolerance of the slip episodes in the streaming plant: over 0.2 s of the paper's
+waveform on x, y and θ the poses stay within 1e-11 m and 2e-7 rad of rtol 1e-10, twice as fast."""
 
 
 class PlanarPlant:
@@ -28,7 +32,7 @@ class PlanarPlant:
 
     parts: the parts and their poses (plate frame, origin O); amplifier,
     stack: one model, used for each of the three channels; lever_arm_m: the
-    θ stack's radius about O (m).
+    θ stack's radius about O (m); rtol: of the slip episodes (:class:`.PlanarStickSlip`).
     """
 
     def __init__(
@@ -38,6 +42,7 @@ class PlanarPlant:
         stack: StackParameters | None = None,
         sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
         lever_arm_m: float = DEFAULT_LEVER_ARM_M,
+        rtol: float = STREAMING_RTOL,
     ) -> None:
         if not (np.isfinite(lever_arm_m) and lever_arm_m > 0):
             raise InputError("lever_arm_m", f"must be a positive number, got {lever_arm_m!r}")
@@ -48,8 +53,10 @@ class PlanarPlant:
         capacitance = self.stack.capacitance_f
         self.outputs = [OutputStage(self.amplifier, capacitance, sample_rate_hz) for _ in range(3)]
         self.mechanics = [StackFilter(self.stack, sample_rate_hz) for _ in range(3)]
-        self.contact = PlanarStickSlip(parts)
+        self.contact = PlanarStickSlip(parts, rtol=rtol)
         self._scale = np.array([[1.0], [1.0], [1.0 / self.lever_arm_m]])  # stack m → plate m, m, rad
+        self._drive: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        """Coefficients, filter states and voltages while the compiled path holds them."""
 
     @property
     def plate_pose(self) -> Pose:
@@ -58,6 +65,9 @@ class PlanarPlant:
 
     @property
     def output_voltages_v(self) -> tuple[float, float, float]:
+        if self._drive is not None:
+            x, y, theta = self._drive[2].tolist()
+            return x, y, theta
         return (self.outputs[0].voltage_v, self.outputs[1].voltage_v, self.outputs[2].voltage_v)
 
     def poses(self) -> list[Pose]:
@@ -73,8 +83,32 @@ class PlanarPlant:
         command = np.asarray(command_volts, dtype=float)
         if command.ndim != 2 or command.shape[0] != 3:
             raise InputError("command_volts", f"expected shape (3, n), got {command.shape}")
+        if kernels.enabled() and self.mechanics[0].order == kernels.FILTER_ORDER and self.contact.compiled:
+            return self._advance_compiled(command)
+        self._sync_objects()
         velocity = np.empty(command.shape)
         for k in range(3):
             _, velocity[k] = self.mechanics[k].advance(self.outputs[k].advance(command[k]))
         velocity *= self._scale
         return self.contact.advance_sampled(velocity, self.sample_rate_hz)
+
+    def _advance_compiled(self, command: np.ndarray) -> np.ndarray:
+        """:meth:`advance` in one compiled call (:func:`.planar_kernels.run_plant`)."""
+        if self._drive is None:
+            coefficients = np.array([np.concatenate([[o.limits.v_min_v, o.limits.v_max_v, o.max_step_v],
+                                                     m.coefficients()])
+                                     for o, m in zip(self.outputs, self.mechanics, strict=True)])  # fmt: skip
+            self._drive = (coefficients, np.array([m.states for m in self.mechanics]),
+                           np.array([o.voltage_v for o in self.outputs]))  # fmt: skip
+        coefficients, z, volts = self._drive
+        return self.contact.advance_driven(np.ascontiguousarray(command), coefficients, z, volts,
+                                           self._scale[:, 0], self.sample_rate_hz)  # fmt: skip
+
+    def _sync_objects(self) -> None:
+        """Hand the compiled path's filter states and voltages back to the stage objects."""
+        if self._drive is not None:
+            _, z, volts = self._drive
+            for k in range(3):
+                self.mechanics[k].states = z[k].copy()
+                self.outputs[k].voltage_v = float(volts[k])
+            self._drive = None
