@@ -39,9 +39,11 @@ TARGETS: tuple[Pose, ...] = (
 )
 TRAVEL_M = 2.5e-3
 MOVE_TIMEOUT_S = 120.0
-SETTLE_S = 0.3
+SETTLE_S = 0.2
 """After a burst, wait this long before averaging frames: the camera's frames arrive
-(exposure, JPEG, HTTP, locating) up to ~0.2 s after what they show."""
+(exposure, JPEG, HTTP, decoding, locating) ~0.1–0.15 s after what they show."""
+AVERAGE_FRAMES = 2
+"""Frames averaged per measurement (10 frames/s; one frame's noise is ~0.05 µm, 0.01°)."""
 
 
 def config_for(part: Part, transport: str, base: Path) -> DaemonConfig:
@@ -55,6 +57,7 @@ def config_for(part: Part, transport: str, base: Path) -> DaemonConfig:
             "min_y_m": -TRAVEL_M,
             "max_y_m": TRAVEL_M,
             "settle_s": SETTLE_S,
+            "average_samples": AVERAGE_FRAMES,
         }
     )
     return DaemonConfig(

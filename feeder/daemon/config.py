@@ -192,18 +192,19 @@ class CameraConfig:
     camera); pixel_size_m, width_px, height_px: the image's scale and size, used
     (plate origin at the image centre, axes along the image's) until ``feeder vision
     calibrate --save-state`` stores a measured calibration; fps: the simulated
-    camera's frame rate.  The simulator's default, 1024 px at 5 µm/px, sees 5.1 mm
-    (the ±2.5 mm travel) with a 300 µm part 60 px wide (centre ≈ 0.1 µm, angle ≈ 0.04°,
-    docs/vision.md); 2048 px at 30 frames/s costs more to encode and decode than two
-    cores have (35 ms and 54 ms per frame).
+    camera's frame rate.  The simulator's default, 2048 px at 2.7 µm/px, sees ±2.76 mm
+    (a 300 µm part anywhere in the ±2.5 mm travel) with the part 111 px wide: angle error
+    0.013° RMS against the simulator's truth (at 5 µm/px, 60 px: 0.058°, too coarse for a
+    0.1° tolerance).  10 frames/s: a 2048 px JPEG costs ~35 ms to encode and ~54 ms to
+    decode, so 30 frames/s would take more than the two cores of this machine.
     """
 
     address: str | None = None
     timeout_s: float = 2.0
-    pixel_size_m: float = 5e-6
-    width_px: int = 1024
-    height_px: int = 1024
-    fps: float = 15.0
+    pixel_size_m: float = 2.7e-6
+    width_px: int = 2048
+    height_px: int = 2048
+    fps: float = 10.0
 
 
 @dataclass(frozen=True)

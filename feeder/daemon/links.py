@@ -182,6 +182,10 @@ def simulator_args(config: DaemonConfig) -> list[str]:
     if plate.planar:
         parts = ";".join(",".join(repr(v) for v in pose) for pose in plate.parts)
         args += [
+            # the planar plant's slips share the firmware's tick: a rare slow one must not
+            # trip the tick watchdog meant for a stalled firmware (0.25 s)
+            "--watchdog-s",
+            "1.0",
             "--plant",
             "planar",
             f"--parts={parts}",
