@@ -13,7 +13,7 @@ from types import FrameType
 from typing import TYPE_CHECKING
 
 from feeder.cli.output import print_json
-from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, load_config
+from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, embedded_plane, load_config
 from feeder.daemon.launcher import LaunchError
 from feeder.daemon.runner import RunningDaemon, start_daemon
 from feeder.daemon.store import StoreError, move_aside
@@ -32,6 +32,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--config", type=Path, help="TOML configuration (see docs/daemon.md)")
     parser.add_argument(
         "--transport", choices=TRANSPORTS, help="amplifier link, overriding the configuration"
+    )
+    parser.add_argument(
+        "--plane",
+        action="store_true",
+        help="the embedded planar world: axes x, y, θ, ±2.5 mm travel, the simulator's camera "
+        "(as `feeder demo` runs it); parts from the configuration's [plate] parts",
     )
     parser.add_argument("--state-dir", type=Path, help="calibration/history database directory")
     parser.add_argument("--socket", type=Path, help="control socket path")
@@ -85,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     if args.transport:
         config = config.with_transport(args.transport)
+    if args.plane:
+        config = embedded_plane(config)
     if args.state_dir:
         config = dataclasses.replace(config, state_dir=args.state_dir)
     if args.socket:

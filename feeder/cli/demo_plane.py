@@ -22,14 +22,13 @@ from pathlib import Path
 from typing import Any
 
 from feeder.daemon.client import Client
-from feeder.daemon.config import DaemonConfig, PlateConfig
+from feeder.daemon.config import DaemonConfig, embedded_plane
 from feeder.daemon.runner import start_daemon
 from feeder.errors import FeederError, InputError
 from feeder.files import save_figure
 from feeder.parts import Part
 from feeder.pose import Pose, pose_error
 
-START_POSE: Pose = (0.8e-3, 0.4e-3, 0.2)
 TARGETS: tuple[Pose, ...] = (
     (1.2e-3, 0.7e-3, 0.2),
     (1.2e-3, 0.7e-3, 0.75),  # a turn of 31.5°
@@ -37,36 +36,14 @@ TARGETS: tuple[Pose, ...] = (
     (-0.4e-3, -0.9e-3, 0.3),  # −25.8°
     (0.5e-3, -0.3e-3, 0.0),
 )
-TRAVEL_M = 2.5e-3
 MOVE_TIMEOUT_S = 120.0
-SETTLE_S = 0.2
-"""After a burst, wait this long before averaging frames: the camera's frames arrive
-(exposure, JPEG, HTTP, decoding, locating) ~0.1–0.15 s after what they show."""
-AVERAGE_FRAMES = 2
-"""Frames averaged per measurement (10 frames/s; one frame's noise is ~0.05 µm, 0.01°)."""
 
 
 def config_for(part: Part, transport: str, base: Path) -> DaemonConfig:
-    """The embedded planar world: three axes, ±2.5 mm of travel in x and y, one part."""
-    default = DaemonConfig()
-    loop = default.loop.__class__(
-        **{
-            **default.loop.__dict__,
-            "min_position_m": -TRAVEL_M,
-            "max_position_m": TRAVEL_M,
-            "min_y_m": -TRAVEL_M,
-            "max_y_m": TRAVEL_M,
-            "settle_s": SETTLE_S,
-            "average_samples": AVERAGE_FRAMES,
-        }
-    )
-    return DaemonConfig(
-        part=part,
-        loop=loop,
-        plate=PlateConfig(axes=("x", "y", "theta"), parts=(START_POSE,)),
-        state_dir=base / "state",
-        socket_path=base / "run" / "s.sock",
-    ).with_transport(transport)
+    """The embedded planar world (:func:`~feeder.daemon.config.embedded_plane`) for ``part``,
+    with a fresh state directory under ``base``."""
+    config = DaemonConfig(part=part, state_dir=base / "state", socket_path=base / "run" / "s.sock")
+    return embedded_plane(config.with_transport(transport))
 
 
 def true_poses(status: dict[str, Any]) -> list[Pose]:

@@ -354,6 +354,35 @@ def _path(value: str | None) -> Path | None:
     return None if value is None else Path(value).expanduser()
 
 
+PLANE_TRAVEL_M = 2.5e-3
+"""The embedded plane's travel in x and y, ± (m): its camera (2048 px at 2.7 µm/px) sees it all."""
+PLANE_START_POSE = (0.8e-3, 0.4e-3, 0.2)
+"""Where the embedded plane's part lies when the simulator starts (m, m, rad)."""
+PLANE_SETTLE_S = 0.2
+"""After a burst, wait this long before averaging frames: the camera's frames arrive
+(exposure, JPEG, HTTP, decoding, locating) ~0.1–0.15 s after what they show."""
+PLANE_AVERAGE_FRAMES = 2
+"""Frames averaged per measurement (10 frames/s; one frame's noise is ~0.05 µm, 0.01°)."""
+
+
+def embedded_plane(config: DaemonConfig) -> DaemonConfig:
+    """``config`` on the embedded planar world (``feeder daemon --plane``, ``feeder demo``):
+    three axes x, y, θ, travel ±2.5 mm in x and y, the simulator's camera, one part (unless
+    ``config`` already places parts in the plane)."""
+    loop = dataclasses.replace(
+        config.loop,
+        min_position_m=-PLANE_TRAVEL_M,
+        max_position_m=PLANE_TRAVEL_M,
+        min_y_m=-PLANE_TRAVEL_M,
+        max_y_m=PLANE_TRAVEL_M,
+        settle_s=PLANE_SETTLE_S,
+        average_samples=PLANE_AVERAGE_FRAMES,
+    )
+    parts = config.plate.parts if config.plate.planar else (PLANE_START_POSE,)
+    plate = dataclasses.replace(config.plate, axes=AXES, parts=parts)
+    return dataclasses.replace(config, loop=loop, plate=plate)
+
+
 def uses_camera(config: DaemonConfig) -> bool:
     """The daemon locates parts in a camera's frames (a plate in the plane without a
     position stream)."""
