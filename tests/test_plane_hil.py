@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from feeder.cli.demo_plane import config_for, true_poses
+from feeder.cli.demo_plane import config_for, true_poses, wait_for_pose
 from feeder.daemon.client import Client
 from feeder.daemon.runner import RunningDaemon, start_daemon
 from feeder.parts import Part
@@ -42,6 +42,7 @@ def plane(request: pytest.FixtureRequest) -> Iterator[tuple[RunningDaemon, Clien
     running = start_daemon(config_for(PART, request.param, base))
     try:
         with Client(running.daemon.setup.socket_path, timeout_s=180.0) as client:
+            wait_for_pose(client)
             yield running, client
     finally:
         running.stop()
@@ -75,7 +76,7 @@ def test_two_parts_each_reach_their_own_target_or_the_pair_is_refused_with_the_r
     running = start_daemon(config)
     try:
         with Client(config.socket_path, timeout_s=180.0) as client:
-            status = client.status().raw
+            status = wait_for_pose(client)
             tol_m = status["tolerance_m"]
             first = client.move_to_pose(-0.2e-3, 0.1e-3, 0.1, part=1, timeout_s=180.0)
             assert first.error_m is not None and first.error_m <= tol_m

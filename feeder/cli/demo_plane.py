@@ -67,7 +67,7 @@ def run(part: Part, transport: str, plot: Path, quiet: bool) -> tuple[int, dict[
     moves: list[dict[str, Any]] = []
     try:
         with Client(config.socket_path, timeout_s=MOVE_TIMEOUT_S) as client:
-            status = _wait_for_pose(client)
+            status = wait_for_pose(client)
             tol_m, tol_rad = float(status["tolerance_m"]), float(status["tolerance_rad"])
             for i, target in enumerate(TARGETS, start=1):
                 reply = client.request(
@@ -138,7 +138,7 @@ def run(part: Part, transport: str, plot: Path, quiet: bool) -> tuple[int, dict[
     return (0 if ok else 1), summary
 
 
-def _wait_for_pose(client: Client, timeout_s: float = 20.0) -> dict[str, Any]:
+def wait_for_pose(client: Client, timeout_s: float = 20.0) -> dict[str, Any]:
     """The daemon's status once its camera has located the part."""
     end = time.monotonic() + timeout_s
     while True:
