@@ -363,6 +363,10 @@ PLANE_SETTLE_S = 0.2
 (exposure, JPEG, HTTP, decoding, locating) ~0.1–0.15 s after what they show."""
 PLANE_AVERAGE_FRAMES = 2
 """Frames averaged per measurement (10 frames/s; one frame's noise is ~0.05 µm, 0.01°)."""
+PLANE_TICK_WATCHDOG_S = 5.0
+"""The simulated planar world's tick watchdog and the loop's grace for a burst's end: the
+planar plant runs in the firmware's tick, and a rare θ slip costs a tick over a second
+(1.3 s measured); a real amplifier's tick never waits for physics."""
 
 
 def embedded_plane(config: DaemonConfig) -> DaemonConfig:
@@ -377,6 +381,7 @@ def embedded_plane(config: DaemonConfig) -> DaemonConfig:
         max_y_m=PLANE_TRAVEL_M,
         settle_s=PLANE_SETTLE_S,
         average_samples=PLANE_AVERAGE_FRAMES,
+        burst_grace_s=PLANE_TICK_WATCHDOG_S,
     )
     parts = config.plate.parts if config.plate.planar else (PLANE_START_POSE,)
     plate = dataclasses.replace(config.plate, axes=AXES, parts=parts)

@@ -17,7 +17,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from feeder.daemon.config import DaemonConfig, uses_camera
+from feeder.daemon.config import PLANE_TICK_WATCHDOG_S, DaemonConfig, uses_camera
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
@@ -182,10 +182,11 @@ def simulator_args(config: DaemonConfig) -> list[str]:
     if plate.planar:
         parts = ";".join(",".join(repr(v) for v in pose) for pose in plate.parts)
         args += [
-            # the planar plant's slips share the firmware's tick: a rare slow one must not
-            # trip the tick watchdog meant for a stalled firmware (0.25 s)
+            # the planar plant's slips share the firmware's tick: a rare slow one (a θ slip
+            # whose twist nearly vanishes, then turns: up to 1.3 s measured for one tick) must
+            # not trip the tick watchdog meant for a stalled firmware (0.25 s)
             "--watchdog-s",
-            "1.0",
+            repr(PLANE_TICK_WATCHDOG_S),
             "--plant",
             "planar",
             f"--parts={parts}",
