@@ -366,7 +366,10 @@ PLANE_AVERAGE_FRAMES = 2
 PLANE_TICK_WATCHDOG_S = 5.0
 """The simulated planar world's tick watchdog and the loop's grace for a burst's end: the
 planar plant runs in the firmware's tick, and a rare θ slip costs a tick over a second
-(1.3 s measured); a real amplifier's tick never waits for physics."""
+(1.3–4.7 s measured); a real amplifier's tick never waits for physics.  The simulated
+amplifier's link timeout is as long."""
+PLANE_HEARTBEAT_S = 1.0
+"""The simulated CANopen nodes' heartbeat in the plane (lost after 2.5 periods)."""
 
 
 def embedded_plane(config: DaemonConfig) -> DaemonConfig:
@@ -385,7 +388,11 @@ def embedded_plane(config: DaemonConfig) -> DaemonConfig:
     )
     parts = config.plate.parts if config.plate.planar else (PLANE_START_POSE,)
     plate = dataclasses.replace(config.plate, axes=AXES, parts=parts)
-    return dataclasses.replace(config, loop=loop, plate=plate)
+    amplifier = config.amplifier
+    if amplifier.simulated:  # the simulated plant's rare slow tick (PLANE_TICK_WATCHDOG_S)
+        can = {"heartbeat_s": PLANE_HEARTBEAT_S, **amplifier.can}
+        amplifier = dataclasses.replace(amplifier, timeout_s=PLANE_TICK_WATCHDOG_S, can=can)
+    return dataclasses.replace(config, loop=loop, plate=plate, amplifier=amplifier)
 
 
 def uses_camera(config: DaemonConfig) -> bool:
