@@ -36,6 +36,7 @@ from typing import NoReturn
 from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
+from feeder.pose import parse_poses
 from feeder.protocol.anc300 import DEFAULT_PASSWORD, DIALECTS
 from firmware_sim.canopen_node import serve_slcan_pty
 from firmware_sim.clock import Clock, RealTimeClock, VirtualClock
@@ -55,7 +56,7 @@ from firmware_sim.transports import (
     TcpConsoleServer,
     check_local,
 )
-from firmware_sim.world import PLANTS, CameraConfig, TrueStep, World, WorldConfig, parse_poses
+from firmware_sim.world import PLANTS, CameraConfig, TrueStep, World, WorldConfig
 
 REFERENCE_FREQUENCY_HZ = 100.0
 VIRTUAL_TICKS_PER_YIELD = 10
@@ -521,7 +522,7 @@ def build(args: argparse.Namespace) -> tuple[Firmware, World, TrueStep]:
             seed=args.seed,
             plant_axis=args.plant_axis,
             plant=args.plant,
-            poses=parse_poses(args.parts),
+            poses=parse_poses(args.parts, "--parts"),
             lever_arm_m=args.lever_arm_m,
             camera=CameraConfig(args.camera_rate_hz, args.camera_noise_m, args.camera_latency_s),
         ),

@@ -48,21 +48,6 @@ PLANTS = ("line", "planar")
 PLANAR_AXES = 3
 
 
-def parse_poses(text: str, option: str = "--parts") -> tuple[Pose, ...]:
-    """``X,Y,PSI;X,Y,PSI;...`` (m, m, rad, plate frame) → poses; :class:`InputError` names ``option``."""
-    poses = []
-    for item in text.split(";"):
-        fields = item.split(",")
-        try:
-            values = [float(f) for f in fields]
-        except ValueError:
-            values = []
-        if len(values) != 3 or not all(math.isfinite(v) for v in values):
-            raise InputError(option, f"expected X,Y,PSI (m, m, rad) per part, separated by ';', got {item!r}")
-        poses.append((values[0], values[1], values[2]))
-    return tuple(poses)
-
-
 @dataclass(frozen=True)
 class TrueStep:
     """The plant's true steady-state step up and down (m, signed) and its relative

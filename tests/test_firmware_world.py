@@ -13,10 +13,11 @@ from feeder.daemon.launcher import Simulator
 from feeder.drivers.anc300 import Anc300Link
 from feeder.errors import InputError
 from feeder.plant.plant import run_waveform
+from feeder.pose import parse_poses
 from feeder.waveform import Waveform
 from firmware_sim.clock import VirtualClock
 from firmware_sim.firmware import Firmware, FirmwareConfig
-from firmware_sim.world import CameraConfig, World, WorldConfig, parse_poses
+from firmware_sim.world import CameraConfig, World, WorldConfig
 
 
 def test_camera_rate_latency_and_noise() -> None:
@@ -132,7 +133,7 @@ def test_planar_world_refuses_too_few_axes_and_bad_poses() -> None:
     with pytest.raises(InputError, match="--axes"):
         World(WorldConfig(plant="planar"), FirmwareConfig(axes=2))
     with pytest.raises(InputError, match="--parts"):
-        parse_poses("1e-3,0")
+        parse_poses("1e-3,0", "--parts")
     with pytest.raises(InputError, match="--plant"):
         World(WorldConfig(plant="cube"), FirmwareConfig())
-    assert parse_poses("1e-3,0,0;-1e-3,2e-3,0.5") == ((1e-3, 0.0, 0.0), (-1e-3, 2e-3, 0.5))
+    assert parse_poses("1e-3,0,0;-1e-3,2e-3,0.5", "--parts") == ((1e-3, 0.0, 0.0), (-1e-3, 2e-3, 0.5))

@@ -12,6 +12,7 @@ Usage: ``python -m feeder.plant.warm_kernels``
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 
@@ -24,6 +25,8 @@ from feeder.plant.planar_plant import PlanarPlant
 from feeder.plant.plant import Plant
 from feeder.plant.plate_motion import sawtooth
 from feeder.plant.stick_slip import Friction
+
+log = logging.getLogger(__name__)
 
 
 def warm() -> float:
@@ -42,12 +45,12 @@ def warm() -> float:
 
 
 def main() -> int:
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
     seconds = warm()
-    print(
-        f"numba kernels compiled and cached in {seconds:.1f} s"
-        if seconds
-        else "numba not in use: nothing to compile"
-    )
+    if seconds:
+        log.info("numba kernels compiled and cached in %.1f s", seconds)
+    else:
+        log.info("numba not in use: nothing to compile")
     return 0
 
 
