@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from feeder.cli import demo_plane
+from feeder.cli.demo_plane import wait_until_idle
 from feeder.cli.output import print_json
 from feeder.daemon.client import Client
 from feeder.daemon.config import TRANSPORTS, DaemonConfig
@@ -75,9 +77,7 @@ def _move(client: Client, target: float, quiet: bool) -> tuple[dict[str, Any], l
         return result, trace
     if not quiet:
         print(f"move to {target * 1e6:.3f} µm: {reason}; retrying once", file=sys.stderr)
-    end = time.monotonic() + RECOVERY_TIMEOUT_S
-    while client.request("status")["state"] != "idle" and time.monotonic() < end:
-        time.sleep(0.1)
+    wait_until_idle(client, RECOVERY_TIMEOUT_S)
     again, more, reason = _attempt(client, target)
     if again is None:
         raise InputError("demo", f"move to {target} m {reason}")
@@ -177,8 +177,6 @@ def run(args: argparse.Namespace) -> int:
 
 def run_plane(part: Part, args: argparse.Namespace) -> int:
     """The demo in the plane; prints its moves (as they end) and a summary."""
-    from feeder.cli import demo_plane
-
     code, summary = demo_plane.run(part, args.transport, args.plot, quiet=args.json)
     if args.json:
         print_json(summary)

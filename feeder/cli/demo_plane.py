@@ -137,11 +137,16 @@ def move_to(client: Client, target: Pose, quiet: bool = True) -> dict[str, Any]:
     if result["status"] == "fault":
         if not quiet:
             print(f"move to {target}: {result['reason']}; retrying once", file=sys.stderr)
-        end = time.monotonic() + MOVE_TIMEOUT_S
-        while client.request("status")["state"] != "idle" and time.monotonic() < end:
-            time.sleep(0.1)
+        wait_until_idle(client, MOVE_TIMEOUT_S)
         result = _attempt(client, target)
     return result
+
+
+def wait_until_idle(client: Client, timeout_s: float) -> None:
+    """Wait (at most ``timeout_s``) until the daemon has recovered from a fault and is idle."""
+    end = time.monotonic() + timeout_s
+    while client.request("status")["state"] != "idle" and time.monotonic() < end:
+        time.sleep(0.1)
 
 
 def _attempt(client: Client, target: Pose) -> dict[str, Any]:

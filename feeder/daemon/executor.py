@@ -43,7 +43,7 @@ class AmplifierExecutor:
         modes: Mapping[str, Mapping[str, StepMode]],
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        self.amplifiers = _per_axis(amplifiers)
+        self.amplifiers = per_axis(amplifiers)
         self.modes = modes
         self._clock = clock
         self._cond = threading.Condition()
@@ -78,7 +78,7 @@ class AmplifierExecutor:
         """Use new links (after a reconnect); queued commands are dropped."""
         with self._cond:
             self._queue.clear()
-            self.amplifiers = _per_axis(amplifiers)
+            self.amplifiers = per_axis(amplifiers)
 
     def close(self) -> None:
         with self._cond:
@@ -147,7 +147,7 @@ class AmplifierExecutor:
         amp.enable()
 
 
-def _per_axis(amplifiers: Amplifier | Mapping[str, Amplifier]) -> dict[str, Amplifier]:
+def per_axis(amplifiers: Amplifier | Mapping[str, Amplifier]) -> dict[str, Amplifier]:
     """One driver per axis; a group of axes (:class:`feeder.drivers.axes.Axes`) is kept as it is."""
     if isinstance(amplifiers, Amplifier):
         return {"x": amplifiers}

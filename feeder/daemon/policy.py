@@ -54,6 +54,7 @@ from feeder.daemon.jobs import (
 )
 from feeder.daemon.line_navigator import COARSE, FINE, LineNavigator, mean_reading
 from feeder.daemon.step_estimator import FORWARD, StepEstimate
+from feeder.pose import Pose
 
 __all__ = [
     "COARSE",
@@ -98,6 +99,11 @@ class Navigator(Protocol):
     def estimates(self) -> dict[str, StepEstimate]: ...
 
     def estimates_json(self) -> dict[str, Any]: ...
+
+
+def _part_pose(job: Job, reading: Reading) -> Pose:
+    """The job's part in ``reading`` (the last one seen if the camera sees fewer parts)."""
+    return reading[min(job.part, len(reading)) - 1]
 
 
 @dataclass
@@ -209,7 +215,7 @@ class Policy:
         job = self.job
         if job is None:
             return
-        part = reading[min(job.part, len(reading)) - 1]
+        part = _part_pose(job, reading)
         job.trace.append((arrival_s, part[0]))
         if job.target_pose is not None:
             job.pose_trace.append((arrival_s, part))
@@ -405,8 +411,8 @@ class Policy:
         self._samples = []
         self._out.append(SavePosition(reading[0][0], reading))
         if job.start_m is None:
-            job.start_m = reading[min(job.part, len(reading)) - 1][0]
-            job.start_pose = reading[min(job.part, len(reading)) - 1]
+            job.start_pose = _part_pose(job, reading)
+            job.start_m = job.start_pose[0]
         if self._measured is not None:
             b = self._measured
             if self.navigator.learn(b.burst, b.learnable, b.before, reading):
@@ -480,7 +486,7 @@ class Policy:
     def _finish(self, job: Job, status: str, reason: str, reached: Reading | None) -> None:
         now = self._now
         reached = reached if reached is not None else self.reading
-        pose = None if reached is None else reached[min(job.part, len(reached)) - 1]
+        pose = None if reached is None else _part_pose(job, reached)
         result = JobResult(
             kind=job.kind,
             status=status,

@@ -104,10 +104,8 @@ class PoseNavigator:
         if learnable:
             self.planner.learn(_axis_burst(burst), list(before), list(after))
         noise_m = max(3 * self.settings.sensor_noise_m, 0.1 * self.settings.tolerance_m)
-        return all(
-            pose_error(a, b, 2 * math.pi)[0] <= noise_m and pose_error(a, b, 2 * math.pi)[1] <= 1e-4
-            for a, b in zip(before, after, strict=False)
-        )
+        changes = [pose_error(a, b, 2 * math.pi) for a, b in zip(before, after, strict=False)]
+        return all(distance <= noise_m and angle <= 1e-4 for distance, angle in changes)
 
     def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
         assert job.target_pose is not None

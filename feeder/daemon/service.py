@@ -49,6 +49,7 @@ from feeder.daemon.control_loop import (
     Navigator,
     StepMode,
 )
+from feeder.daemon.executor import per_axis
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.daemon.store import Calibration, Store
 from feeder.drivers.amplifier import Amplifier
@@ -209,7 +210,7 @@ class Daemon:
             self.store = Store(setup.database_path)
             undo.callback(self.store.close)
             self.interrupted_moves = self.store.interrupt_running_moves()
-            amplifiers = _per_axis(links.open_amplifier())
+            amplifiers = per_axis(links.open_amplifier())
             self._amplifier_generation = getattr(links, "respawns", 0)
             undo.callback(_close, amplifiers)
             for amplifier in amplifiers.values():
@@ -426,7 +427,7 @@ class Daemon:
             attempts += 1
             try:
                 if kind == "amplifier":
-                    amps = _per_axis(self.links.open_amplifier())
+                    amps = per_axis(self.links.open_amplifier())
                     with contextlib.ExitStack() as undo:  # a link that cannot ground is closed
                         undo.callback(_close, amps)
                         for amp in amps.values():
@@ -773,10 +774,6 @@ class Daemon:
         except (ValueError, TypeError, OverflowError, RecursionError) as err:
             # a value no handler expected (NaN in a reply, an integer too large for a float)
             return {"ok": False, "error": f"cannot answer: {type(err).__name__}: {str(err)[:200]}"}
-
-
-def _per_axis(amplifiers: Amplifier | dict[str, Amplifier]) -> dict[str, Amplifier]:
-    return {"x": amplifiers} if isinstance(amplifiers, Amplifier) else amplifiers
 
 
 def _close(amplifiers: dict[str, Amplifier]) -> None:
