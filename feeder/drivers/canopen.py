@@ -1,16 +1,18 @@
-"""The amplifier over CAN: a CANopen (CiA 301) master for one amplifier axis node.
+"""The amplifier over CAN: a CANopen (CiA 301) master for the amplifier's axis nodes.
 
 Built on the ``canopen`` package's :class:`canopen.RemoteNode` and the node's EDS
 (package data of :mod:`feeder.protocol.eds`; object reference in docs/canopen.md),
-every object addressed by its EDS name:
+every object addressed by its EDS name.  A node has one axis or several (the EDS
+says which, :func:`feeder.protocol.eds.axis_count`): :class:`CanopenNodeLink` is the
+node (start-up, SDO, heartbeat), shared by one :class:`CanopenAmplifier` per axis:
 
-- configuration by SDO (frequency, amplitude, flyback, mode),
-- steps by RPDO1 (signed count + command sequence), each confirmed by the
-  node's echo of the sequence in TPDO1 (a refusal sets a status bit),
-- progress from TPDO1 (step counter, status word, error register),
-- node loss from the heartbeat: no heartbeat for :data:`HEARTBEAT_LOSS_PERIODS`
-  periods, or a heartbeat reporting anything but OPERATIONAL, marks the link
-  lost; every later call raises :class:`AmplifierLinkLost` without sending.
+- configuration by SDO (frequency, amplitude, flyback, mode), the axis' own objects,
+- steps by the axis' RPDO (signed count + command sequence), each confirmed by the
+  node's echo of the sequence in the axis' TPDO (a refusal sets a status bit),
+- progress from the axis' TPDO (step counter, status word, error register),
+- node loss from the node's heartbeat: no heartbeat for :data:`HEARTBEAT_LOSS_PERIODS`
+  periods, or a heartbeat reporting anything but OPERATIONAL, marks the node lost;
+  every later call on any of its axes raises :class:`AmplifierLinkLost` without sending.
 
 The bus is plain python-can keyword arguments, so the transport is configuration::
 
@@ -18,17 +20,19 @@ The bus is plain python-can keyword arguments, so the transport is configuration
     {"interface": "socketcan", "channel": "can0"}
     {"interface": "virtual", "channel": "test"}
 
-Steps played: the node counts them (``Step counter``, in every TPDO1), so
+Steps played: the node counts them (``Step counter``, in every TPDO), so
 ``AmplifierStatus.step_counter`` is the drive's own count, not an estimate; the
-end of a burst is the drive's ``moving`` bit going low in TPDO1 (:meth:`wait`).
+end of a burst is the drive's ``moving`` bit going low in the TPDO (:meth:`wait`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import can
@@ -44,8 +48,9 @@ from feeder.drivers.amplifier import (
     AmplifierStatus,
     DriveSettings,
 )
+from feeder.errors import InputError
 from feeder.protocol import anc300
-from feeder.protocol.eds import MODES, bit_mask, object_dictionary
+from feeder.protocol.eds import MODES, axis_count, axis_object, bit_mask, object_dictionary
 
 HOST_SILENCE_PERIODS = 3
 """The node's heartbeat consumer time, in the driver's heartbeat periods."""
@@ -55,7 +60,7 @@ HEARTBEAT_LOSS_PERIODS = 2.5
 within 3 periods of the node's last breath)."""
 
 CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
-TPDO1_TYPE = "TPDO1 communication parameter.Transmission type"
+PRODUCT_CODE = "Identity object.Product code"
 SETTINGS = ("Flyback shape", "Frequency", "Flyback time", "Amplitude")
 """The objects :meth:`CanopenAmplifier.apply` writes, in the order of ``_write_settings``' arguments."""
 
@@ -80,22 +85,45 @@ def fault_names(word: int) -> tuple[str, ...]:
     return anc300.fault_names(word) + tuple(f"fault{bit}" for bit in range(32) if unknown >> bit & 1)
 
 
-class CanopenAmplifier(Amplifier):
-    """One amplifier axis reached as CANopen node ``node_id`` on a python-can bus.
+def tpdo_type(axis: int) -> str:
+    """The transmission type of axis ``axis``' TPDO (axis n sends TPDOn)."""
+    return f"TPDO{axis} communication parameter.Transmission type"
+
+
+@dataclass
+class _Feedback:
+    """One axis' latest TPDO, and the sequence of its last RPDO command."""
+
+    counter: int = 0
+    status_word: int = 0
+    ack: int = 0
+    seen: bool = False
+    sequence: int = 0
+
+
+class CanopenNodeLink:
+    """CANopen node ``node_id`` on a python-can bus, shared by the drivers of its axes.
+
+    Starts the node (heartbeat, PDOs from the EDS, NMT OPERATIONAL), serialises SDO
+    transfers (one SDO channel per node), receives every axis' TPDO and watches the
+    node's heartbeat: once the node is lost, every axis is.
 
     bus: python-can keyword arguments (``can.Bus(**bus)``).
-    eds: the node's object dictionary; default: the packaged EDS
-        (:func:`feeder.protocol.eds.object_dictionary`).
+    eds: the node's object dictionary; default: the packaged one-axis EDS
+        (:func:`feeder.protocol.eds.object_dictionary`).  It says how many axes
+        (:attr:`axes`) the node has.
     heartbeat_s: heartbeat period of the node (the driver sets object 0x1017).
     timeout_s: SDO response and RPDO acknowledge timeout.
     supervise_host: the driver beats too (as node ``host_id``, every
         ``heartbeat_s``) and the node consumes it (0x1016): a host that dies
-        mid-move gets the axis grounded (``host_watchdog``) after
+        mid-move gets the node's moving axes grounded (``host_watchdog``) after
         :data:`HOST_SILENCE_PERIODS` periods.  Off by default, like the
         firmware's ``--host-watchdog-s``.
-    network: a connected :class:`canopen.Network` to share with other axes'
+    network: a connected :class:`canopen.Network` to share with other nodes'
         drivers (one bus, several nodes; ``bus`` is then ignored); the caller
-        disconnects it.  Default: the driver connects its own.
+        disconnects it.  Default: the link connects its own.
+
+    The link closes when the last axis driver on it is closed (:meth:`release`).
     """
 
     def __init__(
@@ -112,21 +140,20 @@ class CanopenAmplifier(Amplifier):
         self.node_id = node_id
         self.supervise_host = supervise_host
         self.host_id = host_id
-        self._host_heartbeat: canopen.network.PeriodicMessageTask | None = None
+        self.host_heartbeat: canopen.network.PeriodicMessageTask | None = None
         self.heartbeat_s = heartbeat_s
         self.timeout_s = timeout_s
-        self._lock = threading.RLock()
-        self._changed = threading.Condition()
+        self.sdo_lock = threading.Lock()
+        self.changed = threading.Condition()
         self._lost: str | None = None
         self._last_heartbeat = time.monotonic()
         self._started = False
-        self._tpdo_seen = False
-        self._counter = 0
-        self._status_word = 0
-        self._ack = 0
-        self._sequence = 0
+        self._users = 0
         self._closing = threading.Event()
         self._owns_network = network is None
+        od = eds if eds is not None else object_dictionary(node_id)
+        self.axes = axis_count(od)
+        self.feedback = {axis: _Feedback() for axis in range(1, self.axes + 1)}
         if network is None:
             network = canopen.Network()
             network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
@@ -137,10 +164,7 @@ class CanopenAmplifier(Amplifier):
         with contextlib.ExitStack() as undo:  # any failure from here disconnects (our own network)
             if self._owns_network:
                 undo.callback(self.network.disconnect)
-            od = eds if eds is not None else object_dictionary(node_id)
             self.node = canopen.RemoteNode(node_id, od)
-            self._moving = bit_mask(od, "Status word", "moving")
-            self._refused = bit_mask(od, "Status word", "refused")
             self.node.sdo.RESPONSE_TIMEOUT = timeout_s
             self.network.add_node(self.node)
             self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
@@ -151,132 +175,258 @@ class CanopenAmplifier(Amplifier):
         )
         self._watchdog.start()
 
-    # -- link setup and supervision --------------------------------------------
+    # -- start-up and supervision -----------------------------------------------
 
     def _start(self) -> None:
-        """Wait for the node, set its heartbeat, take the PDOs from the EDS, start it."""
+        """Wait for the node, check it is the EDS's product, set its heartbeat, take the
+        PDOs from the EDS, start it and wait for every axis' first TPDO."""
         try:
             self.node.nmt.wait_for_heartbeat(timeout=max(1.0, 5 * self.heartbeat_s))
         except canopen.nmt.NmtError as exc:
             raise AmplifierLinkLost(f"CANopen node {self.node_id}: no heartbeat") from exc
-        self._sdo_write("Producer heartbeat time", round(self.heartbeat_s * 1000))
+        product = self.node.object_dictionary.device_information.product_number
+        found = self.sdo_read(PRODUCT_CODE)
+        if product is not None and found != product:
+            raise AmplifierError(
+                f"CANopen node {self.node_id} is product 0x{found:08X}, its EDS describes "
+                f"0x{product:08X} ({self.axes} axis per node): wrong EDS or node id"
+            )
+        self.sdo_write("Producer heartbeat time", round(self.heartbeat_s * 1000))
         if self.supervise_host:  # consumer first: it sees the first beat
-            self._sdo_write(
+            self.sdo_write(
                 CONSUMER_HEARTBEAT, self.host_id << 16 | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000)
             )
-            self._host_heartbeat = self.network.send_periodic(
+            self.host_heartbeat = self.network.send_periodic(
                 0x700 + self.host_id, b"\x05", self.heartbeat_s
             )  # 5: OPERATIONAL
-        self._sdo_write(TPDO1_TYPE, 255)  # TPDO1 event-driven: on change and on its timer
         self.node.tpdo.read(from_od=True)
         self.node.rpdo.read(from_od=True)
-        self._tpdo = self.node.tpdo[1]
-        self._rpdo = self.node.rpdo[1]
-        self._tpdo.add_callback(self._on_tpdo)
-        self._sequence = self._sdo_read("Command acknowledge")
+        for axis, feedback in self.feedback.items():
+            self.sdo_write(tpdo_type(axis), 255)  # event-driven: on change and on its timer
+            self.node.tpdo[axis].add_callback(functools.partial(self._on_tpdo, axis))
+            feedback.sequence = self.sdo_read(self.name(axis, "Command acknowledge"))
         self.node.nmt.state = "OPERATIONAL"
-        with self._changed:
-            if not self._changed.wait_for(lambda: self._tpdo_seen, self.timeout_s + 0.2):
+        with self.changed:
+            all_seen = self.changed.wait_for(
+                lambda: all(f.seen for f in self.feedback.values()), self.timeout_s + 0.2
+            )
+            if not all_seen:
                 raise AmplifierLinkLost(f"CANopen node {self.node_id}: no TPDO after start")
             # TPDOs flow only in OPERATIONAL: from here on any other state is a loss.
             self._started = True
 
+    def name(self, axis: int, name: str) -> str:
+        """The EDS name of axis ``axis``' object ``name`` on this node."""
+        return axis_object(self.node.object_dictionary, axis, name)
+
     def _on_heartbeat(self, state: int) -> None:
-        with self._changed:
+        with self.changed:
             self._last_heartbeat = time.monotonic()
             if self._started and state != 5 and self._lost is None:
                 name = canopen.nmt.NMT_STATES.get(state, str(state))
                 self._lost = f"CANopen node {self.node_id} reported NMT state {name}"
-                self._changed.notify_all()
+                self.changed.notify_all()
 
     def _watch_heartbeat(self) -> None:
         limit = HEARTBEAT_LOSS_PERIODS * self.heartbeat_s
         while not self._closing.is_set():
-            with self._changed:
+            with self.changed:
                 silent = time.monotonic() - self._last_heartbeat
                 if silent >= limit and self._lost is None:
                     self._lost = f"CANopen node {self.node_id}: no heartbeat for {silent * 1000:.0f} ms"
-                    self._changed.notify_all()
+                    self.changed.notify_all()
                 if self._lost is not None:
                     return
             self._closing.wait(max(limit - silent, 0.005))
 
-    def _on_tpdo(self, pdo: Any) -> None:
-        with self._changed:
-            self._counter = int(pdo["Step counter"].raw)
-            self._status_word = int(pdo["Status word"].raw)
-            self._ack = int(pdo["Command acknowledge"].raw)
-            self._tpdo_seen = True
-            self._changed.notify_all()
+    def _on_tpdo(self, axis: int, pdo: Any) -> None:
+        od = self.node.object_dictionary
+        with self.changed:
+            feedback = self.feedback[axis]
+            feedback.counter = int(pdo[axis_object(od, axis, "Step counter")].raw)
+            feedback.status_word = int(pdo[axis_object(od, axis, "Status word")].raw)
+            feedback.ack = int(pdo[axis_object(od, axis, "Command acknowledge")].raw)
+            feedback.seen = True
+            self.changed.notify_all()
 
     def _on_bus_error(self, exc: Exception) -> None:
-        """The bus itself failed (e.g. the adapter's port vanished): the link is lost."""
-        with self._changed:
+        """The bus itself failed (e.g. the adapter's port vanished): the node is lost."""
+        with self.changed:
             if self._lost is None:
                 self._lost = f"CANopen node {self.node_id}: CAN bus error: {exc}"
-                self._changed.notify_all()
+                self.changed.notify_all()
         time.sleep(0.05)  # the receiver retries; do not spin on a dead port
 
-    def _check_link(self) -> None:
+    def check(self) -> None:
+        """Raise :class:`AmplifierLinkLost` once the node is lost."""
         if self._lost is not None:
             raise AmplifierLinkLost(self._lost)
 
     @property
     def lost(self) -> str | None:
-        """Why the link was declared lost, or None while it is healthy."""
+        """Why the node was declared lost, or None while it is healthy."""
         return self._lost
+
+    # -- SDO ---------------------------------------------------------------------
+
+    def sdo_write(self, name: str, value: int, who: str | None = None) -> None:
+        """Write object ``name`` (its EDS name; ``Record.Sub`` for a sub-object); ``who``
+        names the axis in errors."""
+        self.check()
+        try:
+            with self.sdo_lock:
+                self.node.sdo[name].raw = value
+        except SdoAbortedError as exc:
+            raise AmplifierError(self._abort_text(exc, name, value, who)) from exc
+        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
+            raise AmplifierLinkLost(f"{who or self.who}: {exc}") from exc
+
+    def sdo_read(self, name: str, who: str | None = None) -> int:
+        """Read object ``name`` (its EDS name)."""
+        self.check()
+        try:
+            with self.sdo_lock:
+                return int(self.node.sdo[name].raw)
+        except SdoAbortedError as exc:
+            raise AmplifierError(self._abort_text(exc, name, None, who)) from exc
+        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
+            raise AmplifierLinkLost(f"{who or self.who}: {exc}") from exc
+
+    @property
+    def who(self) -> str:
+        return f"CANopen node {self.node_id}"
+
+    def _abort_text(self, exc: SdoAbortedError, name: str, value: int | None, who: str | None) -> str:
+        what = f"{name} = {value}" if value is not None else name
+        reason = ABORT_MESSAGES.get(exc.code, "refused")
+        return f"{who or self.who}: {what}: {reason} (SDO abort 0x{exc.code:08X})"
+
+    # -- users ---------------------------------------------------------------------
+
+    def acquire(self) -> None:
+        """One more axis driver uses the link."""
+        self._users += 1
+
+    def release(self) -> None:
+        """An axis driver is done: the last one closes the link."""
+        self._users -= 1
+        if self._users <= 0:
+            self.close()
+
+    def close(self) -> None:
+        """Release the node; outputs are left alone (the node stops watching us first)."""
+        if self._closing.is_set():
+            return
+        if self.host_heartbeat is not None:
+            if self._lost is None:
+                with contextlib.suppress(AmplifierError):
+                    self.sdo_write(CONSUMER_HEARTBEAT, 0)
+            self.host_heartbeat.stop()
+        self._closing.set()
+        if self._watchdog.is_alive():
+            self._watchdog.join(timeout=1.0)
+        if not self._owns_network:
+            return
+        # the adapter may be gone already (e.g. its pty closed): nothing left to release
+        with contextlib.suppress(can.CanError, OSError):
+            self.network.disconnect()
+
+
+class CanopenAmplifier(Amplifier):
+    """Axis ``axis`` of CANopen node ``node_id`` on a python-can bus.
+
+    The arguments but ``axis`` are :class:`CanopenNodeLink`'s: this driver opens its
+    own link to the node.  To drive several axes of one node, open the link once and
+    put one driver per axis on it (:meth:`on_link`, :func:`open_node_axes`).
+    """
+
+    def __init__(
+        self,
+        bus: Mapping[str, Any],
+        node_id: int,
+        eds: ObjectDictionary | None = None,
+        heartbeat_s: float = 0.25,
+        timeout_s: float = 0.5,
+        supervise_host: bool = False,
+        host_id: int = 127,
+        network: canopen.Network | None = None,
+        axis: int = 1,
+    ) -> None:
+        link = CanopenNodeLink(bus, node_id, eds, heartbeat_s, timeout_s, supervise_host, host_id, network)
+        try:
+            self._attach(link, axis)
+        except InputError:
+            link.close()
+            raise
+
+    @classmethod
+    def on_link(cls, link: CanopenNodeLink, axis: int) -> CanopenAmplifier:
+        """The driver of axis ``axis`` on an open ``link`` (closing it releases the link)."""
+        driver = cls.__new__(cls)
+        driver._attach(link, axis)
+        return driver
+
+    def _attach(self, link: CanopenNodeLink, axis: int) -> None:
+        if not 1 <= axis <= link.axes:
+            raise InputError("axis", f"CANopen node {link.node_id} has axes 1..{link.axes}, not {axis}")
+        self.link, self.axis = link, axis
+        self.node_id, self.node, self.network = link.node_id, link.node, link.network
+        self.heartbeat_s, self.timeout_s = link.heartbeat_s, link.timeout_s
+        self.who = f"CANopen node {link.node_id}" + (f" axis {axis}" if link.axes > 1 else "")
+        self._names = {name: link.name(axis, name) for name in (*SETTINGS, *STATE_OBJECTS)}
+        od = link.node.object_dictionary
+        self._moving = bit_mask(od, self._names["Status word"], "moving")
+        self._refused = bit_mask(od, self._names["Status word"], "refused")
+        self._rpdo = link.node.rpdo[axis]
+        self._feedback = link.feedback[axis]
+        self._lock = threading.RLock()
+        self._closed = False
+        link.acquire()
+
+    @property
+    def lost(self) -> str | None:
+        """Why the node was declared lost, or None while it is healthy."""
+        return self.link.lost
+
+    @property
+    def _host_heartbeat(self) -> canopen.network.PeriodicMessageTask | None:
+        return self.link.host_heartbeat
 
     # -- SDO and RPDO -----------------------------------------------------------
 
     def _sdo_write(self, name: str, value: int) -> None:
-        """Write object ``name`` (its EDS name; ``Record.Sub`` for a sub-object)."""
-        self._check_link()
-        try:
-            self.node.sdo[name].raw = value
-        except SdoAbortedError as exc:
-            raise AmplifierError(self._abort_text(exc, name, value)) from exc
-        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
-            raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
+        """Write this axis' object ``name`` (its one-axis EDS name)."""
+        self.link.sdo_write(self._names[name], value, self.who)
 
     def _sdo_read(self, name: str) -> int:
-        """Read object ``name`` (its EDS name)."""
-        self._check_link()
-        try:
-            return int(self.node.sdo[name].raw)
-        except SdoAbortedError as exc:
-            raise AmplifierError(self._abort_text(exc, name, None)) from exc
-        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
-            raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
-
-    def _abort_text(self, exc: SdoAbortedError, name: str, value: int | None) -> str:
-        what = f"{name} = {value}" if value is not None else name
-        reason = ABORT_MESSAGES.get(exc.code, "refused")
-        return f"CANopen node {self.node_id}: {what}: {reason} (SDO abort 0x{exc.code:08X})"
+        """Read this axis' object ``name`` (its one-axis EDS name)."""
+        return self.link.sdo_read(self._names[name], self.who)
 
     def _command(self, count: int) -> None:
-        """Send ``count`` by RPDO1 and wait for the node's acknowledge in TPDO1."""
+        """Send ``count`` by the axis' RPDO and wait for the node's acknowledge in its TPDO."""
+        link, feedback = self.link, self._feedback
         with self._lock:
-            self._check_link()
-            self._sequence = (self._sequence + 1) % 256
-            sequence = self._sequence
-            self._rpdo["Step command"].raw = count
-            self._rpdo["Command sequence"].raw = sequence
+            link.check()
+            feedback.sequence = (feedback.sequence + 1) % 256
+            sequence = feedback.sequence
+            self._rpdo[self._names["Step command"]].raw = count
+            self._rpdo[self._names["Command sequence"]].raw = sequence
             try:
                 self._rpdo.transmit()
             except (can.CanError, OSError) as exc:  # the adapter's port is gone
-                raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
-            with self._changed:
-                acked = self._changed.wait_for(
-                    lambda: self._ack == sequence or self._lost is not None, self.timeout_s
+                raise AmplifierLinkLost(f"{self.who}: {exc}") from exc
+            with link.changed:
+                acked = link.changed.wait_for(
+                    lambda: feedback.ack == sequence or link.lost is not None, self.timeout_s
                 )
-                self._check_link()
-                refused = self._status_word & self._refused
+                link.check()
+                refused = feedback.status_word & self._refused
             if not acked:
-                raise AmplifierLinkLost(f"CANopen node {self.node_id}: step command not acknowledged")
+                raise AmplifierLinkLost(f"{self.who}: step command not acknowledged")
         if refused:
             state = self.status()
             reason = f"fault {', '.join(state.faults)}" if state.fault_word else f"mode {state.mode}"
-            raise AmplifierError(f"CANopen node {self.node_id}: step {count} refused ({reason})")
+            raise AmplifierError(f"{self.who}: step {count} refused ({reason})")
 
     # -- the Amplifier interface -----------------------------------------------
 
@@ -326,11 +476,12 @@ class CanopenAmplifier(Amplifier):
         self._command(0)
 
     def wait(self, timeout_s: float) -> bool:
-        with self._changed:
-            done = self._changed.wait_for(
-                lambda: not self._status_word & self._moving or self._lost is not None, timeout_s
+        link, feedback = self.link, self._feedback
+        with link.changed:
+            done = link.changed.wait_for(
+                lambda: not feedback.status_word & self._moving or link.lost is not None, timeout_s
             )
-            self._check_link()
+            link.check()
             return done
 
     def ground(self) -> None:
@@ -342,7 +493,7 @@ class CanopenAmplifier(Amplifier):
             self._sdo_write("Mode", MODES.index("stp"))
 
     def clear_faults(self) -> None:
-        """Clear the node's latched fault word (``Fault reset``); the output stays grounded."""
+        """Clear the axis' latched fault word (``Fault reset``); the output stays grounded."""
         with self._lock:
             self._sdo_write("Fault reset", 1)
 
@@ -366,27 +517,50 @@ class CanopenAmplifier(Amplifier):
 
     @property
     def step_counter(self) -> int:
-        """The step counter from the latest TPDO1 (no bus traffic)."""
-        with self._changed:
-            return self._counter
+        """The step counter from the axis' latest TPDO (no bus traffic)."""
+        with self.link.changed:
+            return self._feedback.counter
 
     def close(self) -> None:
-        """Release the link; the output is left alone (the node stops watching us first)."""
-        if self._closing.is_set():
+        """Release this axis; the last axis of the node releases the link (outputs are
+        left alone: the node stops watching us first)."""
+        if self._closed:
             return
-        if self._host_heartbeat is not None:
-            if self._lost is None:
-                with contextlib.suppress(AmplifierError):
-                    self._sdo_write(CONSUMER_HEARTBEAT, 0)
-            self._host_heartbeat.stop()
-        self._closing.set()
-        if self._watchdog.is_alive():
-            self._watchdog.join(timeout=1.0)
-        if not self._owns_network:
-            return
-        # the adapter may be gone already (e.g. its pty closed): nothing left to release
-        with contextlib.suppress(can.CanError, OSError):
-            self.network.disconnect()
+        self._closed = True
+        self.link.release()
+
+
+STATE_OBJECTS = (
+    "Mode",
+    "Continuous",
+    "Fault reset",
+    "Fault word",
+    "Step counter",
+    "Status word",
+    "Step command",
+    "Command sequence",
+    "Command acknowledge",
+)
+"""The axis' objects besides :data:`SETTINGS` the driver uses (one-axis EDS names)."""
+
+
+def open_node_axes(
+    bus: Mapping[str, Any],
+    node_id: int,
+    axes: Iterable[int] | None = None,
+    eds: ObjectDictionary | None = None,
+    network: canopen.Network | None = None,
+    **options: Any,
+) -> dict[int, CanopenAmplifier]:
+    """One :class:`CanopenAmplifier` per axis (``axes``; default: all the EDS lists) of
+    node ``node_id``, sharing one :class:`CanopenNodeLink` (options: its keywords)."""
+    link = CanopenNodeLink(bus, node_id, eds, network=network, **options)
+    try:
+        numbers = range(1, link.axes + 1) if axes is None else axes
+        return {number: CanopenAmplifier.on_link(link, number) for number in numbers}
+    except InputError:
+        link.close()
+        raise
 
 
 class _BusErrors(can.Listener):
