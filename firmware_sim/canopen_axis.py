@@ -83,6 +83,8 @@ class AxisPort:
                 f"{self.tpdo_record}.Event timer": lambda v: setattr(self, "event_timer_s", v / 1000),
             }
         )
+        self.step_command = self.name("Step command")
+        self.command_sequence = self.name("Command sequence")
         self.base = {self.name(name): name for name in (*writers, *LIVE_OBJECTS, "Amplitude limit")}
         """This axis' object names → their one-axis names."""
         for name in (*self.writers, *self.base):

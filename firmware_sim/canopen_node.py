@@ -291,13 +291,13 @@ class CanopenNode:
             return
         with self.firmware.lock:
             self.firmware.host_activity()
-            count = int(pdo[port.name("Step command")].raw)
+            count = int(pdo[port.step_command].raw)
             try:
                 port.write_step_command(count)
                 port.refused = False
             except FirmwareError:
                 port.refused = True
-            port.ack = int(pdo[port.name("Command sequence")].raw)
+            port.ack = int(pdo[port.command_sequence].raw)
         self._wake.set()
 
     def _statuses(self) -> dict[int, AxisStatus]:

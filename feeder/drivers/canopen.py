@@ -61,6 +61,8 @@ within 3 periods of the node's last breath)."""
 
 CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
 PRODUCT_CODE = "Identity object.Product code"
+TPDO_OBJECTS = ("Step counter", "Status word", "Command acknowledge")
+"""What the driver takes from each axis' TPDO (one-axis EDS names)."""
 SETTINGS = ("Flyback shape", "Frequency", "Flyback time", "Amplitude")
 """The objects :meth:`CanopenAmplifier.apply` writes, in the order of ``_write_settings``' arguments."""
 
@@ -154,6 +156,9 @@ class CanopenNodeLink:
         od = eds if eds is not None else object_dictionary(node_id)
         self.axes = axis_count(od)
         self.feedback = {axis: _Feedback() for axis in range(1, self.axes + 1)}
+        self._tpdo_names = {
+            axis: tuple(axis_object(od, axis, name) for name in TPDO_OBJECTS) for axis in self.feedback
+        }
         if network is None:
             network = canopen.Network()
             network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
@@ -240,12 +245,12 @@ class CanopenNodeLink:
             self._closing.wait(max(limit - silent, 0.005))
 
     def _on_tpdo(self, axis: int, pdo: Any) -> None:
-        od = self.node.object_dictionary
+        counter, status_word, ack = self._tpdo_names[axis]
         with self.changed:
             feedback = self.feedback[axis]
-            feedback.counter = int(pdo[axis_object(od, axis, "Step counter")].raw)
-            feedback.status_word = int(pdo[axis_object(od, axis, "Status word")].raw)
-            feedback.ack = int(pdo[axis_object(od, axis, "Command acknowledge")].raw)
+            feedback.counter = int(pdo[counter].raw)
+            feedback.status_word = int(pdo[status_word].raw)
+            feedback.ack = int(pdo[ack].raw)
             feedback.seen = True
             self.changed.notify_all()
 
