@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import can
 import canopen
@@ -23,6 +24,7 @@ from canopen.objectdictionary import ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
 from test_can_driver import FAST, HEARTBEAT_S
 from test_can_node import STATUS_MOVING, STATUS_REFUSED, wait_emcy
+from test_eds import variable
 
 from feeder.daemon.config import load_config
 from feeder.daemon.links import simulator_args
@@ -36,6 +38,7 @@ from feeder.protocol.eds import (
     MODES,
     axis_count,
     axis_object,
+    entry,
     object_dictionary,
 )
 from firmware_sim.__main__ import build_parser, check_options
@@ -63,7 +66,7 @@ def test_the_eds_alone_says_how_many_axes_a_node_has() -> None:
     assert axis_object(three, 2, "Mode") == "Axis 2 Mode"
     # CiA 301 multiple device module: 0x1000 additional information FFFFh; one Device type
     # per logical device (axis) at 0x67FF + 0x800·k, and no fourth one
-    assert three["Device type"].default == 0xFFFF0000
+    assert entry(three, "Device type").default == 0xFFFF0000
     assert [three[0x67FF + 0x800 * k].name for k in range(3)] == [f"Axis {n} device type" for n in AXES]
     assert 0x67FF + 0x800 * 3 not in three
     assert three.device_information.nr_of_RXPDO == three.device_information.nr_of_TXPDO == 3
@@ -74,27 +77,24 @@ def test_each_axis_has_the_one_axis_objects_0x800_apart() -> None:
     manufacturer = [v for v in one.values() if isinstance(v, ODVariable) and 0x2000 <= v.index < 0x6000]
     assert len(manufacturer) == 16
     for axis in AXES:
-        for variable in manufacturer:
-            moved = three[variable.index + 0x800 * (axis - 1)]
+        for original in manufacturer:
+            moved = three[original.index + 0x800 * (axis - 1)]
             assert isinstance(moved, ODVariable)
-            assert moved.name == f"Axis {axis} {variable.name}"
+            assert moved.name == f"Axis {axis} {original.name}"
             attributes = ("data_type", "access_type", "min", "max", "default", "unit", "pdo_mappable")
-            assert [getattr(moved, a) for a in attributes] == [getattr(variable, a) for a in attributes]
-            assert moved.value_descriptions == variable.value_descriptions
-            assert moved.bit_definitions == variable.bit_definitions
+            assert [getattr(moved, a) for a in attributes] == [getattr(original, a) for a in attributes]
+            assert moved.value_descriptions == original.value_descriptions
+            assert moved.bit_definitions == original.bit_definitions
     assert 0x2000 + 0x800 * 3 not in three  # no axis 4
 
 
 def test_axis_n_has_rpdo_n_and_tpdo_n_mapping_its_own_objects() -> None:
     od = object_dictionary(NODE_ID, EDS_3AXIS_FILE)
     for axis in AXES:
-        rpdo = od[f"RPDO{axis} communication parameter"]["COB-ID used by RPDO"]
-        tpdo = od[f"TPDO{axis} communication parameter"]["COB-ID used by TPDO"]
+        rpdo, tpdo = variable(od, 0x1400 + axis - 1, 1), variable(od, 0x1800 + axis - 1, 1)
         assert (rpdo.default, tpdo.default) == (0x100 * axis + 0x100 + NODE_ID, 0x100 * axis + 0x80 + NODE_ID)
-        rmap = od[0x1600 + axis - 1]
-        tmap = od[0x1A00 + axis - 1]
-        mapped_r = [od[rmap[s].default >> 16].name for s in (1, 2)]
-        mapped_t = [od[tmap[s].default >> 16].name for s in (1, 2, 3, 4)]
+        mapped_r = [od[int(variable(od, 0x1600 + axis - 1, s).default) >> 16].name for s in (1, 2)]
+        mapped_t = [od[int(variable(od, 0x1A00 + axis - 1, s).default) >> 16].name for s in (1, 2, 3, 4)]
         assert mapped_r == [f"Axis {axis} Step command", f"Axis {axis} Command sequence"]
         assert mapped_t == [
             f"Axis {axis} Step counter",
@@ -330,7 +330,7 @@ def driver_rig() -> Iterator[DriverRig]:
     yield from start_nodes(3, EDS_3AXIS_FILE)
 
 
-def open_amps(rig: DriverRig, **options: object) -> dict[int, CanopenAmplifier]:
+def open_amps(rig: DriverRig, **options: Any) -> dict[int, CanopenAmplifier]:
     return open_node_axes(
         {"interface": "virtual", "channel": rig.channel},
         NODE_ID,

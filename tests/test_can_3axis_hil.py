@@ -32,6 +32,7 @@ from feeder.daemon.launcher import Simulator
 from feeder.daemon.links import open_links
 from feeder.drivers.axes import Axes
 from feeder.drivers.camera import StreamCamera
+from feeder.drivers.sensor import PositionSensor
 from feeder.parts import Part
 from feeder.protocol.eds import EDS_3AXIS_FILE, MODES
 
@@ -114,7 +115,7 @@ def test_wrong_objects_and_sub_indices_abort_over_slcan(
     assert info.value.code == code
 
 
-def stops_every_axis(axes: Axes, camera: StreamCamera) -> None:
+def stops_every_axis(axes: Axes, camera: PositionSensor) -> None:
     """A long burst on x, then :meth:`Axes.stop`: the part stops far short of the burst.
 
     (test_axes' ``stop_on_all_axes`` bounds the run-on by 50 µm, ~17 steps: on the virtual
