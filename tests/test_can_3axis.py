@@ -93,8 +93,8 @@ def test_axis_n_has_rpdo_n_and_tpdo_n_mapping_its_own_objects() -> None:
     for axis in AXES:
         rpdo, tpdo = variable(od, 0x1400 + axis - 1, 1), variable(od, 0x1800 + axis - 1, 1)
         assert (rpdo.default, tpdo.default) == (0x100 * axis + 0x100 + NODE_ID, 0x100 * axis + 0x80 + NODE_ID)
-        mapped_r = [od[int(variable(od, 0x1600 + axis - 1, s).default) >> 16].name for s in (1, 2)]
-        mapped_t = [od[int(variable(od, 0x1A00 + axis - 1, s).default) >> 16].name for s in (1, 2, 3, 4)]
+        mapped_r = [od[(variable(od, 0x1600 + axis - 1, s).default or 0) >> 16].name for s in (1, 2)]
+        mapped_t = [od[(variable(od, 0x1A00 + axis - 1, s).default or 0) >> 16].name for s in (1, 2, 3, 4)]
         assert mapped_r == [f"Axis {axis} Step command", f"Axis {axis} Command sequence"]
         assert mapped_t == [
             f"Axis {axis} Step counter",
