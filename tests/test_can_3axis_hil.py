@@ -28,10 +28,12 @@ from test_axes import (
 from test_can_3axis import eds_path
 
 from feeder.cli.demo_plane import config_for
+from feeder.daemon.config import DaemonConfig
 from feeder.daemon.launcher import Simulator
 from feeder.daemon.links import open_links
 from feeder.drivers.axes import Axes
 from feeder.drivers.camera import StreamCamera
+from feeder.drivers.canopen import CanopenAmplifier
 from feeder.drivers.sensor import PositionSensor
 from feeder.parts import Part
 from feeder.protocol.eds import EDS_3AXIS_FILE, MODES
@@ -174,6 +176,27 @@ def test_the_daemon_links_open_one_node_for_x_y_and_theta() -> None:
             assert axes["y"].wait(60.0)
             after = {name: a.status().step_counter for name, a in axes.items()}
             assert after == {**before, "y": before["y"] + 3}
+    finally:
+        links.close()
+        shutil.rmtree(base, ignore_errors=True)
+
+
+def test_a_one_axis_plate_drives_amplifier_axis_of_the_three_axis_node() -> None:
+    """Not in the plane: ``[amplifier] axis`` picks the axis of node ``node_id``."""
+    base = Path(tempfile.mkdtemp(prefix="f3ax1"))
+    config = DaemonConfig(state_dir=base / "state", socket_path=base / "run" / "s.sock").with_transport("can")
+    amp = dataclasses.replace(config.amplifier, can={"eds": EDS_3AXIS_FILE}, axis=2)
+    links = open_links(dataclasses.replace(config, amplifier=amp))
+    try:
+        driver = links.open_amplifier()
+        assert isinstance(driver, CanopenAmplifier)
+        try:
+            assert (driver.node_id, driver.axis, driver.who) == (1, 2, "CANopen node 1 axis 2")
+            driver.enable()
+            assert driver.status().mode == "stp"
+        finally:
+            driver.ground()
+            driver.close()
     finally:
         links.close()
         shutil.rmtree(base, ignore_errors=True)
