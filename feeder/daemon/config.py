@@ -18,11 +18,12 @@ password = "123456"           # sent when the console asks (TCP; ANC300 default)
 v_max_v = 120.0
 current_limit_a = 0.55
 max_frequency_hz = 2000.0
-[amplifier.can]               # python-can keyword arguments + node id
+[amplifier.can]               # python-can keyword arguments + node id (+ eds, heartbeat_s)
 interface = "slcan"
 channel = "/dev/ttyACM0"
 bitrate = 500000
 node_id = 1
+eds = "feeder_amplifier.eds"  # the nodes' EDS: axes per node (feeder_amplifier_3axis.eds: 3), or a path
 
 [sensor]
 address = "socket://127.0.0.1:7240"   # pyserial URL syntax, as for the amplifier
@@ -87,7 +88,8 @@ TRANSPORTS = ("serial", "can")
 AXES = ("x", "y", "theta")
 """The plate's axes: translations x and y, rotation θ about the centre O."""
 DEFAULT_AXIS_MAP = {"x": 1, "y": 2, "theta": 3}
-"""ANC300 axis numbers (serial) or CANopen node ids (CAN, one node per axis) of the plate's axes."""
+"""ANC300 axis numbers (serial) or CANopen amplifier axes (CAN: node node_id + n − 1 with the
+one-axis EDS, axis n of node node_id with the three-axis EDS) of the plate's axes."""
 TRAVEL_KEYS = frozenset({"min_position_m", "max_position_m", "min_y_m", "max_y_m"})
 DEFAULT_MODELS = {"serial": "anc300", "can": "firmware_sim"}
 """The amplifier model a transport gets when the configuration names none."""
@@ -262,7 +264,7 @@ SECTIONS: dict[str, frozenset[str]] = {
     "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps"}),
 }
 """The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
-``[amplifier.can]``: python-can keyword arguments plus ``node_id`` and ``heartbeat_s``)."""
+``[amplifier.can]``: python-can keyword arguments plus ``node_id``, ``heartbeat_s`` and ``eds``)."""
 
 RANGES: dict[str, tuple[float, float]] = {
     "rate_hz": (1.0, 1000.0),
@@ -433,6 +435,18 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
     )
 
 
+def _eds(value: Any, where: str) -> None:
+    """``amplifier.can.eds``: a packaged EDS's name or the path of an EDS this driver can read."""
+    from feeder.protocol.eds import object_dictionary  # canopen only when CAN is configured
+
+    if not isinstance(value, str):
+        raise InputError(where, f"amplifier.can.eds must be a string (an EDS name or path), got {value!r}")
+    try:
+        object_dictionary(1, value, "amplifier.can.eds")
+    except InputError as err:
+        raise InputError(where, str(err)) from None
+
+
 def load_config(path: Path | None) -> DaemonConfig:
     """Read the TOML file at ``path`` (None → the embedded default)."""
     if path is None:
@@ -456,7 +470,9 @@ def load_config(path: Path | None) -> DaemonConfig:
         _integer(can, "node_id", where, 1, "amplifier.can.")
     if "heartbeat_s" in can:
         _number(can, "heartbeat_s", where, 0.25, positive=True, section="amplifier.can.")
-    if set(can) - {"node_id", "heartbeat_s"} and "channel" not in can:
+    if "eds" in can:
+        _eds(can["eds"], where)
+    if set(can) - {"node_id", "heartbeat_s", "eds"} and "channel" not in can:
         # python-can keywords without the adapter: a misspelt channel must never fall back
         # to the simulator
         near = difflib.get_close_matches("channel", [str(k) for k in can], n=1)
