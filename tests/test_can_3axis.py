@@ -38,6 +38,7 @@ from feeder.protocol.eds import (
     MODES,
     axis_count,
     axis_object,
+    eds_text,
     entry,
     object_dictionary,
 )
@@ -492,7 +493,13 @@ def test_the_daemon_config_names_the_eds(tmp_path: Path) -> None:
     assert config.amplifier.simulated  # an EDS alone names no bus
     args = simulator_args(config)
     assert args[args.index("--can-eds") + 1] == EDS_3AXIS_FILE
-    refusals = [('"nope.eds"', "amplifier.can.eds: no EDS 'nope.eds'"), ("3", "must be a string")]
+    # a path is the configuration's neighbour, wherever the daemon is started from
+    lab = base / "lab"
+    lab.mkdir()
+    (lab / "drive.eds").write_text(eds_text(EDS_3AXIS_FILE))
+    (lab / "lab.toml").write_text('[amplifier]\ntransport = "can"\n[amplifier.can]\neds = "drive.eds"\n')
+    assert load_config(lab / "lab.toml").amplifier.can["eds"] == str(lab / "drive.eds")
+    refusals = [('"nope.eds"', "nope.eds"), ("3", "must be a string")]
     for value, expected in refusals:
         bad = base / "bad.toml"
         bad.write_text(f'[amplifier]\ntransport = "can"\n[amplifier.can]\neds = {value}\n')

@@ -435,16 +435,19 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
     )
 
 
-def _eds(value: Any, where: str) -> None:
-    """``amplifier.can.eds``: a packaged EDS's name or the path of an EDS this driver can read."""
-    from feeder.protocol.eds import object_dictionary  # canopen only when CAN is configured
+def _eds(value: Any, where: str, folder: Path) -> str:
+    """``amplifier.can.eds``: a packaged EDS's name, or the path of an EDS this driver can read
+    (relative to the configuration's ``folder``); returns the name or the absolute path."""
+    from feeder.protocol.eds import PACKAGED_EDS, object_dictionary  # canopen only when CAN is used
 
     if not isinstance(value, str):
         raise InputError(where, f"amplifier.can.eds must be a string (an EDS name or path), got {value!r}")
+    eds = value if value in PACKAGED_EDS else str(folder / Path(value).expanduser())
     try:
-        object_dictionary(1, value, "amplifier.can.eds")
+        object_dictionary(1, eds, "amplifier.can.eds")
     except InputError as err:
         raise InputError(where, str(err)) from None
+    return eds
 
 
 def load_config(path: Path | None) -> DaemonConfig:
@@ -471,7 +474,7 @@ def load_config(path: Path | None) -> DaemonConfig:
     if "heartbeat_s" in can:
         _number(can, "heartbeat_s", where, 0.25, positive=True, section="amplifier.can.")
     if "eds" in can:
-        _eds(can["eds"], where)
+        can["eds"] = _eds(can["eds"], where, path.parent)
     if set(can) - {"node_id", "heartbeat_s", "eds"} and "channel" not in can:
         # python-can keywords without the adapter: a misspelt channel must never fall back
         # to the simulator
