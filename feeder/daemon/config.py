@@ -197,8 +197,10 @@ class CameraConfig:
     camera's frame rate.  The simulator's default, 2048 px at 2.7 µm/px, sees ±2.76 mm
     (a 300 µm part anywhere in the ±2.5 mm travel) with the part 111 px wide: angle error
     0.013° RMS against the simulator's truth (at 5 µm/px, 60 px: 0.058°, too coarse for a
-    0.1° tolerance).  10 frames/s: a 2048 px JPEG costs ~35 ms to encode and ~54 ms to
-    decode, so 30 frames/s would take more than the two cores of this machine.
+    0.1° tolerance).  15 frames/s: a 2048 px JPEG (quality 90, with the sensor's noise) costs
+    ~12 ms to encode and ~25 ms to decode on a quiet core (three times as much under load), so
+    30 frames/s would take most of this 2-core machine; 15 keep the console's live view
+    above 10 frames/s.
     """
 
     address: str | None = None
@@ -206,7 +208,7 @@ class CameraConfig:
     pixel_size_m: float = 2.7e-6
     width_px: int = 2048
     height_px: int = 2048
-    fps: float = 10.0
+    fps: float = 15.0
 
 
 @dataclass(frozen=True)
@@ -364,7 +366,7 @@ PLANE_SETTLE_S = 0.2
 """After a burst, wait this long before averaging frames: the camera's frames arrive
 (exposure, JPEG, HTTP, decoding, locating) ~0.1–0.15 s after what they show."""
 PLANE_AVERAGE_FRAMES = 2
-"""Frames averaged per measurement (10 frames/s; one frame's noise is ~0.05 µm, 0.01°)."""
+"""Frames averaged per measurement (15 frames/s; one frame's noise is ~0.05 µm, 0.01°)."""
 PLANE_TICK_WATCHDOG_S = 5.0
 """The simulated planar world's tick watchdog and the loop's grace for a burst's end: the
 planar plant runs in the firmware's tick, and a rare θ slip costs a tick over a second
