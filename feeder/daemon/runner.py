@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -15,11 +14,6 @@ from feeder.daemon.service import Daemon, DaemonSetup
 from feeder.daemon.step_modes import calibration_key, plan_step_modes
 from feeder.errors import InputError
 from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
-
-TICK_SWITCH_INTERVAL_S = 0.5e-3
-"""The interpreter's switch interval in a daemon's process (``sys.setswitchinterval``; Python's
-default is 5 ms): the longest a tick that wakes waits for a thread holding the interpreter (the
-console's HTTP server, the camera's locating), so the tick keeps its jitter goal under load."""
 
 
 @dataclass
@@ -93,7 +87,6 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
         )
         daemon = Daemon(links, setup)
         undo.callback(daemon.shutdown)
-        sys.setswitchinterval(min(sys.getswitchinterval(), TICK_SWITCH_INTERVAL_S))
         daemon.start()
         undo.pop_all()
     return RunningDaemon(daemon, links)
