@@ -1,4 +1,4 @@
-"""Make docs/console.png: the console in headless Chromium on the embedded simulator with its camera.
+"""Make docs/console.png: the console in headless Chromium on the embedded default (the plane, its camera).
 
 python docs/console_screenshot.py   (needs Debian's chromium and the playwright package)
 """
@@ -6,6 +6,7 @@ python docs/console_screenshot.py   (needs Debian's chromium and the playwright 
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -15,32 +16,17 @@ from pathlib import Path
 
 from playwright.sync_api import sync_playwright
 
+from feeder.cli.demo_plane import wait_for_pose
 from feeder.daemon.client import Client
-from feeder.daemon.store import Store
 
 ROOT = Path(__file__).resolve().parents[1]
-PIXEL_M = 5e-6
 
 
 def main() -> None:
     base = Path(tempfile.mkdtemp(prefix="fs"))
-    state = base / "state"
-    state.mkdir(mode=0o700)
-    store = Store(state / "feeder.sqlite")  # the simulator's camera: plate origin at the image centre
-    store.save_camera_calibration(
-        {
-            "pixel_size_m": PIXEL_M,
-            "rotation_rad": 0.0,
-            "mirrored": False,
-            "origin_x_px": 511.5,
-            "origin_y_px": 511.5,
-        }
-    )
-    store.close()
-    daemon = subprocess.Popen(
-        [sys.executable, "-m", "feeder", "daemon", "--json", "--state-dir", str(state),
-         "--socket", str(base / "s.sock"),
-         "--http", "127.0.0.1:0", "--sim-arg=--camera-http=0", f"--sim-arg=--camera-pixel-size-m={PIXEL_M}"],
+    daemon = subprocess.Popen(  # the embedded default: the plane and its camera
+        [sys.executable, "-m", "feeder", "daemon", "--json", "--state-dir", str(base / "state"),
+         "--socket", str(base / "s.sock"), "--http", "127.0.0.1:0"],
         cwd=ROOT, stdout=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
@@ -51,20 +37,24 @@ def main() -> None:
             if line.rstrip() == "}":
                 break
         ready = json.loads("".join(lines))
-        with Client(base / "s.sock", timeout_s=60) as client:
-            client.move_to(800e-6)
-            client.move_to(-600e-6)
-        with sync_playwright() as playwright, Client(base / "s.sock", timeout_s=60) as client:
+        with Client(base / "s.sock", timeout_s=120) as client:
+            wait_for_pose(client)
+            client.move_to_pose(-0.6e-3, 0.3e-3, math.radians(20), timeout_s=120)
+        with sync_playwright() as playwright, Client(base / "s.sock", timeout_s=120) as client:
             browser = playwright.chromium.launch(
                 executable_path="/usr/bin/chromium", args=["--no-sandbox", "--disable-gpu"]
             )
             page = browser.new_page(viewport={"width": 1280, "height": 1180})
             page.goto(ready["console_url"])
             time.sleep(1.0)
-            client.move_to(1.2e-3)  # watched live: the last move's plot
+            client.move_to_pose(0.9e-3, -0.2e-3, math.radians(-10), timeout_s=120)  # watched live
             time.sleep(0.5)
-            box = page.locator("#view").bounding_box()
-            page.mouse.click(box["x"] + box["width"] * 0.62, box["y"] + box["height"] * 0.5)
+            box = page.locator("#view").bounding_box()  # a target: click, then drag its angle
+            x, y = box["x"] + box["width"] * 0.35, box["y"] + box["height"] * 0.35
+            page.mouse.move(x, y)
+            page.mouse.down()
+            page.mouse.move(x + 30, y - 18)
+            page.mouse.up()
             time.sleep(0.5)
             page.screenshot(path=str(ROOT / "docs" / "console.png"))
             browser.close()

@@ -108,6 +108,8 @@ def test_the_embedded_default_is_the_plane_and_line_is_the_one_axis_world(tmp_pa
     assert list(status["axes"]) == ["x", "y", "theta"]
     assert status["travel_m"] == {"x": [-2.5e-3, 2.5e-3], "y": [-2.5e-3, 2.5e-3]}
     assert len(status["parts"]) == 1 and len(status["parts"][0]["pose"]) == 3
+    calibration = status["camera_calibration"]  # what it locates with: the configured scale
+    assert calibration["source"] == "configuration" and calibration["pixel_size_m"] == 2.7e-6
     config = tmp_path / "c.toml"
     config.write_text("")
     both = subprocess.run(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import pytest
@@ -263,3 +264,39 @@ def test_no_step_before_the_record_is_written() -> None:
     assert rig.policy.state == "moving"
     job.recorded = True
     assert rig.run_until_command("enable").kind == "enable"
+
+
+def test_a_sensor_later_than_the_settle_time_is_waited_for_by_its_latency_as_seen() -> None:
+    """A camera whose frames arrive 0.3 s after what they show (15× ``settle_s``): the first
+    burst shows the latency, later bursts are measured once the frames show their end, so
+    the steps are learned right and the move ends done without reversals."""
+    lag_s, step_m = 0.3, {COARSE: 3.0e-6, FINE: 0.8e-6}
+    policy = Policy(MODES, SETTINGS)
+    truth: list[tuple[float, float]] = [(0.0, 0.0)]  # (time s, position m), as the part moves
+    burst: tuple[float, int, float, str] | None = None  # (start s, signed steps, from m, mode)
+    now, outputs = 0.0, []
+    job = Job("move", target_m=150e-6)
+    assert policy.submit(job, now) is None
+    while policy.job is not None:
+        assert now < 60, outputs[-5:]
+        now += DT
+        if burst is not None:  # steps play at 1 kHz from the acknowledgement
+            start, steps, origin, mode = burst
+            played = min(abs(steps), int((now - start) * 1000.0))
+            truth.append((now, origin + math.copysign(played, steps) * step_m[mode]))
+        seen = next(x for t, x in reversed(truth) if t <= now - lag_s) if now > lag_s else 0.0
+        policy.on_sample(seen, now)
+        for out in policy.tick(now):
+            outputs.append(out)
+            if isinstance(out, Started):
+                out.job.recorded = True
+            if isinstance(out, Command):
+                if out.kind == "step":
+                    burst = (now, out.steps, truth[-1][1], policy.applied("x") or COARSE)  # signed
+                policy.on_completion(Completion(out, now, counter=0))
+    result = job.result or next(o for o in outputs if isinstance(o, Finished)).result
+    assert result.status == "done", result.reason
+    assert lag_s <= policy.latency_s <= lag_s + 3 * DT
+    learned = policy.navigator.estimates_json()
+    assert learned["coarse/forward"]["step_m"] == pytest.approx(3.0e-6, rel=0.05)
+    assert abs(truth[-1][1] - 150e-6) <= SETTINGS.tolerance_m

@@ -139,6 +139,10 @@ class DriverLinks:
             cam.pixel_size_m, origin_x_px=(cam.width_px - 1) / 2, origin_y_px=(cam.height_px - 1) / 2
         )
 
+    def locating_calibration(self) -> CameraCalibration | None:
+        """The calibration the daemon locates parts with, where it reads a camera."""
+        return self.camera_calibration if uses_camera(self.config) else None
+
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "transport": self.config.amplifier.transport,

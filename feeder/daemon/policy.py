@@ -14,7 +14,8 @@ States (:data:`STATES`):
 - ``idle``: no job.
 - ``moving``: a job is preparing the output or a burst is playing.
 - ``settling``: the burst is over; wait ``settle_s`` (stack ringing, sensor
-  latency), average ``average_samples`` fresh readings, learn, decide.
+  latency) or, if longer, the sensor's latency as seen (:attr:`Policy.latency_s`),
+  average ``average_samples`` fresh readings, learn, decide.
 - ``holding``: the job is over early (stop, sensor or limit): the output was
   stopped and the part is watched until the sensor reads it settled (the
   last ``average_samples`` readings agree within the tolerance); only then is
@@ -79,6 +80,14 @@ __all__ = [
 ]
 
 STATES = ("idle", "moving", "settling", "holding", "fault")
+LATENCY_BURSTS = 8
+"""The sensor's latency is the longest seen over this many bursts ..."""
+LATENCY_MARGIN = 1.25
+"""... times this margin; a burst's latency: from its first step to the first reading that shows
+the part moved by more than the tolerance (a camera's frames arrive after exposure, encoding,
+transfer, decoding and locating: on a loaded machine longer than ``settle_s``)."""
+MAX_SETTLE_S = 3.0
+"""The longest wait after a burst, whatever the latency seen."""
 
 
 class Navigator(Protocol):
@@ -116,6 +125,9 @@ class _Burst:
     reversed: bool
     counter_before: int | None = None
     end_s: float = math.inf  # acknowledged + steps/f
+    started_s: float = math.inf  # acknowledged
+    ended_s: float = math.inf  # its end confirmed
+    moved_seen: bool = False  # a reading after the start showed the part moved
     confirming: bool = False
 
 
@@ -157,6 +169,7 @@ class Policy:
         self._enabled = False
         self._last_direction: dict[str, str] = {}  # axis → direction of its last burst
         self._settle_until = 0.0
+        self._latencies: list[float] = []  # the last LATENCY_BURSTS bursts' (s)
         self._samples: list[Reading] = []
         self._measured: _Burst | None = None
         self._finish_as: tuple[str, str] | None = None  # (status, reason) once held
@@ -164,6 +177,15 @@ class Policy:
         self._position_saved_s = -math.inf
         self._now = 0.0
         self._out: list[Output] = []
+
+    @property
+    def latency_s(self) -> float:
+        """The sensor's latency as seen (s): the longest over the last :data:`LATENCY_BURSTS`
+        bursts from a burst's start to the first reading that shows the part moved; 0 before."""
+        return max(self._latencies, default=0.0)
+
+    def _settle_s(self) -> float:
+        return min(MAX_SETTLE_S, max(self.settings.settle_s, LATENCY_MARGIN * self.latency_s))
 
     def applied(self, axis: str) -> str | None:
         """The waveform mode loaded on ``axis`` (None: none since the link opened)."""
@@ -221,6 +243,14 @@ class Policy:
             job.pose_trace.append((arrival_s, part))
         if self.state in ("settling", "holding") and arrival_s >= self._settle_until:
             self._samples.append(reading)
+        for burst in (self._burst, self._measured):  # in flight, or over and not yet measured
+            if burst is None or burst.moved_seen or arrival_s < burst.started_s:
+                continue
+            if not self.navigator.settled([burst.before, reading]):
+                burst.moved_seen = True
+                self._latencies = [*self._latencies, arrival_s - burst.started_s][-LATENCY_BURSTS:]
+                if burst is self._measured and self.state == "settling":  # now it is known
+                    self._settle_until = burst.ended_s + self._settle_s()
 
     def on_sensor_lost(self, message: str) -> None:
         if self.sensor_lost is not None:
@@ -262,10 +292,14 @@ class Policy:
             b = burst.burst
             f = self.modes[b.axis][b.mode].settings.frequency_hz
             burst.end_s = done.at_s + b.steps / f
+            burst.started_s = done.at_s
         elif kind == "confirm_end" and burst is not None:
             self._burst = None
             self._measured = burst
+            burst.ended_s = done.at_s
             self._enter_settling(done.at_s)
+            if not self._latencies and not burst.moved_seen:  # the sensor's latency is unknown:
+                self._settle_until = done.at_s + MAX_SETTLE_S  # wait to see the burst's motion
         elif kind == "stop":
             if burst is not None and self.job is not None:
                 played = burst.burst.steps
@@ -358,12 +392,12 @@ class Policy:
 
     def _enter_settling(self, now: float, settle: bool = True) -> None:
         self.state = "settling"
-        self._settle_until = now + (self.settings.settle_s if settle else 0.0)
+        self._settle_until = now + (self._settle_s() if settle else 0.0)
         self._samples = []
 
     def _enter_holding(self, now: float) -> None:
         self.state = "holding"
-        self._settle_until = now + self.settings.settle_s
+        self._settle_until = now + self._settle_s()
         self._hold_until = now + self.settings.hold_timeout_s
         self._samples = []
 

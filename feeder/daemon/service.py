@@ -647,7 +647,7 @@ class Daemon:
             "reconnecting": reconnecting,
             "faults": faults,
             "queued_moves": queued,
-            "camera_calibration": self.store.camera_calibration(),
+            "camera_calibration": self._camera_calibration(),
             "store_unwritable": loop.writer.unwritable,
             "pending_records": loop.writer.pending(),
             "interrupted_moves": self.interrupted_moves,
@@ -661,6 +661,7 @@ class Daemon:
                 for k, m in self.setup.modes.items()
             },
             "timing": loop.timing(),
+            "sensor_latency_s": loop.policy.latency_s,
             "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
             **self.setup.info,
             **self._live_links(),
@@ -690,6 +691,16 @@ class Daemon:
             "tolerance_rad": s.tolerance_rad,
             "travel_m": {"x": [s.min_position_m, s.max_position_m], "y": [s.min_y_m, s.max_y_m]},
         }
+
+    def _camera_calibration(self) -> dict[str, Any] | None:
+        """The stored camera calibration, else the configured one the daemon locates with (if any);
+        ``source`` says which."""
+        stored = self.store.camera_calibration()
+        if stored is not None:
+            return {**stored, "source": "stored"}
+        locating = getattr(self.links, "locating_calibration", None)
+        configured = locating() if callable(locating) else None
+        return None if configured is None else {**dataclasses.asdict(configured), "source": "configuration"}
 
     def latest_image(self) -> Any:
         """The newest camera frame the sensor located parts in (an image array), or None."""

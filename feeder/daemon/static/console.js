@@ -397,7 +397,7 @@ function updateCalibration() {
     lines.push(`${name}: ${um(e.step_m)} ± ${um(e.std_m)} per step, learned from ${e.steps} steps`);
   }
   const cal = status.camera_calibration;
-  lines.push(cal ? `camera: ${(cal.pixel_size_m * UM).toFixed(3)} µm/px, rotation ${deg(cal.rotation_rad || 0)}` : "camera: not calibrated (feeder vision calibrate)");
+  lines.push(cal ? `camera: ${(cal.pixel_size_m * UM).toFixed(3)} µm/px, rotation ${deg(cal.rotation_rad || 0)}` + (cal.source === "configuration" ? " (from the configuration; feeder vision calibrate measures it)" : "") : "camera: not calibrated (feeder vision calibrate)");
   $("calibration").innerHTML = lines.map((l) => `<div>${escapeHtml(l)}</div>`).join("");
 }
 
