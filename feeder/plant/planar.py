@@ -58,6 +58,9 @@ _ROUNDING = 1e-14
 _SKIP_HELD = True
 """Skip samples in bulk while every part is surely held (tests switch it off to compare)."""
 _HELD_MARGIN = 1 - 1e-6
+_MISS2 = pk._MISS2
+"""A twist whose linear closest approach stays above half its size (squared: this) turns, not vanishes."""
+_NEAR_ZERO = pk._NEAR_ZERO
 _NO_DRAWS = np.zeros(0)
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
 """Absolute tolerances of (c − c₀, φ − φ₀, v, ω) at :data:`RTOL` (scaled with rtol)."""
@@ -319,22 +322,29 @@ class _PartState:
         with its end at 0.9 of the linearly predicted time to zero (halved
         while no step fits), until the twist is below the stop threshold or
         its predicted time to zero below the time resolution (a twist at the
-        rounding floor of the velocities).
+        rounding floor of the velocities).  A twist whose linear closest
+        approach stays above half its size turns rather than vanishes (a near
+        miss): the integration goes on towards t_end, the step that reversed
+        it halved and at most half the twist's time scale |ξ|/|dξ/dt|.
         """
         bound = t_end
         previous = twist(t, y)
         factor = 0.9
+        first_step: float | None = None
         for _ in range(1000):
             begin = t
-            stepper = DOP853(rhs, t, y, bound, rtol=self._rtol, atol=_ATOL * (self._rtol / RTOL))
+            stepper = DOP853(rhs, t, y, bound, rtol=self._rtol, atol=_ATOL * (self._rtol / RTOL),
+                             first_step=first_step)  # fmt: skip
+            first_step = None
             reversed_ = False
+            tried = 0.0
             while stepper.status == "running":
                 stepper.step()
                 if stepper.status == "failed":
                     raise RuntimeError(f"planar stick-slip: integration failed at t = {t}")
                 now = twist(stepper.t, stepper.y)
                 if self._dot(now, previous) <= 0:
-                    reversed_ = True
+                    reversed_, tried = True, stepper.t - t
                     break
                 t, y, previous = stepper.t, stepper.y, now
                 floor = _ROUNDING * math.sqrt(self._dot((y[3], y[4], y[5]), (y[3], y[4], y[5])))
@@ -343,9 +353,17 @@ class _PartState:
             if not reversed_ and t >= t_end:
                 return t, y, False
             d = rate(t, y)
-            to_zero = -self._dot(previous, d) / self._dot(d, d)
-            if not to_zero > 0:
-                return t, y, True
+            size2, rate2, along = self._dot(previous, previous), self._dot(d, d), self._dot(previous, d)
+            to_zero = -along / rate2 if rate2 > 0 else 0.0
+            if not to_zero > 0 or size2 - along * along / rate2 >= _MISS2 * size2:
+                # the twist turns rather than vanishes (a near miss): on in time, steps within its turn
+                floor = _ROUNDING * math.sqrt(self._dot((y[3], y[4], y[5]), (y[3], y[4], y[5])))
+                if math.sqrt(size2) <= _NEAR_ZERO * max(self._stop, floor):
+                    return t, y, True
+                bound = t_end
+                if reversed_:
+                    first_step = 0.5 * min(tried, math.sqrt(size2 / rate2) if rate2 > 0 else tried, t_end - t)
+                continue
             factor = 0.9 if t > begin else 0.5 * factor  # no step fitted: aim shorter
             if factor * to_zero <= 1e-15 * t_end:  # it vanishes within the time resolution
                 return t, y, True

@@ -45,6 +45,10 @@ _ALIGNED = 0.9
 _STRAIGHT = 0.5
 """A twist shrinking this straight (cosine of twist and its rate) fades in ln|twist| (:func:`_fade`)."""
 _SERIES_BELOW = 1e-3
+_MISS2 = 0.25
+"""A twist whose linear closest approach stays above half its size (squared: this) turns, not vanishes."""
+_NEAR_ZERO = 100.0
+"""A turning twist this close to the stop threshold (factor) has vanished."""
 _ATOL = np.array([1e-6, 1e-6, 1e-3, 1e-3, 1e-3, 10.0, 1e-6])
 """Absolute tolerances per unit rtol of (c − c₀, φ − φ₀, v, ω, t): at rtol 1e-10 the
 reference's (1e-16 m, ...), and 1e-16 s for the time (a part at 0.1 m/s: 1e-17 m)."""
@@ -593,7 +597,9 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
     dropped and the integration aims at 0.9 of the linearly predicted time to
     zero); in ln|twist| (:func:`_fade`) once it shrinks faster than the steps
     in time can follow.  Ends at the same threshold: the twist below _STOP of
-    its start (or at the velocities' rounding floor).
+    its start (or at the velocities' rounding floor).  A near miss (the
+    linear closest approach above half the twist) goes on in time, as the
+    reference.
     """
     radius, t_end = st[RADIUS], seg[DURATION]
     stop = st[STOP]
@@ -606,6 +612,7 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
     p0, p1, p2 = _rel_twist(seg, plate, x0, y0, t, z)
     factor = 0.9
     h_abs = st[STEP]
+    h = 0.0
     fade = True
     _derivative(False, *args, z, ks[0])
     for _ in range(1000):
@@ -648,7 +655,7 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
                     # a step cut short by the bound keeps the size the error allowed
                     h_abs = max(h * grow, h_abs) if t_new == bound and not rejected else h * grow
                     break
-                h_abs *= max(0.2, 0.9 * norm**-0.2)
+                h_abs = h * max(0.2, 0.9 * norm**-0.2)  # of the step tried (scipy: a clipped step)
                 rejected = True
             z_new[6] = t_new
             n0, n1, n2 = _rel_twist(seg, plate, x0, y0, t_new, z_new)
@@ -670,10 +677,20 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
             st[STEP] = h_abs
             return t, False
         d0, d1, d2 = _twist_rate(seg, plate, x0, y0, t, z, ks[0])
-        to_zero = -_dot(pp, p0, p1, p2, d0, d1, d2) / _dot(pp, d0, d1, d2, d0, d1, d2)
-        if not to_zero > 0:
-            st[STEP] = h_abs
-            return t, True
+        size2 = _dot(pp, p0, p1, p2, p0, p1, p2)
+        rate2 = _dot(pp, d0, d1, d2, d0, d1, d2)
+        along = _dot(pp, p0, p1, p2, d0, d1, d2)
+        to_zero = -along / rate2 if rate2 > 0 else 0.0
+        if not to_zero > 0 or size2 - along * along / rate2 >= _MISS2 * size2:
+            # the twist turns rather than vanishes (a near miss): on in time, steps within its turn
+            floor = _ROUNDING * math.sqrt(_dot(pp, z[3], z[4], z[5], z[3], z[4], z[5]))
+            if math.sqrt(size2) <= _NEAR_ZERO * max(stop, floor):
+                st[STEP] = h_abs
+                return t, True
+            bound = t_end
+            if reversed_:
+                h_abs = 0.5 * min(h, math.sqrt(size2 / rate2)) if rate2 > 0 else 0.5 * h
+            continue
         factor = 0.9 if t > begin else 0.5 * factor
         if factor * to_zero <= 1e-15 * t_end:
             st[STEP] = h_abs
