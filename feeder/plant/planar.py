@@ -62,6 +62,7 @@ _MISS2 = pk._MISS2
 """A twist whose linear closest approach stays above half its size (squared: this) turns, not vanishes."""
 _NEAR_ZERO = pk._NEAR_ZERO
 _NO_DRAWS = np.zeros(0)
+_DISC_NODES = pk.DISC_NODES
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
 """Absolute tolerances of (c − c₀, φ − φ₀, v, ω) at :data:`RTOL` (scaled with rtol)."""
 RTOL = 1e-10
@@ -553,10 +554,10 @@ class PlanarStickSlip:
                        sample_rate_hz: float) -> np.ndarray:  # fmt: skip
         """Compiled only: DAC samples (3, n) through output stages and stack filters
         (:func:`.kernels.drive_run`; states updated in place) into :meth:`advance_sampled`."""
-        lab = np.empty((len(self.parts), command.shape[1], 3))
+        lab = np.empty((self._array.shape[0], command.shape[1], 3))
         pk.run_plant(command, coefficients, filter_states, volts, scale, self._array, self._params,
-                     pk.DISC_NODES, float(sample_rate_hz), self._plate_array, _SKIP_HELD, lab)  # fmt: skip
-        self.elapsed_s = float(self._plate_array[pk.ELAPSED])
+                     _DISC_NODES, sample_rate_hz, self._plate_array, _SKIP_HELD, lab)  # fmt: skip
+        self.elapsed_s = self._plate_array[pk.ELAPSED].item()
         return lab
 
     def _surely_held(self, start: np.ndarray, end: np.ndarray, accel: np.ndarray, k: int) -> np.ndarray:

@@ -103,7 +103,7 @@ def initial_state(pose: tuple[float, float, float], radius_m: float) -> np.ndarr
 
 @_jit
 def _position(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
-    c = math.cos(seg[KAPPA] * tau) - 1.0
+    c = 0.0 if seg[KAPPA] == 0 else math.cos(seg[KAPPA] * tau) - 1.0
     return (seg[V] * tau + 0.5 * seg[A] * tau * tau + seg[C] * c,
             seg[V + 1] * tau + 0.5 * seg[A + 1] * tau * tau + seg[C + 1] * c,
             seg[V + 2] * tau + 0.5 * seg[A + 2] * tau * tau + seg[C + 2] * c)  # fmt: skip
@@ -111,14 +111,14 @@ def _position(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
 
 @_jit
 def _velocity(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
-    s = -seg[KAPPA] * math.sin(seg[KAPPA] * tau)
+    s = 0.0 if seg[KAPPA] == 0 else -seg[KAPPA] * math.sin(seg[KAPPA] * tau)
     return (seg[V] + seg[A] * tau + seg[C] * s, seg[V + 1] + seg[A + 1] * tau + seg[C + 1] * s,
             seg[V + 2] + seg[A + 2] * tau + seg[C + 2] * s)  # fmt: skip
 
 
 @_jit
 def _accel(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
-    c = -(seg[KAPPA] ** 2) * math.cos(seg[KAPPA] * tau)
+    c = 0.0 if seg[KAPPA] == 0 else -(seg[KAPPA] ** 2) * math.cos(seg[KAPPA] * tau)
     return seg[A] + seg[C] * c, seg[A + 1] + seg[C + 1] * c, seg[A + 2] + seg[C + 2] * c
 
 

@@ -55,6 +55,8 @@ class PlanarPlant:
         self.mechanics = [StackFilter(self.stack, sample_rate_hz) for _ in range(3)]
         self.contact = PlanarStickSlip(parts, rtol=rtol)
         self._scale = np.array([[1.0], [1.0], [1.0 / self.lever_arm_m]])  # stack m → plate m, m, rad
+        self._scale_row = np.ascontiguousarray(self._scale[:, 0])
+        self._compilable = self.mechanics[0].order == kernels.FILTER_ORDER and self.contact.compiled
         self._drive: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         """Coefficients, filter states and voltages while the compiled path holds them."""
 
@@ -83,7 +85,7 @@ class PlanarPlant:
         command = np.asarray(command_volts, dtype=float)
         if command.ndim != 2 or command.shape[0] != 3:
             raise InputError("command_volts", f"expected shape (3, n), got {command.shape}")
-        if kernels.enabled() and self.mechanics[0].order == kernels.FILTER_ORDER and self.contact.compiled:
+        if self._compilable and kernels.enabled():
             return self._advance_compiled(command)
         self._sync_objects()
         velocity = np.empty(command.shape)
@@ -101,8 +103,10 @@ class PlanarPlant:
             self._drive = (coefficients, np.array([m.states for m in self.mechanics]),
                            np.array([o.voltage_v for o in self.outputs]))  # fmt: skip
         coefficients, z, volts = self._drive
-        return self.contact.advance_driven(np.ascontiguousarray(command), coefficients, z, volts,
-                                           self._scale[:, 0], self.sample_rate_hz)  # fmt: skip
+        if not command.flags.c_contiguous:
+            command = np.ascontiguousarray(command)
+        return self.contact.advance_driven(command, coefficients, z, volts, self._scale_row,
+                                           self.sample_rate_hz)  # fmt: skip
 
     def _sync_objects(self) -> None:
         """Hand the compiled path's filter states and voltages back to the stage objects."""
