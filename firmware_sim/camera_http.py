@@ -41,6 +41,9 @@ from firmware_sim.world import World
 log = logging.getLogger(__name__)
 BOUNDARY = "frame"
 JPEG_QUALITY = 90
+SEND_BUFFER_BYTES = 256 * 1024
+"""A client's send buffer (the kernel doubles it): about one 2048 px frame, so a client that
+falls behind skips frames instead of reading seconds-old ones (as network cameras do)."""
 RENDER_SWITCH_INTERVAL_S = 0.5e-3
 """Longest wait of the render thread for the interpreter held by the tick (Python's default 5 ms,
 times the ~20 hand-overs of a frame, would cost a 30 frames/s camera its rate)."""
@@ -230,6 +233,8 @@ class _Server(ThreadingHTTPServer):
 
     def process_request(self, request: Any, client_address: Any) -> None:
         request.settimeout(self.idle_timeout_s)
+        # a slow reader gets the newest frame, not a backlog: at most ~a frame in the send buffer
+        request.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
         if not self._slots.acquire(blocking=False):
             with contextlib.suppress(OSError):
                 request.sendall(b"HTTP/1.0 503 Service Unavailable\r\nContent-Length: 0\r\n\r\n")

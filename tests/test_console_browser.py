@@ -4,6 +4,7 @@ Playwright against ``feeder daemon --http`` on the embedded firmware_sim, with i
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import statistics
 import tempfile
@@ -41,9 +42,7 @@ pytestmark = [
 @pytest.fixture(scope="module")
 def daemon() -> Iterator[DaemonProcess]:
     base = Path(tempfile.mkdtemp(prefix="fc"))
-    process = DaemonProcess(
-        base, "--http", "127.0.0.1:0", "--sim-arg=--camera-http=0", "--sim-arg=--camera-http-fps=15"
-    )
+    process = DaemonProcess(base, "--http", "127.0.0.1:0", plane=True)
     try:
         yield process
     finally:
@@ -73,53 +72,84 @@ def page(browser: Any, daemon: DaemonProcess) -> Iterator[Any]:
     page.close()
 
 
-def shown_x_m(page: Any) -> float:
-    """The position of part 1 as the page shows it (its header: 'part 1: x 123.45 µm')."""
+def shown_pose(page: Any) -> tuple[float, float, float]:
+    """Part 1's pose as the page shows it (its header: 'part 1: x 12.34 µm, y -5.67 µm, 8.900°')."""
     text = page.inner_text("#position")
-    return float(text.split("x ")[1].split(" µm")[0]) * 1e-6
+    x = float(text.split("x ")[1].split(" µm")[0])
+    y = float(text.split("y ")[1].split(" µm")[0])
+    angle = float(text.split(", ")[-1].rstrip("°"))
+    return x * 1e-6, y * 1e-6, math.radians(angle)
+
+
+def part_pose(daemon: DaemonProcess) -> tuple[float, float, float]:
+    x, y, psi = daemon.request("status")["parts"][0]["pose"]
+    return x, y, psi
 
 
 def wait_idle_with(page: Any, status: str, timeout_s: float = 30.0) -> None:
+    """Wait until the page shows idle after a move; assert the move's status (its text if not)."""
     page.wait_for_function(
-        f"document.getElementById('state').className === 'idle' && "
-        f"document.querySelector('.result-status')?.dataset.status === '{status}'",
+        "document.getElementById('state').className === 'idle' && "
+        "document.querySelector('.result-status')?.dataset.status",
         timeout=timeout_s * 1000,
     )
+    shown = page.evaluate("document.querySelector('.result-status').dataset.status")
+    assert shown == status, page.inner_text("#result")
 
 
-def test_the_page_shows_the_part_and_a_click_moves_it(page: Any, daemon: DaemonProcess) -> None:
+def test_the_page_shows_the_part_and_a_click_and_drag_moves_it(page: Any, daemon: DaemonProcess) -> None:
     assert "#token" not in page.url  # read once, then kept out of the address
-    x0 = daemon.request("status")["position_m"]
-    assert shown_x_m(page) == pytest.approx(x0, abs=2e-6)
+    x0, y0, psi0 = part_pose(daemon)
+    shown = shown_pose(page)
+    assert shown[:2] == pytest.approx((x0, y0), abs=2e-6)
+    assert shown[2] == pytest.approx(psi0, abs=math.radians(0.01))
     # the part is drawn where it is: the canvas pixel at its centre has the part's colour
     r, g, b = page.evaluate(
-        "() => { const c = document.getElementById('view');"
-        " const [x, y] = frame(c).toPx(parts()[0].pose[0], 0);"
+        "() => { const c = document.getElementById('view'), p = parts()[0].pose;"
+        " const [x, y] = frame(c).toPx(p[0], p[1]);"
         " const pixel = c.getContext('2d').getImageData(Math.round(x), Math.round(y), 1, 1);"
         " return Array.from(pixel.data.slice(0, 3)); }"
     )
     assert b > r + 40, (r, g, b)
-    # click 600 µm to the right of the part, then Move
+    # press 600 µm beside the part (the target position), drag towards 30° more (its angle)
+    target_x = x0 - 600e-6 if x0 > 1e-3 else x0 + 600e-6
+    target_angle = psi0 + math.radians(30)
     box = page.locator("#view").bounding_box()
-    px_per_m = page.evaluate("frame(document.getElementById('view')).scale") * box["width"] / 640
-    cx, cy = page.evaluate("frame(document.getElementById('view')).toPx(parts()[0].pose[0], 0)")
-    page.mouse.click(
-        box["x"] + (cx * box["width"] / 640) + 600e-6 * px_per_m, box["y"] + cy * box["height"] / 640
+    to_screen = box["width"] / page.evaluate("document.getElementById('view').width")
+    cx, cy = page.evaluate(f"frame(document.getElementById('view')).toPx({target_x}, {y0})")
+    press = (box["x"] + cx * to_screen, box["y"] + cy * to_screen)
+    page.mouse.move(*press)
+    page.mouse.down()
+    for k in (1, 2, 3):  # screen y points down: the plate's +y is up
+        page.mouse.move(
+            press[0] + 20 * k * math.cos(target_angle), press[1] - 20 * k * math.sin(target_angle)
+        )
+    page.mouse.up()
+    chosen = (
+        float(page.input_value("#target-x")) * 1e-6,
+        float(page.input_value("#target-y")) * 1e-6,
+        math.radians(float(page.input_value("#target-angle"))),
     )
-    target_m = float(page.input_value("#target-x")) * 1e-6
-    assert target_m - x0 == pytest.approx(600e-6, abs=30e-6)
+    assert chosen[:2] == pytest.approx((target_x, y0), abs=15e-6)  # a canvas pixel is ~9 µm
+    assert chosen[2] == pytest.approx(target_angle, abs=math.radians(2))
     page.click("#move")
-    wait_idle_with(page, "done")
+    wait_idle_with(page, "done", timeout_s=90)
     status = daemon.request("status")
-    assert abs(status["position_m"] - target_m) <= 2e-6
-    assert shown_x_m(page) == pytest.approx(status["position_m"], abs=2e-6)  # the new pose appears
-    assert status["last_result"]["target_m"] == pytest.approx(target_m, abs=0.1e-6)
+    result = status["last_result"]
+    assert result["target_pose"] == pytest.approx(list(chosen), abs=1e-6)
+    assert result["error_m"] <= status["tolerance_m"] and result["error_rad"] <= status["tolerance_rad"]
+    x, y, psi = status["parts"][0]["pose"]
+    assert math.hypot(x - chosen[0], y - chosen[1]) <= 2e-6
+    shown = shown_pose(page)  # the new pose appears
+    assert shown[:2] == pytest.approx((x, y), abs=2e-6)
+    assert shown[2] == pytest.approx(psi, abs=math.radians(0.01))
 
 
 def test_stop_and_escape_stop_a_long_move(page: Any, daemon: DaemonProcess) -> None:
-    x0 = daemon.request("status")["position_m"]
-    target_m = -4.0e-3 if x0 > 0 else 4.0e-3
+    x0, y0, _ = part_pose(daemon)
+    target_m = -2.0e-3 if x0 > 0 else 2.0e-3
     page.fill("#target-x", str(target_m * 1e6))
+    page.fill("#target-y", str(y0 * 1e6))
     page.click("#move")
     page.wait_for_function("document.getElementById('state').className === 'moving'", timeout=10_000)
     time.sleep(0.3)
@@ -127,7 +157,7 @@ def test_stop_and_escape_stop_a_long_move(page: Any, daemon: DaemonProcess) -> N
     wait_idle_with(page, "stopped")
     status = daemon.request("status")
     assert status["last_result"]["status"] == "stopped"
-    assert abs(status["position_m"] - target_m) > 1e-3  # stopped well short of the target
+    assert abs(status["parts"][0]["pose"][0] - target_m) > 1e-3  # stopped well short of the target
     assert "stopped" in page.inner_text("#result")
 
 
@@ -153,8 +183,8 @@ def test_a_wrong_token_is_refused(browser: Any, daemon: DaemonProcess) -> None:
 def test_live_view_rate_and_pose_overlay_lag(page: Any, daemon: DaemonProcess) -> None:
     """Measured during a move: redraws of the plate view with a new pose, camera frames, and the
     lag from the daemon's status snapshot (wall clock) to the overlay drawn (animation frame)."""
-    x0 = daemon.request("status")["position_m"]
-    daemon.request("move", target_m=-3.0e-3 if x0 > 0 else 3.0e-3, wait=False)
+    x0, y0, _ = part_pose(daemon)
+    daemon.request("move", x_m=-2.0e-3 if x0 > 0 else 2.0e-3, y_m=y0, wait=False)
     page.wait_for_function("document.getElementById('state').className === 'moving'", timeout=10_000)
     before = page.evaluate(
         "({...window.consoleStats, lagsMs: window.consoleStats.lagsMs.length, t: performance.now()})"

@@ -60,10 +60,15 @@ TRANSPORTS = [
 
 
 class DaemonProcess:
-    """``python -m feeder daemon --json`` in a child process, with its ready object."""
+    """``python -m feeder daemon --json`` in a child process, with its ready object.
 
-    def __init__(self, base: Path, *extra: str) -> None:
+    Without ``--config`` it runs the embedded one-axis world (``--line``) unless ``plane``:
+    the embedded default is the plane, these tests exercise the one-axis feeder."""
+
+    def __init__(self, base: Path, *extra: str, plane: bool = False) -> None:
         self.socket = base / "s.sock"
+        if not plane and not any(arg.startswith("--config") for arg in extra):
+            extra = ("--line", *extra)
         cmd = [
             sys.executable,
             "-m",

@@ -8,6 +8,8 @@ import dataclasses
 import math
 import random
 import shutil
+import subprocess
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -92,3 +94,27 @@ def test_two_parts_each_reach_their_own_target_or_the_pair_is_refused_with_the_r
     finally:
         running.stop()
         shutil.rmtree(base, ignore_errors=True)
+
+
+def test_the_embedded_default_is_the_plane_and_line_is_the_one_axis_world(tmp_path: Path) -> None:
+    from test_daemon_hil import ROOT, DaemonProcess
+
+    daemon = DaemonProcess(tmp_path, plane=True)  # `feeder daemon`, no configuration
+    try:
+        with daemon.client() as client:
+            status = wait_for_pose(client)
+    finally:
+        assert daemon.stop() == 0
+    assert list(status["axes"]) == ["x", "y", "theta"]
+    assert status["travel_m"] == {"x": [-2.5e-3, 2.5e-3], "y": [-2.5e-3, 2.5e-3]}
+    assert len(status["parts"]) == 1 and len(status["parts"][0]["pose"]) == 3
+    config = tmp_path / "c.toml"
+    config.write_text("")
+    both = subprocess.run(
+        [sys.executable, "-m", "feeder", "daemon", "--line", "--config", str(config)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert both.returncode == 2 and both.stderr.count("\n") == 1 and "--line" in both.stderr

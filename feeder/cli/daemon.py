@@ -27,17 +27,25 @@ if TYPE_CHECKING:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "daemon", help="run the control daemon (no config: on a simulated amplifier)"
+        "daemon", help="run the control daemon (no config: the simulated plane, x, y and θ)"
     )
     parser.add_argument("--config", type=Path, help="TOML configuration (see docs/daemon.md)")
     parser.add_argument(
         "--transport", choices=TRANSPORTS, help="amplifier link, overriding the configuration"
     )
-    parser.add_argument(
+    world = parser.add_mutually_exclusive_group()
+    world.add_argument(
         "--plane",
         action="store_true",
-        help="the embedded planar world: axes x, y, θ, ±2.5 mm travel, the simulator's camera "
-        "(as `feeder demo` runs it); parts from the configuration's [plate] parts",
+        help="with --config: its simulated amplifier in the embedded planar world (axes x, y, θ, "
+        "±2.5 mm travel, the simulator's camera; parts from its [plate] parts). Without "
+        "--config this is the default",
+    )
+    world.add_argument(
+        "--line",
+        action="store_true",
+        help="the embedded one-axis world instead of the plane: x only, ±5 mm, the simulator's "
+        "position stream (no camera)",
     )
     parser.add_argument("--state-dir", type=Path, help="calibration/history database directory")
     parser.add_argument("--socket", type=Path, help="control socket path")
@@ -88,10 +96,13 @@ def setup_logging(level: str, log_file: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.line and args.config is not None:
+        print("feeder daemon: error: --line: only without --config (its [plate] says the axes)", file=sys.stderr)
+        return 2
     config = load_config(args.config)
     if args.transport:
         config = config.with_transport(args.transport)
-    if args.plane:
+    if args.plane or (args.config is None and not args.line):
         config = embedded_plane(config)
     if args.state_dir:
         config = dataclasses.replace(config, state_dir=args.state_dir)
