@@ -61,6 +61,8 @@ _HELD_MARGIN = 1 - 1e-6
 _MISS2 = pk._MISS2
 """A twist whose linear closest approach stays above half its size (squared: this) turns, not vanishes."""
 _NEAR_ZERO = pk._NEAR_ZERO
+_UNRESOLVED = pk._UNRESOLVED
+"""A shrinking twist within this many absolute error scales of the velocities has vanished."""
 _NO_DRAWS = np.zeros(0)
 _DISC_NODES = pk.DISC_NODES
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
@@ -312,6 +314,11 @@ class _PartState:
     def _dot(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
         return a[0] * b[0] + a[1] * b[1] + self.part.inertia_kg_m2 / self.part.mass_kg * a[2] * b[2]
 
+    def _resolution(self, y: np.ndarray) -> float:
+        """The step control's absolute error scale of the twist (atol + rtol·|v| per velocity, m/s)."""
+        r0, r1, r2 = (_ATOL[3:6] * (self._rtol / RTOL) + self._rtol * np.abs(y[3:6])).tolist()
+        return math.sqrt(self._dot((r0, r1, r2), (r0, r1, r2)))
+
     def _integrate(self, rhs: Callable[[float, np.ndarray], list[float]],
                    twist: Callable[[float, np.ndarray], tuple[float, float, float]],
                    rate: Callable[[float, np.ndarray], tuple[float, float, float]],
@@ -326,7 +333,9 @@ class _PartState:
         rounding floor of the velocities).  A twist whose linear closest
         approach stays above half its size turns rather than vanishes (a near
         miss): the integration goes on towards t_end, the step that reversed
-        it halved and at most half the twist's time scale |ξ|/|dξ/dt|.
+        it halved and at most half the twist's time scale |ξ|/|dξ/dt|.  A
+        shrinking twist within _UNRESOLVED error scales of the velocities has
+        vanished (its direction is lost in the steps' error).
         """
         bound = t_end
         previous = twist(t, y)
@@ -349,7 +358,9 @@ class _PartState:
                     break
                 t, y, previous = stepper.t, stepper.y, now
                 floor = _ROUNDING * math.sqrt(self._dot((y[3], y[4], y[5]), (y[3], y[4], y[5])))
-                if math.sqrt(self._dot(now, now)) <= max(self._stop, floor):
+                size = math.sqrt(self._dot(now, now))
+                if size <= max(self._stop, floor) or (size <= _UNRESOLVED * self._resolution(y)
+                                                      and self._dot(now, rate(t, y)) < 0):  # fmt: skip
                     return t, y, True
             if not reversed_ and t >= t_end:
                 return t, y, False

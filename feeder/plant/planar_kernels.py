@@ -49,6 +49,10 @@ _MISS2 = 0.25
 """A twist whose linear closest approach stays above half its size (squared: this) turns, not vanishes."""
 _NEAR_ZERO = 100.0
 """A turning twist this close to the stop threshold (factor) has vanished."""
+_UNRESOLVED = 100.0
+"""A shrinking twist within this many absolute error scales of the velocities (atol + rtol·|v|,
+as the step control's) has vanished: below it the steps' error hides the twist's direction,
+which then spins at ~|dξ/dt|/|ξ| and holds the steps at a stability limit, not at a turn."""
 _ATOL = np.array([1e-6, 1e-6, 1e-3, 1e-3, 1e-3, 10.0, 1e-6])
 """Absolute tolerances per unit rtol of (c − c₀, φ − φ₀, v, ω, t): at rtol 1e-10 the
 reference's (1e-16 m, ...), and 1e-16 s for the time (a part at 0.1 m/s: 1e-17 m)."""
@@ -588,6 +592,22 @@ def _fade(st: np.ndarray, pp: np.ndarray, radius: float, nodes: np.ndarray, seg:
 
 
 @_jit
+def _resolution(pp: np.ndarray, z: np.ndarray) -> float:
+    """The step control's absolute error scale of the twist ((atol + rtol·|v|) per velocity, m/s)."""
+    r0, r1, r2 = ((_ATOL[3] + abs(z[3])) * pp[RTOL], (_ATOL[4] + abs(z[4])) * pp[RTOL],
+                  (_ATOL[5] + abs(z[5])) * pp[RTOL])  # fmt: skip
+    return math.sqrt(_dot(pp, r0, r1, r2, r0, r1, r2))
+
+
+@_jit
+def _shrinks(seg: np.ndarray, plate: np.ndarray, x0: float, y0: float, pp: np.ndarray, z: np.ndarray,
+             f: np.ndarray, w0: float, w1: float, w2: float) -> bool:  # fmt: skip
+    """Whether the twist (w) at z, f = dz/dt, shrinks."""
+    d0, d1, d2 = _twist_rate(seg, plate, x0, y0, z[6], z, f)
+    return _dot(pp, w0, w1, w2, d0, d1, d2) < 0
+
+
+@_jit
 def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarray, plate: np.ndarray,
                x0: float, y0: float, phi0: float, t: float, y: np.ndarray) -> tuple[float, bool]:  # fmt: skip
     """From t towards the segment's end until the twist vanishes; y updated, returns (time, vanished).
@@ -667,7 +687,10 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
             p0, p1, p2 = n0, n1, n2
             fade = True
             floor = _ROUNDING * math.sqrt(_dot(pp, z[3], z[4], z[5], z[3], z[4], z[5]))
-            if math.sqrt(_dot(pp, n0, n1, n2, n0, n1, n2)) <= max(stop, floor):
+            size = math.sqrt(_dot(pp, n0, n1, n2, n0, n1, n2))
+            lost = size <= _UNRESOLVED * _resolution(pp, z) and _shrinks(seg, plate, x0, y0, pp, z, ks[0],
+                                                                          n0, n1, n2)  # fmt: skip
+            if size <= max(stop, floor) or lost:
                 y[:] = z[:6]
                 st[STEP] = h_abs
                 return z[6], True
