@@ -473,6 +473,13 @@ class PlanarStickSlip:
             return self._array[:, pk.SLIP].tolist()
         return [s.slip_time_s for s in self._states]
 
+    @property
+    def integration_steps(self) -> list[int]:
+        """Dormand-Prince steps tried per part so far (compiled only: a cost gauge; else zeros)."""
+        if self._compiled:
+            return [int(n) for n in self._array[:, pk.STEPS]]
+        return [0] * len(self._states)
+
     def poses(self) -> list[Pose]:
         """Each part's pose in the plate frame now."""
         if self._compiled:

@@ -15,8 +15,9 @@ cosine amplitude per axis, κ; :class:`.plate_motion.Segment`); the plate is
 (x_O, y_O, θ, v_x, v_y, Ω, elapsed time); a part's parameters are
 ``PARAM_SIZE`` floats (:func:`part_params`); its state ``STATE_SIZE`` floats
 (stuck, plate-frame pose, lab state while slipping, slip time, stop
-threshold, last step size); discs integrate over :data:`DISC_NODES` (unit
-disc: x, y, weight), scaled by their radius.
+threshold, last step size, fade step, Dormand-Prince steps tried so far);
+discs integrate over :data:`DISC_NODES` (unit disc: x, y, weight), scaled by
+their radius.
 """
 
 from __future__ import annotations
@@ -33,8 +34,8 @@ PLATE_SIZE = 7
 ELAPSED = 6
 PARAM_SIZE = 14
 DISC, HALF_A, HALF_B, MASS, INERTIA, TAU_S, TAU_K, A_S, RATIO, AREA, POLAR, JXX, JYY, RTOL = range(PARAM_SIZE)
-STATE_SIZE = 15
-STUCK, POSE, LAB, SLIP, STOP, STEP, RADIUS, FADE_STEP = 0, 1, 4, 10, 11, 12, 13, 14
+STATE_SIZE = 16
+STUCK, POSE, LAB, SLIP, STOP, STEP, RADIUS, FADE_STEP, STEPS = 0, 1, 4, 10, 11, 12, 13, 14, 15
 
 _SEED_TIME_S = 1e-12
 _STOP = 1e-10
@@ -569,6 +570,7 @@ def _fade(st: np.ndarray, pp: np.ndarray, radius: float, nodes: np.ndarray, seg:
     for _ in range(100_000):
         h = min(h, s_end - s)
         norm = _dp5_step(True, *args, z, h, ks, z_new)
+        st[STEPS] += 1
         if norm == np.inf:  # a stage where the twist turns
             h *= 0.25
             if h < 1e-2:  # turning: it will not vanish straight, continue in time
@@ -668,6 +670,7 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
                 t_new = min(z[6] + h_abs, bound)
                 h = t_new - z[6]
                 norm = _dp5_step(False, *args, z, h, ks, z_new)
+                st[STEPS] += 1
                 if norm < 1:
                     grow = 10.0 if norm == 0 else min(10.0, 0.9 * norm**-0.2)
                     if rejected:
