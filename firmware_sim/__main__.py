@@ -38,7 +38,8 @@ from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
 from feeder.pose import parse_poses
 from feeder.protocol.anc300 import DEFAULT_PASSWORD, DIALECTS
-from firmware_sim.canopen_node import serve_slcan_pty
+from feeder.protocol.eds import EDS_3AXIS_FILE, EDS_FILE, axis_count, object_dictionary
+from firmware_sim.canopen_node import check_can_layout, serve_slcan_pty
 from firmware_sim.clock import Clock, RealTimeClock, VirtualClock
 from firmware_sim.console import ConsoleSession, LoginThrottle
 from firmware_sim.firmware import (
@@ -335,8 +336,15 @@ def add_extra_front_end_arguments(group: argparse._ArgumentGroup) -> None:
     group.add_argument(
         "--can",
         choices=("slcan-pty",),
-        help="CANopen: one node per axis behind an emulated SLCAN adapter on a "
-        "pty (endpoint slcan_pty; docs/canopen.md)",
+        help="CANopen: the axes as nodes (per --can-eds) behind an emulated SLCAN "
+        "adapter on a pty (endpoint slcan_pty; docs/canopen.md)",
+    )
+    group.add_argument(
+        "--can-eds",
+        default=EDS_FILE,
+        metavar="EDS",
+        help=f"the nodes' EDS, which says how many axes a node has: {EDS_FILE} (one axis per "
+        f"node, default), {EDS_3AXIS_FILE} (three), or the path of one",
     )
     add_number(
         group,
@@ -345,7 +353,7 @@ def add_extra_front_end_arguments(group: argparse._ArgumentGroup) -> None:
         CANOPEN_MAX_NODE_ID,
         integer=True,
         default=1,
-        help="CANopen node id of axis 1 (axis n gets base + n - 1)",
+        help="CANopen node id of axis 1 (with A axes per node, axis n is on node base + (n - 1) div A)",
     )
 
 
@@ -397,12 +405,9 @@ def check_options(args: argparse.Namespace) -> None:
         raise InputError(
             "--plant-axis", f"must be one of the {args.axes} configured axes, got {args.plant_axis}"
         )
-    last_node = args.can_node_id_base + args.axes - 1
-    if args.can and last_node > CANOPEN_MAX_NODE_ID:
-        raise InputError(
-            "--can-node-id-base",
-            f"node ids {args.can_node_id_base}..{last_node} leave CANopen's 1..{CANOPEN_MAX_NODE_ID}",
-        )
+    if args.can:
+        per_node = axis_count(object_dictionary(args.can_node_id_base, args.can_eds, "--can-eds"))
+        check_can_layout(args.axes, per_node, args.can_node_id_base, args.can_eds)
     password = args.password
     if not (
         0 < len(password) <= MAX_PASSWORD_CHARS
@@ -486,7 +491,7 @@ def start_extra_front_ends(
 ) -> None:
     """Further front ends (e.g. CANopen) start here, calling the same firmware API."""
     if args.can == "slcan-pty":
-        endpoints["slcan_pty"], close_can = serve_slcan_pty(firmware, args.can_node_id_base)
+        endpoints["slcan_pty"], close_can = serve_slcan_pty(firmware, args.can_node_id_base, args.can_eds)
         closers.append(close_can)
 
 

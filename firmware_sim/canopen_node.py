@@ -1,9 +1,12 @@
-"""One firmware axis as a CANopen (CiA 301) node: the CAN front end of the amplifier.
+"""Firmware axes as a CANopen (CiA 301) node: the CAN front end of the amplifier.
 
 The node is the ``canopen`` package's :class:`canopen.LocalNode` (object
-dictionary from the EDS in :mod:`feeder.protocol.eds`, NMT slave, heartbeat
+dictionary from an EDS in :mod:`feeder.protocol.eds`, NMT slave, heartbeat
 producer, EMCY producer) with the amplifier behind its read/write hooks and
-objects addressed by their EDS names.  It calls the same
+objects addressed by their EDS names.  It serves as many axes as its EDS lists
+(one, or three for ``feeder_amplifier_3axis.eds``), each through an
+:class:`~firmware_sim.canopen_axis.AxisPort` with its own objects and PDOs; NMT,
+heartbeat, SDO, EMCY and the error register are the node's.  It calls the same
 :class:`firmware_sim.firmware.Axis` API as the ANC300 console: one amplifier,
 two front ends.
 
@@ -27,32 +30,36 @@ What this module adds to ``LocalNode``:
   (0x06010001) objects and client aborts follow CiA 301
   (:mod:`firmware_sim.sdo_server`).
 - NMT: SDO served in PRE-OPERATIONAL and OPERATIONAL only; PDOs in OPERATIONAL
-  only; any state but OPERATIONAL stops the axis; reset node / reset
-  communication restore the EDS defaults (reset node also grounds the axis),
+  only; any state but OPERATIONAL stops every axis; reset node / reset
+  communication restore the EDS defaults (reset node also grounds every axis),
   send the boot-up message and enter PRE-OPERATIONAL.
-- TPDO1 (step counter, status word, command acknowledge, error register):
-  transmission type 254/255 sends on change (no faster than the inhibit time)
-  and at least every event-timer period; type 1..240 sends on every n-th SYNC.
-- RPDO1 (step command, command sequence): ``+N``/``-N`` starts a burst, 0 stops;
-  the sequence is echoed in TPDO1's command acknowledge, with status bit 3 set
-  when the firmware refused the command.  A too-short RPDO raises EMCY 0x8210.
-- EMCY when a fault bit latches (code per fault, error register, fault word in
-  bytes 3..6), and EMCY 0x0000 when the fault word is cleared.
+- TPDOn of axis n (step counter, status word, command acknowledge, the node's
+  error register): transmission type 254/255 sends on change (no faster than
+  the inhibit time) and at least every event-timer period; type 1..240 sends on
+  every n-th SYNC.
+- RPDOn of axis n (step command, command sequence): ``+N``/``-N`` starts a burst,
+  0 stops; the sequence is echoed in TPDOn's command acknowledge, with status
+  bit 3 set when the firmware refused the command.  A too-short RPDO raises EMCY
+  0x8210.
+- EMCY when a fault bit of an axis latches (code per fault, error register,
+  fault word in bytes 3..6, the axis' number in the node in byte 7), and EMCY
+  0x0000 when that axis' fault word is cleared.
 - Heartbeat consumer (0x1016:1, producer id << 16 | ms): the host's heartbeats
-  count as host activity; once one has arrived, none for the set time while
-  the axis moves latches the firmware's ``host_watchdog`` fault (axis grounded,
-  EMCY 0x8130).  Monitoring restarts with the next heartbeat.
+  count as host activity; once one has arrived, none for the set time latches
+  the firmware's ``host_watchdog`` fault on every moving axis (grounded, EMCY
+  0x8130).  Monitoring restarts with the next heartbeat.
 """
 
 from __future__ import annotations
 
+import functools
 import re
 import struct
 import sys
 import threading
 import time
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import can
@@ -61,17 +68,10 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
 
 from feeder.errors import InputError
-from feeder.protocol.eds import MODES, SHAPE_CODES, bit_mask, object_dictionary
+from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
 from firmware_sim.can_wire import CanWire, WireBus
-from firmware_sim.firmware import (
-    FLYBACK_SHAPES,
-    STEPPING_MODES,
-    AxisStatus,
-    Fault,
-    Firmware,
-    FirmwareError,
-    LimitError,
-)
+from firmware_sim.canopen_axis import AxisPort
+from firmware_sim.firmware import AxisStatus, Fault, Firmware, FirmwareError, LimitError
 from firmware_sim.sdo_server import SdoServer
 from firmware_sim.slcan import SlcanPty
 
@@ -95,9 +95,6 @@ EMCY_PDO_LENGTH = 0x8210
 ERROR_REGISTER_BITS = {Fault.WATCHDOG: 0x80, Fault.HOST_WATCHDOG: 0x10, Fault.OVERTEMP: 0x08}
 """Object 0x1001 bits besides bit 0 (generic): manufacturer, communication, temperature."""
 
-TIMED_SHAPES = ("linear", "half-cosine")
-"""Flyback shapes that use ``Flyback time``; the others keep it only for later."""
-
 LIMIT_FIELDS = {
     "Frequency": "frequency",
     "Amplitude": "voltage",
@@ -112,25 +109,10 @@ INTERRUPT_LATENCY_S = 100e-6
 Python's default of 5 ms would let a busy tick delay an SDO answer by milliseconds)."""
 
 IDLE_POLL_S = 0.01
-"""How often a node without event-driven PDOs to send (not OPERATIONAL, or TPDO1 on
-SYNC) samples its axis for EMCY and the heartbeat consumer."""
+"""How often a node without event-driven PDOs to send (not OPERATIONAL, or TPDOs on
+SYNC) samples its axes for EMCY and the heartbeat consumer."""
 
-TPDO1 = "TPDO1 communication parameter"
 CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
-LIVE_OBJECTS = (
-    "Error register",
-    "Frequency",
-    "Amplitude",
-    "Flyback shape",
-    "Mode",
-    "Offset",
-    "Step counter",
-    "Output voltage",
-    "Fault word",
-    "Status word",
-    "Command acknowledge",
-)
-"""Objects whose value is the axis' (or the node's) present state, read when asked."""
 
 
 def error_register(fault_word: int) -> int:
@@ -151,71 +133,60 @@ def serial_number_u32(serial: str) -> int:
 
 
 class CanopenNode:
-    """Axis ``axis`` of ``firmware`` as CANopen node ``node_id`` on ``bus``.
+    """Axes ``axes`` of ``firmware`` as CANopen node ``node_id`` on ``bus``.
 
+    ``axes``: the firmware axis numbers the node serves, in the order of its EDS's
+    axes (one number for the one-axis EDS; as many as the EDS lists).
     ``bus``: an endpoint of a :class:`~firmware_sim.can_wire.CanWire` (frames
     handled in the sender's thread) or any python-can bus (a receive thread).
-    ``od``: the object dictionary (default: the packaged EDS).
+    ``od``: the object dictionary (default: the packaged one-axis EDS).
     ``start()`` boots the node (boot-up message, PRE-OPERATIONAL, heartbeat);
     ``close()`` stops it and shuts the bus down.  ``poll_s`` is how often the
-    node samples the axis for event-driven TPDO1 and EMCY.
+    node samples its axes for event-driven TPDOs and EMCY.
     """
 
     def __init__(
         self,
         firmware: Firmware,
-        axis: int,
+        axes: int | Sequence[int],
         node_id: int,
         bus: can.BusABC,
         od: ObjectDictionary | None = None,
         poll_s: float = 0.001,
     ) -> None:
         self.firmware = firmware
-        self.axis = firmware.axis(axis)
         self.node_id = node_id
         self.poll_s = poll_s
-        self.local = canopen.LocalNode(node_id, od if od is not None else object_dictionary(node_id))
+        od = od if od is not None else object_dictionary(node_id)
+        numbers = (axes,) if isinstance(axes, int) else tuple(axes)
+        if len(numbers) != axis_count(od):
+            raise InputError("axes", f"the node's EDS has {axis_count(od)} axes, given {len(numbers)}")
+        self.local = canopen.LocalNode(node_id, od)
         self.local.sdo = SdoServer(self.local)
+        self.ports = [AxisPort(od, firmware.axis(a), n) for n, a in enumerate(numbers, start=1)]
         self.network = canopen.Network(bus)
         self.network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
         self._tpdo_lock = threading.Lock()
         self._wake = threading.Event()
         self._stopping = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True, name=f"canopen-node-{node_id}")
-        self._ack = 0
-        self._refused = False
-        self._last_command = 0
-        self._sync_count = 0
-        self._fault_reported = 0
-        self._flyback_ns = 0
-        self._tpdo_type = 255
-        self._inhibit_s = 0.0
-        self._event_timer_s = 0.0
         self._consumer_id = 0  # host whose heartbeat is consumed; 0 = none
         self._consumer_timeout_s = 0.0
         self._consumer_seen: float | None = None
-        self._writers: dict[str, Callable[[int], None]] = {
-            "Frequency": lambda v: self.axis.set_frequency(v / 1000),
-            "Amplitude": lambda v: self.axis.set_amplitude(v / 1000),
-            "Flyback shape": self._write_flyback_shape,
-            "Flyback time": self._write_flyback_time,
-            "Mode": lambda v: self.axis.set_mode(MODES[v]),
-            "Offset": lambda v: self.axis.set_offset(v / 1000),
-            "Step command": self._write_step_command,
-            "Continuous": self._write_continuous,
-            "Fault reset": lambda v: self.axis.clear_faults(),
-            f"{TPDO1}.Transmission type": self._write_tpdo_type,
-            f"{TPDO1}.Inhibit time": lambda v: setattr(self, "_inhibit_s", v * 100e-6),
-            f"{TPDO1}.Event timer": lambda v: setattr(self, "_event_timer_s", v / 1000),
-            CONSUMER_HEARTBEAT: self._write_consumer_heartbeat,
+        self._writers: dict[str, tuple[AxisPort | None, Callable[[int], None]]] = {
+            CONSUMER_HEARTBEAT: (None, self._write_consumer_heartbeat)
         }
-        od_ = self.local.object_dictionary
-        for name in (*self._writers, *LIVE_OBJECTS, "Amplitude limit", "Identity object"):
-            od_[name]  # a name the EDS lacks fails here, not on the first request
-        self._status_mask = {
-            name: bit_mask(od_, "Status word", name)
-            for name in ("moving", "stepping mode", "fault", "refused")
-        }
+        self._objects: dict[str, AxisPort] = {}
+        for port in self.ports:
+            self._writers.update({name: (port, writer) for name, writer in port.writers.items()})
+            self._objects.update({name: port for name in port.base})
+        for name in ("Error register", "Identity object", CONSUMER_HEARTBEAT):
+            od[name]  # a name the EDS lacks fails here, not on the first request
+
+    @property
+    def axis(self) -> Any:
+        """The firmware axis of a one-axis node (its first axis otherwise)."""
+        return self.ports[0].axis
 
     @property
     def nmt_state(self) -> int:
@@ -236,13 +207,13 @@ class CanopenNode:
         local.add_write_callback(self._on_write)
         local.tpdo.read(from_od=True)
         local.rpdo.read(from_od=True)
-        tpdo = local.tpdo[1]
-        self._tpdo_cob_id = tpdo.cob_id
-        # TPDO1's layout from its mapping (byte-aligned, as in the EDS): packed with
-        # struct, not through canopen's PDO variables, on every SYNC / change
-        self._tpdo_layout = [(v.od.qualname, v.od.STRUCT_TYPES[v.od.data_type]) for v in tpdo.map]
-        self._rpdo = local.rpdo[1]
-        self._rpdo.add_callback(self._on_rpdo)
+        for port in self.ports:
+            tpdo = local.tpdo[port.number]
+            port.tpdo_cob_id = tpdo.cob_id
+            # the TPDO's layout from its mapping (byte-aligned, as in the EDS): packed with
+            # struct, not through canopen's PDO variables, on every SYNC / change
+            port.tpdo_layout = [(v.od.qualname, v.od.STRUCT_TYPES[v.od.data_type]) for v in tpdo.map]
+            local.rpdo[port.number].add_callback(functools.partial(self._on_rpdo, port))
         bus = network.bus
         if isinstance(bus, WireBus):  # frames handled in the sender's thread, as they arrive
             bus.receiver = lambda m: network.notify(m.arbitration_id, m.data, m.timestamp)
@@ -273,23 +244,11 @@ class CanopenNode:
         for index in list(store):
             if reset_application or index < 0x2000:
                 del store[index]
-        if reset_application:
-            self.axis.ground()
-            self._flyback_ns = 0
-            self._last_command = 0
-        self._tpdo_type = self._default(f"{TPDO1}.Transmission type")
-        self._inhibit_s = self._default(f"{TPDO1}.Inhibit time") * 100e-6
-        self._event_timer_s = self._default(f"{TPDO1}.Event timer") / 1000
-        self._sync_count = 0
+        for port in self.ports:
+            port.reset(reset_application)
         self._consume_heartbeat(0, 0.0)
         self.local.nmt.send_command(0x81)  # state INITIALISING: boot-up message
         self.local.nmt.send_command(NMT_ENTER_PRE_OPERATIONAL)  # starts the heartbeat
-
-    def _default(self, name: str) -> int:
-        """An object's DefaultValue from the EDS."""
-        variable = self.local.object_dictionary[name]
-        assert isinstance(variable, ODVariable) and isinstance(variable.default, int)
-        return variable.default
 
     # -- CAN services (each handled whole under the firmware's lock) -------------
 
@@ -305,35 +264,53 @@ class CanopenNode:
             return
         with self.firmware.lock:
             if canopen.nmt.COMMAND_TO_STATE[data[0]] != NMT_OPERATIONAL:
-                self.axis.stop()  # before the heartbeat announces the new state
+                for port in self.ports:
+                    port.axis.stop()  # before the heartbeat announces the new state
             self.local.nmt.on_command(can_id, data, timestamp)
             if data[0] in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
                 self._boot(reset_application=data[0] == NMT_RESET_NODE)
         self._wake.set()
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if self.nmt_state != NMT_OPERATIONAL or not 1 <= self._tpdo_type <= 240:
+        if self.nmt_state != NMT_OPERATIONAL:
             return
-        self._sync_count += 1
-        if self._sync_count % self._tpdo_type == 0:
-            self._send_tpdo(self.axis.status())
+        statuses: dict[int, AxisStatus] | None = None
+        for port in self.ports:
+            if not 1 <= port.tpdo_type <= 240:
+                continue
+            port.sync_count += 1
+            if port.sync_count % port.tpdo_type == 0:
+                statuses = statuses or self._statuses()
+                self._send_tpdo(port, statuses[port.number], self._register(statuses))
 
-    def _on_rpdo(self, pdo: Any) -> None:
+    def _on_rpdo(self, port: AxisPort, pdo: Any) -> None:
         if self.nmt_state != NMT_OPERATIONAL:
             return
         if len(pdo.data) * 8 < pdo.length:
-            self.local.emcy.send(EMCY_PDO_LENGTH, error_register(self._fault_reported))
+            self.local.emcy.send(EMCY_PDO_LENGTH, self._register(self._statuses()))
             return
         with self.firmware.lock:
             self.firmware.host_activity()
-            count = int(pdo["Step command"].raw)
+            count = int(pdo[port.step_command].raw)
             try:
-                self._write_step_command(count)
-                self._refused = False
+                port.write_step_command(count)
+                port.refused = False
             except FirmwareError:
-                self._refused = True
-            self._ack = int(pdo["Command sequence"].raw)
+                port.refused = True
+            port.ack = int(pdo[port.command_sequence].raw)
         self._wake.set()
+
+    def _statuses(self) -> dict[int, AxisStatus]:
+        """Every axis' status, by its number in the node."""
+        return {port.number: port.axis.status() for port in self.ports}
+
+    @staticmethod
+    def _register(statuses: dict[int, AxisStatus]) -> int:
+        """The node's error register: every axis' faults."""
+        word = 0
+        for status in statuses.values():
+            word |= status.fault_word
+        return error_register(word)
 
     # -- object dictionary hooks ------------------------------------------------
 
@@ -341,41 +318,14 @@ class CanopenNode:
         name = od.qualname
         if name == "Identity object.Serial number":
             return serial_number_u32(self.firmware.config.serial_number)
-        if name == "Amplitude limit":
-            return round(self.firmware.config.amplifier.max_amplitude_vpp * 1000)
-        if name == "Flyback time":
-            status = self.axis.status()
-            if status.flyback_shape in TIMED_SHAPES:  # set here or on the console
-                return round(status.flyback_s * 1e9)
-            return self._flyback_ns
-        if name == "Step command":
-            return self._last_command
-        if name in LIVE_OBJECTS:
-            return self._live_value(name, self.axis.status())
-        return None
-
-    def _live_value(self, name: str, status: AxisStatus) -> int:
-        """Value of an object that mirrors the axis' (or the node's) present state."""
         if name == "Error register":
-            return error_register(status.fault_word)
-        if name == "Status word":
-            bits = self._status_mask
-            word = bits["moving"] if status.moving else 0
-            word |= bits["stepping mode"] if status.mode in STEPPING_MODES else 0
-            word |= bits["fault"] if status.fault_word else 0
-            return word | (bits["refused"] if self._refused else 0)
-        if name == "Command acknowledge":
-            return self._ack
-        return {
-            "Frequency": lambda: round(status.frequency_hz * 1000),
-            "Amplitude": lambda: round(status.amplitude_v * 1000),
-            "Flyback shape": lambda: SHAPE_CODES.index(status.flyback_shape),
-            "Mode": lambda: MODES.index(status.mode),
-            "Offset": lambda: round(status.offset_v * 1000),
-            "Step counter": lambda: status.step_counter,
-            "Output voltage": lambda: round(status.output_v * 1000),
-            "Fault word": lambda: status.fault_word,
-        }[name]()
+            return self._register(self._statuses())
+        port = self._objects.get(name)
+        if port is None:
+            return None
+        if port.base[name] == "Amplitude limit":
+            return round(self.firmware.config.amplifier.max_amplitude_vpp * 1000)
+        return port.read(port.base[name], lambda: self._register(self._statuses()))
 
     def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
         value = od.decode_raw(data)
@@ -385,23 +335,18 @@ class CanopenNode:
             raise SdoAbortedError(ABORT_TOO_LOW)
         if od.max is not None and value > od.max:
             raise SdoAbortedError(ABORT_TOO_HIGH)
-        writer = self._writers.get(od.qualname)
+        port, writer = self._writers.get(od.qualname, (None, None))
         if writer is None:
             return
+        base = port.base.get(od.qualname, od.qualname) if port is not None else od.qualname
         try:
             writer(value)
         except LimitError as exc:
-            if exc.field != LIMIT_FIELDS.get(od.qualname):
+            if exc.field != LIMIT_FIELDS.get(base):
                 raise SdoAbortedError(ABORT_INCOMPATIBLE) from exc
             raise SdoAbortedError(ABORT_TOO_HIGH if exc.value > exc.hi else ABORT_TOO_LOW) from exc
         except FirmwareError as exc:
             raise SdoAbortedError(ABORT_DEVICE_STATE) from exc
-
-    def _write_tpdo_type(self, value: int) -> None:
-        if 240 < value < 254:
-            raise SdoAbortedError(ABORT_RANGE)
-        self._tpdo_type = value
-        self._sync_count = 0
 
     def _write_consumer_heartbeat(self, value: int) -> None:
         """0x1016:1 = producer id << 16 | ms; 0 ms switches the consumer off."""
@@ -423,102 +368,83 @@ class CanopenNode:
         self._consumer_seen = time.monotonic()
         self.firmware.host_activity()
 
-    def _write_flyback_shape(self, code: int) -> None:
-        self.axis.set_flyback(FLYBACK_SHAPES[code], self._flyback_ns / 1e9)
+    # -- TPDOs and EMCY ---------------------------------------------------------
 
-    def _write_flyback_time(self, ns: int) -> None:
-        shape = self.axis.status().flyback_shape
-        if shape in TIMED_SHAPES:
-            self.axis.set_flyback(shape, ns / 1e9)
-        self._flyback_ns = ns
-
-    def _write_step_command(self, count: int) -> None:
-        if count == 0:
-            self.axis.stop()
-        else:
-            self.axis.step(count)
-        self._last_command = count
-
-    def _write_continuous(self, direction: int) -> None:
-        if direction == 0:
-            self.axis.stop()
-        else:
-            self.axis.run_continuous(up=direction > 0)
-
-    # -- TPDO1 and EMCY ---------------------------------------------------------
-
-    def _pack_tpdo(self, status: AxisStatus) -> bytes:
-        """TPDO1's data for ``status``, per its mapping."""
-        return b"".join(layout.pack(self._live_value(name, status)) for name, layout in self._tpdo_layout)
-
-    def _send_tpdo(self, status: AxisStatus) -> None:
+    def _send_tpdo(self, port: AxisPort, status: AxisStatus, register: int) -> None:
         with self._tpdo_lock:
-            self.network.send_message(self._tpdo_cob_id, self._pack_tpdo(status))
+            self.network.send_message(port.tpdo_cob_id, port.pack_tpdo(status, register))
 
-    def _report_faults(self, fault_word: int) -> None:
-        new = fault_word & ~self._fault_reported
-        register = error_register(fault_word)
-        detail = struct.pack("<IB", fault_word, 0)
+    def _report_faults(self, port: AxisPort, fault_word: int, register: int) -> None:
+        new = fault_word & ~port.fault_reported
+        detail = struct.pack("<IB", fault_word, port.number)
         for bit in Fault:
             if new & bit:
                 self.local.emcy.send(EMCY_CODES.get(bit, 0x1000), register, detail)
-        if self._fault_reported and not fault_word:
-            self.local.emcy.reset(0, detail)
-        self._fault_reported = fault_word
+        if port.fault_reported and not fault_word:
+            self.local.emcy.reset(register, detail)
+        port.fault_reported = fault_word
 
     def _run(self) -> None:
-        """Sample the axis every ``poll_s`` (every :data:`IDLE_POLL_S` while no PDOs
-        flow): EMCY on fault changes, TPDO1 when due."""
-        last_data: bytes | None = None
-        last_sent = 0.0
+        """Sample the axes every ``poll_s`` (every :data:`IDLE_POLL_S` while no PDOs
+        flow): EMCY on fault changes, each axis' TPDO when due."""
         while not self._stopping.is_set():
-            pdos_flow = self.nmt_state == NMT_OPERATIONAL and self._tpdo_type >= 254
+            pdos_flow = self.nmt_state == NMT_OPERATIONAL and any(p.tpdo_type >= 254 for p in self.ports)
             self._wake.wait(self.poll_s if pdos_flow else max(self.poll_s, IDLE_POLL_S))
             self._wake.clear()
-            status = self.axis.status()
+            statuses = self._statuses()
             seen = self._consumer_seen
             if seen is not None and time.monotonic() - seen > self._consumer_timeout_s:
                 self._consumer_seen = None  # one event per silence
-                if status.moving:
-                    self.axis.inject_fault(Fault.HOST_WATCHDOG)
-                    status = self.axis.status()
+                for port in self.ports:
+                    if statuses[port.number].moving:
+                        port.axis.inject_fault(Fault.HOST_WATCHDOG)
+                statuses = self._statuses()
+            register = self._register(statuses)
             state = self.nmt_state
-            if state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL) and status.fault_word != self._fault_reported:
-                self._report_faults(status.fault_word)
-            if state != NMT_OPERATIONAL or self._tpdo_type < 254:
-                last_data = None
-                continue
-            now = time.monotonic()
-            with self._tpdo_lock:
-                data = self._pack_tpdo(status)
-                changed = data != last_data and now - last_sent >= self._inhibit_s
-                timer_due = self._event_timer_s > 0 and now - last_sent >= self._event_timer_s
-                if changed or timer_due:
-                    self.network.send_message(self._tpdo_cob_id, data)
-                    last_data, last_sent = data, now
+            reports = state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL)
+            for port in self.ports:
+                status = statuses[port.number]
+                if reports and status.fault_word != port.fault_reported:
+                    self._report_faults(port, status.fault_word, register)
+                if state != NMT_OPERATIONAL or port.tpdo_type < 254:
+                    port.last_data = None
+                    continue
+                now = time.monotonic()
+                with self._tpdo_lock:
+                    data = port.pack_tpdo(status, register)
+                    changed = data != port.last_data and now - port.last_sent >= port.inhibit_s
+                    timer_due = port.event_timer_s > 0 and now - port.last_sent >= port.event_timer_s
+                    if changed or timer_due:
+                        self.network.send_message(port.tpdo_cob_id, data)
+                        port.last_data, port.last_sent = data, now
 
 
-def serve_slcan_pty(firmware: Firmware, node_id_base: int = 1) -> tuple[str, Callable[[], None]]:
-    """Every configured axis as a node (id = ``node_id_base`` + axis − 1) behind an
-    emulated SLCAN adapter on one :class:`CanWire`; returns the pty path and a
-    function that stops it all.
+def serve_slcan_pty(
+    firmware: Firmware, node_id_base: int = 1, eds: str = EDS_FILE
+) -> tuple[str, Callable[[], None]]:
+    """Every configured axis behind an emulated SLCAN adapter on one :class:`CanWire`, as
+    nodes of the EDS ``eds``: with A axes per node, node ``node_id_base`` + k serves axes
+    k·A + 1 .. k·A + A; returns the pty path and a function that stops it all.
 
     Sets the interpreter's switch interval to :data:`INTERRUPT_LATENCY_S`: the
     thread a frame arrives in then gets the interpreter from the busy tick
     thread within that time, as an interrupt preempts a firmware's main loop.
     """
-    if not 1 <= node_id_base <= 128 - max(firmware.axis_numbers):
-        raise InputError(
-            "--can-node-id-base",
-            f"node ids {node_id_base}..{node_id_base + max(firmware.axis_numbers) - 1}"
-            " leave CANopen's 1..127",
-        )
+    per_node = axis_count(object_dictionary(node_id_base, eds, "--can-eds"))
+    numbers = firmware.axis_numbers
+    check_can_layout(len(numbers), per_node, node_id_base, eds)
     sys.setswitchinterval(INTERRUPT_LATENCY_S)
     wire = CanWire()
     adapter = SlcanPty(wire.bus()).start()
     nodes = [
-        CanopenNode(firmware, axis, node_id_base + axis - 1, wire.bus()).start()
-        for axis in firmware.axis_numbers
+        CanopenNode(
+            firmware,
+            numbers[first : first + per_node],
+            node_id_base + first // per_node,
+            wire.bus(),
+            od=object_dictionary(node_id_base + first // per_node, eds),
+        ).start()
+        for first in range(0, len(numbers), per_node)
     ]
 
     def close() -> None:
@@ -527,3 +453,13 @@ def serve_slcan_pty(firmware: Firmware, node_id_base: int = 1) -> tuple[str, Cal
         adapter.close()
 
     return adapter.path, close
+
+
+def check_can_layout(axes: int, per_node: int, node_id_base: int, eds: str) -> None:
+    """``axes`` firmware axes fit whole nodes of ``per_node`` axes with ids in 1..127;
+    :class:`InputError` naming the option otherwise."""
+    if axes % per_node:
+        raise InputError("--can-eds", f"{eds} has {per_node} axes per node; --axes {axes} is not a multiple")
+    last = node_id_base + axes // per_node - 1
+    if not 1 <= node_id_base <= last <= 127:
+        raise InputError("--can-node-id-base", f"node ids {node_id_base}..{last} leave CANopen's 1..127")

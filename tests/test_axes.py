@@ -15,6 +15,7 @@ from feeder.drivers.axes import Axes, check_axis_map, open_anc300_axes, open_can
 from feeder.drivers.camera import StreamCamera
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import InputError
+from feeder.protocol.eds import EDS_FILE
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -27,8 +28,8 @@ SETTLED_S = 0.02  # world time the poses must stay put to count as settled
 STILL = 1e-10  # m or rad: "put" (the integrator's drift at rest is ~1e-13 m/s)
 
 
-def start(transport: str) -> Simulator:
-    front = ["--dialect", "anc300"] if transport == "serial" else ["--can", "slcan-pty"]
+def start(transport: str, *extra: str) -> Simulator:
+    front = ["--dialect", "anc300"] if transport == "serial" else ["--can", "slcan-pty", *extra]
     return Simulator(
         [
             "--plant",
@@ -47,7 +48,7 @@ def start(transport: str) -> Simulator:
     )
 
 
-def open_axes(sim: Simulator, transport: str) -> Axes:
+def open_axes(sim: Simulator, transport: str, eds: str = EDS_FILE) -> Axes:
     if transport == "serial":
         return open_anc300_axes(Anc300Link(sim.endpoints["console_pty"], timeout_s=5.0))
     bus = {
@@ -56,7 +57,7 @@ def open_axes(sim: Simulator, transport: str) -> Axes:
         "bitrate": 500000,
         "sleep_after_open": 0,
     }
-    return open_canopen_axes(bus, heartbeat_s=1.0, timeout_s=2.0)
+    return open_canopen_axes(bus, eds=eds, heartbeat_s=1.0, timeout_s=2.0)
 
 
 def settled(camera: PositionSensor, timeout_s: float = 60.0) -> tuple[float, float, float]:

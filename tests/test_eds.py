@@ -18,7 +18,7 @@ from feeder.drivers.amplifier import FLYBACK_SHAPES
 from feeder.drivers.canopen import fault_names
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.protocol.anc300 import FAULT_BITS
-from feeder.protocol.eds import EDS_FILE, MODES, SHAPE_CODES, object_dictionary
+from feeder.protocol.eds import EDS_FILE, MODES, PACKAGED_EDS, SHAPE_CODES, object_dictionary
 from firmware_sim.canopen_node import LIMIT_FIELDS
 from firmware_sim.firmware import FLYBACK_SHAPES as FIRMWARE_SHAPES
 from firmware_sim.firmware import MAX_STEPS, Fault
@@ -37,20 +37,20 @@ def variable(od: canopen.ObjectDictionary, index: int, subindex: int = 0) -> ODV
     return found
 
 
-def eds_sections() -> configparser.RawConfigParser:
+def eds_sections(eds: str = EDS_FILE) -> configparser.RawConfigParser:
     parser = configparser.RawConfigParser(inline_comment_prefixes=(";",))
     parser.optionxform = str  # type: ignore[assignment,method-assign]
-    parser.read_string(resources.files("feeder.protocol").joinpath(EDS_FILE).read_text(encoding="ascii"))
+    parser.read_string(resources.files("feeder.protocol").joinpath(eds).read_text(encoding="ascii"))
     return parser
 
 
-def test_the_eds_exists_once_as_package_data() -> None:
+def test_each_eds_exists_once_as_package_data() -> None:
     found = sorted(
         p.relative_to(ROOT).as_posix()
         for p in ROOT.rglob("*.eds")
         if ".venv" not in p.parts and "build" not in p.parts
     )
-    assert found == ["feeder/protocol/feeder_amplifier.eds"]
+    assert found == sorted(f"feeder/protocol/{name}" for name in PACKAGED_EDS)
     assert 'feeder.protocol" = ["*.eds"]' in (ROOT / "pyproject.toml").read_text()
 
 
@@ -77,7 +77,7 @@ def test_a_built_wheel_carries_the_eds_and_reads_it_from_elsewhere(tmp_path: Pat
     )
     (wheel,) = tmp_path.glob("feeder-*.whl")
     with zipfile.ZipFile(wheel) as archive:
-        assert "feeder/protocol/feeder_amplifier.eds" in archive.namelist()
+        assert {f"feeder/protocol/{name}" for name in PACKAGED_EDS} <= set(archive.namelist())
         archive.extractall(tmp_path / "site")
     site = str(tmp_path / "site")
     probe = (
@@ -96,9 +96,10 @@ def test_a_built_wheel_carries_the_eds_and_reads_it_from_elsewhere(tmp_path: Pat
     assert result.stdout.split() == [str(0x80 + 3), "stp"]
 
 
-def test_object_lists_match_the_sections() -> None:
+@pytest.mark.parametrize("eds", PACKAGED_EDS)
+def test_object_lists_match_the_sections(eds: str) -> None:
     """CiA 306: every object in the *Objects lists has a section, and vice versa."""
-    parsed = eds_sections()
+    parsed = eds_sections(eds)
     listed: list[int] = []
     for group in ("MandatoryObjects", "OptionalObjects", "ManufacturerObjects"):
         count = int(parsed.get(group, "SupportedObjects"))

@@ -210,7 +210,7 @@ def test_a_jog_moves_by_learned_steps(console: Console) -> None:
 
 BURST = """
 import concurrent.futures, http.client, json, sys, time
-port, token = int(sys.argv[1]), sys.argv[2]
+port, token, ROUNDS = int(sys.argv[1]), sys.argv[2], int(sys.argv[3])
 def status(_):
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
     conn.request("GET", "/api/status", headers={"Authorization": "Bearer " + token})
@@ -220,22 +220,28 @@ with concurrent.futures.ThreadPoolExecutor(100) as pool:
     print("ready", flush=True)
     sys.stdin.readline()
     began = time.monotonic()
-    replies = list(pool.map(status, range(100)))
+    replies = []
+    for _ in range(ROUNDS):  # 100 at once, again and again: a measurable number of ticks
+        replies += list(pool.map(status, range(100)))
 print(json.dumps([replies, time.monotonic() - began]), flush=True)
 """
+
+
+ROUNDS = 5
 
 
 def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(console: Console) -> None:
     daemon: Daemon = console.daemon
     clients = subprocess.Popen(  # in a process of their own, as browsers and scripts are
-        [sys.executable, "-c", BURST, str(console.server.port), console.token],
+        [sys.executable, "-c", BURST, str(console.server.port), console.token, str(ROUNDS)],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
     )
     assert clients.stdout is not None and clients.stdin is not None
     assert clients.stdout.readline().strip() == "ready"
-    code, reply, _ = console.call("POST", "/api/move", {"target_m": -900e-6, "wait": False})
+    far = -0.95e-3 if daemon.status()["position_m"] > 0 else 0.95e-3  # the travel is ±1 mm
+    code, reply, _ = console.call("POST", "/api/move", {"target_m": far, "wait": False})
     assert code == 200 and reply["accepted"], reply
     wait_for(lambda: daemon.status()["state"] == "moving")
     ticks = daemon.loop.ticks
@@ -248,24 +254,25 @@ def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(cons
     during = np.array(list(daemon.loop._jitter)[-(daemon.loop.ticks - ticks) :])
     assert clients.wait(10) == 0
     states = [state for _, state in replies]
+    assert console.call("POST", "/api/stop")[0] == 200
     wait_for(lambda: daemon.status()["state"] == "idle", 30)
     last = daemon.status()["last_result"]
     p99_ms, before_p99_ms = 1e3 * np.percentile(during, 99), 1e3 * np.percentile(before, 99)
     print(
-        f"\n100 concurrent status requests in {took_s:.2f} s during a move: tick jitter p99 "
+        f"\n{ROUNDS} × 100 concurrent status requests in {took_s:.2f} s during a move: tick jitter p99 "
         f"{p99_ms:.2f} ms, max {1e3 * during.max():.2f} ms over {during.size} ticks "
         f"(the same move just before: p99 {before_p99_ms:.2f} ms over {before.size} ticks)"
     )
-    assert [code for code, _ in replies] == [200] * 100
-    assert states.count("moving") >= 50  # answered while the move ran
-    assert last["status"] == "done" and abs(last["error_m"]) <= 1e-6
-    # the tick kept its rate: on this shared 2-core machine the 100 client threads and the
-    # server saturate both cores, and the scheduler's delays (tens of ms, as much when the same
-    # burst asks for the static page) are not the console's; the tick's own goal (p99 ≤ 0.5 ms,
-    # benchmarks/loop_jitter.py) is for a quiet machine
-    rate_hz = daemon.loop.settings.rate_hz
-    assert during.size >= 0.5 * took_s * rate_hz
-    assert during.max() < 0.25, during.max()
+    assert [code for code, _ in replies] == [200] * 100 * ROUNDS
+    assert states.count("moving") >= 50 * ROUNDS  # answered while the move ran
+    assert last["status"] in ("stopped", "done") and last["steps"] > 0
+    # the tick kept its rate: no tick late by a period.  Its own goal (p99 ≤ 0.5 ms,
+    # benchmarks/loop_jitter.py) holds before the burst on a quiet machine; during it the
+    # console's threads hold the interpreter, and one the clients' threads preempt keeps the
+    # tick waiting for it (a few ms on this shared 2-core machine; docs/console.md)
+    period_s = 1 / daemon.loop.settings.rate_hz
+    assert during.size >= 0.5 * took_s / period_s
+    assert np.percentile(during, 99) < period_s, during.max()
 
 
 def test_the_websocket_authenticates_on_connect(console: Console) -> None:

@@ -242,6 +242,7 @@ def run_status(args: argparse.Namespace) -> int:
             f"loop: {t['rate_hz']:g} Hz, {t['ticks']} ticks, {t['overruns']} overruns, jitter "
             f"p50 {t['jitter_p50_s'] * 1e3:.3f} ms, p99 {t['jitter_p99_s'] * 1e3:.3f} ms, max "
             f"{t['jitter_max_s'] * 1e3:.3f} ms"
+            + (" (real-time priority)" if t.get("scheduling") == "fifo" else "")
         )
     if reply.get("interrupted_moves"):
         print(f"interrupted moves (daemon was killed): {reply['interrupted_moves']}")

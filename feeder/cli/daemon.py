@@ -97,7 +97,10 @@ def setup_logging(level: str, log_file: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.line and args.config is not None:
-        print("feeder daemon: error: --line: only without --config (its [plate] says the axes)", file=sys.stderr)
+        print(
+            "feeder daemon: error: --line: only without --config (its [plate] names the axes)",
+            file=sys.stderr,
+        )
         return 2
     config = load_config(args.config)
     if args.transport:

@@ -18,11 +18,12 @@ password = "123456"           # sent when the console asks (TCP; ANC300 default)
 v_max_v = 120.0
 current_limit_a = 0.55
 max_frequency_hz = 2000.0
-[amplifier.can]               # python-can keyword arguments + node id
+[amplifier.can]               # python-can keyword arguments + node id (+ eds, heartbeat_s)
 interface = "slcan"
 channel = "/dev/ttyACM0"
 bitrate = 500000
 node_id = 1
+eds = "feeder_amplifier.eds"  # the nodes' EDS: axes per node (feeder_amplifier_3axis.eds: 3), or a path
 
 [sensor]
 address = "socket://127.0.0.1:7240"   # pyserial URL syntax, as for the amplifier
@@ -87,7 +88,8 @@ TRANSPORTS = ("serial", "can")
 AXES = ("x", "y", "theta")
 """The plate's axes: translations x and y, rotation θ about the centre O."""
 DEFAULT_AXIS_MAP = {"x": 1, "y": 2, "theta": 3}
-"""ANC300 axis numbers (serial) or CANopen node ids (CAN, one node per axis) of the plate's axes."""
+"""ANC300 axis numbers (serial) or CANopen amplifier axes (CAN: node node_id + n − 1 with the
+one-axis EDS, axis n of node node_id with the three-axis EDS) of the plate's axes."""
 TRAVEL_KEYS = frozenset({"min_position_m", "max_position_m", "min_y_m", "max_y_m"})
 DEFAULT_MODELS = {"serial": "anc300", "can": "firmware_sim"}
 """The amplifier model a transport gets when the configuration names none."""
@@ -195,8 +197,10 @@ class CameraConfig:
     camera's frame rate.  The simulator's default, 2048 px at 2.7 µm/px, sees ±2.76 mm
     (a 300 µm part anywhere in the ±2.5 mm travel) with the part 111 px wide: angle error
     0.013° RMS against the simulator's truth (at 5 µm/px, 60 px: 0.058°, too coarse for a
-    0.1° tolerance).  10 frames/s: a 2048 px JPEG costs ~35 ms to encode and ~54 ms to
-    decode, so 30 frames/s would take more than the two cores of this machine.
+    0.1° tolerance).  15 frames/s: a 2048 px JPEG (quality 90, with the sensor's noise) costs
+    ~12 ms to encode and ~25 ms to decode on a quiet core (three times as much under load), so
+    30 frames/s would take most of this 2-core machine; 15 keep the console's live view
+    above 10 frames/s.
     """
 
     address: str | None = None
@@ -204,7 +208,7 @@ class CameraConfig:
     pixel_size_m: float = 2.7e-6
     width_px: int = 2048
     height_px: int = 2048
-    fps: float = 10.0
+    fps: float = 15.0
 
 
 @dataclass(frozen=True)
@@ -262,7 +266,7 @@ SECTIONS: dict[str, frozenset[str]] = {
     "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps"}),
 }
 """The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
-``[amplifier.can]``: python-can keyword arguments plus ``node_id`` and ``heartbeat_s``)."""
+``[amplifier.can]``: python-can keyword arguments plus ``node_id``, ``heartbeat_s`` and ``eds``)."""
 
 RANGES: dict[str, tuple[float, float]] = {
     "rate_hz": (1.0, 1000.0),
@@ -362,7 +366,7 @@ PLANE_SETTLE_S = 0.2
 """After a burst, wait this long before averaging frames: the camera's frames arrive
 (exposure, JPEG, HTTP, decoding, locating) ~0.1–0.15 s after what they show."""
 PLANE_AVERAGE_FRAMES = 2
-"""Frames averaged per measurement (10 frames/s; one frame's noise is ~0.05 µm, 0.01°)."""
+"""Frames averaged per measurement (15 frames/s; one frame's noise is ~0.05 µm, 0.01°)."""
 PLANE_TICK_WATCHDOG_S = 5.0
 """The simulated planar world's tick watchdog and the loop's grace for a burst's end: the
 planar plant runs in the firmware's tick, and a rare θ slip costs a tick over a second
@@ -433,6 +437,21 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
     )
 
 
+def _eds(value: Any, where: str, folder: Path) -> str:
+    """``amplifier.can.eds``: a packaged EDS's name, or the path of an EDS this driver can read
+    (relative to the configuration's ``folder``); returns the name or the absolute path."""
+    from feeder.protocol.eds import PACKAGED_EDS, object_dictionary  # canopen only when CAN is used
+
+    if not isinstance(value, str):
+        raise InputError(where, f"amplifier.can.eds must be a string (an EDS name or path), got {value!r}")
+    eds = value if value in PACKAGED_EDS else str(folder / Path(value).expanduser())
+    try:
+        object_dictionary(1, eds, "amplifier.can.eds")
+    except InputError as err:
+        raise InputError(where, str(err)) from None
+    return eds
+
+
 def load_config(path: Path | None) -> DaemonConfig:
     """Read the TOML file at ``path`` (None → the embedded default)."""
     if path is None:
@@ -456,7 +475,9 @@ def load_config(path: Path | None) -> DaemonConfig:
         _integer(can, "node_id", where, 1, "amplifier.can.")
     if "heartbeat_s" in can:
         _number(can, "heartbeat_s", where, 0.25, positive=True, section="amplifier.can.")
-    if set(can) - {"node_id", "heartbeat_s"} and "channel" not in can:
+    if "eds" in can:
+        can["eds"] = _eds(can["eds"], where, path.parent)
+    if set(can) - {"node_id", "heartbeat_s", "eds"} and "channel" not in can:
         # python-can keywords without the adapter: a misspelt channel must never fall back
         # to the simulator
         near = difflib.get_close_matches("channel", [str(k) for k in can], n=1)

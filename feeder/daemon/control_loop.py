@@ -20,6 +20,8 @@ import contextlib
 import functools
 import logging
 import math
+import os
+import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -66,6 +68,28 @@ log = logging.getLogger(__name__)
 
 JITTER_WINDOW = 10_000
 """Ticks the jitter figures cover (100 s at 100 Hz): enough for a p99, cheap to sort per status."""
+TICK_PRIORITY = 10
+"""The tick thread's SCHED_FIFO priority where the process may raise it (CAP_SYS_NICE, or an
+rtprio limit): it then wakes before every ordinary thread on the machine (console clients,
+the simulator, other users); a tick sleeps 99 % of its period, so it never starves them."""
+
+
+TICK_SWITCH_INTERVAL_S = 0.5e-3
+"""The interpreter's switch interval while a loop runs (``sys.setswitchinterval``; Python's
+default is 5 ms): the longest a tick that wakes waits for a thread holding the interpreter (the
+console's HTTP server, the camera's locating)."""
+
+
+def raise_tick_priority() -> str:
+    """Make the calling thread real-time (:data:`TICK_PRIORITY`) if allowed, and the interpreter
+    hand over every :data:`TICK_SWITCH_INTERVAL_S`; the thread's policy's name."""
+    sys.setswitchinterval(min(sys.getswitchinterval(), TICK_SWITCH_INTERVAL_S))
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(TICK_PRIORITY))
+    except OSError as err:  # PermissionError without the right to raise it
+        log.info("the tick runs at ordinary priority (SCHED_FIFO refused: %s)", err.strerror or err)
+        return "other"
+    return "fifo"
 
 
 class SensorFeed:
@@ -152,6 +176,8 @@ class ControlLoop:
         self._thread: threading.Thread | None = None
         self._jitter = collections.deque[float](maxlen=JITTER_WINDOW)
         self.ticks = 0
+        self.scheduling = "other"
+        """The tick thread's scheduling policy: ``fifo`` (real-time) or ``other``."""
         self.overruns = 0
 
     # -- read-only views -----------------------------------------------------------
@@ -286,12 +312,13 @@ class ControlLoop:
         with self._lock:
             return self.policy.estimates_json()
 
-    def timing(self) -> dict[str, float | int]:
-        """Tick jitter p50/p99/max (s), ticks and overruns."""
+    def timing(self) -> dict[str, float | int | str]:
+        """Tick jitter p50/p99/max (s), ticks and overruns, the tick's scheduling policy."""
         jitter = np.array(self._jitter, dtype=float)  # the last JITTER_WINDOW ticks
         if jitter.size == 0:
             return {
                 "rate_hz": self.settings.rate_hz,
+                "scheduling": self.scheduling,
                 "ticks": 0,
                 "overruns": 0,
                 "jitter_p50_s": 0.0,
@@ -300,6 +327,7 @@ class ControlLoop:
             }
         return {
             "rate_hz": self.settings.rate_hz,
+            "scheduling": self.scheduling,
             "ticks": self.ticks,
             "overruns": self.overruns,
             "jitter_p50_s": float(np.percentile(jitter, 50)),
@@ -309,6 +337,7 @@ class ControlLoop:
 
     # -- the loop ----------------------------------------------------------------------
     def _run(self) -> None:
+        self.scheduling = raise_tick_priority()
         period = 1.0 / self.settings.rate_hz
         deadline = self._clock() + period
         while not self._shutdown.is_set():

@@ -67,8 +67,9 @@ LIVE_PERIOD_S = 0.05
 """Status pushes to each live client: 20 per second."""
 STATUS_MAX_AGE_S = 0.04
 """A status snapshot is shared by the requests within this time of it."""
-CAMERA_PERIOD_S = 1 / 15
-"""Camera frames encoded for the live view: at most 15 per second."""
+CAMERA_PERIOD_S = 1 / 60
+"""The live view asks the camera for a new frame this often; it encodes each new frame once
+(at most the camera's rate: 15 frames/s from the simulator)."""
 CAMERA_MAX_SIDE_PX = 640
 JPEG_QUALITY = 80
 WS_AUTH_TIMEOUT_S = 5.0
@@ -301,6 +302,7 @@ class CameraFeed:
     def _run(self) -> None:
         cv2 = self._cv2
         began = -math.inf
+        last: Any = None
         while not self._closed.wait(max(0.0, began + CAMERA_PERIOD_S - time.monotonic())):
             began = time.monotonic()
             try:
@@ -308,8 +310,9 @@ class CameraFeed:
             except (OSError, RuntimeError) as err:  # CameraLost (a SensorLost), a closed link
                 log.debug("console camera: %s", err)
                 continue
-            if image is None:
+            if image is None or image is last:  # no new frame since the last one sent
                 continue
+            last = image
             size_px = (int(image.shape[1]), int(image.shape[0]))
             scale = CAMERA_MAX_SIDE_PX / max(image.shape[:2])
             if scale < 1:

@@ -32,6 +32,8 @@ SLCAN_BITRATE = 500_000
 CAN_HEARTBEAT_S = 0.25
 """Node heartbeat period the daemon asks for: a few lost periods mark the node dead, so a
 loaded host must not miss one (``[amplifier.can] heartbeat_s`` overrides it)."""
+CAN_KEYS = ("node_id", "heartbeat_s", "eds")
+"""``[amplifier.can]`` keys that are the driver's, not python-can's."""
 
 
 class DriverLinks:
@@ -83,17 +85,23 @@ class DriverLinks:
         axis_map = {a: plate.axis_map[a] for a in plate.axes}
         if isinstance(self.amplifier_address, dict):
             from feeder.drivers.canopen import CanopenAmplifier  # python-can only when used
+            from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
 
             node_id = int(self.amplifier_address.get("node_id", 1))
             heartbeat = float(self.amplifier_address.get("heartbeat_s", CAN_HEARTBEAT_S))
-            bus = {k: v for k, v in self.amplifier_address.items() if k not in ("node_id", "heartbeat_s")}
+            eds = str(self.amplifier_address.get("eds", EDS_FILE))
+            bus = {k: v for k, v in self.amplifier_address.items() if k not in CAN_KEYS}
             if plate.planar:
                 from feeder.drivers.axes import open_canopen_axes
 
                 return open_canopen_axes(
-                    bus, axis_map, node_id, heartbeat_s=heartbeat, timeout_s=amp.timeout_s
+                    bus, axis_map, node_id, eds, heartbeat_s=heartbeat, timeout_s=amp.timeout_s
                 )
-            return CanopenAmplifier(bus, node_id, heartbeat_s=heartbeat, timeout_s=amp.timeout_s)
+            od = object_dictionary(node_id, eds)  # one axis: amplifier.axis of a multi-axis node
+            axis = amp.axis if axis_count(od) > 1 else 1
+            return CanopenAmplifier(
+                bus, node_id, od, heartbeat_s=heartbeat, timeout_s=amp.timeout_s, axis=axis
+            )
         if plate.planar:
             from feeder.drivers.axes import open_anc300_axes
 
@@ -178,6 +186,8 @@ def simulator_args(config: DaemonConfig) -> list[str]:
     ]
     if config.amplifier.transport == "can":
         args += ["--can", "slcan-pty"]
+        if "eds" in config.amplifier.can:  # the simulated nodes have the configured axes per node
+            args += ["--can-eds", str(config.amplifier.can["eds"])]
     plate, cam = config.plate, config.camera
     if plate.planar:
         parts = ";".join(",".join(repr(v) for v in pose) for pose in plate.parts)
@@ -247,6 +257,7 @@ def simulator_addresses(config: DaemonConfig, sim: Simulator) -> tuple[str | dic
                 "sleep_after_open": 0,
                 "node_id": int(amp.can.get("node_id", 1)),
                 "heartbeat_s": float(amp.can.get("heartbeat_s", CAN_HEARTBEAT_S)),
+                **({"eds": str(amp.can["eds"])} if "eds" in amp.can else {}),
             }
         else:
             address = ends["console_pty"]

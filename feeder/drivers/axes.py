@@ -6,8 +6,12 @@
   commands); only a real ANC300's verbs are sent (the strict dialect).
 - CANopen: :func:`open_canopen_axes` puts one
   :class:`~feeder.drivers.canopen.CanopenAmplifier` per axis on one
-  :class:`canopen.Network`: one axis per node (the packaged EDS), node id =
-  ``node_id`` + axis − 1, as firmware_sim's ``--can-node-id-base``.
+  :class:`canopen.Network`.  The EDS says how many axes a node has (A): amplifier
+  axis n is axis (n − 1) mod A + 1 of node ``node_id`` + (n − 1) div A, as
+  firmware_sim's ``--can-node-id-base`` and ``--can-eds`` lay them out.  With the
+  default one-axis EDS that is node ``node_id`` + n − 1; with the three-axis EDS,
+  axes 1–3 are the three axes of node ``node_id``.  The axes of one node share its
+  link (one heartbeat, one SDO channel; a lost node faults all of them).
 
 Both take the same ``axis_map`` (plate axis name → amplifier axis number) and
 return an :class:`Axes`, a ``dict[str, Amplifier]`` that also stops and
@@ -26,8 +30,9 @@ import canopen
 
 from feeder.drivers.amplifier import Amplifier, AmplifierError
 from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
-from feeder.drivers.canopen import CanopenAmplifier
+from feeder.drivers.canopen import open_node_axes
 from feeder.errors import InputError
+from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
 
 log = logging.getLogger(__name__)
 
@@ -124,26 +129,37 @@ def open_canopen_axes(
     bus: Mapping[str, Any],
     axis_map: Mapping[str, int] = DEFAULT_AXIS_MAP,
     node_id: int = 1,
+    eds: str = EDS_FILE,
     **options: Any,
 ) -> Axes:
-    """One :class:`CanopenAmplifier` per plate axis on one shared network.
+    """One :class:`~feeder.drivers.canopen.CanopenAmplifier` per plate axis on one shared network.
 
-    bus: python-can keyword arguments; node_id: the node of amplifier axis 1 (axis n
-    is node ``node_id`` + n − 1, one axis per node as the packaged EDS says);
-    options: :class:`CanopenAmplifier`'s (heartbeat_s, timeout_s, supervise_host, ...).
+    bus: python-can keyword arguments; node_id: the node of amplifier axis 1; eds: the
+    nodes' EDS (a packaged EDS's name or a path): with A axes per node, amplifier axis n
+    is axis (n − 1) mod A + 1 of node ``node_id`` + (n − 1) div A; options:
+    :class:`~feeder.drivers.canopen.CanopenNodeLink`'s (heartbeat_s, timeout_s,
+    supervise_host, ...).
     """
     axes = check_axis_map(axis_map)
-    if not 1 <= node_id <= 128 - max(axes.values()):
-        raise InputError("node_id", f"node ids from {node_id} for axes {axes} leave CANopen's 1..127")
+    per_node = axis_count(object_dictionary(node_id, eds))
+    last_node = node_id + (max(axes.values()) - 1) // per_node
+    if not 1 <= node_id <= last_node <= 127:
+        raise InputError("node_id", f"node ids {node_id}..{last_node} for axes {axes} leave CANopen's 1..127")
+    nodes: dict[int, dict[str, int]] = {}
+    for name, number in axes.items():
+        nodes.setdefault(node_id + (number - 1) // per_node, {})[name] = (number - 1) % per_node + 1
     network = canopen.Network()
     network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
     network.connect(**dict(bus))
     drivers: dict[str, Amplifier] = {}
     with contextlib.ExitStack() as undo:  # a node that does not answer: release the others
         undo.callback(network.disconnect)
-        for name, number in axes.items():
-            driver = CanopenAmplifier(bus, node_id + number - 1, network=network, **options)
-            undo.callback(driver.close)
-            drivers[name] = driver
+        for node, members in nodes.items():
+            opened = open_node_axes(
+                bus, node, members.values(), object_dictionary(node, eds), network=network, **options
+            )
+            for driver in opened.values():
+                undo.callback(driver.close)
+            drivers.update({name: opened[number] for name, number in members.items()})
         undo.pop_all()
     return Axes(drivers, network.disconnect)

@@ -1,16 +1,19 @@
-"""The amplifier over CAN: a CANopen (CiA 301) master for one amplifier axis node.
+"""The amplifier over CAN: a CANopen (CiA 301) master for the amplifier's axis nodes.
 
 Built on the ``canopen`` package's :class:`canopen.RemoteNode` and the node's EDS
 (package data of :mod:`feeder.protocol.eds`; object reference in docs/canopen.md),
-every object addressed by its EDS name:
+every object addressed by its EDS name.  A node has one axis or several (the EDS
+says which, :func:`feeder.protocol.eds.axis_count`): :class:`CanopenNodeLink` is the
+node (start-up, SDO, heartbeat), shared by one :class:`CanopenAmplifier` per axis:
 
-- configuration by SDO (frequency, amplitude, flyback, mode),
-- steps by RPDO1 (signed count + command sequence), each confirmed by the
-  node's echo of the sequence in TPDO1 (a refusal sets a status bit),
-- progress from TPDO1 (step counter, status word, error register),
-- node loss from the heartbeat: no heartbeat for :data:`HEARTBEAT_LOSS_PERIODS`
-  periods, or a heartbeat reporting anything but OPERATIONAL, marks the link
-  lost; every later call raises :class:`AmplifierLinkLost` without sending.
+- configuration by SDO (frequency, amplitude, flyback, mode), the axis' own objects,
+- steps by the axis' RPDO (signed count + command sequence), each confirmed by the
+  node's echo of the sequence in the axis' TPDO (a refusal sets a status bit),
+- progress from the axis' TPDO (step counter, status word, error register),
+- node loss from the node's heartbeat: no heartbeat for
+  :data:`~feeder.drivers.canopen_link.HEARTBEAT_LOSS_PERIODS`
+  periods, or a heartbeat reporting anything but OPERATIONAL, marks the node lost;
+  every later call on any of its axes raises :class:`AmplifierLinkLost` without sending.
 
 The bus is plain python-can keyword arguments, so the transport is configuration::
 
@@ -18,23 +21,20 @@ The bus is plain python-can keyword arguments, so the transport is configuration
     {"interface": "socketcan", "channel": "can0"}
     {"interface": "virtual", "channel": "test"}
 
-Steps played: the node counts them (``Step counter``, in every TPDO1), so
+Steps played: the node counts them (``Step counter``, in every TPDO), so
 ``AmplifierStatus.step_counter`` is the drive's own count, not an estimate; the
-end of a burst is the drive's ``moving`` bit going low in TPDO1 (:meth:`wait`).
+end of a burst is the drive's ``moving`` bit going low in the TPDO (:meth:`wait`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import threading
-import time
-from collections.abc import Callable, Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import can
 import canopen
 from canopen.objectdictionary import ObjectDictionary
-from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from feeder.drivers.amplifier import (
     FLYBACK_SHAPES,
@@ -44,33 +44,26 @@ from feeder.drivers.amplifier import (
     AmplifierStatus,
     DriveSettings,
 )
+from feeder.drivers.canopen_link import CanopenNodeLink
+from feeder.errors import InputError
 from feeder.protocol import anc300
-from feeder.protocol.eds import MODES, bit_mask, object_dictionary
+from feeder.protocol.eds import MODES, bit_mask
 
-HOST_SILENCE_PERIODS = 3
-"""The node's heartbeat consumer time, in the driver's heartbeat periods."""
-
-HEARTBEAT_LOSS_PERIODS = 2.5
-"""Missing heartbeats for this many periods = node lost (so it is reported
-within 3 periods of the node's last breath)."""
-
-CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
-TPDO1_TYPE = "TPDO1 communication parameter.Transmission type"
 SETTINGS = ("Flyback shape", "Frequency", "Flyback time", "Amplitude")
 """The objects :meth:`CanopenAmplifier.apply` writes, in the order of ``_write_settings``' arguments."""
 
-ABORT_MESSAGES = {
-    0x05040001: "command not valid (no such transfer)",
-    0x06010001: "object is write-only",
-    0x06010002: "object is read-only",
-    0x06020000: "object does not exist",
-    0x06090011: "sub-index does not exist",
-    0x06040043: "conflicts with another setting",
-    0x06090030: "value range exceeded",
-    0x06090031: "value too high",
-    0x06090032: "value too low",
-    0x08000022: "refused in the present device state",
-}
+STATE_OBJECTS = (
+    "Mode",
+    "Continuous",
+    "Fault reset",
+    "Fault word",
+    "Step counter",
+    "Status word",
+    "Step command",
+    "Command sequence",
+    "Command acknowledge",
+)
+"""The axis' objects besides :data:`SETTINGS` the driver uses (one-axis EDS names)."""
 
 
 def fault_names(word: int) -> tuple[str, ...]:
@@ -81,21 +74,11 @@ def fault_names(word: int) -> tuple[str, ...]:
 
 
 class CanopenAmplifier(Amplifier):
-    """One amplifier axis reached as CANopen node ``node_id`` on a python-can bus.
+    """Axis ``axis`` of CANopen node ``node_id`` on a python-can bus.
 
-    bus: python-can keyword arguments (``can.Bus(**bus)``).
-    eds: the node's object dictionary; default: the packaged EDS
-        (:func:`feeder.protocol.eds.object_dictionary`).
-    heartbeat_s: heartbeat period of the node (the driver sets object 0x1017).
-    timeout_s: SDO response and RPDO acknowledge timeout.
-    supervise_host: the driver beats too (as node ``host_id``, every
-        ``heartbeat_s``) and the node consumes it (0x1016): a host that dies
-        mid-move gets the axis grounded (``host_watchdog``) after
-        :data:`HOST_SILENCE_PERIODS` periods.  Off by default, like the
-        firmware's ``--host-watchdog-s``.
-    network: a connected :class:`canopen.Network` to share with other axes'
-        drivers (one bus, several nodes; ``bus`` is then ignored); the caller
-        disconnects it.  Default: the driver connects its own.
+    The arguments but ``axis`` are :class:`CanopenNodeLink`'s: this driver opens its
+    own link to the node.  To drive several axes of one node, open the link once and
+    put one driver per axis on it (:meth:`on_link`, :func:`open_node_axes`).
     """
 
     def __init__(
@@ -108,175 +91,83 @@ class CanopenAmplifier(Amplifier):
         supervise_host: bool = False,
         host_id: int = 127,
         network: canopen.Network | None = None,
+        axis: int = 1,
     ) -> None:
-        self.node_id = node_id
-        self.supervise_host = supervise_host
-        self.host_id = host_id
-        self._host_heartbeat: canopen.network.PeriodicMessageTask | None = None
-        self.heartbeat_s = heartbeat_s
-        self.timeout_s = timeout_s
-        self._lock = threading.RLock()
-        self._changed = threading.Condition()
-        self._lost: str | None = None
-        self._last_heartbeat = time.monotonic()
-        self._started = False
-        self._tpdo_seen = False
-        self._counter = 0
-        self._status_word = 0
-        self._ack = 0
-        self._sequence = 0
-        self._closing = threading.Event()
-        self._owns_network = network is None
-        if network is None:
-            network = canopen.Network()
-            network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
-            network.connect(**dict(bus))
-        self.network = network
-        assert self.network.notifier is not None
-        self.network.notifier.add_listener(_BusErrors(self._on_bus_error))
-        with contextlib.ExitStack() as undo:  # any failure from here disconnects (our own network)
-            if self._owns_network:
-                undo.callback(self.network.disconnect)
-            od = eds if eds is not None else object_dictionary(node_id)
-            self.node = canopen.RemoteNode(node_id, od)
-            self._moving = bit_mask(od, "Status word", "moving")
-            self._refused = bit_mask(od, "Status word", "refused")
-            self.node.sdo.RESPONSE_TIMEOUT = timeout_s
-            self.network.add_node(self.node)
-            self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
-            self._start()
-            undo.pop_all()
-        self._watchdog = threading.Thread(
-            target=self._watch_heartbeat, daemon=True, name=f"canopen-heartbeat-{node_id}"
-        )
-        self._watchdog.start()
-
-    # -- link setup and supervision --------------------------------------------
-
-    def _start(self) -> None:
-        """Wait for the node, set its heartbeat, take the PDOs from the EDS, start it."""
+        link = CanopenNodeLink(bus, node_id, eds, heartbeat_s, timeout_s, supervise_host, host_id, network)
         try:
-            self.node.nmt.wait_for_heartbeat(timeout=max(1.0, 5 * self.heartbeat_s))
-        except canopen.nmt.NmtError as exc:
-            raise AmplifierLinkLost(f"CANopen node {self.node_id}: no heartbeat") from exc
-        self._sdo_write("Producer heartbeat time", round(self.heartbeat_s * 1000))
-        if self.supervise_host:  # consumer first: it sees the first beat
-            self._sdo_write(
-                CONSUMER_HEARTBEAT, self.host_id << 16 | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000)
-            )
-            self._host_heartbeat = self.network.send_periodic(
-                0x700 + self.host_id, b"\x05", self.heartbeat_s
-            )  # 5: OPERATIONAL
-        self._sdo_write(TPDO1_TYPE, 255)  # TPDO1 event-driven: on change and on its timer
-        self.node.tpdo.read(from_od=True)
-        self.node.rpdo.read(from_od=True)
-        self._tpdo = self.node.tpdo[1]
-        self._rpdo = self.node.rpdo[1]
-        self._tpdo.add_callback(self._on_tpdo)
-        self._sequence = self._sdo_read("Command acknowledge")
-        self.node.nmt.state = "OPERATIONAL"
-        with self._changed:
-            if not self._changed.wait_for(lambda: self._tpdo_seen, self.timeout_s + 0.2):
-                raise AmplifierLinkLost(f"CANopen node {self.node_id}: no TPDO after start")
-            # TPDOs flow only in OPERATIONAL: from here on any other state is a loss.
-            self._started = True
+            self._attach(link, axis)
+        except InputError:
+            link.close()
+            raise
 
-    def _on_heartbeat(self, state: int) -> None:
-        with self._changed:
-            self._last_heartbeat = time.monotonic()
-            if self._started and state != 5 and self._lost is None:
-                name = canopen.nmt.NMT_STATES.get(state, str(state))
-                self._lost = f"CANopen node {self.node_id} reported NMT state {name}"
-                self._changed.notify_all()
+    @classmethod
+    def on_link(cls, link: CanopenNodeLink, axis: int) -> CanopenAmplifier:
+        """The driver of axis ``axis`` on an open ``link`` (closing it releases the link)."""
+        driver = cls.__new__(cls)
+        driver._attach(link, axis)
+        return driver
 
-    def _watch_heartbeat(self) -> None:
-        limit = HEARTBEAT_LOSS_PERIODS * self.heartbeat_s
-        while not self._closing.is_set():
-            with self._changed:
-                silent = time.monotonic() - self._last_heartbeat
-                if silent >= limit and self._lost is None:
-                    self._lost = f"CANopen node {self.node_id}: no heartbeat for {silent * 1000:.0f} ms"
-                    self._changed.notify_all()
-                if self._lost is not None:
-                    return
-            self._closing.wait(max(limit - silent, 0.005))
-
-    def _on_tpdo(self, pdo: Any) -> None:
-        with self._changed:
-            self._counter = int(pdo["Step counter"].raw)
-            self._status_word = int(pdo["Status word"].raw)
-            self._ack = int(pdo["Command acknowledge"].raw)
-            self._tpdo_seen = True
-            self._changed.notify_all()
-
-    def _on_bus_error(self, exc: Exception) -> None:
-        """The bus itself failed (e.g. the adapter's port vanished): the link is lost."""
-        with self._changed:
-            if self._lost is None:
-                self._lost = f"CANopen node {self.node_id}: CAN bus error: {exc}"
-                self._changed.notify_all()
-        time.sleep(0.05)  # the receiver retries; do not spin on a dead port
-
-    def _check_link(self) -> None:
-        if self._lost is not None:
-            raise AmplifierLinkLost(self._lost)
+    def _attach(self, link: CanopenNodeLink, axis: int) -> None:
+        if not 1 <= axis <= link.axes:
+            raise InputError("axis", f"CANopen node {link.node_id} has axes 1..{link.axes}, not {axis}")
+        self.link, self.axis = link, axis
+        self.node_id, self.node, self.network = link.node_id, link.node, link.network
+        self.heartbeat_s, self.timeout_s = link.heartbeat_s, link.timeout_s
+        self.who = f"CANopen node {link.node_id}" + (f" axis {axis}" if link.axes > 1 else "")
+        self._names = {name: link.name(axis, name) for name in (*SETTINGS, *STATE_OBJECTS)}
+        od = link.node.object_dictionary
+        self._moving = bit_mask(od, self._names["Status word"], "moving")
+        self._refused = bit_mask(od, self._names["Status word"], "refused")
+        self._rpdo = link.node.rpdo[axis]
+        self._feedback = link.feedback[axis]
+        self._lock = threading.RLock()
+        self._closed = False
+        link.acquire()
 
     @property
     def lost(self) -> str | None:
-        """Why the link was declared lost, or None while it is healthy."""
-        return self._lost
+        """Why the node was declared lost, or None while it is healthy."""
+        return self.link.lost
+
+    @property
+    def _host_heartbeat(self) -> canopen.network.PeriodicMessageTask | None:
+        return self.link.host_heartbeat
 
     # -- SDO and RPDO -----------------------------------------------------------
 
     def _sdo_write(self, name: str, value: int) -> None:
-        """Write object ``name`` (its EDS name; ``Record.Sub`` for a sub-object)."""
-        self._check_link()
-        try:
-            self.node.sdo[name].raw = value
-        except SdoAbortedError as exc:
-            raise AmplifierError(self._abort_text(exc, name, value)) from exc
-        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
-            raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
+        """Write this axis' object ``name`` (its one-axis EDS name)."""
+        self.link.sdo_write(self._names[name], value, self.who)
 
     def _sdo_read(self, name: str) -> int:
-        """Read object ``name`` (its EDS name)."""
-        self._check_link()
-        try:
-            return int(self.node.sdo[name].raw)
-        except SdoAbortedError as exc:
-            raise AmplifierError(self._abort_text(exc, name, None)) from exc
-        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
-            raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
-
-    def _abort_text(self, exc: SdoAbortedError, name: str, value: int | None) -> str:
-        what = f"{name} = {value}" if value is not None else name
-        reason = ABORT_MESSAGES.get(exc.code, "refused")
-        return f"CANopen node {self.node_id}: {what}: {reason} (SDO abort 0x{exc.code:08X})"
+        """Read this axis' object ``name`` (its one-axis EDS name)."""
+        return self.link.sdo_read(self._names[name], self.who)
 
     def _command(self, count: int) -> None:
-        """Send ``count`` by RPDO1 and wait for the node's acknowledge in TPDO1."""
+        """Send ``count`` by the axis' RPDO and wait for the node's acknowledge in its TPDO."""
+        link, feedback = self.link, self._feedback
         with self._lock:
-            self._check_link()
-            self._sequence = (self._sequence + 1) % 256
-            sequence = self._sequence
-            self._rpdo["Step command"].raw = count
-            self._rpdo["Command sequence"].raw = sequence
+            link.check()
+            feedback.sequence = (feedback.sequence + 1) % 256
+            sequence = feedback.sequence
+            self._rpdo[self._names["Step command"]].raw = count
+            self._rpdo[self._names["Command sequence"]].raw = sequence
             try:
                 self._rpdo.transmit()
             except (can.CanError, OSError) as exc:  # the adapter's port is gone
-                raise AmplifierLinkLost(f"CANopen node {self.node_id}: {exc}") from exc
-            with self._changed:
-                acked = self._changed.wait_for(
-                    lambda: self._ack == sequence or self._lost is not None, self.timeout_s
+                raise AmplifierLinkLost(f"{self.who}: {exc}") from exc
+            with link.changed:
+                acked = link.changed.wait_for(
+                    lambda: feedback.ack == sequence or link.lost is not None, self.timeout_s
                 )
-                self._check_link()
-                refused = self._status_word & self._refused
+                link.check()
+                refused = feedback.status_word & self._refused
             if not acked:
-                raise AmplifierLinkLost(f"CANopen node {self.node_id}: step command not acknowledged")
+                raise AmplifierLinkLost(f"{self.who}: step command not acknowledged")
         if refused:
             state = self.status()
             reason = f"fault {', '.join(state.faults)}" if state.fault_word else f"mode {state.mode}"
-            raise AmplifierError(f"CANopen node {self.node_id}: step {count} refused ({reason})")
+            raise AmplifierError(f"{self.who}: step {count} refused ({reason})")
 
     # -- the Amplifier interface -----------------------------------------------
 
@@ -326,11 +217,12 @@ class CanopenAmplifier(Amplifier):
         self._command(0)
 
     def wait(self, timeout_s: float) -> bool:
-        with self._changed:
-            done = self._changed.wait_for(
-                lambda: not self._status_word & self._moving or self._lost is not None, timeout_s
+        link, feedback = self.link, self._feedback
+        with link.changed:
+            done = link.changed.wait_for(
+                lambda: not feedback.status_word & self._moving or link.lost is not None, timeout_s
             )
-            self._check_link()
+            link.check()
             return done
 
     def ground(self) -> None:
@@ -342,7 +234,7 @@ class CanopenAmplifier(Amplifier):
             self._sdo_write("Mode", MODES.index("stp"))
 
     def clear_faults(self) -> None:
-        """Clear the node's latched fault word (``Fault reset``); the output stays grounded."""
+        """Clear the axis' latched fault word (``Fault reset``); the output stays grounded."""
         with self._lock:
             self._sdo_write("Fault reset", 1)
 
@@ -366,37 +258,33 @@ class CanopenAmplifier(Amplifier):
 
     @property
     def step_counter(self) -> int:
-        """The step counter from the latest TPDO1 (no bus traffic)."""
-        with self._changed:
-            return self._counter
+        """The step counter from the axis' latest TPDO (no bus traffic)."""
+        with self.link.changed:
+            return self._feedback.counter
 
     def close(self) -> None:
-        """Release the link; the output is left alone (the node stops watching us first)."""
-        if self._closing.is_set():
+        """Release this axis; the last axis of the node releases the link (outputs are
+        left alone: the node stops watching us first)."""
+        if self._closed:
             return
-        if self._host_heartbeat is not None:
-            if self._lost is None:
-                with contextlib.suppress(AmplifierError):
-                    self._sdo_write(CONSUMER_HEARTBEAT, 0)
-            self._host_heartbeat.stop()
-        self._closing.set()
-        if self._watchdog.is_alive():
-            self._watchdog.join(timeout=1.0)
-        if not self._owns_network:
-            return
-        # the adapter may be gone already (e.g. its pty closed): nothing left to release
-        with contextlib.suppress(can.CanError, OSError):
-            self.network.disconnect()
+        self._closed = True
+        self.link.release()
 
 
-class _BusErrors(can.Listener):
-    """Passes exceptions from the bus receiver to a callback instead of killing it."""
-
-    def __init__(self, callback: Callable[[Exception], None]) -> None:
-        self._callback = callback
-
-    def on_message_received(self, msg: can.Message) -> None:
-        """Frames are the network's business."""
-
-    def on_error(self, exc: Exception) -> None:
-        self._callback(exc)
+def open_node_axes(
+    bus: Mapping[str, Any],
+    node_id: int,
+    axes: Iterable[int] | None = None,
+    eds: ObjectDictionary | None = None,
+    network: canopen.Network | None = None,
+    **options: Any,
+) -> dict[int, CanopenAmplifier]:
+    """One :class:`CanopenAmplifier` per axis (``axes``; default: all the EDS lists) of
+    node ``node_id``, sharing one :class:`CanopenNodeLink` (options: its keywords)."""
+    link = CanopenNodeLink(bus, node_id, eds, network=network, **options)
+    try:
+        numbers = range(1, link.axes + 1) if axes is None else axes
+        return {number: CanopenAmplifier.on_link(link, number) for number in numbers}
+    except InputError:
+        link.close()
+        raise

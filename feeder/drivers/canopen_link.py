@@ -1,0 +1,313 @@
+"""The amplifier's CANopen node as the host sees it: start-up, SDO, heartbeat, loss.
+
+:class:`CanopenNodeLink` is one node on a python-can bus (``canopen``'s
+:class:`canopen.RemoteNode` with the node's EDS), shared by the drivers of its axes
+(:class:`feeder.drivers.canopen.CanopenAmplifier`): it starts the node, checks it
+is the product its EDS describes, serialises SDO transfers, receives every axis'
+TPDO and watches the node's heartbeat once for all axes.  Reference: docs/canopen.md.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import can
+import canopen
+from canopen.objectdictionary import ObjectDictionary
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost
+from feeder.protocol.eds import axis_count, axis_object, object_dictionary
+
+HOST_SILENCE_PERIODS = 3
+"""The node's heartbeat consumer time, in the driver's heartbeat periods."""
+
+HEARTBEAT_LOSS_PERIODS = 2.5
+"""Missing heartbeats for this many periods = node lost (so it is reported
+within 3 periods of the node's last breath)."""
+
+CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
+PRODUCT_CODE = "Identity object.Product code"
+TPDO_OBJECTS = ("Step counter", "Status word", "Command acknowledge")
+"""What the driver takes from each axis' TPDO (one-axis EDS names)."""
+ABORT_MESSAGES = {
+    0x05040001: "command not valid (no such transfer)",
+    0x06010001: "object is write-only",
+    0x06010002: "object is read-only",
+    0x06020000: "object does not exist",
+    0x06090011: "sub-index does not exist",
+    0x06040043: "conflicts with another setting",
+    0x06090030: "value range exceeded",
+    0x06090031: "value too high",
+    0x06090032: "value too low",
+    0x08000022: "refused in the present device state",
+}
+
+
+def tpdo_type(axis: int) -> str:
+    """The transmission type of axis ``axis``' TPDO (axis n sends TPDOn)."""
+    return f"TPDO{axis} communication parameter.Transmission type"
+
+
+@dataclass
+class _Feedback:
+    """One axis' latest TPDO, and the sequence of its last RPDO command."""
+
+    counter: int = 0
+    status_word: int = 0
+    ack: int = 0
+    seen: bool = False
+    sequence: int = 0
+
+
+class CanopenNodeLink:
+    """CANopen node ``node_id`` on a python-can bus, shared by the drivers of its axes.
+
+    Starts the node (heartbeat, PDOs from the EDS, NMT OPERATIONAL), serialises SDO
+    transfers (one SDO channel per node), receives every axis' TPDO and watches the
+    node's heartbeat: once the node is lost, every axis is.
+
+    bus: python-can keyword arguments (``can.Bus(**bus)``).
+    eds: the node's object dictionary; default: the packaged one-axis EDS
+        (:func:`feeder.protocol.eds.object_dictionary`).  It says how many axes
+        (:attr:`axes`) the node has.
+    heartbeat_s: heartbeat period of the node (the driver sets object 0x1017).
+    timeout_s: SDO response and RPDO acknowledge timeout.
+    supervise_host: the driver beats too (as node ``host_id``, every
+        ``heartbeat_s``) and the node consumes it (0x1016): a host that dies
+        mid-move gets the node's moving axes grounded (``host_watchdog``) after
+        :data:`HOST_SILENCE_PERIODS` periods.  Off by default, like the
+        firmware's ``--host-watchdog-s``.
+    network: a connected :class:`canopen.Network` to share with other nodes'
+        drivers (one bus, several nodes; ``bus`` is then ignored); the caller
+        disconnects it.  Default: the link connects its own.
+
+    The link closes when the last axis driver on it is closed (:meth:`release`).
+    """
+
+    def __init__(
+        self,
+        bus: Mapping[str, Any],
+        node_id: int,
+        eds: ObjectDictionary | None = None,
+        heartbeat_s: float = 0.25,
+        timeout_s: float = 0.5,
+        supervise_host: bool = False,
+        host_id: int = 127,
+        network: canopen.Network | None = None,
+    ) -> None:
+        self.node_id = node_id
+        self.supervise_host = supervise_host
+        self.host_id = host_id
+        self.host_heartbeat: canopen.network.PeriodicMessageTask | None = None
+        self.heartbeat_s = heartbeat_s
+        self.timeout_s = timeout_s
+        self.sdo_lock = threading.Lock()
+        self.changed = threading.Condition()
+        self._lost: str | None = None
+        self._last_heartbeat = time.monotonic()
+        self._started = False
+        self._users = 0
+        self._closing = threading.Event()
+        self._owns_network = network is None
+        od = eds if eds is not None else object_dictionary(node_id)
+        self.axes = axis_count(od)
+        self.feedback = {axis: _Feedback() for axis in range(1, self.axes + 1)}
+        self._tpdo_names = {
+            axis: tuple(axis_object(od, axis, name) for name in TPDO_OBJECTS) for axis in self.feedback
+        }
+        if network is None:
+            network = canopen.Network()
+            network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
+            network.connect(**dict(bus))
+        self.network = network
+        assert self.network.notifier is not None
+        self.network.notifier.add_listener(_BusErrors(self._on_bus_error))
+        with contextlib.ExitStack() as undo:  # any failure from here disconnects (our own network)
+            if self._owns_network:
+                undo.callback(self.network.disconnect)
+            self.node = canopen.RemoteNode(node_id, od)
+            self.node.sdo.RESPONSE_TIMEOUT = timeout_s
+            self.network.add_node(self.node)
+            self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
+            self._start()
+            undo.pop_all()
+        self._watchdog = threading.Thread(
+            target=self._watch_heartbeat, daemon=True, name=f"canopen-heartbeat-{node_id}"
+        )
+        self._watchdog.start()
+
+    # -- start-up and supervision -----------------------------------------------
+
+    def _start(self) -> None:
+        """Wait for the node, check it is the EDS's product, set its heartbeat, take the
+        PDOs from the EDS, start it and wait for every axis' first TPDO."""
+        try:
+            self.node.nmt.wait_for_heartbeat(timeout=max(1.0, 5 * self.heartbeat_s))
+        except canopen.nmt.NmtError as exc:
+            raise AmplifierLinkLost(f"CANopen node {self.node_id}: no heartbeat") from exc
+        product = self.node.object_dictionary.device_information.product_number
+        found = self.sdo_read(PRODUCT_CODE)
+        if product is not None and found != product:
+            raise AmplifierError(
+                f"CANopen node {self.node_id} is product 0x{found:08X}, its EDS describes "
+                f"0x{product:08X} ({self.axes} axis per node): wrong EDS or node id"
+            )
+        self.sdo_write("Producer heartbeat time", round(self.heartbeat_s * 1000))
+        if self.supervise_host:  # consumer first: it sees the first beat
+            self.sdo_write(
+                CONSUMER_HEARTBEAT, self.host_id << 16 | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000)
+            )
+            self.host_heartbeat = self.network.send_periodic(
+                0x700 + self.host_id, b"\x05", self.heartbeat_s
+            )  # 5: OPERATIONAL
+        self.node.tpdo.read(from_od=True)
+        self.node.rpdo.read(from_od=True)
+        for axis, feedback in self.feedback.items():
+            self.sdo_write(tpdo_type(axis), 255)  # event-driven: on change and on its timer
+            self.node.tpdo[axis].add_callback(functools.partial(self._on_tpdo, axis))
+            feedback.sequence = self.sdo_read(self.name(axis, "Command acknowledge"))
+        self.node.nmt.state = "OPERATIONAL"
+        with self.changed:
+            all_seen = self.changed.wait_for(
+                lambda: all(f.seen for f in self.feedback.values()), self.timeout_s + 0.2
+            )
+            if not all_seen:
+                raise AmplifierLinkLost(f"CANopen node {self.node_id}: no TPDO after start")
+            # TPDOs flow only in OPERATIONAL: from here on any other state is a loss.
+            self._started = True
+
+    def name(self, axis: int, name: str) -> str:
+        """The EDS name of axis ``axis``' object ``name`` on this node."""
+        return axis_object(self.node.object_dictionary, axis, name)
+
+    def _on_heartbeat(self, state: int) -> None:
+        with self.changed:
+            self._last_heartbeat = time.monotonic()
+            if self._started and state != 5 and self._lost is None:
+                name = canopen.nmt.NMT_STATES.get(state, str(state))
+                self._lost = f"CANopen node {self.node_id} reported NMT state {name}"
+                self.changed.notify_all()
+
+    def _watch_heartbeat(self) -> None:
+        limit = HEARTBEAT_LOSS_PERIODS * self.heartbeat_s
+        while not self._closing.is_set():
+            with self.changed:
+                silent = time.monotonic() - self._last_heartbeat
+                if silent >= limit and self._lost is None:
+                    self._lost = f"CANopen node {self.node_id}: no heartbeat for {silent * 1000:.0f} ms"
+                    self.changed.notify_all()
+                if self._lost is not None:
+                    return
+            self._closing.wait(max(limit - silent, 0.005))
+
+    def _on_tpdo(self, axis: int, pdo: Any) -> None:
+        counter, status_word, ack = self._tpdo_names[axis]
+        with self.changed:
+            feedback = self.feedback[axis]
+            feedback.counter = int(pdo[counter].raw)
+            feedback.status_word = int(pdo[status_word].raw)
+            feedback.ack = int(pdo[ack].raw)
+            feedback.seen = True
+            self.changed.notify_all()
+
+    def _on_bus_error(self, exc: Exception) -> None:
+        """The bus itself failed (e.g. the adapter's port vanished): the node is lost."""
+        with self.changed:
+            if self._lost is None:
+                self._lost = f"CANopen node {self.node_id}: CAN bus error: {exc}"
+                self.changed.notify_all()
+        time.sleep(0.05)  # the receiver retries; do not spin on a dead port
+
+    def check(self) -> None:
+        """Raise :class:`AmplifierLinkLost` once the node is lost."""
+        if self._lost is not None:
+            raise AmplifierLinkLost(self._lost)
+
+    @property
+    def lost(self) -> str | None:
+        """Why the node was declared lost, or None while it is healthy."""
+        return self._lost
+
+    # -- SDO ---------------------------------------------------------------------
+
+    def sdo_write(self, name: str, value: int, who: str | None = None) -> None:
+        """Write object ``name`` (its EDS name; ``Record.Sub`` for a sub-object); ``who``
+        names the axis in errors."""
+        self.check()
+        try:
+            with self.sdo_lock:
+                self.node.sdo[name].raw = value
+        except SdoAbortedError as exc:
+            raise AmplifierError(self._abort_text(exc, name, value, who)) from exc
+        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
+            raise AmplifierLinkLost(f"{who or self.who}: {exc}") from exc
+
+    def sdo_read(self, name: str, who: str | None = None) -> int:
+        """Read object ``name`` (its EDS name)."""
+        self.check()
+        try:
+            with self.sdo_lock:
+                return int(self.node.sdo[name].raw)
+        except SdoAbortedError as exc:
+            raise AmplifierError(self._abort_text(exc, name, None, who)) from exc
+        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
+            raise AmplifierLinkLost(f"{who or self.who}: {exc}") from exc
+
+    @property
+    def who(self) -> str:
+        return f"CANopen node {self.node_id}"
+
+    def _abort_text(self, exc: SdoAbortedError, name: str, value: int | None, who: str | None) -> str:
+        what = f"{name} = {value}" if value is not None else name
+        reason = ABORT_MESSAGES.get(exc.code, "refused")
+        return f"{who or self.who}: {what}: {reason} (SDO abort 0x{exc.code:08X})"
+
+    # -- users ---------------------------------------------------------------------
+
+    def acquire(self) -> None:
+        """One more axis driver uses the link."""
+        self._users += 1
+
+    def release(self) -> None:
+        """An axis driver is done: the last one closes the link."""
+        self._users -= 1
+        if self._users <= 0:
+            self.close()
+
+    def close(self) -> None:
+        """Release the node; outputs are left alone (the node stops watching us first)."""
+        if self._closing.is_set():
+            return
+        if self.host_heartbeat is not None:
+            if self._lost is None:
+                with contextlib.suppress(AmplifierError):
+                    self.sdo_write(CONSUMER_HEARTBEAT, 0)
+            self.host_heartbeat.stop()
+        self._closing.set()
+        if self._watchdog.is_alive():
+            self._watchdog.join(timeout=1.0)
+        if not self._owns_network:
+            return
+        # the adapter may be gone already (e.g. its pty closed): nothing left to release
+        with contextlib.suppress(can.CanError, OSError):
+            self.network.disconnect()
+
+
+class _BusErrors(can.Listener):
+    """Passes exceptions from the bus receiver to a callback instead of killing it."""
+
+    def __init__(self, callback: Callable[[Exception], None]) -> None:
+        self._callback = callback
+
+    def on_message_received(self, msg: can.Message) -> None:
+        """Frames are the network's business."""
+
+    def on_error(self, exc: Exception) -> None:
+        self._callback(exc)
