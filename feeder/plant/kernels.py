@@ -208,7 +208,7 @@ def _asinh_ratio(y: float, x: float, r: float) -> float:
 @_jit
 def _corners(x: float, y: float) -> tuple[float, float, float]:
     """Corner functions of ∫∫ x/r, ∫∫ y/r and ∫∫ r dx dy at (x, y), sharing r and the two logarithms."""
-    r = math.hypot(x, y)
+    r = math.sqrt(x * x + y * y)  # no over- or underflow at a part's size (m)
     lx = _asinh_ratio(y, x, r) if x else 0.0
     ly = _asinh_ratio(x, y, r) if y else 0.0
     return (

@@ -58,7 +58,13 @@ _ROUNDING = 1e-14
 _SKIP_HELD = True
 """Skip samples in bulk while every part is surely held (tests switch it off to compare)."""
 _HELD_MARGIN = 1 - 1e-6
+_MISS2 = pk._MISS2
+"""A twist whose linear closest approach stays above half its size (squared: this) turns, not vanishes."""
+_NEAR_ZERO = pk._NEAR_ZERO
+_UNRESOLVED = pk._UNRESOLVED
+"""A shrinking twist within this many absolute error scales of the velocities has vanished."""
 _NO_DRAWS = np.zeros(0)
+_DISC_NODES = pk.DISC_NODES
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
 """Absolute tolerances of (c − c₀, φ − φ₀, v, ω) at :data:`RTOL` (scaled with rtol)."""
 RTOL = 1e-10
@@ -308,6 +314,11 @@ class _PartState:
     def _dot(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
         return a[0] * b[0] + a[1] * b[1] + self.part.inertia_kg_m2 / self.part.mass_kg * a[2] * b[2]
 
+    def _resolution(self, y: np.ndarray) -> float:
+        """The step control's absolute error scale of the twist (atol + rtol·|v| per velocity, m/s)."""
+        r0, r1, r2 = (_ATOL[3:6] * (self._rtol / RTOL) + self._rtol * np.abs(y[3:6])).tolist()
+        return math.sqrt(self._dot((r0, r1, r2), (r0, r1, r2)))
+
     def _integrate(self, rhs: Callable[[float, np.ndarray], list[float]],
                    twist: Callable[[float, np.ndarray], tuple[float, float, float]],
                    rate: Callable[[float, np.ndarray], tuple[float, float, float]],
@@ -319,33 +330,52 @@ class _PartState:
         with its end at 0.9 of the linearly predicted time to zero (halved
         while no step fits), until the twist is below the stop threshold or
         its predicted time to zero below the time resolution (a twist at the
-        rounding floor of the velocities).
+        rounding floor of the velocities).  A twist whose linear closest
+        approach stays above half its size turns rather than vanishes (a near
+        miss): the integration goes on towards t_end, the step that reversed
+        it halved and at most half the twist's time scale |ξ|/|dξ/dt|.  A
+        shrinking twist within _UNRESOLVED error scales of the velocities has
+        vanished (its direction is lost in the steps' error).
         """
         bound = t_end
         previous = twist(t, y)
         factor = 0.9
+        first_step: float | None = None
         for _ in range(1000):
             begin = t
-            stepper = DOP853(rhs, t, y, bound, rtol=self._rtol, atol=_ATOL * (self._rtol / RTOL))
+            stepper = DOP853(rhs, t, y, bound, rtol=self._rtol, atol=_ATOL * (self._rtol / RTOL),
+                             first_step=first_step)  # fmt: skip
+            first_step = None
             reversed_ = False
+            tried = 0.0
             while stepper.status == "running":
                 stepper.step()
                 if stepper.status == "failed":
                     raise RuntimeError(f"planar stick-slip: integration failed at t = {t}")
                 now = twist(stepper.t, stepper.y)
                 if self._dot(now, previous) <= 0:
-                    reversed_ = True
+                    reversed_, tried = True, stepper.t - t
                     break
                 t, y, previous = stepper.t, stepper.y, now
                 floor = _ROUNDING * math.sqrt(self._dot((y[3], y[4], y[5]), (y[3], y[4], y[5])))
-                if math.sqrt(self._dot(now, now)) <= max(self._stop, floor):
+                size = math.sqrt(self._dot(now, now))
+                if size <= max(self._stop, floor) or (size <= _UNRESOLVED * self._resolution(y)
+                                                      and self._dot(now, rate(t, y)) < 0):  # fmt: skip
                     return t, y, True
             if not reversed_ and t >= t_end:
                 return t, y, False
             d = rate(t, y)
-            to_zero = -self._dot(previous, d) / self._dot(d, d)
-            if not to_zero > 0:
-                return t, y, True
+            size2, rate2, along = self._dot(previous, previous), self._dot(d, d), self._dot(previous, d)
+            to_zero = -along / rate2 if rate2 > 0 else 0.0
+            if not to_zero > 0 or size2 - along * along / rate2 >= _MISS2 * size2:
+                # the twist turns rather than vanishes (a near miss): on in time, steps within its turn
+                floor = _ROUNDING * math.sqrt(self._dot((y[3], y[4], y[5]), (y[3], y[4], y[5])))
+                if math.sqrt(size2) <= _NEAR_ZERO * max(self._stop, floor):
+                    return t, y, True
+                bound = t_end
+                if reversed_:
+                    first_step = 0.5 * min(tried, math.sqrt(size2 / rate2) if rate2 > 0 else tried, t_end - t)
+                continue
             factor = 0.9 if t > begin else 0.5 * factor  # no step fitted: aim shorter
             if factor * to_zero <= 1e-15 * t_end:  # it vanishes within the time resolution
                 return t, y, True
@@ -443,6 +473,13 @@ class PlanarStickSlip:
             return self._array[:, pk.SLIP].tolist()
         return [s.slip_time_s for s in self._states]
 
+    @property
+    def integration_steps(self) -> list[int]:
+        """Dormand-Prince steps tried per part so far (compiled only: a cost gauge; else zeros)."""
+        if self._compiled:
+            return [int(n) for n in self._array[:, pk.STEPS]]
+        return [0] * len(self._states)
+
     def poses(self) -> list[Pose]:
         """Each part's pose in the plate frame now."""
         if self._compiled:
@@ -535,10 +572,10 @@ class PlanarStickSlip:
                        sample_rate_hz: float) -> np.ndarray:  # fmt: skip
         """Compiled only: DAC samples (3, n) through output stages and stack filters
         (:func:`.kernels.drive_run`; states updated in place) into :meth:`advance_sampled`."""
-        lab = np.empty((len(self.parts), command.shape[1], 3))
+        lab = np.empty((self._array.shape[0], command.shape[1], 3))
         pk.run_plant(command, coefficients, filter_states, volts, scale, self._array, self._params,
-                     pk.DISC_NODES, float(sample_rate_hz), self._plate_array, _SKIP_HELD, lab)  # fmt: skip
-        self.elapsed_s = float(self._plate_array[pk.ELAPSED])
+                     _DISC_NODES, sample_rate_hz, self._plate_array, _SKIP_HELD, lab)  # fmt: skip
+        self.elapsed_s = self._plate_array[pk.ELAPSED].item()
         return lab
 
     def _surely_held(self, start: np.ndarray, end: np.ndarray, accel: np.ndarray, k: int) -> np.ndarray:

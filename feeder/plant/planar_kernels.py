@@ -15,8 +15,9 @@ cosine amplitude per axis, κ; :class:`.plate_motion.Segment`); the plate is
 (x_O, y_O, θ, v_x, v_y, Ω, elapsed time); a part's parameters are
 ``PARAM_SIZE`` floats (:func:`part_params`); its state ``STATE_SIZE`` floats
 (stuck, plate-frame pose, lab state while slipping, slip time, stop
-threshold, last step size); discs integrate over :data:`DISC_NODES` (unit
-disc: x, y, weight), scaled by their radius.
+threshold, last step size, fade step, Dormand-Prince steps tried so far);
+discs integrate over :data:`DISC_NODES` (unit disc: x, y, weight), scaled by
+their radius.
 """
 
 from __future__ import annotations
@@ -33,8 +34,8 @@ PLATE_SIZE = 7
 ELAPSED = 6
 PARAM_SIZE = 14
 DISC, HALF_A, HALF_B, MASS, INERTIA, TAU_S, TAU_K, A_S, RATIO, AREA, POLAR, JXX, JYY, RTOL = range(PARAM_SIZE)
-STATE_SIZE = 15
-STUCK, POSE, LAB, SLIP, STOP, STEP, RADIUS, FADE_STEP = 0, 1, 4, 10, 11, 12, 13, 14
+STATE_SIZE = 16
+STUCK, POSE, LAB, SLIP, STOP, STEP, RADIUS, FADE_STEP, STEPS = 0, 1, 4, 10, 11, 12, 13, 14, 15
 
 _SEED_TIME_S = 1e-12
 _STOP = 1e-10
@@ -45,6 +46,14 @@ _ALIGNED = 0.9
 _STRAIGHT = 0.5
 """A twist shrinking this straight (cosine of twist and its rate) fades in ln|twist| (:func:`_fade`)."""
 _SERIES_BELOW = 1e-3
+_MISS2 = 0.25
+"""A twist whose linear closest approach stays above half its size (squared: this) turns, not vanishes."""
+_NEAR_ZERO = 100.0
+"""A turning twist this close to the stop threshold (factor) has vanished."""
+_UNRESOLVED = 100.0
+"""A shrinking twist within this many absolute error scales of the velocities (atol + rtol·|v|,
+as the step control's) has vanished: below it the steps' error hides the twist's direction,
+which then spins at ~|dξ/dt|/|ξ| and holds the steps at a stability limit, not at a turn."""
 _ATOL = np.array([1e-6, 1e-6, 1e-3, 1e-3, 1e-3, 10.0, 1e-6])
 """Absolute tolerances per unit rtol of (c − c₀, φ − φ₀, v, ω, t): at rtol 1e-10 the
 reference's (1e-16 m, ...), and 1e-16 s for the time (a part at 0.1 m/s: 1e-17 m)."""
@@ -99,7 +108,7 @@ def initial_state(pose: tuple[float, float, float], radius_m: float) -> np.ndarr
 
 @_jit
 def _position(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
-    c = math.cos(seg[KAPPA] * tau) - 1.0
+    c = 0.0 if seg[KAPPA] == 0 else math.cos(seg[KAPPA] * tau) - 1.0
     return (seg[V] * tau + 0.5 * seg[A] * tau * tau + seg[C] * c,
             seg[V + 1] * tau + 0.5 * seg[A + 1] * tau * tau + seg[C + 1] * c,
             seg[V + 2] * tau + 0.5 * seg[A + 2] * tau * tau + seg[C + 2] * c)  # fmt: skip
@@ -107,14 +116,14 @@ def _position(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
 
 @_jit
 def _velocity(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
-    s = -seg[KAPPA] * math.sin(seg[KAPPA] * tau)
+    s = 0.0 if seg[KAPPA] == 0 else -seg[KAPPA] * math.sin(seg[KAPPA] * tau)
     return (seg[V] + seg[A] * tau + seg[C] * s, seg[V + 1] + seg[A + 1] * tau + seg[C + 1] * s,
             seg[V + 2] + seg[A + 2] * tau + seg[C + 2] * s)  # fmt: skip
 
 
 @_jit
 def _accel(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
-    c = -(seg[KAPPA] ** 2) * math.cos(seg[KAPPA] * tau)
+    c = 0.0 if seg[KAPPA] == 0 else -(seg[KAPPA] ** 2) * math.cos(seg[KAPPA] * tau)
     return seg[A] + seg[C] * c, seg[A + 1] + seg[C + 1] * c, seg[A + 2] + seg[C + 2] * c
 
 
@@ -561,6 +570,7 @@ def _fade(st: np.ndarray, pp: np.ndarray, radius: float, nodes: np.ndarray, seg:
     for _ in range(100_000):
         h = min(h, s_end - s)
         norm = _dp5_step(True, *args, z, h, ks, z_new)
+        st[STEPS] += 1
         if norm == np.inf:  # a stage where the twist turns
             h *= 0.25
             if h < 1e-2:  # turning: it will not vanish straight, continue in time
@@ -584,6 +594,22 @@ def _fade(st: np.ndarray, pp: np.ndarray, radius: float, nodes: np.ndarray, seg:
 
 
 @_jit
+def _resolution(pp: np.ndarray, z: np.ndarray) -> float:
+    """The step control's absolute error scale of the twist ((atol + rtol·|v|) per velocity, m/s)."""
+    r0, r1, r2 = ((_ATOL[3] + abs(z[3])) * pp[RTOL], (_ATOL[4] + abs(z[4])) * pp[RTOL],
+                  (_ATOL[5] + abs(z[5])) * pp[RTOL])  # fmt: skip
+    return math.sqrt(_dot(pp, r0, r1, r2, r0, r1, r2))
+
+
+@_jit
+def _shrinks(seg: np.ndarray, plate: np.ndarray, x0: float, y0: float, pp: np.ndarray, z: np.ndarray,
+             f: np.ndarray, w0: float, w1: float, w2: float) -> bool:  # fmt: skip
+    """Whether the twist (w) at z, f = dz/dt, shrinks."""
+    d0, d1, d2 = _twist_rate(seg, plate, x0, y0, z[6], z, f)
+    return _dot(pp, w0, w1, w2, d0, d1, d2) < 0
+
+
+@_jit
 def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarray, plate: np.ndarray,
                x0: float, y0: float, phi0: float, t: float, y: np.ndarray) -> tuple[float, bool]:  # fmt: skip
     """From t towards the segment's end until the twist vanishes; y updated, returns (time, vanished).
@@ -593,7 +619,9 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
     dropped and the integration aims at 0.9 of the linearly predicted time to
     zero); in ln|twist| (:func:`_fade`) once it shrinks faster than the steps
     in time can follow.  Ends at the same threshold: the twist below _STOP of
-    its start (or at the velocities' rounding floor).
+    its start (or at the velocities' rounding floor).  A near miss (the
+    linear closest approach above half the twist) goes on in time, as the
+    reference.
     """
     radius, t_end = st[RADIUS], seg[DURATION]
     stop = st[STOP]
@@ -606,6 +634,7 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
     p0, p1, p2 = _rel_twist(seg, plate, x0, y0, t, z)
     factor = 0.9
     h_abs = st[STEP]
+    h = 0.0
     fade = True
     _derivative(False, *args, z, ks[0])
     for _ in range(1000):
@@ -641,6 +670,7 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
                 t_new = min(z[6] + h_abs, bound)
                 h = t_new - z[6]
                 norm = _dp5_step(False, *args, z, h, ks, z_new)
+                st[STEPS] += 1
                 if norm < 1:
                     grow = 10.0 if norm == 0 else min(10.0, 0.9 * norm**-0.2)
                     if rejected:
@@ -648,7 +678,7 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
                     # a step cut short by the bound keeps the size the error allowed
                     h_abs = max(h * grow, h_abs) if t_new == bound and not rejected else h * grow
                     break
-                h_abs *= max(0.2, 0.9 * norm**-0.2)
+                h_abs = h * max(0.2, 0.9 * norm**-0.2)  # of the step tried (scipy: a clipped step)
                 rejected = True
             z_new[6] = t_new
             n0, n1, n2 = _rel_twist(seg, plate, x0, y0, t_new, z_new)
@@ -660,7 +690,10 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
             p0, p1, p2 = n0, n1, n2
             fade = True
             floor = _ROUNDING * math.sqrt(_dot(pp, z[3], z[4], z[5], z[3], z[4], z[5]))
-            if math.sqrt(_dot(pp, n0, n1, n2, n0, n1, n2)) <= max(stop, floor):
+            size = math.sqrt(_dot(pp, n0, n1, n2, n0, n1, n2))
+            lost = size <= _UNRESOLVED * _resolution(pp, z) and _shrinks(seg, plate, x0, y0, pp, z, ks[0],
+                                                                          n0, n1, n2)  # fmt: skip
+            if size <= max(stop, floor) or lost:
                 y[:] = z[:6]
                 st[STEP] = h_abs
                 return z[6], True
@@ -670,10 +703,20 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
             st[STEP] = h_abs
             return t, False
         d0, d1, d2 = _twist_rate(seg, plate, x0, y0, t, z, ks[0])
-        to_zero = -_dot(pp, p0, p1, p2, d0, d1, d2) / _dot(pp, d0, d1, d2, d0, d1, d2)
-        if not to_zero > 0:
-            st[STEP] = h_abs
-            return t, True
+        size2 = _dot(pp, p0, p1, p2, p0, p1, p2)
+        rate2 = _dot(pp, d0, d1, d2, d0, d1, d2)
+        along = _dot(pp, p0, p1, p2, d0, d1, d2)
+        to_zero = -along / rate2 if rate2 > 0 else 0.0
+        if not to_zero > 0 or size2 - along * along / rate2 >= _MISS2 * size2:
+            # the twist turns rather than vanishes (a near miss): on in time, steps within its turn
+            floor = _ROUNDING * math.sqrt(_dot(pp, z[3], z[4], z[5], z[3], z[4], z[5]))
+            if math.sqrt(size2) <= _NEAR_ZERO * max(stop, floor):
+                st[STEP] = h_abs
+                return t, True
+            bound = t_end
+            if reversed_:
+                h_abs = 0.5 * min(h, math.sqrt(size2 / rate2)) if rate2 > 0 else 0.5 * h
+            continue
         factor = 0.9 if t > begin else 0.5 * factor
         if factor * to_zero <= 1e-15 * t_end:
             st[STEP] = h_abs
