@@ -51,7 +51,6 @@ def plane(request: pytest.FixtureRequest) -> Iterator[tuple[RunningDaemon, Clien
         shutil.rmtree(base, ignore_errors=True)
 
 
-@pytest.mark.slow  # the simulated planar plant can stall its tick for seconds on a rare θ slip
 def test_a_part_reaches_five_random_poses_by_the_simulators_truth(
     plane: tuple[RunningDaemon, Client],
 ) -> None:

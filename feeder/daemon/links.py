@@ -196,9 +196,8 @@ def simulator_args(config: DaemonConfig) -> list[str]:
     if plate.planar:
         parts = ";".join(",".join(repr(v) for v in pose) for pose in plate.parts)
         args += [
-            # the planar plant's slips share the firmware's tick: a rare slow one (a θ slip
-            # whose twist nearly vanishes, then turns: up to 1.3 s measured for one tick) must
-            # not trip the tick watchdog meant for a stalled firmware (0.25 s)
+            # the planar plant's slips share the firmware's tick: a slow one on a loaded
+            # machine must not trip the tick watchdog meant for a stalled firmware (0.25 s)
             "--watchdog-s",
             repr(PLANE_TICK_WATCHDOG_S),
             "--plant",
