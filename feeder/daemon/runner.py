@@ -12,6 +12,7 @@ from feeder.daemon.config import DaemonConfig, uses_camera
 from feeder.daemon.links import DriverLinks, open_links
 from feeder.daemon.service import Daemon, DaemonSetup
 from feeder.daemon.step_modes import calibration_key, plan_step_modes
+from feeder.daemon.store import Store
 from feeder.errors import InputError
 from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
 
@@ -35,6 +36,8 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
     Raises :class:`~feeder.errors.InputError` for an unplannable part or a bad
     socket path, :class:`~feeder.daemon.store.StoreError` for a bad database.
     """
+    if config.database_path.exists():  # a bad state file is refused before anything starts
+        Store(config.database_path).close()
     surface = DEFAULT_SURFACE if config.surface_path is None else load_surface(config.surface_path)
     try:  # τ comes with the w it was fitted with: a given τ counts as fitted at w = 0
         pair = tau_pair(surface, config.tau_pa)
