@@ -26,7 +26,10 @@ if TYPE_CHECKING:
     from feeder.pose_planner import AxisBurst, Finish, PosePlanner
 
 ANCHOR_SLACK = 0.2
-"""An anchored part moves by less than this fraction of the tolerance per step (both θ modes)."""
+"""An anchored part moves by less than this fraction of the tolerance during a θ burst (both θ
+modes; :meth:`PosePlanner.theta_burst` cuts a burst there) ..."""
+ANCHOR_STEPS = 10
+"""... of at least this many steps, each as large as twice the seed (the prior's pessimistic step)."""
 
 
 def anchor_radius_m(planner: PosePlanner) -> float:
@@ -42,8 +45,8 @@ def anchor_radius_m(planner: PosePlanner) -> float:
                 for d in (1, -1):
                     s = model.turn_step(d, mode, r, 0.0, beta)
                     if (
-                        abs(s.orbit_rad) * r > ANCHOR_SLACK * planner.tolerance_m
-                        or abs(s.turn_rad) > ANCHOR_SLACK * planner.tolerance_rad
+                        2 * ANCHOR_STEPS * abs(s.orbit_rad) * r > ANCHOR_SLACK * planner.tolerance_m
+                        or 2 * ANCHOR_STEPS * abs(s.turn_rad) > ANCHOR_SLACK * planner.tolerance_rad
                     ):
                         return best
         best = r
@@ -127,8 +130,13 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
         return f"the targets of parts {ia + 1} and {ib + 1} overlap (centres closer than {2 * size:.3g} m)"
     if not planner.model.modes("theta"):
         return "no θ mode: translations move both parts alike"
-    anchor, _, coarse = _orbit_plan(planner, poses, targets)
     r_anchor = anchor_radius_m(planner)
+    if r_anchor == 0:
+        return (
+            "no θ waveform holds a part near O (the dead zone that keeps one part in place while "
+            "the other orbits): θ steps move both parts (docs/pose-control.md, two parts)"
+        )
+    anchor, _, coarse = _orbit_plan(planner, poses, targets)
     reach = math.hypot(*anchor)
     if reach > r_anchor:
         return (
@@ -158,7 +166,18 @@ def next_pair_burst(
     ta, tb = targets[ia + 1], targets[ib + 1]
     rel = (b[0] - a[0] - (tb[0] - ta[0]), b[1] - a[1] - (tb[1] - ta[1]))
     tol = planner.tolerance_m
-    if math.hypot(*rel) > tol:
+    if math.hypot(*rel) > 0.5 * tol:  # each part then ends within half of it, plus a fine step's rounding
+        # where A is will do if B's orbit from there ends within the tolerance (the anchor the
+        # plan picks is ill-conditioned once d ≈ d_t: noise would send A back and forth)
+        end = (a[0] + tb[0] - ta[0], a[1] + tb[1] - ta[1])
+        if (
+            math.hypot(a[0], a[1]) <= anchor_radius_m(planner)
+            and abs(math.hypot(b[0], b[1]) - math.hypot(*end)) <= 0.5 * tol
+        ):
+            phi = math.remainder(math.atan2(end[1], end[0]) - math.atan2(b[1], b[0]), 2 * math.pi)
+            burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
+            if burst is not None:
+                return burst
         anchor, phi, _ = _orbit_plan(planner, poses, targets)
         if math.hypot(*anchor) > anchor_radius_m(planner):
             return Finish(

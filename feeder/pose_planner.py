@@ -273,7 +273,9 @@ class PosePlanner:
                 return abs(s.turn_rad), s.turn_std_rad
             return abs(s.orbit_rad), s.orbit_std_rad
 
-        useful = 0.25 * (self.tolerance_rad if quantity == "turn" else self.tolerance_m / max(r, 1e-9))
+        # a turn: a quarter of the tolerance per step at least; an orbit (two parts placed
+        # relative to each other, to half the tolerance) a fiftieth
+        useful = 0.25 * self.tolerance_rad if quantity == "turn" else 0.02 * self.tolerance_m / max(r, 1e-9)
         fine_step = per_step(fine)[0]
         for mode in modes:
             step, std = per_step(mode)

@@ -11,6 +11,7 @@ is seeded with one period of the planar plant per axis and waveform
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Callable
@@ -21,21 +22,86 @@ import numpy as np
 from feeder.daemon.config import DaemonConfig
 from feeder.daemon.jobs import StepMode
 from feeder.daemon.pose_navigator import PoseNavigator
+from feeder.daemon.step_modes import plan_step_modes
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.planar import PlanarPart
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import Friction
 from feeder.pose_planner import PosePlanner, Travel
 from feeder.pose_response import AxisMode, seed_response
+from feeder.surface.parameters import SurfaceParameters
 
 log = logging.getLogger(__name__)
 
 SEED_RADII = 8
+"""θ response seeded on this many radii from O to the travel's far corner."""
 THETA_FREQUENCY_HZ = 1000.0
 """θ steps at 1 kHz (137 V on the ANC300's rating): three times the stroke per step of the
 translations' fastest waveform, so a turn takes fewer steps; each step of a turning part is
 also what costs a simulated plant most."""
-"""θ response seeded on this many radii from O to the travel's far corner."""
+ANCHOR_THETA_FREQUENCY_HZ = 100.0
+"""With several parts on a drive that plays a designed flyback (CANopen), θ steps at 100 Hz with
+a smooth one (:func:`anchor_modes`): parts near O stay held while the others orbit."""
+ANCHOR_BREAK_RADIUS_M = 1.2e-3
+"""... designed so that the ideal plate breaks parts loose only beyond this radius from O; the
+stack's ringing (ζ = 0.1) adds to the flyback's acceleration, and on the simulated plant parts
+within ~0.7 mm stay put (docs/pose-control.md)."""
+
+
+def anchor_flyback_s(stroke_rad: float, static_accel_m_s2: float, radius_m: float) -> float:
+    """The half-cosine flyback (s) of a θ stroke (rad) whose peak tangential acceleration at
+    ``radius_m``, (π²/2)·Θ·r/t_f², is the breakaway acceleration: parts nearer O stay held."""
+    return math.pi * math.sqrt(stroke_rad * radius_m / (2 * static_accel_m_s2))
+
+
+def anchor_modes(
+    theta_modes: dict[str, StepMode],
+    static_accel_m_s2: float,
+    lever_arm_m: float,
+    stack: StackParameters | None = None,
+) -> dict[str, StepMode]:
+    """θ's waveforms with a dead zone: each with a half-cosine flyback (:func:`anchor_flyback_s`
+    at :data:`ANCHOR_BREAK_RADIUS_M`)."""
+    gain = (stack or StackParameters()).gain_m_per_v
+    out = {}
+    for name, mode in theta_modes.items():
+        s = mode.settings
+        flyback_s = anchor_flyback_s(
+            s.amplitude_v * gain / lever_arm_m, static_accel_m_s2, ANCHOR_BREAK_RADIUS_M
+        )
+        smooth = dataclasses.replace(s, flyback_shape="half-cosine", flyback_s=flyback_s)
+        out[name] = dataclasses.replace(mode, settings=smooth)
+    return out
+
+
+def plan_theta_modes(
+    config: DaemonConfig, surface: SurfaceParameters, static_accel_m_s2: float
+) -> dict[str, StepMode]:
+    """θ's coarse and fine waveforms: the one-axis planner's at :data:`THETA_FREQUENCY_HZ` (they
+    turn a part anywhere, O included), or with several parts on a CANopen drive (which plays
+    the flyback as designed) :func:`anchor_modes`.  An ANC300 plays 256-point 8-bit tables:
+    their flyback's corners break parts loose even at 0.5 mm from O (they turn 0.01–0.03 mrad
+    per step there), so no part could be held while another orbits."""
+    anchored = len(config.plate.parts) > 1 and config.amplifier.transport == "can"
+    modes = plan_step_modes(
+        config.part,
+        config.support,
+        surface,
+        config.tau_pa,
+        config.amplifier.limits,
+        config.loop.tolerance_m,
+        frequency_hz=ANCHOR_THETA_FREQUENCY_HZ if anchored else THETA_FREQUENCY_HZ,
+    )
+    return anchor_modes(modes, static_accel_m_s2, config.plate.lever_arm_m) if anchored else modes
+
+
+def theta_key(theta_modes: dict[str, StepMode]) -> str:
+    """What θ's learned response belongs to (appended to the calibration key)."""
+    return "theta/" + "/".join(
+        f"{m.settings.frequency_hz:g}Hz/{m.settings.amplitude_v:.3f}V/{m.settings.flyback_shape}"
+        f"/{m.settings.flyback_s or 0:.3e}s"
+        for m in theta_modes.values()
+    )
 
 
 def axis_modes(
@@ -60,8 +126,11 @@ def ideal_modes(
         for name, mode in axis_modes.items():
             s = mode.settings
             stroke_m = s.amplitude_v * stack.gain_m_per_v
-            flyback_s, _ = limits.current_limited_flyback(s.amplitude_v, s.frequency_hz, stack.capacitance_f)
             stroke = stroke_m / lever_arm_m if axis == "theta" else stroke_m
+            if s.flyback_s is not None and s.flyback_shape != "current-limited":
+                out.append(AxisMode(axis, name, stroke, s.frequency_hz, s.flyback_s, s.flyback_shape))
+                continue
+            flyback_s, _ = limits.current_limited_flyback(s.amplitude_v, s.frequency_hz, stack.capacitance_f)
             out.append(AxisMode(axis, name, stroke, s.frequency_hz, float(flyback_s)))
     return out
 

@@ -47,21 +47,15 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
         config.part, config.support, surface, config.tau_pa, config.amplifier.limits, config.loop.tolerance_m
     )
     plane: dict[str, Any] = {}
+    key = calibration_key(config.part, config.support, modes)
     if config.plate.planar:
-        from feeder.daemon.plane import THETA_FREQUENCY_HZ, axis_modes, pose_navigator_factory
+        from feeder.daemon.plane import axis_modes, plan_theta_modes, pose_navigator_factory, theta_key
 
         static = contact(config.part, config.support, surface, config.tau_pa).breakaway_accel_m_s2
         size = [config.part.length_m, config.part.width_m]
-        theta_modes = plan_step_modes(
-            config.part,
-            config.support,
-            surface,
-            config.tau_pa,
-            config.amplifier.limits,
-            config.loop.tolerance_m,
-            frequency_hz=THETA_FREQUENCY_HZ,
-        )
+        theta_modes = plan_theta_modes(config, surface, static)
         every_axis = axis_modes(modes, theta_modes, config.plate.axes)
+        key = f"{key}/{theta_key(theta_modes)}"
         plane = {
             "axis_modes": every_axis,
             "pose_navigator": pose_navigator_factory(config, every_axis, static),
@@ -76,7 +70,7 @@ def start_daemon(config: DaemonConfig) -> RunningDaemon:
             loop=config.loop,
             database_path=config.database_path,
             socket_path=config.socket_path,
-            calibration_key=calibration_key(config.part, config.support, modes),
+            calibration_key=key,
             info={
                 "part": config.part.label,
                 "support": config.support.kind,
