@@ -367,12 +367,13 @@ PLANE_SETTLE_S = 0.2
 (exposure, JPEG, HTTP, decoding, locating) ~0.1–0.15 s after what they show."""
 PLANE_AVERAGE_FRAMES = 2
 """Frames averaged per measurement (15 frames/s; one frame's noise is ~0.05 µm, 0.01°)."""
-PLANE_TICK_WATCHDOG_S = 1.0
+PLANE_TICK_WATCHDOG_S = 2.0
 """The simulated planar world's tick watchdog and the loop's grace for a burst's end: the
 planar plant runs in the firmware's tick (its slowest 1 ms tick: ~1 ms for one axis, 5.3 ms
-over 50 random drives of up to three axes; seconds before the near-miss fix), and a loaded
-machine delays a thread by tenths of a second; a real amplifier's tick never waits for
-physics.  The simulated amplifier's link timeout is as long (the one-axis world's)."""
+over 50 random drives of up to three axes; seconds before the near-miss fix), and a machine
+loaded by a browser starting, the camera's encoding and decoding and the daemon delays it by
+up to a second (a 1 s grace ended a move "did not finish the burst in time" once); a real
+amplifier's tick never waits for physics.  The simulated amplifier's link timeout is as long."""
 PLANE_HEARTBEAT_S = 0.5
 """The simulated CANopen nodes' heartbeat in the plane (lost after 2.5 periods)."""
 

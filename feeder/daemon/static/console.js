@@ -393,8 +393,19 @@ function buildJog(names) {
 
 function updateCalibration() {
   const lines = [];
-  for (const [name, e] of Object.entries(status.estimates || {})) {
-    lines.push(`${name}: ${um(e.step_m)} ± ${um(e.std_m)} per step, learned from ${e.steps} steps`);
+  const estimates = status.estimates || {};
+  if (estimates.gains) {  // the plane: the planar plant's predicted steps times learned gains
+    for (const [name, g] of Object.entries(estimates.gains)) {
+      if (!g.bursts) continue;
+      const low = Math.min(...g.gain), high = Math.max(...g.gain);
+      const gain = low === high ? `×${low.toFixed(3)}` : `×${low.toFixed(3)}…${high.toFixed(3)} over ${g.radii_m.length} radii`;
+      lines.push(`${name}: the model's step ${gain}, learned from ${g.bursts} bursts`);
+    }
+    if (estimates.station_radius_m !== undefined) lines.push(`θ turns parts ${um(estimates.station_radius_m)} from O`);
+  } else {
+    for (const [name, e] of Object.entries(estimates)) {
+      lines.push(`${name}: ${um(e.step_m)} ± ${um(e.std_m)} per step, learned from ${e.steps} steps`);
+    }
   }
   const cal = status.camera_calibration;
   lines.push(cal ? `camera: ${(cal.pixel_size_m * UM).toFixed(3)} µm/px, rotation ${deg(cal.rotation_rad || 0)}` + (cal.source === "configuration" ? " (from the configuration; feeder vision calibrate measures it)" : "") : "camera: not calibrated (feeder vision calibrate)");
