@@ -102,7 +102,7 @@ def test_the_page_shows_the_part_and_a_click_and_drag_moves_it(page: Any, daemon
     x0, y0, psi0 = part_pose(daemon)
     shown = shown_pose(page)
     assert shown[:2] == pytest.approx((x0, y0), abs=2e-6)
-    assert shown[2] == pytest.approx(psi0, abs=math.radians(0.01))
+    assert shown[2] == pytest.approx(psi0, abs=math.radians(0.05))  # a frame's noise: ~0.01°
     # the part is drawn where it is: the canvas pixel at its centre has the part's colour
     r, g, b = page.evaluate(
         "() => { const c = document.getElementById('view'), p = parts()[0].pose;"
@@ -144,7 +144,7 @@ def test_the_page_shows_the_part_and_a_click_and_drag_moves_it(page: Any, daemon
     assert math.hypot(x - chosen[0], y - chosen[1]) <= 2e-6
     shown = shown_pose(page)  # the new pose appears
     assert shown[:2] == pytest.approx((x, y), abs=2e-6)
-    assert shown[2] == pytest.approx(psi, abs=math.radians(0.01))
+    assert shown[2] == pytest.approx(psi, abs=math.radians(0.05))  # a frame's noise: ~0.01°
 
 
 def test_stop_and_escape_stop_a_long_move(page: Any, daemon: DaemonProcess) -> None:
