@@ -21,6 +21,7 @@ Reference: docs/canopen.md.
 
 from __future__ import annotations
 
+import configparser
 import io
 from importlib import resources
 from pathlib import Path
@@ -82,7 +83,7 @@ def object_dictionary(node_id: int, eds: str = EDS_FILE, field: str = "eds") -> 
     text = eds_text(eds, field)
     try:
         od = import_eds(io.StringIO(text), node_id)
-    except Exception as exc:  # canopen raises bare errors on a malformed file
+    except (configparser.Error, ValueError, KeyError, TypeError) as exc:  # canopen's, on a malformed file
         first_line = (str(exc).splitlines() or [type(exc).__name__])[0]
         raise InputError(field, f"{eds!r} is not a readable EDS ({first_line})") from None
     try:
