@@ -170,16 +170,14 @@ def next_pair_burst(
         # where A is will do if B's orbit from there ends within the tolerance (the anchor the
         # plan picks is ill-conditioned once d ≈ d_t: noise would send A back and forth)
         end = (a[0] + tb[0] - ta[0], a[1] + tb[1] - ta[1])
-        if (
-            math.hypot(a[0], a[1]) <= anchor_radius_m(planner)
-            and abs(math.hypot(b[0], b[1]) - math.hypot(*end)) <= 0.5 * tol
-        ):
+        r_anchor = anchor_radius_m(planner)
+        if math.hypot(a[0], a[1]) <= r_anchor and abs(math.hypot(b[0], b[1]) - math.hypot(*end)) <= 0.5 * tol:
             phi = math.remainder(math.atan2(end[1], end[0]) - math.atan2(b[1], b[0]), 2 * math.pi)
             burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
             if burst is not None:
                 return burst
         anchor, phi, _ = _orbit_plan(planner, poses, targets)
-        if math.hypot(*anchor) > anchor_radius_m(planner):
+        if math.hypot(*anchor) > r_anchor:
             return Finish(
                 "unreachable",
                 f"parts {ia + 1} and {ib + 1} are off by {math.hypot(*rel):.3g} m "
