@@ -63,9 +63,9 @@ from feeder.errors import InputError
 log = logging.getLogger(__name__)
 
 TOKEN_FILE = "http-token"
-LIVE_PERIOD_S = 0.05
-"""Status pushes to each live client: 20 per second."""
-STATUS_MAX_AGE_S = 0.04
+LIVE_PERIOD_S = 1 / 30
+"""Status pushes to each live client: 30 per second."""
+STATUS_MAX_AGE_S = 0.025
 """A status snapshot is shared by the requests within this time of it."""
 CAMERA_PERIOD_S = 1 / 60
 """The live view asks the camera for a new frame this often; it encodes each new frame once
