@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from feeder.cli.output import print_json
 from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, embedded_plane, load_config
 from feeder.daemon.launcher import LaunchError
-from feeder.daemon.runner import RunningDaemon, start_daemon
+from feeder.daemon.links import spawn_simulator
 from feeder.daemon.store import StoreError, move_aside
 from feeder.drivers.amplifier import AmplifierError
 from feeder.drivers.sensor import SensorLost
@@ -23,6 +23,7 @@ from feeder.errors import InputError
 
 if TYPE_CHECKING:
     from feeder.daemon.http_console import ConsoleServer
+    from feeder.daemon.runner import RunningDaemon
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -123,7 +124,10 @@ def run(args: argparse.Namespace) -> int:
         if moved is not None:
             logging.getLogger(__name__).warning("state database moved aside to %s", moved)
     try:
-        running = start_daemon(config)
+        simulator = spawn_simulator(config)  # loads while this process imports and plans
+        from feeder.daemon.runner import start_daemon  # heavy: imported while the simulator loads
+
+        running = start_daemon(config, simulator)
     except StoreError as err:  # the state file is not ours: bad input, left untouched
         print(f"feeder daemon: error: {err}", file=sys.stderr)
         return 2

@@ -235,6 +235,11 @@ class DaemonConfig:
     def database_path(self) -> Path:
         return self.state_dir / "feeder.sqlite"
 
+    @property
+    def simulator_log_path(self) -> Path:
+        """The embedded firmware_sim's stderr (appended)."""
+        return self.state_dir / "firmware_sim.log"
+
     def with_transport(self, transport: str) -> DaemonConfig:
         """The same configuration over ``transport``; an embedded default also takes that
         transport's default amplifier model."""

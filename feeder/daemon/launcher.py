@@ -45,11 +45,13 @@ class Simulator:
 
     Its stderr goes to ``log_path`` (appended; None keeps its last lines in memory);
     either way a :class:`LaunchError` quotes the child's last stderr line.  Stdout after
-    the ready line is drained so the child never blocks on a full pipe.
+    the ready line is drained so the child never blocks on a full pipe.  With
+    ``timeout_s=None`` the constructor only starts the child (it loads while the caller
+    works); :meth:`wait_ready` then reads its ready line.
     """
 
     def __init__(
-        self, args: Sequence[str], log_path: Path | None = None, timeout_s: float = READY_TIMEOUT_S
+        self, args: Sequence[str], log_path: Path | None = None, timeout_s: float | None = READY_TIMEOUT_S
     ) -> None:
         self.command = [sys.executable, "-m", "firmware_sim", *args]
         self.log_path = log_path
@@ -74,8 +76,18 @@ class Simulator:
                 target=self._keep_stderr_tail, name="firmware_sim-stderr", daemon=True
             )
             self._stderr_reader.start()
+        self.ready: dict[str, Any] = {}
+        self.endpoints: dict[str, Any] = {}
+        if timeout_s is not None:
+            self.wait_ready(timeout_s)
+
+    def wait_ready(self, timeout_s: float = READY_TIMEOUT_S) -> None:
+        """Read the ready line (once) and take the endpoints; :class:`LaunchError` (the child
+        stopped) when it exits first or sends none within ``timeout_s``."""
+        if self.ready:
+            return
         self.ready = self._read_ready(timeout_s)
-        self.endpoints: dict[str, Any] = dict(self.ready.get("endpoints", {}))
+        self.endpoints = dict(self.ready.get("endpoints", {}))
         threading.Thread(target=self._drain, name="firmware_sim-stdout", daemon=True).start()
 
     def _keep_stderr_tail(self) -> None:

@@ -219,8 +219,39 @@ def simulator_args(config: DaemonConfig) -> list[str]:
     return [*args, *config.simulator_args]
 
 
-def open_links(config: DaemonConfig, log_path: Path | None = None) -> DriverLinks:
-    """The links for ``config``; starts firmware_sim when no hardware is named."""
+def spawn_simulator(config: DaemonConfig) -> Simulator | None:
+    """firmware_sim started for ``config`` (not yet ready: it loads while the daemon imports and
+    plans), or None when the configuration names hardware."""
+    _check_addresses(config)
+    if not config.amplifier.simulated:
+        return None
+    config.state_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
+    return Simulator(simulator_args(config), log_path=config.simulator_log_path, timeout_s=None)
+
+
+def open_links(config: DaemonConfig, simulator: Simulator | None = None) -> DriverLinks:
+    """The links for ``config``; starts firmware_sim when no hardware is named (or takes the
+    one :func:`spawn_simulator` started)."""
+    _check_addresses(config)
+    amp = config.amplifier
+    if not amp.simulated:
+        sensor = config.sensor_address or config.camera.address
+        assert sensor is not None
+        address: str | dict[str, Any] = dict(amp.can) if amp.transport == "can" else str(amp.port)
+        return DriverLinks(config, address, sensor)
+    sim = simulator or spawn_simulator(config)
+    assert sim is not None
+    try:
+        sim.wait_ready()
+        address, sensor = simulator_addresses(config, sim)
+    except InputError:
+        sim.stop()
+        raise
+    return DriverLinks(config, address, sensor, sim, config.simulator_log_path)
+
+
+def _check_addresses(config: DaemonConfig) -> None:
+    """Hardware names both the amplifier and the sensor, the simulator neither."""
     amp = config.amplifier
     sensor = config.sensor_address or config.camera.address
     if amp.simulated != (sensor is None):
@@ -233,17 +264,6 @@ def open_links(config: DaemonConfig, log_path: Path | None = None) -> DriverLink
         raise InputError(
             "config", "one axis needs sensor.address (camera.address locates parts in the plane)"
         )
-    if not amp.simulated:
-        assert sensor is not None
-        address: str | dict[str, Any] = dict(amp.can) if amp.transport == "can" else str(amp.port)
-        return DriverLinks(config, address, sensor)
-    sim = Simulator(simulator_args(config), log_path=log_path)
-    try:
-        address, sensor = simulator_addresses(config, sim)
-    except InputError:
-        sim.stop()
-        raise
-    return DriverLinks(config, address, sensor, sim, log_path)
 
 
 def simulator_addresses(config: DaemonConfig, sim: Simulator) -> tuple[str | dict[str, Any], str]:

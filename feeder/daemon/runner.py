@@ -9,6 +9,7 @@ from typing import Any
 from feeder.contact.breakaway import contact
 from feeder.contact.tau_pair import tau_pair
 from feeder.daemon.config import DaemonConfig, uses_camera
+from feeder.daemon.launcher import Simulator
 from feeder.daemon.links import DriverLinks, open_links
 from feeder.daemon.service import Daemon, DaemonSetup
 from feeder.daemon.step_modes import calibration_key, plan_step_modes
@@ -30,40 +31,48 @@ class RunningDaemon:
         self.links.close()
 
 
-def start_daemon(config: DaemonConfig) -> RunningDaemon:
-    """Plan the waveforms, open the links (starting firmware_sim if needed), start serving.
+def start_daemon(config: DaemonConfig, simulator: Simulator | None = None) -> RunningDaemon:
+    """Plan the waveforms, open the links (starting firmware_sim if needed, or taking the one
+    :func:`~feeder.daemon.links.spawn_simulator` started), start serving.
 
     Raises :class:`~feeder.errors.InputError` for an unplannable part or a bad
-    socket path, :class:`~feeder.daemon.store.StoreError` for a bad database.
+    socket path, :class:`~feeder.daemon.store.StoreError` for a bad database; whatever
+    was started (``simulator`` too) is stopped first.
     """
-    if config.database_path.exists():  # a bad state file is refused before anything starts
-        Store(config.database_path).close()
-    surface = DEFAULT_SURFACE if config.surface_path is None else load_surface(config.surface_path)
-    try:  # τ comes with the w it was fitted with: a given τ counts as fitted at w = 0
-        pair = tau_pair(surface, config.tau_pa)
-    except InputError as err:
-        raise InputError("part.tau_pa", err.message) from None
-    modes = plan_step_modes(
-        config.part, config.support, surface, config.tau_pa, config.amplifier.limits, config.loop.tolerance_m
-    )
-    plane: dict[str, Any] = {}
-    key = calibration_key(config.part, config.support, modes)
-    if config.plate.planar:
-        from feeder.daemon.plane import axis_modes, plan_theta_modes, pose_navigator_factory, theta_key
-
-        static = contact(config.part, config.support, surface, config.tau_pa).breakaway_accel_m_s2
-        size = [config.part.length_m, config.part.width_m]
-        theta_modes = plan_theta_modes(config, surface, static)
-        every_axis = axis_modes(modes, theta_modes, config.plate.axes)
-        key = f"{key}/{theta_key(theta_modes)}"
-        plane = {
-            "axis_modes": every_axis,
-            "pose_navigator": pose_navigator_factory(config, every_axis, static),
-            "parts": tuple({"shape": "rectangle", "size_m": size} for _ in config.plate.parts),
-        }
-    config.state_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
-    links = open_links(config, log_path=config.state_dir / "firmware_sim.log")
     with contextlib.ExitStack() as undo:  # on any failure: stop what was started, newest first
+        if simulator is not None:
+            undo.callback(simulator.stop)
+        if config.database_path.exists():  # a bad state file is refused before the simulator is awaited
+            Store(config.database_path).close()
+        surface = DEFAULT_SURFACE if config.surface_path is None else load_surface(config.surface_path)
+        try:  # τ comes with the w it was fitted with: a given τ counts as fitted at w = 0
+            pair = tau_pair(surface, config.tau_pa)
+        except InputError as err:
+            raise InputError("part.tau_pa", err.message) from None
+        modes = plan_step_modes(
+            config.part,
+            config.support,
+            surface,
+            config.tau_pa,
+            config.amplifier.limits,
+            config.loop.tolerance_m,
+        )
+        plane: dict[str, Any] = {}
+        key = calibration_key(config.part, config.support, modes)
+        if config.plate.planar:
+            from feeder.daemon.plane import axis_modes, plan_theta_modes, pose_navigator_factory, theta_key
+
+            static = contact(config.part, config.support, surface, config.tau_pa).breakaway_accel_m_s2
+            size = [config.part.length_m, config.part.width_m]
+            theta_modes = plan_theta_modes(config, surface, static)
+            every_axis = axis_modes(modes, theta_modes, config.plate.axes)
+            key = f"{key}/{theta_key(theta_modes)}"
+            plane = {
+                "axis_modes": every_axis,
+                "pose_navigator": pose_navigator_factory(config, every_axis, static),
+                "parts": tuple({"shape": "rectangle", "size_m": size} for _ in config.plate.parts),
+            }
+        links = open_links(config, simulator)
         undo.callback(links.close)
         setup = DaemonSetup(
             modes=modes,
