@@ -21,11 +21,11 @@ from pathlib import Path
 from typing import Any
 
 from feeder.cli import demo_plane
+from feeder.cli.daemon import launch
 from feeder.cli.demo_plane import wait_until_idle
 from feeder.cli.output import print_json
 from feeder.daemon.client import Client
 from feeder.daemon.config import TRANSPORTS, DaemonConfig
-from feeder.daemon.runner import start_daemon
 from feeder.errors import InputError
 from feeder.files import save_figure
 from feeder.parts import Part
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
             flush=True,
         )
-    running = start_daemon(config)
+    running = launch(config)
     results: list[dict[str, Any]] = []
     traces: list[list[list[float]]] = []
     try:

@@ -21,9 +21,9 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
+from feeder.cli.daemon import launch
 from feeder.daemon.client import Client
 from feeder.daemon.config import DaemonConfig, embedded_plane
-from feeder.daemon.runner import start_daemon
 from feeder.errors import FeederError, InputError
 from feeder.files import save_figure
 from feeder.parts import Part
@@ -63,7 +63,7 @@ def run(part: Part, transport: str, plot: Path, quiet: bool) -> tuple[int, dict[
     config = config_for(part, transport, base)
     if not quiet:
         print(f"starting the daemon on a simulated 3-axis amplifier ({transport}) ...", file=sys.stderr)
-    running = start_daemon(config)
+    running = launch(config)
     moves: list[dict[str, Any]] = []
     try:
         with Client(config.socket_path, timeout_s=MOVE_TIMEOUT_S) as client:
