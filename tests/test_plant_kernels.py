@@ -181,3 +181,32 @@ def test_planar_gauge_compiled_equals_scipy() -> None:
             assert g == pytest.approx(ref, rel=1e-9)
             ux, uy, mu, _ = patch.integrals(wx, wy, om)
             np.testing.assert_allclose(np.array([ux, uy, mu]) * g, wrench, rtol=1e-6, atol=1e-6 * max(wrench))
+
+
+@pytest.mark.skipif(not kernels.AVAILABLE, reason="numba (extra 'fast') not installed")
+def test_planar_slip_hands_its_derivative_to_the_next_sample() -> None:
+    """A slip that reaches a sample's end stores d(lab state)/dt there (DERIV, at the plate's elapsed
+    time DERIV_AT); the next sample starts its steps from it instead of six limit-surface integrals
+    more.  It is the derivative a fresh evaluation gives at the next sample's start."""
+    pk = planar_kernels
+    waveform = Waveform(frequency_hz=100.0, amplitude_vpp=200.0)
+    line = waveform.voltage_at_phase((np.arange(1, 1201) % 1000) / 1000)
+    part = PlanarPart.from_part(PLANAR_PART, Friction(105.25, 0.8), (2e-3, 0.0, 0.0))
+    plant = PlanarPlant([part])
+    checked = 0
+    for k in range(line.size):  # one sample per call: the state between samples is visible
+        plant.advance(np.full((3, 1), line[k]))
+        st, plate = plant.contact._array[0], plant.contact._plate_array
+        if st[pk.STUCK] != 0 or st[pk.DERIV_AT] != plate[pk.ELAPSED]:
+            continue
+        seg = np.zeros(pk.SEG_SIZE)
+        seg[pk.DURATION] = 1e-5
+        seg[pk.V : pk.V + 3] = plate[3:6]
+        y = np.array([0.0, 0.0, 0.0, *st[pk.LAB + 3 : pk.LAB + 6]])
+        fresh = np.empty(7)
+        pk._rhs(plant.contact._params[0], st[pk.RADIUS], pk.DISC_NODES, seg, plate, *st[pk.LAB : pk.LAB + 3],
+                0.0, y, fresh)  # fmt: skip
+        # the same to rounding (the sample end: v₀ + a·dt there, the sample itself here)
+        np.testing.assert_allclose(st[pk.DERIV : pk.DERIV + 6], fresh[:6], rtol=1e-6, atol=1e-12)
+        checked += 1
+    assert checked > 50  # the flyback's slip spans many samples

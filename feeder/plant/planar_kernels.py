@@ -15,7 +15,8 @@ cosine amplitude per axis, κ; :class:`.plate_motion.Segment`); the plate is
 (x_O, y_O, θ, v_x, v_y, Ω, elapsed time); a part's parameters are
 ``PARAM_SIZE`` floats (:func:`part_params`); its state ``STATE_SIZE`` floats
 (stuck, plate-frame pose, lab state while slipping, slip time, stop
-threshold, last step size, fade step, Dormand-Prince steps tried so far);
+threshold, last step size, fade step, Dormand-Prince steps tried so far, the derivative
+carried to the next segment and where);
 discs integrate over :data:`DISC_NODES` (unit disc: x, y, weight), scaled by
 their radius.
 """
@@ -34,8 +35,12 @@ PLATE_SIZE = 7
 ELAPSED = 6
 PARAM_SIZE = 14
 DISC, HALF_A, HALF_B, MASS, INERTIA, TAU_S, TAU_K, A_S, RATIO, AREA, POLAR, JXX, JYY, RTOL = range(PARAM_SIZE)
-STATE_SIZE = 16
+STATE_SIZE = 23
 STUCK, POSE, LAB, SLIP, STOP, STEP, RADIUS, FADE_STEP, STEPS = 0, 1, 4, 10, 11, 12, 13, 14, 15
+DERIV, DERIV_AT = 16, 22
+"""DERIV: d(lab state)/dt where the last slip reached its segment's end, still slipping (6 floats);
+DERIV_AT: the plate's elapsed time there (0: none).  The next segment's slip starts from it (the
+rhs is continuous where the plate's velocity is: first same as last)."""
 
 _SEED_TIME_S = 1e-12
 _STOP = 1e-10
@@ -611,7 +616,8 @@ def _shrinks(seg: np.ndarray, plate: np.ndarray, x0: float, y0: float, pp: np.nd
 
 @_jit
 def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarray, plate: np.ndarray,
-               x0: float, y0: float, phi0: float, t: float, y: np.ndarray) -> tuple[float, bool]:  # fmt: skip
+               x0: float, y0: float, phi0: float, t: float, y: np.ndarray,
+               carried: bool) -> tuple[float, bool]:  # fmt: skip
     """From t towards the segment's end until the twist vanishes; y updated, returns (time, vanished).
 
     In time (scipy's RK45 step control) while the twist grows, as
@@ -621,7 +627,9 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
     in time can follow.  Ends at the same threshold: the twist below _STOP of
     its start (or at the velocities' rounding floor).  A near miss (the
     linear closest approach above half the twist) goes on in time, as the
-    reference.
+    reference.  ``carried``: the derivative at t is the one stored at the
+    previous segment's end (:data:`DERIV`), else evaluated; stored again if the
+    slip reaches this segment's end.
     """
     radius, t_end = st[RADIUS], seg[DURATION]
     stop = st[STOP]
@@ -636,7 +644,11 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
     h_abs = st[STEP]
     h = 0.0
     fade = True
-    _derivative(False, *args, z, ks[0])
+    if carried:
+        ks[0, :6] = st[DERIV : DERIV + 6]
+        ks[0, 6] = 1.0
+    else:
+        _derivative(False, *args, z, ks[0])
     for _ in range(1000):
         begin = z[6]
         reversed_ = False
@@ -701,6 +713,8 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
         t = z[6]
         if not reversed_ and t >= t_end:
             st[STEP] = h_abs
+            st[DERIV : DERIV + 6] = ks[0, :6]
+            st[DERIV_AT] = plate[ELAPSED] + t_end  # as finish_segment adds it
             return t, False
         d0, d1, d2 = _twist_rate(seg, plate, x0, y0, t, z, ks[0])
         size2 = _dot(pp, p0, p1, p2, p0, p1, p2)
@@ -787,7 +801,10 @@ def _slip(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarray, pl
         return _slip_straight(st, pp, seg, plate, tau, w0, w1)
     x0, y0, phi0 = st[LAB], st[LAB + 1], st[LAB + 2]
     y = np.array([0.0, 0.0, 0.0, st[LAB + 3], st[LAB + 4], st[LAB + 5]])
-    end, stopped = _integrate(st, pp, nodes, seg, plate, x0, y0, phi0, tau, y)
+    carried = (tau == 0 and st[DERIV_AT] > 0 and st[DERIV_AT] == plate[ELAPSED] and seg[V] == plate[3]
+               and seg[V + 1] == plate[4] and seg[V + 2] == plate[5])  # fmt: skip
+    st[DERIV_AT] = 0.0
+    end, stopped = _integrate(st, pp, nodes, seg, plate, x0, y0, phi0, tau, y, carried)
     st[LAB], st[LAB + 1], st[LAB + 2] = x0 + y[0], y0 + y[1], phi0 + y[2]
     st[LAB + 3], st[LAB + 4], st[LAB + 5] = y[3], y[4], y[5]
     st[SLIP] += end - tau
