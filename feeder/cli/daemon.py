@@ -16,7 +16,7 @@ from feeder.cli.output import print_json
 from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, embedded_plane, load_config
 from feeder.daemon.launcher import LaunchError
 from feeder.daemon.links import spawn_simulator
-from feeder.daemon.store import StoreError, move_aside
+from feeder.daemon.store import StoreError, check_state_file, move_aside
 from feeder.drivers.amplifier import AmplifierError
 from feeder.drivers.sensor import SensorLost
 from feeder.errors import InputError
@@ -172,7 +172,10 @@ def run(args: argparse.Namespace) -> int:
 
 def launch(config: DaemonConfig) -> RunningDaemon:
     """:func:`~feeder.daemon.runner.start_daemon` with the embedded simulator started first:
-    it loads while this process imports the planner and plans (~2.5 s sooner ready)."""
+    it loads while this process imports the planner and plans (~2.5 s sooner ready).  A state
+    file that is no database is refused before anything starts."""
+    if config.database_path.exists():
+        check_state_file(config.database_path)
     simulator = spawn_simulator(config)
     from feeder.daemon.runner import start_daemon  # heavy: imported while the simulator loads
 
