@@ -83,15 +83,7 @@ def plan_theta_modes(
     their flyback's corners break parts loose even at 0.5 mm from O (they turn 0.01–0.03 mrad
     per step there), so no part could be held while another orbits."""
     anchored = len(config.plate.parts) > 1 and config.amplifier.transport == "can"
-    modes = plan_step_modes(
-        config.part,
-        config.support,
-        surface,
-        config.tau_pa,
-        config.amplifier.limits,
-        config.loop.tolerance_m,
-        frequency_hz=ANCHOR_THETA_FREQUENCY_HZ if anchored else THETA_FREQUENCY_HZ,
-    )
+    modes = plan_step_modes(config, surface, ANCHOR_THETA_FREQUENCY_HZ if anchored else THETA_FREQUENCY_HZ)
     return anchor_modes(modes, static_accel_m_s2, config.plate.lever_arm_m) if anchored else modes
 
 

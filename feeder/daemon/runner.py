@@ -49,14 +49,7 @@ def start_daemon(config: DaemonConfig, simulator: Simulator | None = None) -> Ru
             pair = tau_pair(surface, config.tau_pa)
         except InputError as err:
             raise InputError("part.tau_pa", err.message) from None
-        modes = plan_step_modes(
-            config.part,
-            config.support,
-            surface,
-            config.tau_pa,
-            config.amplifier.limits,
-            config.loop.tolerance_m,
-        )
+        modes = plan_step_modes(config, surface)
         plane: dict[str, Any] = {}
         key = calibration_key(config.part, config.support, modes)
         if config.plate.planar:

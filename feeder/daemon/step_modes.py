@@ -9,11 +9,11 @@ seed the step estimators.
 
 from __future__ import annotations
 
+from feeder.daemon.config import DaemonConfig
 from feeder.daemon.control_loop import COARSE, FINE, StepMode
 from feeder.drivers.amplifier import DriveSettings
 from feeder.parts import Part, Support
 from feeder.planner import Plan, plan
-from feeder.plant.amplifier import AmplifierLimits
 from feeder.surface.parameters import SurfaceParameters
 
 COARSE_PLAN_DISTANCE_M = 1e-3
@@ -29,20 +29,18 @@ def _mode(name: str, p: Plan) -> StepMode:
 
 
 def plan_step_modes(
-    part: Part,
-    support: Support,
-    surface: SurfaceParameters,
-    tau_pa: float | None,
-    amplifier: AmplifierLimits,
-    tolerance_m: float,
-    frequency_hz: float | None = None,
+    config: DaemonConfig, surface: SurfaceParameters, frequency_hz: float | None = None
 ) -> dict[str, StepMode]:
-    """Coarse and fine :class:`StepMode` (at ``frequency_hz``, else the planner's fastest);
-    :class:`~feeder.errors.InputError` if unplannable."""
+    """Coarse and fine :class:`StepMode` for the configuration's part, support, τ, amplifier and
+    tolerance (at ``frequency_hz``, else the planner's fastest); :class:`~feeder.errors.InputError`
+    if unplannable."""
+    part, support, tau_pa, amplifier = config.part, config.support, config.tau_pa, config.amplifier.limits
     coarse = plan(
         part, support, surface, tau_pa, amplifier, COARSE_PLAN_DISTANCE_M, frequency_hz=frequency_hz
     )
-    fine = plan(part, support, surface, tau_pa, amplifier, tolerance_m, frequency_hz=coarse.frequency_hz)
+    fine = plan(
+        part, support, surface, tau_pa, amplifier, config.loop.tolerance_m, frequency_hz=coarse.frequency_hz
+    )
     return {COARSE: _mode(COARSE, coarse), FINE: _mode(FINE, fine)}
 
 
