@@ -222,8 +222,7 @@ def simulator_args(config: DaemonConfig) -> list[str]:
 def spawn_simulator(config: DaemonConfig) -> Simulator | None:
     """firmware_sim started for ``config`` (not yet ready: it loads while the daemon imports and
     plans), or None when the configuration names hardware."""
-    _check_addresses(config)
-    if not config.amplifier.simulated:
+    if _hardware_sensor(config) is not None:
         return None
     config.state_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     return Simulator(simulator_args(config), log_path=config.simulator_log_path, timeout_s=None)
@@ -232,11 +231,9 @@ def spawn_simulator(config: DaemonConfig) -> Simulator | None:
 def open_links(config: DaemonConfig, simulator: Simulator | None = None) -> DriverLinks:
     """The links for ``config``; starts firmware_sim when no hardware is named (or takes the
     one :func:`spawn_simulator` started)."""
-    _check_addresses(config)
     amp = config.amplifier
-    if not amp.simulated:
-        sensor = config.sensor_address or config.camera.address
-        assert sensor is not None
+    sensor = _hardware_sensor(config)
+    if sensor is not None:
         address: str | dict[str, Any] = dict(amp.can) if amp.transport == "can" else str(amp.port)
         return DriverLinks(config, address, sensor)
     sim = simulator or spawn_simulator(config)
@@ -250,8 +247,10 @@ def open_links(config: DaemonConfig, simulator: Simulator | None = None) -> Driv
     return DriverLinks(config, address, sensor, sim, config.simulator_log_path)
 
 
-def _check_addresses(config: DaemonConfig) -> None:
-    """Hardware names both the amplifier and the sensor, the simulator neither."""
+def _hardware_sensor(config: DaemonConfig) -> str | None:
+    """The sensor's address when ``config`` names hardware, None for the simulator;
+    :class:`~feeder.errors.InputError` unless it names both the amplifier and the sensor or
+    neither."""
     amp = config.amplifier
     sensor = config.sensor_address or config.camera.address
     if amp.simulated != (sensor is None):
@@ -264,6 +263,7 @@ def _check_addresses(config: DaemonConfig) -> None:
         raise InputError(
             "config", "one axis needs sensor.address (camera.address locates parts in the plane)"
         )
+    return sensor
 
 
 def simulator_addresses(config: DaemonConfig, sim: Simulator) -> tuple[str | dict[str, Any], str]:
