@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator
 
 import numpy as np
@@ -118,6 +119,42 @@ def test_rectangle_integrals_compiled_equal_plain_python() -> None:
         slow = kernels.rectangle_integrals.py_func(wx, wy, omega, 150e-6, 100e-6)
         np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=0)
         assert fast[3] > 0  # dissipated power
+
+
+def _corner_sum(wx: float, wy: float, omega: float, a: float, b: float) -> np.ndarray:
+    """The rectangle's integrals as the plain sum of the four corners' functions (8 asinh)."""
+
+    def corner(x: float, y: float) -> tuple[float, float, float]:
+        r = math.hypot(x, y)
+        lx = math.asinh(y / abs(x)) if x else 0.0
+        ly = math.asinh(x / abs(y)) if y else 0.0
+        moment = x * y * r / 3 + (x**3 * lx + y**3 * ly) / 6
+        return 0.5 * (y * r + x * x * lx), 0.5 * (x * r + y * y * ly), moment
+
+    xc, yc = -wy / omega, wx / omega
+    x1, x2, y1, y2 = -a - xc, a - xc, -b - yc, b - yc
+    i = np.array(corner(x2, y2)) - corner(x1, y2) - corner(x2, y1) + corner(x1, y1)
+    sign = math.copysign(1.0, omega)
+    return np.array([-sign * i[1], sign * i[0], sign * (i[2] + xc * i[0] + yc * i[1]), abs(omega) * i[2]])
+
+
+CENTRES = [(0.0, 0.0), (150e-6, 20e-6), (150e-6, 100e-6), (-150e-6, -300e-6), (400e-6, 250e-6),
+           (-2e-3, 1e-3), (90e-6, -700e-6), (5e-3, -3e-3)]  # fmt: skip
+
+
+@pytest.mark.parametrize("centre", CENTRES)
+def test_rectangle_integrals_equal_the_corner_sum(centre: tuple[float, float]) -> None:
+    """One logarithm per edge line (both signs of the corners' coordinates, the centre of rotation
+    inside, on an edge line, at a corner, far outside) is the sum of the corners' asinh terms."""
+    a, b = 150e-6, 100e-6
+    for omega in (3.0, -0.7):
+        wx, wy = omega * centre[1], -omega * centre[0]  # ρ_c = ẑ×w/ω = centre
+        got = np.array(kernels.rectangle_integrals(wx, wy, omega, a, b))
+        ref = _corner_sum(wx, wy, omega, a, b)
+        speed = math.hypot(wx, wy) + abs(omega) * math.hypot(a, b)
+        scale = np.array([4 * a * b, 4 * a * b, 4 * a * b * math.hypot(a, b), 4 * a * b * speed])
+        np.testing.assert_allclose(got / scale, ref / scale, rtol=0, atol=1e-11)
+        assert np.all(np.isfinite(got))
 
 
 # --- planar stick-slip: the compiled solver (planar_kernels) against the scipy reference -----------
