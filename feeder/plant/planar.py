@@ -450,7 +450,7 @@ class PlanarStickSlip:
             raise InputError("parts", "at least one part is needed")
         check_overlaps(parts)
         self.parts = list(parts)
-        self.elapsed_s = 0.0
+        self._elapsed = 0.0
         self._compiled = kernels.enabled()
         self._states = [_PartState(p, rtol) for p in parts]
         self._plate = _Plate(initial_velocity)
@@ -458,6 +458,11 @@ class PlanarStickSlip:
         self._params = np.array([_params(p, rtol) for p in parts])
         self._array = np.array([pk.initial_state(p.pose, p.patch.radius_m) for p in parts])
         self._plate_array = np.array([0.0, 0.0, 0.0, *initial_velocity, 0.0])
+
+    @property
+    def elapsed_s(self) -> float:
+        """Time run so far (s)."""
+        return self._plate_array.item(pk.ELAPSED) if self._compiled else self._elapsed
 
     @property
     def plate_pose(self) -> Pose:
@@ -505,14 +510,13 @@ class PlanarStickSlip:
             pk.run_segments(self._array, self._params, pk.DISC_NODES,
                             np.array(rows, dtype=float).reshape(len(rows), pk.SEG_SIZE),
                             self._plate_array, every, poses)  # fmt: skip
-            self.elapsed_s = float(self._plate_array[pk.ELAPSED])
             return poses
         out = []
         for k, seg in enumerate(segments):
             for state in self._states:
                 state.run(seg, self._plate)
             self._plate.finish(seg)
-            self.elapsed_s += seg.duration_s
+            self._elapsed += seg.duration_s
             if (k + 1) % every == 0:
                 out.append(self.poses())
         return np.array(out, dtype=float).reshape(len(out), len(self._states), 3).transpose(1, 0, 2)
@@ -532,7 +536,6 @@ class PlanarStickSlip:
             lab = np.empty((len(self.parts), n, 3))
             pk.run_sampled(self._array, self._params, pk.DISC_NODES, np.ascontiguousarray(v),
                            float(sample_rate_hz), self._plate_array, _SKIP_HELD, lab)  # fmt: skip
-            self.elapsed_s = float(self._plate_array[pk.ELAPSED])
             return lab
         dt = 1.0 / sample_rate_hz
         start = np.concatenate([np.asarray(self._plate.velocity, dtype=float)[:, None], v[:, :-1]], axis=1)
@@ -557,7 +560,7 @@ class PlanarStickSlip:
             self._plate.finish(seg)
             # the sample itself, not v₀ + a·dt (which rounds differently): no corner at the next one
             self._plate.velocity = (ends[k][0], ends[k][1], ends[k][2])
-            self.elapsed_s += dt
+            self._elapsed += dt
             out[:, k] = self.lab_poses()
             k += 1
         return out
@@ -567,15 +570,13 @@ class PlanarStickSlip:
         """True if this solver runs the compiled kernels (:mod:`.planar_kernels`)."""
         return self._compiled
 
-    def advance_driven(self, command: np.ndarray, coefficients: np.ndarray,
-                       filter_states: np.ndarray, volts: np.ndarray, scale: np.ndarray,
-                       sample_rate_hz: float) -> np.ndarray:  # fmt: skip
-        """Compiled only: DAC samples (3, n) through output stages and stack filters
-        (:func:`.kernels.drive_run`; states updated in place) into :meth:`advance_sampled`."""
+    def advance_driven(self, command: np.ndarray, drive: np.ndarray, sample_rate_hz: float) -> np.ndarray:
+        """Compiled only: DAC samples (3, n) through output stages and stack filters into
+        :meth:`advance_sampled`; ``drive`` (3, k) per channel: coefficients, filter states and
+        voltage (updated in place), plate units per stack metre (:func:`.planar_kernels.run_plant`)."""
         lab = np.empty((self._array.shape[0], command.shape[1], 3))
-        pk.run_plant(command, coefficients, filter_states, volts, scale, self._array, self._params,
-                     _DISC_NODES, sample_rate_hz, self._plate_array, _SKIP_HELD, lab)  # fmt: skip
-        self.elapsed_s = self._plate_array[pk.ELAPSED].item()
+        pk.run_plant(command, drive, self._array, self._params, _DISC_NODES, sample_rate_hz,
+                     self._plate_array, _SKIP_HELD, lab)  # fmt: skip
         return lab
 
     def _surely_held(self, start: np.ndarray, end: np.ndarray, accel: np.ndarray, k: int) -> np.ndarray:
@@ -614,7 +615,7 @@ class PlanarStickSlip:
         self._plate.pose = (float(plate[0, -1]), float(plate[1, -1]), float(plate[2, -1]))
         self._plate.velocity = (last[0], last[1], last[2])
         for _ in range(stop - k):  # as the per-sample loop adds it
-            self.elapsed_s += dt
+            self._elapsed += dt
 
 
 @dataclass(frozen=True)

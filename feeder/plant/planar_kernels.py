@@ -912,10 +912,16 @@ def run_sampled(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, veloc
 
 
 @_jit
-def run_plant(command: np.ndarray, coef: np.ndarray, z: np.ndarray, volts: np.ndarray, scale: np.ndarray,
-              states: np.ndarray, params: np.ndarray, nodes: np.ndarray, rate: float, plate: np.ndarray,
-              skip: bool, out: np.ndarray) -> None:  # fmt: skip
-    """:meth:`.planar_plant.PlanarPlant.advance`: :func:`.kernels.drive_run`, then :func:`run_sampled`."""
+def run_plant(command: np.ndarray, drive: np.ndarray, states: np.ndarray, params: np.ndarray,
+              nodes: np.ndarray, rate: float, plate: np.ndarray, skip: bool,
+              out: np.ndarray) -> None:  # fmt: skip
+    """:meth:`.planar_plant.PlanarPlant.advance`: :func:`.kernels.drive_run`, then :func:`run_sampled`.
+
+    drive (3, k): per channel the output stage's and stack filter's coefficients, the filter
+    states (:data:`.kernels.FILTER_ORDER` · 2), the voltage, the scale to plate units (one
+    array: one argument to hand over per call, not four).
+    """
+    k = drive.shape[1]
     velocity = np.empty(command.shape)
-    drive_run(command, coef, z, volts, scale, velocity)
+    drive_run(command, drive[:, : k - 8], drive[:, k - 8 : k - 2], drive[:, k - 2], drive[:, k - 1], velocity)
     run_sampled(states, params, nodes, velocity, rate, plate, skip, out)

@@ -27,6 +27,9 @@ STREAMING_RTOL = 1e-6
 waveform on x, y and θ (parts at O, 2 mm from it, rotated off it) the poses stay within
 1e-10 m and 1e-6 rad of rtol 1e-10 (1e-8: 3e-12 m, 1e-8 rad), ~1.5× faster than 1e-8."""
 
+_STATES, _VOLTS = slice(-2 - 2 * kernels.FILTER_ORDER, -2), -2
+"""Columns of the compiled path's drive array (:func:`.planar_kernels.run_plant`)."""
+
 
 class PlanarPlant:
     """Parts on a plate driven by three stick-slip channels, streaming at ``sample_rate_hz``.
@@ -56,10 +59,10 @@ class PlanarPlant:
         self.mechanics = [StackFilter(self.stack, sample_rate_hz) for _ in range(3)]
         self.contact = PlanarStickSlip(parts, rtol=rtol)
         self._scale = np.array([[1.0], [1.0], [1.0 / self.lever_arm_m]])  # stack m → plate m, m, rad
-        self._scale_row = np.ascontiguousarray(self._scale[:, 0])
         self._compilable = self.mechanics[0].order == kernels.FILTER_ORDER and self.contact.compiled
-        self._drive: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        """Coefficients, filter states and voltages while the compiled path holds them."""
+        self._drive: np.ndarray | None = None
+        """Per channel: coefficients, filter states, voltage, scale (:func:`.planar_kernels.run_plant`)
+        while the compiled path holds them."""
 
     @property
     def plate_pose(self) -> Pose:
@@ -69,7 +72,7 @@ class PlanarPlant:
     @property
     def output_voltages_v(self) -> tuple[float, float, float]:
         if self._drive is not None:
-            x, y, theta = self._drive[2].tolist()
+            x, y, theta = self._drive[:, _VOLTS].tolist()
             return x, y, theta
         return (self.outputs[0].voltage_v, self.outputs[1].voltage_v, self.outputs[2].voltage_v)
 
@@ -98,22 +101,18 @@ class PlanarPlant:
     def _advance_compiled(self, command: np.ndarray) -> np.ndarray:
         """:meth:`advance` in one compiled call (:func:`.planar_kernels.run_plant`)."""
         if self._drive is None:
-            coefficients = np.array([np.concatenate([[o.limits.v_min_v, o.limits.v_max_v, o.max_step_v],
-                                                     m.coefficients()])
-                                     for o, m in zip(self.outputs, self.mechanics, strict=True)])  # fmt: skip
-            self._drive = (coefficients, np.array([m.states for m in self.mechanics]),
-                           np.array([o.voltage_v for o in self.outputs]))  # fmt: skip
-        coefficients, z, volts = self._drive
+            self._drive = np.array([np.concatenate([[o.limits.v_min_v, o.limits.v_max_v, o.max_step_v],
+                                                    m.coefficients(), m.states, [o.voltage_v, k]])
+                                    for o, m, k in zip(self.outputs, self.mechanics, self._scale[:, 0],
+                                                       strict=True)])  # fmt: skip
         if not command.flags.c_contiguous:
             command = np.ascontiguousarray(command)
-        return self.contact.advance_driven(command, coefficients, z, volts, self._scale_row,
-                                           self.sample_rate_hz)  # fmt: skip
+        return self.contact.advance_driven(command, self._drive, self.sample_rate_hz)
 
     def _sync_objects(self) -> None:
         """Hand the compiled path's filter states and voltages back to the stage objects."""
         if self._drive is not None:
-            _, z, volts = self._drive
             for k in range(3):
-                self.mechanics[k].states = z[k].copy()
-                self.outputs[k].voltage_v = float(volts[k])
+                self.mechanics[k].states = self._drive[k, _STATES].copy()
+                self.outputs[k].voltage_v = float(self._drive[k, _VOLTS])
             self._drive = None
