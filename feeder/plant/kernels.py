@@ -51,6 +51,12 @@ def _jit(func: Callable[..., Any]) -> Callable[..., Any]:
     return numba.njit(cache=True, nogil=True)(func) if AVAILABLE else func
 
 
+def _jit_inline(func: Callable[..., Any]) -> Callable[..., Any]:
+    """:func:`_jit`, inlined into its callers by numba (no call, no reference counts of the arrays
+    handed over: small functions called per limit-surface evaluation)."""
+    return numba.njit(cache=True, nogil=True, inline="always")(func) if AVAILABLE else func
+
+
 @_jit
 def contact_interval(stuck: bool, w: float, s: float, slip: float, a_s: float, k: int, acc: float, h: float,
              jump: float, nominal: float, ratio: float, scatter: float,

@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from feeder.plant.kernels import _jit, contact_interval, drive_run, rectangle_integrals
+from feeder.plant.kernels import _jit, _jit_inline, contact_interval, drive_run, rectangle_integrals
 
 SEG_SIZE = 11
 DURATION, V, A, C, KAPPA = 0, 1, 4, 7, 10
@@ -111,7 +111,7 @@ def initial_state(pose: tuple[float, float, float], radius_m: float) -> np.ndarr
 # --- plate motion (:class:`.plate_motion.Segment`) -------------------------------------------
 
 
-@_jit
+@_jit_inline
 def _position(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
     c = 0.0 if seg[KAPPA] == 0 else math.cos(seg[KAPPA] * tau) - 1.0
     return (seg[V] * tau + 0.5 * seg[A] * tau * tau + seg[C] * c,
@@ -119,14 +119,14 @@ def _position(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
             seg[V + 2] * tau + 0.5 * seg[A + 2] * tau * tau + seg[C + 2] * c)  # fmt: skip
 
 
-@_jit
+@_jit_inline
 def _velocity(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
     s = 0.0 if seg[KAPPA] == 0 else -seg[KAPPA] * math.sin(seg[KAPPA] * tau)
     return (seg[V] + seg[A] * tau + seg[C] * s, seg[V + 1] + seg[A + 1] * tau + seg[C + 1] * s,
             seg[V + 2] + seg[A + 2] * tau + seg[C + 2] * s)  # fmt: skip
 
 
-@_jit
+@_jit_inline
 def _accel(seg: np.ndarray, tau: float) -> tuple[float, float, float]:
     c = 0.0 if seg[KAPPA] == 0 else -(seg[KAPPA] ** 2) * math.cos(seg[KAPPA] * tau)
     return seg[A] + seg[C] * c, seg[A + 1] + seg[C + 1] * c, seg[A + 2] + seg[C + 2] * c
@@ -142,7 +142,7 @@ def _turns(seg: np.ndarray) -> bool:
     return seg[V + 2] != 0 or seg[A + 2] != 0 or seg[C + 2] != 0
 
 
-@_jit
+@_jit_inline
 def _plate_at(seg: np.ndarray, plate: np.ndarray, tau: float) -> tuple[float, float, float]:
     d = _position(seg, tau)
     return plate[0] + d[0], plate[1] + d[1], plate[2] + d[2]
@@ -160,7 +160,7 @@ def finish_segment(seg: np.ndarray, plate: np.ndarray) -> None:
 # --- the limit surface (:class:`.limit_surface.Patch`) -----------------------------------------
 
 
-@_jit
+@_jit_inline
 def integrals(pp: np.ndarray, radius: float, nodes: np.ndarray, wx: float, wy: float,
               omega: float) -> tuple[float, float, float, float]:  # fmt: skip
     """:meth:`.Patch.integrals`: ∫v̂ dA, ∫ρ×v̂ dA, ∫|v| dA for the twist (w, ω), part frame."""
@@ -316,12 +316,12 @@ def _required(st: np.ndarray, pp: np.ndarray, seg: np.ndarray, plate: np.ndarray
     return c * fx + s * fy, -s * fx + c * fy, pp[INERTIA] * alpha
 
 
-@_jit
+@_jit_inline
 def _dot(pp: np.ndarray, a0: float, a1: float, a2: float, b0: float, b1: float, b2: float) -> float:
     return a0 * b0 + a1 * b1 + pp[INERTIA] / pp[MASS] * a2 * b2
 
 
-@_jit
+@_jit_inline
 def _twist(x: float, y: float, vx_part: float, vy_part: float, om_part: float, px: float, py: float,
            vx: float, vy: float, om: float) -> tuple[float, float, float]:  # fmt: skip
     """Relative twist (w_x, w_y lab; ω_r) of a part at (x, y) moving at (v, ω) on the plate."""
@@ -416,7 +416,7 @@ def _breakaway(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
     return -1.0
 
 
-@_jit
+@_jit_inline
 def _rhs(pp: np.ndarray, radius: float, nodes: np.ndarray, seg: np.ndarray, plate: np.ndarray,
          x0: float, y0: float, phi0: float, t: float, y: np.ndarray, out: np.ndarray) -> None:  # fmt: skip
     """Rigid-body motion under kinetic friction; y = (c − c₀, φ − φ₀, v, ω), lab frame."""
@@ -434,7 +434,7 @@ def _rhs(pp: np.ndarray, radius: float, nodes: np.ndarray, seg: np.ndarray, plat
     out[5] = -tau_k * mu / pp[INERTIA]
 
 
-@_jit
+@_jit_inline
 def _rel_twist(seg: np.ndarray, plate: np.ndarray, x0: float, y0: float, t: float,
                y: np.ndarray) -> tuple[float, float, float]:  # fmt: skip
     px, py, _ = _plate_at(seg, plate, t)
@@ -442,7 +442,7 @@ def _rel_twist(seg: np.ndarray, plate: np.ndarray, x0: float, y0: float, t: floa
     return _twist(x0 + y[0], y0 + y[1], y[3], y[4], y[5], px, py, vx, vy, om)
 
 
-@_jit
+@_jit_inline
 def _twist_rate(seg: np.ndarray, plate: np.ndarray, x0: float, y0: float, t: float, y: np.ndarray,
                 f: np.ndarray) -> tuple[float, float, float]:  # fmt: skip
     """d(w, ω_r)/dt = (dv/dt − a_plate(c) − Ω ẑ×w, dω/dt − α), f the state's derivative."""
