@@ -206,6 +206,29 @@ def test_planar_plant_compiled_equals_reference_in_1ms_ticks(both) -> None:
     np.testing.assert_allclose(v1, v0, rtol=0, atol=1e-9)
 
 
+def test_planar_plant_hands_its_drive_back_when_the_kernels_are_switched_off() -> None:
+    """The compiled path's filter states and voltages (one drive array) go back to the output
+    stages and stack filters: switched off mid-run, the plant goes on as if it had not been."""
+    waveform = Waveform(frequency_hz=100.0, amplitude_vpp=200.0)
+    line = waveform.voltage_at_phase((np.arange(1, 1001) % 1000) / 1000)
+    chunks = np.split(np.stack([line, 0.5 * line, line]), 10, axis=1)
+    part = PlanarPart.from_part(PLANAR_PART, Friction(105.25, 0.8), (2e-3, 0.0, 0.0))
+    before = kernels.enabled()
+    try:
+        whole, switched = PlanarPlant([part]), PlanarPlant([part])
+        ref = np.concatenate([whole.advance(c) for c in chunks], axis=1)
+        lab = [switched.advance(c) for c in chunks[:5]]
+        volts = switched.output_voltages_v
+        kernels.use_compiled(False)
+        assert switched.output_voltages_v == volts  # handed back, not reset
+        lab += [switched.advance(c) for c in chunks[5:]]
+    finally:
+        kernels.use_compiled(before)
+    assert max(volts) > 10
+    np.testing.assert_allclose(np.concatenate(lab, axis=1), ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(switched.output_voltages_v, whole.output_voltages_v, rtol=0, atol=1e-9)
+
+
 def test_planar_gauge_compiled_equals_scipy() -> None:
     """The compiled BFGS gauge finds the scipy one's limit-surface point (rectangle and disc)."""
     for patch in (Patch("rectangle", 300e-6, 200e-6), Patch("disc", 200e-6, 200e-6)):

@@ -74,6 +74,10 @@ _A51, _A52, _A53, _A54 = 19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729
 _A61, _A62, _A63, _A64, _A65 = 9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656
 _B1, _B3, _B4, _B5, _B6 = 35 / 384, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84
 _E1, _E3, _E4, _E5, _E6, _E7 = -71 / 57600, 71 / 16695, -71 / 1920, 17253 / 339200, -22 / 525, 1 / 40
+_TABLEAU = np.array([[_A21, 0, 0, 0, 0, 0], [_A31, _A32, 0, 0, 0, 0], [_A41, _A42, _A43, 0, 0, 0],
+                     [_A51, _A52, _A53, _A54, 0, 0], [_A61, _A62, _A63, _A64, _A65, 0],
+                     [_B1, 0.0, _B3, _B4, _B5, _B6]])  # fmt: skip
+"""Rows: the stages' coefficients of k1 … k6 (the last: the 5th-order solution, B2 = 0 adds exact zeros)."""
 
 
 def _unit_disc_nodes(radial: int = 48, angular: int = 96) -> np.ndarray:
@@ -455,7 +459,7 @@ def _twist_rate(seg: np.ndarray, plate: np.ndarray, x0: float, y0: float, t: flo
             f[4] - (ay + alpha * rx - om * om * ry) - om * wx, f[5] - alpha)  # fmt: skip
 
 
-@_jit
+@_jit_inline
 def _derivative(sigma: bool, pp: np.ndarray, radius: float, nodes: np.ndarray, seg: np.ndarray,
                 plate: np.ndarray, x0: float, y0: float, phi0: float, z: np.ndarray,
                 out: np.ndarray) -> bool:  # fmt: skip
@@ -489,32 +493,20 @@ def _dp5_step(sigma: bool, pp: np.ndarray, radius: float, nodes: np.ndarray, seg
     """One Dormand-Prince 5(4) step of size h from z (ks[0] = dz/ds there) into z_new, ks[6] =
     dz/ds at z_new (ks[7]: scratch); returns the RMS error relative to atol + rtol·|z| (scipy's
     RK45), inf if invalid."""
-    k1, k2, k3, k4, k5, k6, k7, w = ks[0], ks[1], ks[2], ks[3], ks[4], ks[5], ks[6], ks[7]
-    args = (sigma, pp, radius, nodes, seg, plate, x0, y0, phi0)
-    for i in range(7):
-        w[i] = z[i] + h * _A21 * k1[i]
-    if not _derivative(*args, w, k2):
-        return np.inf
-    for i in range(7):
-        w[i] = z[i] + h * (_A31 * k1[i] + _A32 * k2[i])
-    if not _derivative(*args, w, k3):
-        return np.inf
-    for i in range(7):
-        w[i] = z[i] + h * (_A41 * k1[i] + _A42 * k2[i] + _A43 * k3[i])
-    if not _derivative(*args, w, k4):
-        return np.inf
-    for i in range(7):
-        w[i] = z[i] + h * (_A51 * k1[i] + _A52 * k2[i] + _A53 * k3[i] + _A54 * k4[i])
-    if not _derivative(*args, w, k5):
-        return np.inf
-    for i in range(7):
-        w[i] = z[i] + h * (_A61 * k1[i] + _A62 * k2[i] + _A63 * k3[i] + _A64 * k4[i] + _A65 * k5[i])
-    if not _derivative(*args, w, k6):
-        return np.inf
-    for i in range(7):
-        z_new[i] = z[i] + h * (_B1 * k1[i] + _B3 * k3[i] + _B4 * k4[i] + _B5 * k5[i] + _B6 * k6[i])
-    if not _derivative(*args, z_new, k7):
-        return np.inf
+    for stage in range(6):  # one call site: _derivative is inlined once, not six times
+        row = _TABLEAU[stage]
+        w = z_new if stage == 5 else ks[7]
+        for i in range(7):
+            if stage == 0:
+                w[i] = z[i] + h * _A21 * ks[0, i]
+                continue
+            acc = row[0] * ks[0, i]
+            for j in range(1, stage + 1):
+                acc += row[j] * ks[j, i]
+            w[i] = z[i] + h * acc
+        if not _derivative(sigma, pp, radius, nodes, seg, plate, x0, y0, phi0, w, ks[stage + 1]):
+            return np.inf
+    k1, k3, k4, k5, k6, k7 = ks[0], ks[2], ks[3], ks[4], ks[5], ks[6]
     total = 0.0
     for i in range(7):
         err = h * (_E1 * k1[i] + _E3 * k3[i] + _E4 * k4[i] + _E5 * k5[i] + _E6 * k6[i] + _E7 * k7[i])
@@ -567,7 +559,7 @@ def _fade(st: np.ndarray, pp: np.ndarray, radius: float, nodes: np.ndarray, seg:
     if not size > target:
         return _STOPPED
     args = (pp, radius, nodes, seg, plate, x0, y0, phi0)
-    if not _derivative(True, *args, z, ks[0]):
+    if not _derivative(True, pp, radius, nodes, seg, plate, x0, y0, phi0, z, ks[0]):
         return _LEFT
     z_new = np.empty(7)
     s, s_end = 0.0, math.log(size / target)
@@ -598,7 +590,7 @@ def _fade(st: np.ndarray, pp: np.ndarray, radius: float, nodes: np.ndarray, seg:
     raise RuntimeError("planar stick-slip: the twist does not fade")
 
 
-@_jit
+@_jit_inline
 def _resolution(pp: np.ndarray, z: np.ndarray) -> float:
     """The step control's absolute error scale of the twist ((atol + rtol·|v|) per velocity, m/s)."""
     r0, r1, r2 = ((_ATOL[3] + abs(z[3])) * pp[RTOL], (_ATOL[4] + abs(z[4])) * pp[RTOL],
@@ -606,7 +598,7 @@ def _resolution(pp: np.ndarray, z: np.ndarray) -> float:
     return math.sqrt(_dot(pp, r0, r1, r2, r0, r1, r2))
 
 
-@_jit
+@_jit_inline
 def _shrinks(seg: np.ndarray, plate: np.ndarray, x0: float, y0: float, pp: np.ndarray, z: np.ndarray,
              f: np.ndarray, w0: float, w1: float, w2: float) -> bool:  # fmt: skip
     """Whether the twist (w) at z, f = dz/dt, shrinks."""
@@ -648,7 +640,7 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
         ks[0, :6] = st[DERIV : DERIV + 6]
         ks[0, 6] = 1.0
     else:
-        _derivative(False, *args, z, ks[0])
+        _derivative(False, pp, radius, nodes, seg, plate, x0, y0, phi0, z, ks[0])
     for _ in range(1000):
         begin = z[6]
         reversed_ = False
@@ -664,7 +656,7 @@ def _integrate(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.ndarra
                 if ended == _STOPPED:
                     return z[6], True
                 p0, p1, p2 = _rel_twist(seg, plate, x0, y0, z[6], z)
-                _derivative(False, *args, z, ks[0])
+                _derivative(False, pp, radius, nodes, seg, plate, x0, y0, phi0, z, ks[0])
                 fade = False
                 if ended == _NEAR_END:  # try the rest of the segment in one step
                     h_abs = bound - z[6]
