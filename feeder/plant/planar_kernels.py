@@ -168,7 +168,7 @@ def finish_segment(seg: np.ndarray, plate: np.ndarray) -> None:
 def integrals(pp: np.ndarray, radius: float, nodes: np.ndarray, wx: float, wy: float,
               omega: float) -> tuple[float, float, float, float]:  # fmt: skip
     """:meth:`.Patch.integrals`: ∫v̂ dA, ∫ρ×v̂ dA, ∫|v| dA for the twist (w, ω), part frame."""
-    speed = math.hypot(wx, wy)
+    speed = math.sqrt(wx * wx + wy * wy)  # glibc hypot: ~20 ns a call
     if speed == 0 and omega == 0:
         return 0.0, 0.0, 0.0, 0.0
     if abs(omega) * radius < _SERIES_BELOW * speed:
@@ -183,7 +183,7 @@ def integrals(pp: np.ndarray, radius: float, nodes: np.ndarray, wx: float, wy: f
     for i in range(nodes.shape[1]):
         x, y, weight = r * nodes[0, i], r * nodes[1, i], r * r * nodes[2, i]
         vx, vy = wx - omega * y, wy + omega * x
-        v = math.hypot(vx, vy)
+        v = math.sqrt(vx * vx + vy * vy)
         if v > 0:
             sx += weight * vx / v
             sy += weight * vy / v
