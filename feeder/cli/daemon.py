@@ -22,8 +22,8 @@ from feeder.drivers.sensor import SensorLost
 from feeder.errors import InputError
 
 if TYPE_CHECKING:
-    from feeder.daemon.http_console import ConsoleServer
     from feeder.daemon.runner import RunningDaemon
+    from feeder.web.app import ConsoleServer
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -188,7 +188,7 @@ def start_console(config: DaemonConfig, running: RunningDaemon) -> ConsoleServer
     if config.http is None:
         return None
     try:
-        from feeder.daemon import http_console
+        from feeder.web import app as http_console
     except ImportError as err:
         raise InputError(
             "--http", f"the console needs Starlette and uvicorn ({err}): pip install feeder[http]"

@@ -78,7 +78,7 @@ SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 WS_UNAUTHORIZED = 4401
 WS_FORBIDDEN = 4403
 STATIC = ("console.html", "console.js")
-"""The page's files, package data of :mod:`feeder.daemon.static`."""
+"""The page's files, package data of :mod:`feeder.web.static`."""
 PUBLIC_PATHS = frozenset({"/", "/console.js"})
 """What loads without the token: the page (static, no data)."""
 
@@ -398,7 +398,7 @@ def console_app(
     origins = own_origins(settings.host, port, settings.origins)
     moves = RateLimit(settings.moves_per_s, settings.move_burst)
     live = LiveFeed(daemon)
-    pages = {name: resources.files("feeder.daemon.static").joinpath(name).read_bytes() for name in STATIC}
+    pages = {name: resources.files("feeder.web.static").joinpath(name).read_bytes() for name in STATIC}
 
     async def ask(request: dict[str, Any]) -> dict[str, Any]:
         return await run_in_threadpool(daemon.handle, request)
