@@ -23,7 +23,8 @@ from test_daemon_service import short_dir, start, wait_for  # noqa: F401  (short
 from feeder.daemon.config import HttpConfig, load_config
 from feeder.daemon.service import Daemon
 from feeder.errors import InputError
-from feeder.web.app import ConsoleServer, RateLimit, start_console
+from feeder.web.security import RateLimit
+from feeder.web.server import ConsoleServer, start_console
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.timeout(60)
