@@ -35,10 +35,12 @@ from types import FrameType
 from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.pose import parse_poses
+from firmware_sim.axis import Axis
 from firmware_sim.canopen_node import serve_slcan_pty
 from firmware_sim.clock import Clock, RealTimeClock, VirtualClock
 from firmware_sim.console import ConsoleSession, LoginThrottle
-from firmware_sim.firmware import Axis, Firmware, FirmwareConfig, FirmwareError
+from firmware_sim.faults import FirmwareError
+from firmware_sim.firmware import Firmware, FirmwareConfig
 from firmware_sim.options import REFERENCE_FREQUENCY_HZ, build_parser, check_options, tcp_spec
 from firmware_sim.transports import LineBroadcastServer, PtyConsole, SessionFactory, TcpConsoleServer
 from firmware_sim.world import CameraConfig, TrueStep, World, WorldConfig

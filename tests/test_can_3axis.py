@@ -44,7 +44,8 @@ from feeder.protocol.eds import (
 )
 from firmware_sim.canopen_node import CanopenNode
 from firmware_sim.clock import RealTimeClock, VirtualClock
-from firmware_sim.firmware import Fault, Firmware, FirmwareConfig
+from firmware_sim.faults import Fault
+from firmware_sim.firmware import Firmware, FirmwareConfig
 from firmware_sim.options import build_parser, check_options
 
 pytestmark = pytest.mark.timeout(60)
