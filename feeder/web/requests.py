@@ -11,11 +11,12 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse
 
 from feeder.daemon.client import MAX_LINE_BYTES
+from feeder.errors import FeederError
 
 MAX_JOG_STEPS = 10_000
 
 
-class ApiError(Exception):
+class ApiError(FeederError):
     """A request refused with an HTTP status and a one-line reason."""
 
     def __init__(self, status: int, message: str) -> None:
