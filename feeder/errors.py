@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from feeder.daemon.client import MoveResult
+    from feeder.daemon.replies import MoveResult
 
 
 class FeederError(Exception):

@@ -4,7 +4,7 @@ A node (:class:`firmware_sim.canopen_node.CanopenNode`) has one port per axis it
 EDS lists: the one-axis EDS has one, named by the plain object names; the
 three-axis EDS has three, whose objects are named ``"Axis n <name>"`` and whose
 PDOs are RPDOn/TPDOn (:func:`feeder.protocol.eds.axis_object`).  The port maps its
-objects to the :class:`firmware_sim.firmware.Axis` API, holds the axis' PDO state
+objects to the :class:`firmware_sim.axis.Axis` API, holds the axis' PDO state
 (RPDO acknowledge, TPDO transmission parameters) and packs its TPDO.  The node
 calls it with the firmware's lock held.
 """
@@ -18,7 +18,7 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
 
 from feeder.protocol.eds import MODES, SHAPE_CODES, axis_object, bit_mask
-from firmware_sim.firmware import FLYBACK_SHAPES, STEPPING_MODES, Axis, AxisStatus
+from firmware_sim.axis import FLYBACK_SHAPES, STEPPING_MODES, Axis, AxisStatus
 
 ABORT_RANGE = 0x06090030
 

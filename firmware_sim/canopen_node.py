@@ -7,7 +7,7 @@ objects addressed by their EDS names.  It serves as many axes as its EDS lists
 (one, or three for ``feeder_amplifier_3axis.eds``), each through an
 :class:`~firmware_sim.canopen_axis.AxisPort` with its own objects and PDOs; NMT,
 heartbeat, SDO, EMCY and the error register are the node's.  It calls the same
-:class:`firmware_sim.firmware.Axis` API as the ANC300 console: one amplifier,
+:class:`firmware_sim.axis.Axis` API as the ANC300 console: one amplifier,
 two front ends.
 
 Frames are handled when they arrive, in the thread that delivers them: on a
@@ -69,9 +69,11 @@ from canopen.sdo.exceptions import SdoAbortedError
 
 from feeder.errors import InputError
 from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
+from firmware_sim.axis import AxisStatus
 from firmware_sim.can_wire import CanWire, WireBus
 from firmware_sim.canopen_axis import AxisPort
-from firmware_sim.firmware import AxisStatus, Fault, Firmware, FirmwareError, LimitError
+from firmware_sim.faults import Fault, FirmwareError, LimitError
+from firmware_sim.firmware import Firmware
 from firmware_sim.sdo_server import SdoServer
 from firmware_sim.slcan import SlcanPty
 

@@ -25,7 +25,9 @@ from feeder.protocol.anc300 import (
     UNKNOWN_COMMAND,
     verbs_of,
 )
-from firmware_sim.firmware import Axis, Fault, Firmware, FirmwareError
+from firmware_sim.axis import Axis
+from firmware_sim.faults import Fault, FirmwareError
+from firmware_sim.firmware import Firmware
 
 if TYPE_CHECKING:
     from firmware_sim.world import TrueStep

@@ -38,8 +38,9 @@ from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M, PlanarPlant
 from feeder.plant.plant import Plant
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction
+from firmware_sim.axis import PHASE_BITS, Axis
 from firmware_sim.clock import VirtualClock
-from firmware_sim.firmware import PHASE_BITS, Axis, Firmware, FirmwareConfig
+from firmware_sim.firmware import Firmware, FirmwareConfig
 
 WARMUP_STEPS = 2
 MEASURED_STEPS = 3

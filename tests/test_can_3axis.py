@@ -42,10 +42,11 @@ from feeder.protocol.eds import (
     entry,
     object_dictionary,
 )
-from firmware_sim.__main__ import build_parser, check_options
 from firmware_sim.canopen_node import CanopenNode
 from firmware_sim.clock import RealTimeClock, VirtualClock
-from firmware_sim.firmware import Fault, Firmware, FirmwareConfig
+from firmware_sim.faults import Fault
+from firmware_sim.firmware import Firmware, FirmwareConfig
+from firmware_sim.options import build_parser, check_options
 
 pytestmark = pytest.mark.timeout(60)
 NODE_ID = 7

@@ -19,10 +19,11 @@ import pytest
 
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost, DriveSettings
 from feeder.drivers.canopen import CanopenAmplifier, fault_names
+from firmware_sim.axis import fault_names as firmware_fault_names
 from firmware_sim.canopen_node import CanopenNode
 from firmware_sim.clock import RealTimeClock
-from firmware_sim.firmware import Fault, Firmware
-from firmware_sim.firmware import fault_names as firmware_fault_names
+from firmware_sim.faults import Fault
+from firmware_sim.firmware import Firmware
 from firmware_sim.slcan import SlcanPty
 
 pytestmark = pytest.mark.timeout(60)

@@ -24,7 +24,8 @@ from feeder.plant.amplifier import AmplifierLimits
 from feeder.protocol.eds import MODES, STATUS_WORD_BITS, object_dictionary
 from firmware_sim.canopen_node import CanopenNode, error_register
 from firmware_sim.clock import VirtualClock
-from firmware_sim.firmware import Fault, Firmware, FirmwareConfig
+from firmware_sim.faults import Fault
+from firmware_sim.firmware import Firmware, FirmwareConfig
 
 pytestmark = pytest.mark.timeout(60)
 NODE_ID = 5

@@ -18,7 +18,8 @@ from test_daemon_service import start, wait_for
 
 from feeder import Client
 from feeder.daemon import client as client_module
-from feeder.daemon.client import HEARTBEAT_S, Accepted, DaemonUnavailable, MoveRecord, MoveResult
+from feeder.daemon.client import HEARTBEAT_S, DaemonUnavailable
+from feeder.daemon.replies import Accepted, MoveRecord, MoveResult
 from feeder.daemon.service import Daemon
 from feeder.errors import (
     DaemonError,

@@ -18,7 +18,8 @@ from test_control_loop import MODES, SETTINGS, TRUE
 from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
 
 from feeder.daemon.client import MAX_LINE_BYTES, Client, DaemonUnavailable
-from feeder.daemon.service import Daemon, DaemonSetup, bind_socket
+from feeder.daemon.service import Daemon, DaemonSetup
+from feeder.daemon.socket_server import bind_socket
 from feeder.daemon.store import Store
 from feeder.drivers.amplifier import AmplifierLinkLost
 from feeder.errors import InputError

@@ -19,9 +19,10 @@ from feeder.drivers.canopen import fault_names
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.protocol.anc300 import FAULT_BITS
 from feeder.protocol.eds import EDS_FILE, MODES, PACKAGED_EDS, SHAPE_CODES, object_dictionary
+from firmware_sim.axis import FLYBACK_SHAPES as FIRMWARE_SHAPES
+from firmware_sim.axis import MAX_STEPS
 from firmware_sim.canopen_node import LIMIT_FIELDS
-from firmware_sim.firmware import FLYBACK_SHAPES as FIRMWARE_SHAPES
-from firmware_sim.firmware import MAX_STEPS, Fault
+from firmware_sim.faults import Fault
 
 ROOT = Path(__file__).resolve().parents[1]
 

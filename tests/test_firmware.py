@@ -11,15 +11,10 @@ from hypothesis import strategies as st
 
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.waveform import Waveform
+from firmware_sim.axis import _slew_limit
 from firmware_sim.clock import VirtualClock
-from firmware_sim.firmware import (
-    Fault,
-    Firmware,
-    FirmwareConfig,
-    FirmwareError,
-    LimitError,
-    _slew_limit,
-)
+from firmware_sim.faults import Fault, FirmwareError, LimitError
+from firmware_sim.firmware import Firmware, FirmwareConfig
 
 
 class Recorder:

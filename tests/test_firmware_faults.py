@@ -29,6 +29,7 @@ from feeder.daemon.launcher import LaunchError, Simulator
 from firmware_sim import __main__ as program
 from firmware_sim.console import MAX_LOGIN_INTERVAL_S, ConsoleSession, LoginThrottle
 from firmware_sim.firmware import Firmware
+from firmware_sim.options import build_parser
 from firmware_sim.transports import (
     LOGIN_TIMEOUT_S,
     MAX_PENDING_LOGINS,
@@ -138,7 +139,7 @@ def test_bad_option_is_one_line_naming_it_and_exit_2(argv: list[str], option: st
 
 
 def test_option_ranges_are_stated_in_help() -> None:
-    text = program.build_parser().format_help()
+    text = build_parser().format_help()
     for fragment in ("--tick-hz X", "(in [1, 10000], default 1000)", "--seed N", "--camera-rate-hz X"):
         assert fragment in text
 

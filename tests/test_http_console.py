@@ -1,4 +1,4 @@
-"""The browser console's HTTP API (feeder/daemon/http_console.py) over real TCP, in front of the
+"""The browser console's HTTP API (feeder/web/) over real TCP, in front of the
 service with the in-process fake world as hardware."""
 
 from __future__ import annotations
@@ -21,9 +21,10 @@ pytest.importorskip("uvicorn")
 from test_daemon_service import short_dir, start, wait_for  # noqa: F401  (short_dir: fixture)
 
 from feeder.daemon.config import HttpConfig, load_config
-from feeder.daemon.http_console import ConsoleServer, RateLimit, start_console
 from feeder.daemon.service import Daemon
 from feeder.errors import InputError
+from feeder.web.security import RateLimit
+from feeder.web.server import ConsoleServer, start_console
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.timeout(60)

@@ -14,13 +14,8 @@ from pathlib import Path
 
 from feeder.cli.arguments import allow_negative_values, angle_rad, int_in, length_m, positive_float
 from feeder.cli.output import print_json
-from feeder.daemon.client import (
-    DEFAULT_TIMEOUT_S,
-    Accepted,
-    Client,
-    MoveResult,
-    default_socket_path,
-)
+from feeder.daemon.client import DEFAULT_TIMEOUT_S, Client, default_socket_path
+from feeder.daemon.replies import Accepted, MoveResult
 from feeder.errors import InputError, MoveFailed
 
 

@@ -22,8 +22,8 @@ from feeder.drivers.sensor import SensorLost
 from feeder.errors import InputError
 
 if TYPE_CHECKING:
-    from feeder.daemon.http_console import ConsoleServer
     from feeder.daemon.runner import RunningDaemon
+    from feeder.web.server import ConsoleServer
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -188,13 +188,13 @@ def start_console(config: DaemonConfig, running: RunningDaemon) -> ConsoleServer
     if config.http is None:
         return None
     try:
-        from feeder.daemon import http_console
+        from feeder.web import server
     except ImportError as err:
         raise InputError(
             "--http", f"the console needs Starlette and uvicorn ({err}): pip install feeder[http]"
         ) from None
     camera_http = running.links.describe().get("simulator_endpoints", {}).get("camera_http")
-    return http_console.start_console(
+    return server.start_console(
         running.daemon,
         config.http,
         config.state_dir,

@@ -124,7 +124,7 @@ class AmplifierConfig:
 
 @dataclass(frozen=True)
 class HttpConfig:
-    """The browser console's server (:mod:`feeder.daemon.http_console`).
+    """The browser console's server (:mod:`feeder.web`).
 
     moves_per_s, move_burst: token bucket over move, jog and calibrate requests.
     camera: an :func:`~feeder.drivers.video_camera.open_camera` spec for the live view.

@@ -1,11 +1,7 @@
 """The daemon: control loop + state database + Unix-socket control interface + fault recovery.
 
-Socket: owner-only (0600) in an owner-only directory (0700); a socket path or
-directory that another user owns is refused, and so is a peer whose uid is not
-ours (SO_PEERCRED).  One JSON object per line, at most
-:data:`~feeder.daemon.client.MAX_LINE_BYTES`; a longer line is answered with
-an error and the connection closed.  Any number of clients; one move at a time
-(a second is refused with the reason, or queued with ``"queue": true``).
+Requests come over the owner-only Unix socket of :mod:`feeder.daemon.socket_server`; one
+move at a time (a second is refused with the reason, or queued with ``"queue": true``).
 
 Faults: a lost amplifier link ends the move (``fault``), the output is grounded
 where the link still allows it, and a background thread reconnects with
@@ -23,13 +19,8 @@ import collections
 import contextlib
 import dataclasses
 import fcntl
-import json
 import logging
 import math
-import os
-import socket
-import stat
-import struct
 import threading
 import time
 from collections.abc import Callable
@@ -37,7 +28,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Protocol
 
-from feeder.daemon.client import MAX_LINE_BYTES, check_owned_by_me
 from feeder.daemon.control_loop import (
     COARSE,
     FINE,
@@ -50,6 +40,7 @@ from feeder.daemon.control_loop import (
     StepMode,
 )
 from feeder.daemon.executor import per_axis
+from feeder.daemon.socket_server import SocketServer
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.daemon.store import Calibration, Store
 from feeder.drivers.amplifier import Amplifier
@@ -58,10 +49,6 @@ from feeder.errors import FeederError, InputError
 
 log = logging.getLogger(__name__)
 
-MAX_CLIENTS = 32
-LISTEN_BACKLOG = 128
-"""Connections the kernel holds before accept: bursts of short-lived clients must not find
-the socket full (a client's non-blocking connect then fails at once)."""
 CALIBRATION_STEPS = 20
 POSE_KEYS = ("x_m", "y_m", "angle_rad")
 """A pose move's target, any subset (m, m, rad; plate frame)."""
@@ -101,58 +88,6 @@ class DaemonSetup:
     parts: tuple[dict[str, Any], ...] = ()
 
 
-def prepare_socket_dir(socket_path: Path) -> None:
-    """Create the socket's directory 0700, or check that ours is owner-only; refuse others'."""
-    directory = socket_path.parent
-    with contextlib.suppress(FileExistsError):
-        directory.mkdir(mode=0o700, parents=True)
-    info = check_owned_by_me(directory, "socket directory")
-    if not stat.S_ISDIR(info.st_mode):
-        raise PermissionError(f"{directory} is not a directory")
-    if info.st_mode & 0o022:
-        raise PermissionError(
-            f"socket directory {directory} is writable by others "
-            f"(mode {oct(info.st_mode & 0o777)}); refusing it"
-        )
-
-
-def bind_socket(socket_path: Path) -> socket.socket:
-    """A listening Unix socket at ``socket_path``, mode 0600.
-
-    A stale socket of ours is replaced; a live one (another daemon answers) or
-    any path owned by another user is refused with :class:`InputError`.
-    """
-    field = str(socket_path)
-    if len(os.fsencode(socket_path)) >= 108:
-        raise InputError(field, "socket path is longer than the 107 bytes Unix sockets allow")
-    try:
-        prepare_socket_dir(socket_path)
-        if os.path.lexists(socket_path):
-            info = check_owned_by_me(socket_path, "socket")
-            if not stat.S_ISSOCK(info.st_mode):
-                raise InputError(field, "exists and is not a socket; refusing to replace it")
-            probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            try:
-                probe.connect(str(socket_path))
-            except OSError:
-                socket_path.unlink()
-            else:
-                raise InputError(field, "another daemon is already listening there")
-            finally:
-                probe.close()
-    except PermissionError as err:
-        raise InputError(field, str(err)) from None
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    old_umask = os.umask(0o177)
-    try:
-        sock.bind(str(socket_path))
-    finally:
-        os.umask(old_umask)
-    os.chmod(socket_path, 0o600)
-    sock.listen(LISTEN_BACKLOG)
-    return sock
-
-
 def calibration_bursts(coarse_steps: int, fine_steps: int) -> tuple[Burst, ...]:
     """Per waveform and direction: one step (takes up a reversal, not learned from), then a
     short and a long burst (¼ and ¾ of the steps: two lengths separate the step from the
@@ -184,12 +119,6 @@ def lock_state(database_path: Path) -> IO[bytes]:
     return handle
 
 
-def peer_uid(conn: socket.socket) -> int:
-    """The connecting process' uid (Linux SO_PEERCRED)."""
-    creds = conn.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
-    return int(struct.unpack("3i", creds)[1])
-
-
 class Daemon:
     """The running service.  :meth:`start`, then :meth:`wait`; :meth:`shutdown` from anywhere."""
 
@@ -203,7 +132,7 @@ class Daemon:
         self._clients = 0
         self._faults: list[dict[str, Any]] = []
         self._reconnecting: set[str] = set()
-        self._server: socket.socket | None = None
+        self._server: SocketServer | None = None
         self._state_lock = lock_state(setup.database_path)
         with contextlib.ExitStack() as undo:  # on failure: release what was opened
             undo.callback(self._state_lock.close)
@@ -238,9 +167,8 @@ class Daemon:
     # -- life cycle --------------------------------------------------------
     def start(self) -> None:
         self.loop.start()
-        self._server = bind_socket(self.setup.socket_path)
-        for target, name in ((self._accept, "accept"), (self._dispatch_queue, "queue")):
-            threading.Thread(target=target, name=name, daemon=True).start()
+        self._server = SocketServer(self.setup.socket_path, self.handle, self._stopping)
+        threading.Thread(target=self._dispatch_queue, name="queue", daemon=True).start()
 
     def wait(self, timeout_s: float | None = None) -> bool:
         """Block until the shutdown is complete (output grounded, socket gone); False on
@@ -274,8 +202,6 @@ class Daemon:
             _close(self.loop.amplifiers)
         if self._server is not None:
             self._server.close()
-            with contextlib.suppress(FileNotFoundError):
-                self.setup.socket_path.unlink()
         self.store.close()
         self._state_lock.close()
 
@@ -712,79 +638,6 @@ class Daemon:
         """What may change while running (a respawned simulator's pid and endpoints)."""
         describe = getattr(self.links, "describe", None)
         return describe() if callable(describe) else {}
-
-    # -- socket ----------------------------------------------------------------
-    def _accept(self) -> None:
-        assert self._server is not None
-        while not self._stopping.is_set():
-            try:
-                conn, _ = self._server.accept()
-            except OSError:
-                return
-            with self._lock:
-                full = self._clients >= MAX_CLIENTS
-                if not full:
-                    self._clients += 1
-            if full:
-                self._send(conn, {"ok": False, "error": f"too many clients (max {MAX_CLIENTS})"})
-                conn.close()
-                continue
-            threading.Thread(target=self._serve_client, args=(conn,), name="client", daemon=True).start()
-
-    @staticmethod
-    def _send(conn: socket.socket, obj: dict[str, Any]) -> None:
-        with contextlib.suppress(OSError, ValueError):
-            conn.sendall(json.dumps(obj, allow_nan=False, default=str).encode() + b"\n")
-
-    def _serve_client(self, conn: socket.socket) -> None:
-        try:
-            if peer_uid(conn) != os.getuid():
-                self._send(conn, {"ok": False, "error": "permission denied: not the owner"})
-                return
-            reader = conn.makefile("rb")
-            while not self._stopping.is_set():
-                line = reader.readline(MAX_LINE_BYTES + 1)
-                if not line:
-                    return
-                if len(line) > MAX_LINE_BYTES or not line.endswith(b"\n"):
-                    if len(line) <= MAX_LINE_BYTES:
-                        return  # disconnected mid-line
-                    self._send(
-                        conn,
-                        {
-                            "ok": False,
-                            "error": f"request longer than {MAX_LINE_BYTES} bytes; closing the connection",
-                        },
-                    )
-                    return
-                if not line.strip():
-                    continue
-                try:
-                    request = json.loads(line)
-                except (ValueError, RecursionError) as err:
-                    # not JSON, not UTF-8, an integer past Python's digit limit, or nested
-                    # deeper than the parser's recursion allows
-                    self._send(
-                        conn,
-                        {"ok": False, "error": f"malformed request: {type(err).__name__}: {str(err)[:200]}"},
-                    )
-                    continue
-                self._send(conn, self._safe_handle(request))
-        except OSError:
-            pass
-        finally:
-            conn.close()
-            with self._lock:
-                self._clients -= 1
-
-    def _safe_handle(self, request: Any) -> dict[str, Any]:
-        try:
-            reply = self.handle(request)
-            json.dumps(reply, allow_nan=False, default=str)
-            return reply
-        except (ValueError, TypeError, OverflowError, RecursionError) as err:
-            # a value no handler expected (NaN in a reply, an integer too large for a float)
-            return {"ok": False, "error": f"cannot answer: {type(err).__name__}: {str(err)[:200]}"}
 
 
 def _close(amplifiers: dict[str, Amplifier]) -> None:

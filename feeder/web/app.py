@@ -1,0 +1,233 @@
+"""The console's ASGI application (docs/console.md): ``GET /`` serves the page (static HTML
+and script, no data).  The JSON API mirrors the socket's commands and answers by calling the
+daemon's own request handler (:meth:`~feeder.daemon.service.Daemon.handle`), so the page, the
+CLI and scripts share one vocabulary:
+
+| route | request |
+|---|---|
+| ``GET /api/status`` | ``{"cmd": "status"}`` (shared by the requests within 40 ms) |
+| ``GET /api/history?limit=N`` | ``{"cmd": "history", "limit": N}`` |
+| ``POST /api/move`` | ``{"cmd": "move", ...body}`` (``target_m``, ``by_m``, or ``x_m``, ``y_m``,
+  ``angle_rad``, ``part``) |
+| ``POST /api/jog`` | ``{"axis", "steps"}``: a relative move by ``steps`` learned steps of one axis |
+| ``POST /api/stop`` | ``{"cmd": "stop"}`` |
+| ``POST /api/calibrate`` | ``{"cmd": "calibrate", ...body}`` |
+| ``WS /api/live`` | pushes the status (JSON text, ``time_s`` = wall clock of the snapshot) at
+  :data:`LIVE_PERIOD_S` and the newest camera frame (binary JPEG) when there is a camera |
+
+Who may call it: :mod:`feeder.web.security`.  Bad requests get ``{"ok": false, "error": ...}``
+with a 4xx code; a refusal by the daemon is 409.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import time
+from collections.abc import Awaitable, Callable
+from importlib import resources
+from typing import Any, Protocol
+
+from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException
+from starlette.middleware import Middleware
+from starlette.requests import Request
+from starlette.responses import JSONResponse, Response
+from starlette.routing import Route, WebSocketRoute
+from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
+
+from feeder.daemon.config import HttpConfig
+from feeder.web.camera import CameraFeed
+from feeder.web.requests import ApiError, checked, error_response, jog_request, json_body
+from feeder.web.security import ApiGuard, RateLimit, own_origins, websocket_admitted
+
+log = logging.getLogger(__name__)
+
+LIVE_PERIOD_S = 1 / 30
+"""Status pushes to each live client: 30 per second."""
+STATUS_MAX_AGE_S = 0.025
+"""A status snapshot is shared by the requests within this time of it."""
+STATIC = ("console.html", "console.js")
+"""The page's files, package data of :mod:`feeder.web.static`."""
+
+
+class Handler(Protocol):
+    """What the console needs of the daemon: its request handler."""
+
+    def handle(self, request: Any) -> dict[str, Any]: ...
+
+
+class LiveFeed:
+    """The newest status, shared by every live client and ``/api/status``: at most one
+    ``status`` request reaches the daemon per :data:`STATUS_MAX_AGE_S` however many pages
+    and scripts ask (a burst of requests costs the daemon one)."""
+
+    def __init__(self, daemon: Handler) -> None:
+        self.daemon = daemon
+        self._lock = asyncio.Lock()
+        self._status: dict[str, Any] = {}
+        self._message = ""
+        self._taken_s = -math.inf
+
+    async def _refresh(self) -> None:
+        async with self._lock:
+            if time.monotonic() - self._taken_s >= STATUS_MAX_AGE_S:
+                wall = time.time()
+                self._status = await run_in_threadpool(self.daemon.handle, {"cmd": "status"})
+                self._taken_s = time.monotonic()
+                self._message = json.dumps(
+                    {"type": "status", "time_s": wall, "status": self._status}, allow_nan=False, default=str
+                )
+
+    async def status(self) -> dict[str, Any]:
+        await self._refresh()
+        return self._status
+
+    async def message(self) -> str:
+        """The status as the live socket's text message (``time_s``: wall clock before it was taken)."""
+        await self._refresh()
+        return self._message
+
+
+def console_app(
+    daemon: Handler, token: str, settings: HttpConfig, port: int, camera: CameraFeed | None = None
+) -> Starlette:
+    """The console's ASGI application for a server bound at ``settings.host:port``."""
+    origins = own_origins(settings.host, port, settings.origins)
+    moves = RateLimit(settings.moves_per_s, settings.move_burst)
+    live = LiveFeed(daemon)
+    pages = {name: resources.files("feeder.web.static").joinpath(name).read_bytes() for name in STATIC}
+
+    async def ask(request: dict[str, Any]) -> dict[str, Any]:
+        return await run_in_threadpool(daemon.handle, request)
+
+    def reply(answer: dict[str, Any]) -> JSONResponse:
+        """200 for an answer (a move that ran, even when it did not end done), 409 for a refusal."""
+        refused = not answer.get("ok") and "result" not in answer
+        return JSONResponse(answer, status_code=409 if refused else 200)
+
+    def rate_limited() -> None:
+        wait_s = moves.take()
+        if wait_s > 0:
+            raise ApiError(
+                429, f"too many moves: at most {settings.moves_per_s:g}/s; retry in {wait_s:.2f} s"
+            )
+
+    def endpoint(
+        handler: Callable[[Request], Awaitable[Response]],
+    ) -> Callable[[Request], Awaitable[Response]]:
+        async def guarded(request: Request) -> Response:
+            try:
+                return await handler(request)
+            except ApiError as err:
+                headers = {"Retry-After": "1"} if err.status == 429 else None
+                return error_response(err.status, err.message, headers)
+
+        return guarded
+
+    async def page(request: Request) -> Response:
+        name = request.url.path.lstrip("/") or "console.html"
+        media = "text/html" if name.endswith(".html") else "text/javascript"
+        return Response(
+            pages[name],
+            media_type=media,
+            headers={
+                "Cache-Control": "no-store",
+                "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; "
+                "connect-src 'self'; style-src 'self' 'unsafe-inline'; frame-ancestors 'none'",
+                "X-Content-Type-Options": "nosniff",
+                "Referrer-Policy": "no-referrer",
+            },
+        )
+
+    async def status(request: Request) -> Response:
+        return reply(await live.status())
+
+    async def history(request: Request) -> Response:
+        text = request.query_params.get("limit", "100")
+        if not text.isdigit():
+            raise ApiError(400, f"limit must be a positive integer, got {text[:20]!r}")
+        return reply(await ask({"cmd": "history", "limit": int(text)}))
+
+    async def move(request: Request) -> Response:
+        body = checked("move", await json_body(request))
+        rate_limited()
+        return reply(await ask({**body, "cmd": "move"}))
+
+    async def calibrate(request: Request) -> Response:
+        body = checked("calibrate", await json_body(request))
+        rate_limited()
+        return reply(await ask({**body, "cmd": "calibrate"}))
+
+    async def stop(request: Request) -> Response:
+        checked("stop", await json_body(request))
+        return reply(await ask({"cmd": "stop"}))
+
+    async def jog(request: Request) -> Response:
+        body = checked("jog", await json_body(request))
+        if not isinstance(body.get("axis"), str) or "steps" not in body:
+            raise ApiError(400, "give axis ('x', 'y' or 'theta') and steps (signed integer)")
+        rate_limited()
+        current = await live.status()
+        request_ = jog_request(current, body["axis"], body["steps"], body.get("part", 1))
+        answer = await ask(request_)
+        return reply({**answer, "jog": {k: v for k, v in request_.items() if k != "cmd"}})
+
+    async def live_socket(ws: WebSocket) -> None:
+        if not await websocket_admitted(ws, token, origins):
+            return
+        closed = asyncio.Event()
+
+        async def drain() -> None:  # the client sends nothing more: notice when it leaves
+            with contextlib.suppress(WebSocketDisconnect, RuntimeError, OSError):
+                while (await ws.receive())["type"] != "websocket.disconnect":
+                    pass
+            closed.set()
+
+        reader = asyncio.create_task(drain())
+        sent_frame = 0
+        deadline = time.monotonic()
+        try:
+            while not closed.is_set() and ws.application_state == WebSocketState.CONNECTED:
+                deadline = max(deadline + LIVE_PERIOD_S, time.monotonic())  # a fixed rate, never a burst
+                await ws.send_text(await live.message())
+                if camera is not None and camera.jpeg is not None and camera.sequence != sent_frame:
+                    sent_frame = camera.sequence
+                    width, height = camera.size_px
+                    await ws.send_text(json.dumps({"type": "frame", "width_px": width, "height_px": height}))
+                    await ws.send_bytes(camera.jpeg)
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(closed.wait(), max(0.0, deadline - time.monotonic()))
+        except (WebSocketDisconnect, RuntimeError, OSError):
+            pass
+        finally:
+            reader.cancel()
+
+    async def not_found(request: Request, exc: Exception) -> Response:
+        assert isinstance(exc, HTTPException)
+        return error_response(exc.status_code, f"{request.method} {request.url.path}: {exc.detail}")
+
+    async def internal(request: Request, exc: Exception) -> Response:
+        log.error("console: %s %s failed: %r", request.method, request.url.path, exc)
+        return error_response(500, f"internal error ({type(exc).__name__}); see the daemon's log")
+
+    routes = [
+        Route("/", page),
+        Route("/console.js", page),
+        Route("/api/status", endpoint(status)),
+        Route("/api/history", endpoint(history)),
+        Route("/api/move", endpoint(move), methods=["POST"]),
+        Route("/api/jog", endpoint(jog), methods=["POST"]),
+        Route("/api/stop", endpoint(stop), methods=["POST"]),
+        Route("/api/calibrate", endpoint(calibrate), methods=["POST"]),
+        WebSocketRoute("/api/live", live_socket),
+    ]
+    return Starlette(
+        routes=routes,
+        middleware=[Middleware(ApiGuard, token=token, origins=origins)],
+        exception_handlers={HTTPException: not_found, Exception: internal},
+    )

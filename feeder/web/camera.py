@@ -1,0 +1,99 @@
+"""The live view's camera: the newest image, scaled down and JPEG-encoded on its own thread."""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from feeder.errors import InputError
+
+log = logging.getLogger(__name__)
+
+CAMERA_PERIOD_S = 1 / 60
+"""The live view asks the camera for a new frame this often; it encodes each new frame once
+(at most the camera's rate: 15 frames/s from the simulator)."""
+CAMERA_MAX_SIDE_PX = 640
+JPEG_QUALITY = 80
+
+ImageSource = Callable[[], Any]
+"""Returns the newest camera image (numpy, grey or BGR) or None; may block up to ~1 s."""
+
+
+class CameraFeed:
+    """Reads the newest camera image on its own thread and keeps it JPEG-encoded."""
+
+    def __init__(self, source: ImageSource, close_source: Callable[[], None] = lambda: None) -> None:
+        import cv2  # OpenCV (the optional vision extra): only with a camera
+
+        self._cv2 = cv2
+        self.source = source
+        self._close_source = close_source
+        self.jpeg: bytes | None = None
+        self.size_px = (0, 0)
+        """(width, height) of the camera's image before it was scaled down for the page."""
+        self.sequence = 0
+        self._closed = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="console-camera", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        cv2 = self._cv2
+        began = -math.inf
+        last: Any = None
+        while not self._closed.wait(max(0.0, began + CAMERA_PERIOD_S - time.monotonic())):
+            began = time.monotonic()
+            try:
+                image = self.source()
+            except (OSError, RuntimeError) as err:  # CameraLost (a SensorLost), a closed link
+                log.debug("console camera: %s", err)
+                continue
+            if image is None or image is last:  # no new frame since the last one sent
+                continue
+            last = image
+            size_px = (int(image.shape[1]), int(image.shape[0]))
+            scale = CAMERA_MAX_SIDE_PX / max(image.shape[:2])
+            if scale < 1:
+                image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+            if image.dtype != "uint8":
+                image = cv2.convertScaleAbs(image, alpha=255.0 / max(1, int(image.max())))
+            ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+            if ok:
+                self.jpeg, self.size_px = data.tobytes(), size_px
+                self.sequence += 1
+
+    def close(self) -> None:
+        self._closed.set()
+        self._thread.join(timeout=2.0)
+        self._close_source()
+
+
+def camera_feed(spec: str | None, daemon: Any) -> CameraFeed | None:
+    """The live view's camera: ``spec`` (an :func:`~feeder.drivers.video_camera.open_camera`
+    spec: a URL, device index, folder), else the daemon's ``latest_image()`` where it has one
+    (a camera pose sensor), else none: the page draws the plate from the poses alone."""
+    try:
+        if spec is not None:
+            from feeder.drivers.video_camera import CameraError, open_camera
+
+            try:
+                frames = open_camera(spec)
+            except CameraError as err:
+                raise InputError("http.camera", str(err)) from None
+            return CameraFeed(lambda: frames.read(1.0).image, frames.close)
+        latest = getattr(daemon, "latest_image", None)
+        if callable(latest):
+            return CameraFeed(lambda: _image(latest()))
+    except ImportError as err:
+        raise InputError(
+            "http.camera", f"the live camera needs OpenCV ({err}): pip install feeder[vision]"
+        ) from None
+    return None
+
+
+def _image(latest: Any) -> Any:
+    """The image of what ``latest_image()`` returned: an image, (image, detections), or None."""
+    return latest[0] if isinstance(latest, tuple) else latest

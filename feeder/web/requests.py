@@ -1,0 +1,107 @@
+"""What the console's API accepts: JSON bodies with their field types checked, a jog turned
+into a move; a refusal is ``{"ok": false, "error": ...}`` with a 4xx code."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+from starlette.requests import Request
+from starlette.responses import JSONResponse
+
+from feeder.daemon.client import MAX_LINE_BYTES
+from feeder.errors import FeederError
+
+MAX_JOG_STEPS = 10_000
+
+
+class ApiError(FeederError):
+    """A request refused with an HTTP status and a one-line reason."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
+        self.message = message
+
+
+def error_response(status: int, message: str, headers: dict[str, str] | None = None) -> JSONResponse:
+    return JSONResponse({"ok": False, "error": message}, status_code=status, headers=headers)
+
+
+async def json_body(request: Request) -> dict[str, Any]:
+    """The body as a JSON object (empty body: ``{}``); 413/400 otherwise."""
+    raw = bytearray()
+    async for chunk in request.stream():
+        raw += chunk
+        if len(raw) > MAX_LINE_BYTES:
+            raise ApiError(413, f"request body longer than {MAX_LINE_BYTES} bytes")
+    if not raw.strip():
+        return {}
+    try:
+        body = json.loads(bytes(raw))
+    except (ValueError, RecursionError) as err:
+        raise ApiError(400, f"malformed JSON: {type(err).__name__}: {str(err)[:200]}") from None
+    if not isinstance(body, dict):
+        raise ApiError(400, f"the body must be a JSON object, got {type(body).__name__}")
+    return body
+
+
+NUMBERS = frozenset({"target_m", "by_m", "x_m", "y_m", "angle_rad"})
+FLAGS = frozenset({"queue", "wait", "trace"})
+FIELDS = {
+    "move": NUMBERS | FLAGS | {"part"},
+    "calibrate": FLAGS | {"steps"},
+    "stop": frozenset(),
+    "jog": frozenset({"axis", "steps", "part"}),
+}
+
+
+def checked(cmd: str, body: dict[str, Any]) -> dict[str, Any]:
+    """``body`` with its field types checked (the daemon checks ranges and combinations)."""
+    for key, value in body.items():
+        if key not in FIELDS[cmd]:
+            known = ", ".join(sorted(FIELDS[cmd])) or "none"
+            raise ApiError(400, f"unknown field {key!r} for {cmd}; known: {known}")
+        if key in NUMBERS and (
+            isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
+        ):
+            raise ApiError(400, f"{key} must be a finite number, got {json.dumps(value)[:40]}")
+        if key in FLAGS and not isinstance(value, bool):
+            raise ApiError(400, f"{key} must be true or false")
+        if key in ("part", "steps") and (isinstance(value, bool) or not isinstance(value, int)):
+            raise ApiError(400, f"{key} must be an integer")
+    return body
+
+
+def jog_request(status: dict[str, Any], axis: str, steps: int, part: int) -> dict[str, Any]:
+    """The move request for ``steps`` learned steps (sign = direction) of ``axis``.
+
+    On a plane (more than one axis in the status' ``axes``): the part's pose plus ``steps`` ×
+    the axis' learned step (``axes[axis]["step_m"]``, ``["step_rad"]`` for theta); on one axis:
+    ``by_m``, with the coarse step learned in that direction.
+    """
+    if not 0 < abs(steps) <= MAX_JOG_STEPS:
+        raise ApiError(400, f"steps must be a non-zero integer within ±{MAX_JOG_STEPS}, got {steps}")
+    parts = [p for p in status.get("parts") or () if p.get("pose") is not None]
+    if len(status.get("axes") or ()) <= 1:  # one axis: today's feeder
+        if axis != "x":
+            raise ApiError(409, f"this daemon drives one axis (x); there is no {axis!r} to jog")
+        name = "coarse/forward" if steps > 0 else "coarse/backward"
+        step = status.get("estimates", {}).get(name, {}).get("step_m")
+        if not isinstance(step, (int, float)):
+            raise ApiError(409, "no learned step to jog with")
+        return {"cmd": "move", "by_m": steps * step, "wait": False}
+    axes = status.get("axes") or {}
+    if axis not in axes:
+        raise ApiError(400, f"axis must be one of {', '.join(axes)}, got {axis!r}")
+    pose = next((p["pose"] for p in parts if p.get("id") == part), None)
+    if pose is None:
+        raise ApiError(400, f"no part {part}; parts: {', '.join(str(p.get('id')) for p in parts)}")
+    key, index, field = {"x": ("step_m", 0, "x_m"), "y": ("step_m", 1, "y_m")}.get(
+        axis, ("step_rad", 2, "angle_rad")
+    )
+    step = axes[axis].get(key) if isinstance(axes[axis], dict) else None
+    if not isinstance(step, (int, float)):
+        raise ApiError(409, f"no learned step of axis {axis} to jog with")
+    return {"cmd": "move", "part": part, field: pose[index] + steps * step, "wait": False}
