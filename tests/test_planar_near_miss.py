@@ -23,6 +23,10 @@ from feeder.waveform import Waveform
 
 SHAPE = Part.parse("300x300x50")
 
+COMPILED_ONLY = "the compiled planar solver is off (numba missing or FEEDER_NUMBA=0)"
+"""These runs check the compiled solver's step control; the scipy path's own (2.5e-11 m at
+rtol 1e-6 against 1e-10 for the near miss) is looser than this test's 1e-11 m."""
+
 
 def _run(rtol: float, seconds: float = 0.012) -> tuple[tuple[float, float, float], float]:
     """The paper's waveform on x, y and θ, one part 2 mm from O, 1 ms chunks: (pose, slip time)."""
@@ -36,7 +40,7 @@ def _run(rtol: float, seconds: float = 0.012) -> tuple[tuple[float, float, float
     return plant.poses()[0], plant.contact.slip_time_s[0]
 
 
-@pytest.mark.skipif(not kernels.AVAILABLE, reason="numba (extra 'fast') not installed")
+@pytest.mark.skipif(not kernels.enabled(), reason=COMPILED_ONLY)
 def test_near_miss_does_not_depend_on_the_tolerance() -> None:
     """The second period's slip passes near zero twist and turns: one pose at rtol 1e-6 and 1e-10."""
     (x0, y0, psi0), slip0 = _run(1e-10)
@@ -77,7 +81,7 @@ def _three_axes(rtol: float, seconds: float = 0.13) -> tuple[tuple[float, float,
     return plant.poses()[0], steps
 
 
-@pytest.mark.skipif(not kernels.AVAILABLE, reason="numba (extra 'fast') not installed")
+@pytest.mark.skipif(not kernels.enabled(), reason=COMPILED_ONLY)
 def test_a_twist_below_the_steps_error_has_vanished() -> None:
     """From ~0.106 s the twist shrinks to ~1e-8 m/s (a few error scales at rtol 1e-6) and spins;
     integrated on in time, the steps sat at their stability limit, ~15000 per 1 ms tick (~300 now),
