@@ -19,6 +19,7 @@ whose prior correlates neighbouring bins (so one burst at 1.6 mm also informs
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -67,6 +68,13 @@ class AxisMode:
         return sawtooth(s, self.frequency_hz, self.flyback_s, self.flyback_shape, steps)
 
 
+def _bracket(grid: Sequence[float], r: float) -> tuple[int, float]:
+    """The cell ``i`` of a sorted grid (≥ 2 points) that holds ``r`` (the first or last cell
+    beyond the ends) and ``r``'s place in it, 0–1, clipped."""
+    i = min(max(bisect.bisect_left(grid, r) - 1, 0), len(grid) - 2)
+    return i, min(max((r - grid[i]) / (grid[i + 1] - grid[i]), 0.0), 1.0)
+
+
 @dataclass(frozen=True)
 class TurnTable:
     """θ seed per step on a grid: radii (n,) m from O, betas (k,) rad over one symmetry period.
@@ -84,9 +92,7 @@ class TurnTable:
 
     def at(self, r_m: float, beta_rad: float) -> tuple[float, float, float]:
         """(orbit, radial, turn) per +θ step, bilinear in r and periodic in β; 0 beyond the grid's ends."""
-        radii = np.asarray(self.radii_m)
-        i = int(np.clip(np.searchsorted(radii, r_m) - 1, 0, len(radii) - 2))
-        u = float(np.clip((r_m - radii[i]) / (radii[i + 1] - radii[i]), 0.0, 1.0))
+        i, u = _bracket(self.radii_m, r_m)
         k = len(self.betas_rad)
         if k == 1:
             j0 = j1 = 0
@@ -98,8 +104,10 @@ class TurnTable:
             v = pos - int(pos)
 
         def bilinear(table: np.ndarray) -> float:
-            row = (1 - u) * table[i] + u * table[i + 1]
-            return float((1 - v) * row[j0] + v * row[j1])
+            near, far = table[i], table[i + 1]  # as (1 − u)·near + u·far, then (1 − v)·[j0] + v·[j1]
+            first = (1 - u) * near[j0] + u * far[j0]
+            second = (1 - u) * near[j1] + u * far[j1]
+            return float((1 - v) * first + v * second)
 
         return bilinear(self.orbit_rad), bilinear(self.radial_m), bilinear(self.turn_rad)
 
@@ -145,26 +153,31 @@ class GainFilter:
 
     def __init__(self, centres_m: Sequence[float]) -> None:
         self.centres_m = np.asarray(centres_m, dtype=float)
+        self._centres = tuple(float(c) for c in self.centres_m)
         self.gain = np.ones(len(self.centres_m))
         gap = np.abs(self.centres_m[:, None] - self.centres_m[None, :])
         self.covariance = SEED_STD**2 * np.exp(-gap / BIN_CORRELATION_M)
         self.updates = 0
 
     def weights(self, r_m: float) -> np.ndarray:
-        c = self.centres_m
-        w = np.zeros(len(c))
-        if len(c) == 1:
+        w = np.zeros(len(self.centres_m))
+        if len(w) == 1:
             w[0] = 1.0
             return w
-        i = int(np.clip(np.searchsorted(c, r_m) - 1, 0, len(c) - 2))
-        u = float(np.clip((r_m - c[i]) / (c[i + 1] - c[i]), 0.0, 1.0))
+        i, u = _bracket(self._centres, r_m)
         w[i], w[i + 1] = 1 - u, u
         return w
 
     def at(self, r_m: float = 0.0) -> tuple[float, float]:
-        """(gain, its std) at radius r."""
-        w = self.weights(r_m)
-        return float(w @ self.gain), math.sqrt(max(float(w @ self.covariance @ w), 0.0))
+        """(gain, its std) at radius r: :meth:`weights` has two non-zeros, so in scalars (the
+        pose planner asks ~150 times per burst it plans)."""
+        g, c = self.gain, self.covariance
+        if len(g) == 1:
+            return float(g[0]), math.sqrt(max(float(c[0, 0]), 0.0))
+        i, u = _bracket(self._centres, r_m)
+        t = 1 - u
+        variance = t * t * c[i, i] + t * u * (c[i, i + 1] + c[i + 1, i]) + u * u * c[i + 1, i + 1]
+        return float(t * g[i] + u * g[i + 1]), math.sqrt(max(float(variance), 0.0))
 
     def update(self, r_m: float, predicted: float, measured: float, noise_var: float) -> None:
         h = self.weights(r_m) * predicted

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import random
 
+import numpy as np
 import pytest
 
 from feeder.parts import Part
@@ -13,7 +14,7 @@ from feeder.plant.plate_motion import Segment
 from feeder.plant.stick_slip import Friction
 from feeder.pose import pose_error
 from feeder.pose_planner import AxisBurst, Finish, PosePlanner, Travel
-from feeder.pose_response import AxisMode, ResponseModel, seed_response
+from feeder.pose_response import AxisMode, GainFilter, ResponseModel, TurnTable, seed_response
 
 F_HZ, FLYBACK_S = 100.0, 3.5e-4
 MODES = (
@@ -188,3 +189,34 @@ def test_learned_gains_survive_a_restart_and_mismatched_ones_are_left_at_the_see
     assert fresh.restore(saved) == len(seeds) * 2 - 1
     assert fresh.step_m("x", 1, "coarse") == pytest.approx(learned)
     assert fresh.step_m("y", 1, "coarse")[0] == pytest.approx(2e-6)  # left at the seed
+
+
+def test_gain_filter_at_is_the_weighted_gain_and_its_std() -> None:
+    """``at`` (scalars, two bins) equals the full weights' ``w·g`` and ``sqrt(wᵀ C w)``, inside the
+    bins, on them and beyond their ends, after updates that correlate the bins."""
+    gains = GainFilter([0.0, 0.7e-3, 1.5e-3, 3e-3])
+    for r, predicted, measured in ((0.2e-3, 1e-3, 1.3e-3), (2.1e-3, 2e-3, 1.5e-3), (3.5e-3, 1e-3, 0.9e-3)):
+        gains.update(r, predicted, measured, 1e-8)
+    for r in np.linspace(-1e-3, 4e-3, 51):
+        w = gains.weights(float(r))
+        gain, std = gains.at(float(r))
+        assert gain == pytest.approx(float(w @ gains.gain), rel=1e-13)
+        assert std == pytest.approx(math.sqrt(float(w @ gains.covariance @ w)), rel=1e-12)
+    single = GainFilter([0.0])
+    single.update(0.0, 1e-3, 1.2e-3, 1e-8)
+    assert single.at(5e-3) == pytest.approx((float(single.gain[0]), math.sqrt(single.covariance[0, 0])))
+
+
+def test_turn_table_is_bilinear_in_radius_and_periodic_in_orientation() -> None:
+    rng = np.random.default_rng(7)
+    radii, betas, period = (0.0, 1e-3, 2.5e-3), (0.0, math.pi / 4, math.pi / 2, 3 * math.pi / 4), math.pi
+    orbit, radial, turn = (rng.normal(size=(3, 4)) for _ in range(3))
+    table = TurnTable(radii, betas, orbit, radial, turn, period)
+    assert table.at(1e-3, math.pi / 2) == pytest.approx((orbit[1, 2], radial[1, 2], turn[1, 2]), rel=1e-14)
+    middle = table.at(1.75e-3, 5 * math.pi / 8)  # the middle of the cell r 1–2.5 mm, β 90–135°
+    assert middle[2] == pytest.approx(turn[1:3, 2:4].mean(), rel=1e-13)
+    wrapped = table.at(0.5e-3, 7 * math.pi / 8)  # between β = 135° and β = 180° ≡ 0°
+    corners = orbit[0, 3] + orbit[0, 0] + orbit[1, 3] + orbit[1, 0]
+    assert wrapped[0] == pytest.approx(0.25 * corners, rel=1e-13)
+    assert table.at(1.2e-3, 0.3 + period) == pytest.approx(table.at(1.2e-3, 0.3), rel=1e-13)
+    assert table.at(9e-3, 0.0) == pytest.approx((orbit[2, 0], radial[2, 0], turn[2, 0]), rel=1e-14)
