@@ -91,7 +91,8 @@ class TurnTable:
     period_rad: float
 
     def at(self, r_m: float, beta_rad: float) -> tuple[float, float, float]:
-        """(orbit, radial, turn) per +θ step, bilinear in r and periodic in β; 0 beyond the grid's ends."""
+        """(orbit, radial, turn) per +θ step, bilinear in r and periodic in β; beyond the grid's
+        ends, the end radius' values."""
         i, u = _bracket(self.radii_m, r_m)
         k = len(self.betas_rad)
         if k == 1:
@@ -152,10 +153,10 @@ class GainFilter:
     """
 
     def __init__(self, centres_m: Sequence[float]) -> None:
-        self.centres_m = np.asarray(centres_m, dtype=float)
-        self._centres = tuple(float(c) for c in self.centres_m)
-        self.gain = np.ones(len(self.centres_m))
-        gap = np.abs(self.centres_m[:, None] - self.centres_m[None, :])
+        self.centres_m = tuple(float(c) for c in centres_m)
+        centres = np.array(self.centres_m)
+        self.gain = np.ones(centres.size)
+        gap = np.abs(centres[:, None] - centres[None, :])
         self.covariance = SEED_STD**2 * np.exp(-gap / BIN_CORRELATION_M)
         self.updates = 0
 
@@ -164,7 +165,7 @@ class GainFilter:
         if len(w) == 1:
             w[0] = 1.0
             return w
-        i, u = _bracket(self._centres, r_m)
+        i, u = _bracket(self.centres_m, r_m)
         w[i], w[i + 1] = 1 - u, u
         return w
 
@@ -174,7 +175,7 @@ class GainFilter:
         g, c = self.gain, self.covariance
         if len(g) == 1:
             return float(g[0]), math.sqrt(max(float(c[0, 0]), 0.0))
-        i, u = _bracket(self._centres, r_m)
+        i, u = _bracket(self.centres_m, r_m)
         t = 1 - u
         variance = t * t * c[i, i] + t * u * (c[i, i + 1] + c[i + 1, i]) + u * u * c[i + 1, i + 1]
         return float(t * g[i] + u * g[i + 1]), math.sqrt(max(float(variance), 0.0))
@@ -336,7 +337,7 @@ class ResponseModel:
         taken = 0
         for key, f in self._gains.items():
             saved = estimates.get(key)
-            if not isinstance(saved, dict) or saved.get("radii_m") != f.centres_m.tolist():
+            if not isinstance(saved, dict) or saved.get("radii_m") != list(f.centres_m):
                 continue
             gain, std = np.asarray(saved["gain"], dtype=float), np.asarray(saved["gain_std"], dtype=float)
             if gain.shape != f.gain.shape or std.shape != f.gain.shape or not np.all(np.isfinite(gain)):
@@ -352,7 +353,7 @@ class ResponseModel:
         out: dict[str, object] = {}
         for key, f in self._gains.items():
             out[key] = {
-                "radii_m": f.centres_m.tolist(),
+                "radii_m": list(f.centres_m),
                 "gain": f.gain.tolist(),
                 "gain_std": np.sqrt(np.clip(np.diag(f.covariance), 0, None)).tolist(),
                 "bursts": f.updates,
