@@ -13,6 +13,7 @@ from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
 from feeder.daemon.control_loop import (
     COARSE,
     FINE,
+    Burst,
     ControlLoop,
     Job,
     JobResult,
@@ -21,6 +22,8 @@ from feeder.daemon.control_loop import (
     TickLateness,
     percentile_of_sorted,
 )
+from feeder.daemon.jobs import Reading
+from feeder.daemon.line_navigator import LineNavigator
 from feeder.daemon.service import calibration_bursts
 from feeder.drivers.amplifier import DriveSettings
 
@@ -182,7 +185,10 @@ def test_sensor_lost_stops_and_reports(world: FakeWorld) -> None:
     try:
         job = Job("move", target_m=900e-6)
         assert loop.submit(job) is None
-        time.sleep(0.1)
+        deadline = time.monotonic() + 10
+        while "step" not in amp.calls:  # a burst is playing
+            assert time.monotonic() < deadline, amp.calls
+            time.sleep(0.01)
         sensor.lost = True
         assert job.done.wait(10)
         refused = loop.submit(Job("move", target_m=0.0))
@@ -323,3 +329,50 @@ def test_tick_lateness_keeps_the_last_ticks_in_order_and_its_percentiles_match_n
     values = np.sort(np.random.default_rng(3).exponential(1e-4, 1001))
     for q in (0, 50, 99, 99.9, 100):
         assert percentile_of_sorted(values, q) == pytest.approx(np.percentile(values, q), rel=1e-12)
+
+
+class SlowNavigator(LineNavigator):
+    """The line navigator, computing for ``decision_s`` of interpreter time before each answer
+    (as the pose planner weighs its candidates), or failing when ``fail`` is set."""
+
+    def __init__(self, decision_s: float, fail: bool = False) -> None:
+        super().__init__(MODES, SETTINGS)
+        self.decision_s = decision_s
+        self.fail = fail
+        self.decisions = 0
+
+    def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
+        self.decisions += 1
+        end = time.perf_counter() + self.decision_s
+        while time.perf_counter() < end:  # holds the interpreter, as planning does
+            pass
+        if self.fail:
+            raise RuntimeError("boom")
+        return super().next_burst(job, reading)
+
+
+def test_slow_decisions_run_off_the_tick_and_the_tick_keeps_its_rate(world: FakeWorld) -> None:
+    navigator = SlowNavigator(0.06)  # six periods per decision
+    loop, _, _ = make_loop(world, navigator=navigator)
+    try:
+        result = run_job(loop, Job("move", target_m=80e-6))
+    finally:
+        loop.shutdown()
+    timing = loop.timing()
+    assert result.status == "done", result.reason
+    assert navigator.decisions >= 3 and timing["decision_max_s"] >= 0.06
+    # on the tick each decision would overrun ~6 deadlines; off it the ticks go on
+    assert timing["overruns"] < navigator.decisions, timing
+
+
+def test_a_navigator_that_fails_ends_the_job_with_why_and_the_loop_goes_on(world: FakeWorld) -> None:
+    navigator = SlowNavigator(0.0, fail=True)
+    loop, _, _ = make_loop(world, navigator=navigator)
+    try:
+        failed = run_job(loop, Job("move", target_m=50e-6))
+        navigator.fail = False
+        ok = run_job(loop, Job("move", target_m=50e-6))
+    finally:
+        loop.shutdown()
+    assert failed.status == "fault" and failed.reason == "the navigator failed: RuntimeError: boom"
+    assert failed.steps == 0 and ok.status == "done", ok.reason

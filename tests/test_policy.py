@@ -10,8 +10,10 @@ import pytest
 from feeder.daemon.policy import (
     COARSE,
     FINE,
+    Burst,
     Command,
     Completion,
+    Decide,
     Fault,
     Finished,
     Job,
@@ -49,6 +51,8 @@ class Rig:
     now: float = 0.0
     position_m: float = 0.0
     outputs: list[Output] = field(default_factory=list)
+    answer: bool = True  # answer each Decide at once (the loop's worker); else keep it in asked
+    asked: list[Decide] = field(default_factory=list)
 
     def tick(self, sample: bool = True) -> list[Output]:
         self.now += DT
@@ -58,6 +62,10 @@ class Rig:
         for o in out:
             if isinstance(o, Started):
                 o.job.recorded = True
+            elif isinstance(o, Decide) and self.answer:  # the loop's worker: answered by the next tick
+                self.policy.on_decision(self.policy.decide(o))
+            elif isinstance(o, Decide):
+                self.asked.append(o)
         self.outputs += out
         return out
 
@@ -127,6 +135,59 @@ def test_a_move_goes_idle_moving_settling_and_back_to_idle_done() -> None:
     assert result.status == "done" and abs(result.error_m or 1) <= 1e-6
     assert rig.policy.state == "idle" and job.result is None  # the loop sets it, not the policy
     assert any(isinstance(o, SavePosition) for o in rig.outputs)
+
+
+def to_first_decision(rig: Rig, target_m: float) -> Job:
+    """idle → enabled → settled: the policy asks the navigator (the rig does not answer)."""
+    rig.answer = False
+    job = start_move(rig, target_m)
+    rig.complete(rig.run_until_command("enable"))
+    while not rig.asked:
+        rig.tick()
+        assert rig.now < 5, rig.outputs
+    return job
+
+
+def test_the_navigator_decides_off_the_tick_and_the_tick_waits_for_its_answer() -> None:
+    rig = Rig(position_m=5e-6)
+    job = to_first_decision(rig, 60e-6)
+    request = rig.asked[0]
+    assert request.job is job and request.reading == ((5e-6, 0.0, 0.0),) and not request.refined
+    for _ in range(30):  # while the answer is out: no second request, no command
+        rig.tick()
+    assert rig.asked == [request] and [c.kind for c in rig.commands()] == ["enable"]
+    assert rig.policy.state == "settling"
+    decision = rig.policy.decide(request)
+    assert decision.request is request
+    assert decision.answer == rig.policy.navigator.next_burst(job, request.reading)
+    rig.policy.on_decision(decision)
+    rig.tick()
+    assert [c.kind for c in rig.commands()] == ["enable", "apply"]  # acted on at the next tick
+
+
+def test_an_answer_that_arrives_after_a_stop_or_for_an_earlier_job_is_dropped() -> None:
+    rig = Rig()
+    first = to_first_decision(rig, 60e-6)
+    rig.policy.request_stop("operator")
+    for _ in range(6):
+        rig.tick()
+    assert rig.finished().job is first and rig.finished().result.status == "stopped"
+    late = rig.policy.decide(rig.asked[0])  # the worker was still deciding
+    assert isinstance(late.answer, Burst)  # a burst the stopped job must not play
+    rig.policy.on_decision(late)
+    rig.tick()
+    assert [c.kind for c in rig.commands()] == ["enable"] and rig.policy.state == "idle"
+    second = start_move(rig, -60e-6)
+    while len(rig.asked) < 2:
+        rig.tick()
+        assert rig.now < 5, rig.outputs
+    rig.policy.on_decision(late)  # the first job's answer, once more: not this job's
+    for _ in range(5):
+        rig.tick()
+    assert [c.kind for c in rig.commands()] == ["enable"]
+    rig.policy.on_decision(rig.policy.decide(rig.asked[1]))
+    rig.tick()
+    assert rig.commands()[-1] == Command("apply", mode=COARSE) and rig.policy.job is second
 
 
 def test_target_outside_travel_is_refused_and_nothing_is_commanded() -> None:
@@ -290,6 +351,8 @@ def test_a_sensor_later_than_the_settle_time_is_waited_for_by_its_latency_as_see
             outputs.append(out)
             if isinstance(out, Started):
                 out.job.recorded = True
+            if isinstance(out, Decide):
+                policy.on_decision(policy.decide(out))
             if isinstance(out, Command):
                 if out.kind == "step":
                     burst = (now, out.steps, truth[-1][1], policy.applied("x") or COARSE)  # signed

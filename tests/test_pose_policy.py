@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from feeder.daemon.jobs import Command, Completion, Finished, Job, LoopSettings, Started, StepMode
+from feeder.daemon.jobs import Command, Completion, Decide, Finished, Job, LoopSettings, Started, StepMode
 from feeder.daemon.policy import COARSE, FINE, Policy
 from feeder.daemon.pose_navigator import PoseNavigator
 from feeder.drivers.amplifier import DriveSettings
@@ -102,6 +102,8 @@ class Plane:
             for out in self.policy.tick(self.now):
                 if isinstance(out, Started):
                     out.job.recorded = True
+                elif isinstance(out, Decide):  # the loop's worker: answered by the next tick
+                    self.policy.on_decision(self.policy.decide(out))
                 elif isinstance(out, Command):
                     self.commands.append(out)
                     self.play(out)
@@ -143,6 +145,40 @@ def test_a_partial_target_keeps_the_rest_of_the_pose_and_a_second_part_is_refuse
     assert plane.policy.submit(Job("move", pose_target={"x_m": 0.0}, part=3), plane.now) == (
         "part 3 is not on the plate (the camera sees 2 part(s))"
     )
+
+
+def test_a_part_is_held_only_when_its_done_is_acted_on() -> None:
+    """A "done" answered after a stop (the planner works off the tick) holds nothing."""
+    plane = Plane()
+    here = plane.poses[0]
+    job = Job("move", pose_target={"x_m": here[0], "y_m": here[1], "angle_rad": here[2]})
+    plane.sample()
+    assert plane.policy.submit(job, plane.now) is None
+    asked: list[Decide] = []
+    while not asked:
+        plane.now += DT
+        plane.sample()
+        for out in plane.policy.tick(plane.now):
+            if isinstance(out, Started):
+                out.job.recorded = True
+            elif isinstance(out, Command):
+                plane.play(out)
+            elif isinstance(out, Decide):
+                asked.append(out)
+        assert plane.now < 5
+    plane.policy.request_stop("operator")
+    decision = plane.policy.decide(asked[0])
+    assert decision.answer == ("done", "every part within tolerance")
+    plane.policy.on_decision(decision)
+    for _ in range(10):
+        plane.now += DT
+        plane.sample()
+        plane.policy.tick(plane.now)
+    assert plane.policy.last_result is not None and plane.policy.last_result.status == "stopped"
+    navigator = plane.policy.navigator
+    assert isinstance(navigator, PoseNavigator) and navigator.held == {}
+    assert plane.run(Job("move", pose_target={"angle_rad": here[2]})).result.status == "done"
+    assert navigator.held == {1: here}
 
 
 def test_targets_outside_the_travel_and_parts_leaving_it() -> None:

@@ -239,6 +239,11 @@ def run_status(args: argparse.Namespace) -> int:
             f"{t['jitter_max_s'] * 1e3:.3f} ms"
             + (" (real-time priority)" if t.get("scheduling") == "fifo" else "")
         )
+        if t.get("decision_max_s"):
+            print(
+                f"navigator (off the tick): last decision {t['decision_last_s'] * 1e3:.1f} ms, "
+                f"longest {t['decision_max_s'] * 1e3:.1f} ms"
+            )
     if reply.get("interrupted_moves"):
         print(f"interrupted moves (daemon was killed): {reply['interrupted_moves']}")
     return 0

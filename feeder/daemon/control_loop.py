@@ -1,12 +1,14 @@
 """The closed loop's fixed-rate tick: sensor in, policy, commands out (DESIGN §7).
 
-Each tick (default 100 Hz) takes the sensor samples and the executor's
-completions that arrived since the last one, feeds them to the
-:class:`~feeder.daemon.policy.Policy`, and hands its commands to the
-:class:`~feeder.daemon.executor.AmplifierExecutor` and its events to the
+Each tick (default 100 Hz) takes the sensor samples, the executor's
+completions and the navigator's decisions that arrived since the last one,
+feeds them to the :class:`~feeder.daemon.policy.Policy`, and hands its
+commands to the :class:`~feeder.daemon.executor.AmplifierExecutor`, its
+requests for a decision to the
+:class:`~feeder.daemon.decision_worker.DecisionWorker` and its events to the
 :class:`~feeder.daemon.executor.RecordWriter`.  Nothing on the tick's thread
-waits for the amplifier, the sensor or the database: the tick only moves data
-between queues, so its jitter is the scheduler's.  Tick jitter (wake-up time
+waits for the amplifier, the sensor, the planner or the database: the tick only
+moves data between queues, so its jitter is the scheduler's.  Tick jitter (wake-up time
 − deadline) and overruns (work that ran past the next deadline) are counted.
 
 The decisions (what to step, when a move is over) are the policy's, and are
@@ -28,12 +30,14 @@ from typing import Any
 
 import numpy as np
 
+from feeder.daemon.decision_worker import DecisionWorker
 from feeder.daemon.executor import AmplifierExecutor, RecordWriter
 from feeder.daemon.policy import (
     COARSE,
     FINE,
     Burst,
     Command,
+    Decide,
     Fault,
     Finished,
     Job,
@@ -196,6 +200,7 @@ class ControlLoop:
         self._sensor_timeout_s = sensor_timeout_s
         self.policy = Policy(modes, settings, estimates, axis_modes=axis_modes, navigator=navigator)
         self.executor = AmplifierExecutor(amplifier, self.policy.modes, clock)
+        self.decisions = DecisionWorker(self.policy.decide)
         self.writer = RecordWriter(on_unwritable=self._store_unwritable, on_writable=self._store_writable)
         self._feed = SensorFeed(sensor, sensor_timeout_s, clock)
         self.on_position = on_position
@@ -291,6 +296,7 @@ class ControlLoop:
                 ]
             )
         self.executor.close()
+        self.decisions.close()
         self._feed.close()
         self.writer.close()
 
@@ -347,26 +353,24 @@ class ControlLoop:
             return self.policy.estimates_json()
 
     def timing(self) -> dict[str, float | int | str]:
-        """Tick jitter p50/p99/max (s), ticks and overruns, the tick's scheduling policy."""
+        """Tick jitter p50/p99/max (s), ticks and overruns, the tick's scheduling policy; the
+        navigator's last and longest decision (s, off the tick)."""
         jitter = np.sort(self.lateness.last(JITTER_WINDOW))
-        if jitter.size == 0:
-            return {
-                "rate_hz": self.settings.rate_hz,
-                "scheduling": self.scheduling,
-                "ticks": 0,
-                "overruns": 0,
-                "jitter_p50_s": 0.0,
-                "jitter_p99_s": 0.0,
-                "jitter_max_s": 0.0,
+        figures = {"ticks": 0, "overruns": 0, "jitter_p50_s": 0.0, "jitter_p99_s": 0.0, "jitter_max_s": 0.0}
+        if jitter.size:
+            figures = {
+                "ticks": self.ticks,
+                "overruns": self.overruns,
+                "jitter_p50_s": percentile_of_sorted(jitter, 50),
+                "jitter_p99_s": percentile_of_sorted(jitter, 99),
+                "jitter_max_s": float(jitter[-1]),
             }
         return {
             "rate_hz": self.settings.rate_hz,
             "scheduling": self.scheduling,
-            "ticks": self.ticks,
-            "overruns": self.overruns,
-            "jitter_p50_s": percentile_of_sorted(jitter, 50),
-            "jitter_p99_s": percentile_of_sorted(jitter, 99),
-            "jitter_max_s": float(jitter[-1]),
+            **figures,
+            "decision_last_s": self.decisions.last_s,
+            "decision_max_s": self.decisions.longest_s,
         }
 
     # -- the loop ----------------------------------------------------------------------
@@ -397,6 +401,8 @@ class ControlLoop:
                 self.policy.on_sensor_lost(feed.lost)
             for completion in self.executor.take():
                 self.policy.on_completion(completion)
+            for decision in self.decisions.take():
+                self.policy.on_decision(decision)
             outputs = self.policy.tick(now)
         self._dispatch(outputs)
 
@@ -404,6 +410,8 @@ class ControlLoop:
         for out in outputs:
             if isinstance(out, Command):
                 self.executor.submit(out)
+            elif isinstance(out, Decide):
+                self.decisions.submit(out)
             elif isinstance(out, Started):
                 self.writer.put(functools.partial(self._record_start, out.job))
             elif isinstance(out, Finished):

@@ -283,4 +283,24 @@ class Fault:
     message: str
 
 
-Output = Command | Started | Finished | SavePosition | Fault
+@dataclass(frozen=True, eq=False)
+class Decide:
+    """Event: ask the navigator for ``job``'s next burst from the measured ``reading``, off the
+    tick (the pose planner takes milliseconds of a 10 ms period); the answer comes back as a
+    :class:`Decision`.  ``refined``: the job's ``refined`` flag when asked (a decision may set
+    it, and the policy puts it back when it measures again before the burst)."""
+
+    job: Job
+    reading: Reading
+    refined: bool
+
+
+@dataclass(frozen=True)
+class Decision:
+    """The navigator's answer to ``request``: the next burst, or (status, reason) when the job is over."""
+
+    request: Decide
+    answer: Burst | tuple[str, str]
+
+
+Output = Command | Started | Finished | SavePosition | Fault | Decide

@@ -156,6 +156,9 @@ class LineNavigator:
             steps = 1
         return Burst(FINE, direction, min(steps, s.max_burst_steps))
 
+    def reached(self, job: Job, reading: Reading) -> None:
+        """Nothing to remember: the next move starts from wherever the part is."""
+
     # -- what it learned ---------------------------------------------------------------
 
     def estimates(self) -> dict[str, StepEstimate]:

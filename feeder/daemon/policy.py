@@ -15,7 +15,11 @@ States (:data:`STATES`):
 - ``moving``: a job is preparing the output or a burst is playing.
 - ``settling``: the burst is over; wait ``settle_s`` (stack ringing, sensor
   latency) or, if longer, the sensor's latency as seen (:attr:`Policy.latency_s`),
-  average ``average_samples`` fresh readings, learn, decide.
+  average ``average_samples`` fresh readings, learn, decide.  The navigator
+  decides off the tick: the policy emits a :class:`~feeder.daemon.jobs.Decide`,
+  the loop runs :meth:`Policy.decide` on a thread of its own, and the answer
+  comes back through :meth:`Policy.on_decision` (one answered after the job
+  ended is dropped).
 - ``holding``: the job is over early (stop, sensor or limit): the output was
   stopped and the part is watched until the sensor reads it settled (the
   last ``average_samples`` readings agree within the tolerance); only then is
@@ -42,6 +46,8 @@ from feeder.daemon.jobs import (
     Burst,
     Command,
     Completion,
+    Decide,
+    Decision,
     Fault,
     Finished,
     Job,
@@ -65,6 +71,8 @@ __all__ = [
     "Burst",
     "Command",
     "Completion",
+    "Decide",
+    "Decision",
     "Fault",
     "Finished",
     "Job",
@@ -104,6 +112,8 @@ class Navigator(Protocol):
     def learn(self, burst: Burst, learnable: bool, before: Reading, after: Reading) -> bool: ...
 
     def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]: ...
+
+    def reached(self, job: Job, reading: Reading) -> None: ...
 
     def estimates(self) -> dict[str, StepEstimate]: ...
 
@@ -172,6 +182,8 @@ class Policy:
         self._latencies: list[float] = []  # the last LATENCY_BURSTS bursts' (s)
         self._samples: list[Reading] = []
         self._measured: _Burst | None = None
+        self._deciding: Decide | None = None  # asked, not yet answered
+        self._decision: Decision | None = None  # answered, to act on at the next tick
         self._finish_as: tuple[str, str] | None = None  # (status, reason) once held
         self._hold_until = 0.0
         self._position_saved_s = -math.inf
@@ -311,6 +323,18 @@ class Policy:
             if self.job is not None and self._finish_as is not None:
                 self._enter_holding(done.at_s)
 
+    def decide(self, request: Decide) -> Decision:
+        """The navigator's answer to ``request`` (run by the loop off the tick, on any thread:
+        it touches the navigator only)."""
+        return Decision(request, self.navigator.next_burst(request.job, request.reading))
+
+    def on_decision(self, decision: Decision) -> None:
+        """The answer to the last :class:`Decide`; acted on at the next tick (dropped when the
+        job ended or stopped meanwhile)."""
+        if decision.request is self._deciding:
+            self._deciding = None
+            self._decision = decision
+
     def on_link_lost(self, message: str) -> None:
         """The amplifier link is known to be gone (e.g. the simulator behind it restarted)."""
         if self.fault is None:
@@ -349,7 +373,9 @@ class Policy:
             elif self._pending is None:
                 if self._burst is not None:
                     self._follow_burst(job, now)
-                else:
+                elif self._decision is not None:
+                    self._decided(job, self._decision)
+                elif self._deciding is None:
                     self._measure(job, now)
         out, self._out = self._out, []
         return out
@@ -371,6 +397,7 @@ class Policy:
     def _end_early(self, status: str, reason: str, now: float) -> None:
         """End the job with ``status`` once the output stopped and the part settled."""
         self._finish_as = (status, reason)
+        self._deciding = self._decision = None
         if self._burst is not None or self._pending is not None:
             self._out.append(self._stop_command())  # holding starts when it is done
         else:
@@ -461,8 +488,24 @@ class Policy:
         if job.stalls >= s.stall_bursts:
             self._finish(job, "stalled", f"{job.stalls} bursts in a row barely moved the part", reading)
             return
-        refined = job.refined
-        nxt = self._next_burst(job, reading)
+        nxt = self._planned(job)
+        if nxt is None:  # the navigator's turn, off the tick
+            self._deciding = Decide(job, reading, job.refined)
+            self._out.append(self._deciding)
+            return
+        self._start_burst(job, reading, nxt, job.refined)
+
+    def _decided(self, job: Job, decision: Decision) -> None:
+        self._decision = None
+        answer, reading = decision.answer, decision.request.reading
+        if isinstance(answer, tuple) and answer[0] == "done":
+            self.navigator.reached(job, reading)
+        self._start_burst(job, reading, answer, decision.request.refined)
+
+    def _start_burst(self, job: Job, reading: Reading, nxt: Burst | tuple[str, str], refined: bool) -> None:
+        """Play ``nxt`` decided from ``reading`` (first loading its waveform), or finish as it says;
+        ``refined``: the job's flag before the decision."""
+        s = self.settings
         if isinstance(nxt, tuple):
             self._finish(job, nxt[0], nxt[1], reading)
             return
@@ -506,8 +549,9 @@ class Policy:
         signed = nxt.steps if nxt.direction == FORWARD else -nxt.steps
         self._send(Command("step", steps=signed, axis=nxt.axis))
 
-    def _next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
-        """The next burst, or (status, reason) when the job is over."""
+    def _planned(self, job: Job) -> Burst | tuple[str, str] | None:
+        """A calibration's next burst, (status, reason) when the job is over, or None: the
+        navigator decides."""
         if job.target_m is None and job.target_pose is None:
             if not job.planned:
                 return ("done", "calibration complete")
@@ -515,7 +559,7 @@ class Policy:
         limit = self.settings.max_bursts * len(self.navigator.axes)
         if job.bursts >= limit:
             return ("unreachable", f"no convergence after {job.bursts} bursts")
-        return self.navigator.next_burst(job, reading)
+        return None
 
     def _finish(self, job: Job, status: str, reason: str, reached: Reading | None) -> None:
         now = self._now
@@ -547,6 +591,7 @@ class Policy:
         self._burst = None
         self._pending = None
         self._measured = None
+        self._deciding = self._decision = None
         self._finish_as = None
         self._stop_reason = None
         self.last_result = result

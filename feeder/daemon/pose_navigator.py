@@ -112,10 +112,13 @@ class PoseNavigator:
         nxt = self.planner.next_burst(list(reading), self._targets(job, job.target_pose))
         log.debug("at %s for %s: %s", reading, job.target_pose, nxt)
         if isinstance(nxt, Finish):
-            if nxt.status == "done":
-                self.held[job.part] = reading[job.part - 1] if job.angle_free else job.target_pose
             return (nxt.status, nxt.reason)
         return Burst(nxt.mode, FORWARD if nxt.direction > 0 else BACKWARD, nxt.steps, nxt.axis)
+
+    def reached(self, job: Job, reading: Reading) -> None:
+        """The job is done at ``reading``: its part is held at its target from now on."""
+        assert job.target_pose is not None
+        self.held[job.part] = reading[job.part - 1] if job.angle_free else job.target_pose
 
     # -- what it learned ---------------------------------------------------------------
 
