@@ -1,11 +1,11 @@
 """The closed loop's fixed-rate tick: sensor in, policy, commands out (DESIGN §7).
 
-Each tick (default 100 Hz) takes the sensor samples, the executor's
-completions and the navigator's decisions that arrived since the last one,
-feeds them to the :class:`~feeder.daemon.policy.Policy`, and hands its
-commands to the :class:`~feeder.daemon.executor.AmplifierExecutor`, its
-requests for a decision to the
-:class:`~feeder.daemon.decision_worker.DecisionWorker` and its events to the
+Each tick (default 100 Hz) takes the sensor samples and the executor's
+completions that arrived since the last one, feeds them to the
+:class:`~feeder.daemon.policy.Policy`, and hands its commands to the
+:class:`~feeder.daemon.executor.AmplifierExecutor`, its requests for a
+decision to the :class:`~feeder.daemon.decision_worker.DecisionWorker` (whose
+answers the policy takes at once, on the worker's thread) and its events to the
 :class:`~feeder.daemon.executor.RecordWriter`.  Nothing on the tick's thread
 waits for the amplifier, the sensor, the planner or the database: the tick only
 moves data between queues, so its jitter is the scheduler's.  Tick jitter (wake-up time
@@ -38,6 +38,7 @@ from feeder.daemon.policy import (
     Burst,
     Command,
     Decide,
+    Decision,
     Fault,
     Finished,
     Job,
@@ -200,7 +201,7 @@ class ControlLoop:
         self._sensor_timeout_s = sensor_timeout_s
         self.policy = Policy(modes, settings, estimates, axis_modes=axis_modes, navigator=navigator)
         self.executor = AmplifierExecutor(amplifier, self.policy.modes, clock)
-        self.decisions = DecisionWorker(self.policy.decide)
+        self.decisions = DecisionWorker(self.policy.decide, self._decided)
         self.writer = RecordWriter(on_unwritable=self._store_unwritable, on_writable=self._store_writable)
         self._feed = SensorFeed(sensor, sensor_timeout_s, clock)
         self.on_position = on_position
@@ -295,8 +296,8 @@ class ControlLoop:
                     )
                 ]
             )
-        self.executor.close()
         self.decisions.close()
+        self.executor.close()
         self._feed.close()
         self.writer.close()
 
@@ -325,6 +326,13 @@ class ControlLoop:
         """Declare the amplifier link lost (the job ends, ``on_fault`` reconnects)."""
         with self._lock:
             self.policy.on_link_lost(message)
+            outputs = self.policy.tick(self._clock())
+        self._dispatch(outputs)
+
+    def _decided(self, decision: Decision) -> None:
+        """The navigator's answer (on the decision worker's thread): acted on now, not a period later."""
+        with self._lock:
+            self.policy.on_decision(decision)
             outputs = self.policy.tick(self._clock())
         self._dispatch(outputs)
 
@@ -401,8 +409,6 @@ class ControlLoop:
                 self.policy.on_sensor_lost(feed.lost)
             for completion in self.executor.take():
                 self.policy.on_completion(completion)
-            for decision in self.decisions.take():
-                self.policy.on_decision(decision)
             outputs = self.policy.tick(now)
         self._dispatch(outputs)
 

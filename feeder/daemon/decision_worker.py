@@ -3,8 +3,8 @@
 The pose planner weighs hundreds of candidate bursts per decision (2–30 ms of a
 10 ms period): on the tick it would delay the next ticks, a STOP among them.
 The policy emits a :class:`~feeder.daemon.jobs.Decide`; :class:`DecisionWorker`
-runs it and hands the :class:`~feeder.daemon.jobs.Decision` back through
-:meth:`DecisionWorker.take`, which the tick drains like the executor's completions.
+runs it and hands the :class:`~feeder.daemon.jobs.Decision` to its callback,
+which the loop acts on at once (waiting for the next tick would add a period per burst).
 """
 
 from __future__ import annotations
@@ -21,16 +21,16 @@ log = logging.getLogger(__name__)
 
 
 class DecisionWorker:
-    """Runs ``decide`` for each submitted request, in order, on a thread of its own.
+    """Runs ``decide`` for each submitted request, in order, on a thread of its own, and
+    ``decided`` with each answer (on that thread).
 
     ``last_s`` and ``longest_s``: wall time of the last and the longest decision (s).
     """
 
-    def __init__(self, decide: Callable[[Decide], Decision]) -> None:
+    def __init__(self, decide: Callable[[Decide], Decision], decided: Callable[[Decision], None]) -> None:
         self._decide = decide
+        self._decided = decided
         self._requests: queue.SimpleQueue[Decide | None] = queue.SimpleQueue()
-        self._lock = threading.Lock()
-        self._done: list[Decision] = []
         self.last_s = 0.0
         self.longest_s = 0.0
         self._thread = threading.Thread(target=self._run, name="decisions", daemon=True)
@@ -38,12 +38,6 @@ class DecisionWorker:
 
     def submit(self, request: Decide) -> None:
         self._requests.put(request)
-
-    def take(self) -> list[Decision]:
-        """Decisions made since the last call, oldest first."""
-        with self._lock:
-            out, self._done = self._done, []
-        return out
 
     def close(self) -> None:
         """Finish the decision in progress (if any) and end the thread."""
@@ -62,5 +56,4 @@ class DecisionWorker:
                 decision = Decision(request, ("fault", f"the navigator failed: {type(err).__name__}: {err}"))
             self.last_s = time.perf_counter() - began
             self.longest_s = max(self.longest_s, self.last_s)
-            with self._lock:
-                self._done.append(decision)
+            self._decided(decision)

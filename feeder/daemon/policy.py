@@ -329,8 +329,8 @@ class Policy:
         return Decision(request, self.navigator.next_burst(request.job, request.reading))
 
     def on_decision(self, decision: Decision) -> None:
-        """The answer to the last :class:`Decide`; acted on at the next tick (dropped when the
-        job ended or stopped meanwhile)."""
+        """The answer to the last :class:`Decide`, acted on at the next :meth:`tick` (the loop
+        calls it at once); dropped when the job ended or stopped meanwhile."""
         if decision.request is self._deciding:
             self._deciding = None
             self._decision = decision
