@@ -128,6 +128,9 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
     size = planner.part.patch.radius_m
     if math.hypot(tb[0] - ta[0], tb[1] - ta[1]) < 2 * size:
         return f"the targets of parts {ia + 1} and {ib + 1} overlap (centres closer than {2 * size:.3g} m)"
+    a, b = poses[ia], poses[ib]
+    if math.hypot(b[0] - a[0] - (tb[0] - ta[0]), b[1] - a[1] - (tb[1] - ta[1])) <= planner.tolerance_m:
+        return None  # as far apart as their targets (within the tolerance): translations will do
     if not planner.model.modes("theta"):
         return "no θ mode: translations move both parts alike"
     r_anchor = anchor_radius_m(planner)
@@ -144,7 +147,6 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
             f"but only parts within {r_anchor:.3g} m of O stay held: the distance between the parts "
             "cannot change that much"
         )
-    a, b = poses[ia], poses[ib]
     radius = math.hypot(anchor[0] + b[0] - a[0], anchor[1] + b[1] - a[1])
     orbit = max(abs(planner.model.turn_step(d, coarse, radius, 0.0, 0.0).orbit_rad) for d in (1, -1))
     if orbit * radius < planner.tolerance_m:
@@ -159,43 +161,22 @@ def next_pair_burst(
     planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose]
 ) -> AxisBurst | Finish | None:
     """Anchor A, orbit B until d = d_t (within the tolerance), then translate both (None: both within it)."""
-    from feeder.pose_planner import Finish
+    from feeder.pose_planner import AxisBurst, Finish
 
     ia, ib = _order(targets)
     a, b = poses[ia], poses[ib]
     ta, tb = targets[ia + 1], targets[ib + 1]
     rel = (b[0] - a[0] - (tb[0] - ta[0]), b[1] - a[1] - (tb[1] - ta[1]))
     tol = planner.tolerance_m
-    if math.hypot(*rel) > 0.5 * tol:  # each part then ends within half of it, plus a fine step's rounding
-        # where A is will do if B's orbit from there ends within the tolerance (the anchor the
-        # plan picks is ill-conditioned once d ≈ d_t: noise would send A back and forth)
-        end = (a[0] + tb[0] - ta[0], a[1] + tb[1] - ta[1])
-        r_anchor = anchor_radius_m(planner)
-        if math.hypot(a[0], a[1]) <= r_anchor and abs(math.hypot(b[0], b[1]) - math.hypot(*end)) <= 0.5 * tol:
-            phi = math.remainder(math.atan2(end[1], end[0]) - math.atan2(b[1], b[0]), 2 * math.pi)
-            burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
-            if burst is not None:
-                return burst
-        anchor, phi, _ = _orbit_plan(planner, poses, targets)
-        if math.hypot(*anchor) > r_anchor:
-            return Finish(
-                "unreachable",
-                f"parts {ia + 1} and {ib + 1} are off by {math.hypot(*rel):.3g} m "
-                "relative to each other, and no anchor within the dead zone corrects that",
-            )
-        if math.hypot(anchor[0] - a[0], anchor[1] - a[1]) > 0.5 * tol:
-            move = planner.translate_burst(poses, ia, anchor, exact=True)
-            if not isinstance(move, Finish):  # else A is as close to the anchor as fine steps get it
-                return move
-        burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
-        if burst is not None:
-            return burst
-        return Finish("unreachable", f"part {ib + 1} cannot orbit by {phi:.3g} rad within the travel")
-    # both move alike now: the fine-step offset (up to 3 per axis) that leaves the larger error smallest
-    from feeder.pose_planner import AxisBurst
-
     if max(math.hypot(a[0] - ta[0], a[1] - ta[1]), math.hypot(b[0] - tb[0], b[1] - tb[1])) <= tol:
         return None
+    if math.hypot(*rel) > 0.5 * tol:  # each part then ends within half of it, plus a fine step's rounding
+        orbit = _orbit_burst(planner, poses, targets, rel)
+        if isinstance(orbit, AxisBurst) or math.hypot(*rel) > tol:
+            return orbit
+        # off by less than the tolerance and no orbit corrects it (d ≈ d_t: the anchor runs
+        # off): translating both may still put each within it
+    # both move alike now: the fine-step offset (up to 3 per axis) that leaves the larger error smallest
     goal = (ta[0] + 0.5 * rel[0], ta[1] + 0.5 * rel[1])
     if math.hypot(goal[0] - a[0], goal[1] - a[1]) > 3 * tol:
         return planner.translate_burst(poses, ia, goal, exact=True)
@@ -221,3 +202,39 @@ def next_pair_burst(
         )
     axis, n = ("x", best[0]) if best[0] else ("y", best[1])
     return AxisBurst(axis, 1 if n > 0 else -1, abs(n), fine)
+
+
+def _orbit_burst(
+    planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose], rel: tuple[float, float]
+) -> AxisBurst | Finish:
+    """The burst that brings d towards d_t: A to its anchor, or B's orbit about O (or why not)."""
+    from feeder.pose_planner import Finish
+
+    ia, ib = _order(targets)
+    a, b = poses[ia], poses[ib]
+    ta, tb = targets[ia + 1], targets[ib + 1]
+    tol = planner.tolerance_m
+    # where A is will do if B's orbit from there ends within the tolerance (the anchor the
+    # plan picks is ill-conditioned once d ≈ d_t: noise would send A back and forth)
+    end = (a[0] + tb[0] - ta[0], a[1] + tb[1] - ta[1])
+    r_anchor = anchor_radius_m(planner)
+    if math.hypot(a[0], a[1]) <= r_anchor and abs(math.hypot(b[0], b[1]) - math.hypot(*end)) <= 0.5 * tol:
+        phi = math.remainder(math.atan2(end[1], end[0]) - math.atan2(b[1], b[0]), 2 * math.pi)
+        burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
+        if burst is not None:
+            return burst
+    anchor, phi, _ = _orbit_plan(planner, poses, targets)
+    if math.hypot(*anchor) > r_anchor:
+        return Finish(
+            "unreachable",
+            f"parts {ia + 1} and {ib + 1} are off by {math.hypot(*rel):.3g} m "
+            "relative to each other, and no anchor within the dead zone corrects that",
+        )
+    if math.hypot(anchor[0] - a[0], anchor[1] - a[1]) > 0.5 * tol:
+        move = planner.translate_burst(poses, ia, anchor, exact=True)
+        if not isinstance(move, Finish):  # else A is as close to the anchor as fine steps get it
+            return move
+    burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
+    if burst is not None:
+        return burst
+    return Finish("unreachable", f"part {ib + 1} cannot orbit by {phi:.3g} rad within the travel")
