@@ -271,9 +271,9 @@ def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(cons
     assert states.count("moving") >= 100
     assert last["status"] in ("stopped", "done") and last["steps"] > 0
     # the tick kept its rate: no tick late by a period.  Its own goal (p99 ≤ 0.5 ms,
-    # benchmarks/loop_jitter.py) holds before the burst on a quiet machine, and during it in
-    # most runs since the daemon's threads run real-time and the tick takes the interpreter
-    # back with a 20 µs switch interval; not in every run (docs/console.md)
+    # benchmarks/loop_jitter.py) holds before the burst on a quiet machine; during it the
+    # console's threads hold the interpreter, and one the clients' threads preempt keeps the
+    # tick waiting for it (a few ms on this shared 2-core machine; docs/console.md)
     period_s = 1 / daemon.loop.settings.rate_hz
     assert during.size >= 0.5 * took_s / period_s
     assert np.percentile(during, 99) < period_s, during.max()

@@ -21,6 +21,8 @@ import contextlib
 import functools
 import logging
 import math
+import os
+import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -28,7 +30,6 @@ from typing import Any
 
 import numpy as np
 
-from feeder.daemon import realtime
 from feeder.daemon.decision_worker import DecisionWorker
 from feeder.daemon.executor import AmplifierExecutor, RecordWriter
 from feeder.daemon.policy import (
@@ -72,6 +73,28 @@ log = logging.getLogger(__name__)
 
 JITTER_WINDOW = 10_000
 """Ticks the jitter figures cover (100 s at 100 Hz): enough for a p99, cheap to sort per status."""
+TICK_PRIORITY = 10
+"""The tick thread's SCHED_FIFO priority where the process may raise it (CAP_SYS_NICE, or an
+rtprio limit): it then wakes before every ordinary thread on the machine (console clients,
+the simulator, other users); a tick sleeps 99 % of its period, so it never starves them."""
+
+
+TICK_SWITCH_INTERVAL_S = 0.5e-3
+"""The interpreter's switch interval while a loop runs (``sys.setswitchinterval``; Python's
+default is 5 ms): the longest a tick that wakes waits for a thread holding the interpreter (the
+console's HTTP server, the camera's locating)."""
+
+
+def raise_tick_priority() -> str:
+    """Make the calling thread real-time (:data:`TICK_PRIORITY`) if allowed, and the interpreter
+    hand over every :data:`TICK_SWITCH_INTERVAL_S`; the thread's policy's name."""
+    sys.setswitchinterval(min(sys.getswitchinterval(), TICK_SWITCH_INTERVAL_S))
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(TICK_PRIORITY))
+    except OSError as err:  # PermissionError without the right to raise it
+        log.info("the tick runs at ordinary priority (SCHED_FIFO refused: %s)", err.strerror or err)
+        return "other"
+    return "fifo"
 
 
 class TickLateness:
@@ -360,12 +383,13 @@ class ControlLoop:
 
     # -- the loop ----------------------------------------------------------------------
     def _run(self) -> None:
-        self.scheduling = realtime.raise_tick()
+        self.scheduling = raise_tick_priority()
         period = 1.0 / self.settings.rate_hz
         deadline = self._clock() + period
         while not self._shutdown.is_set():
-            if deadline > self._clock():
-                realtime.sleep_until(deadline, self._clock)
+            delay = deadline - self._clock()
+            if delay > 0:
+                time.sleep(delay)
             woke = self._clock()
             self.lateness.append(woke - deadline)
             self.tick(woke)

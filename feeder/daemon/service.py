@@ -28,7 +28,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Protocol
 
-from feeder.daemon import realtime
 from feeder.daemon.control_loop import (
     COARSE,
     FINE,
@@ -170,7 +169,6 @@ class Daemon:
         self.loop.start()
         self._server = SocketServer(self.setup.socket_path, self.handle, self._stopping)
         threading.Thread(target=self._dispatch_queue, name="queue", daemon=True).start()
-        realtime.raise_daemon_threads()  # below the tick, above every other process (realtime.py)
 
     def wait(self, timeout_s: float | None = None) -> bool:
         """Block until the shutdown is complete (output grounded, socket gone); False on

@@ -40,7 +40,6 @@ from starlette.responses import JSONResponse, Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
 
-from feeder.daemon import realtime
 from feeder.daemon.config import HttpConfig
 from feeder.web.camera import CameraFeed
 from feeder.web.requests import ApiError, checked, error_response, jog_request, json_body
@@ -62,13 +61,6 @@ class Handler(Protocol):
     def handle(self, request: Any) -> dict[str, Any]: ...
 
 
-def _at_daemon_priority(daemon: Handler, request: dict[str, Any]) -> dict[str, Any]:
-    """``daemon.handle`` on a worker thread raised to the daemon's priority (AnyIO starts its
-    workers at ordinary priority; :mod:`feeder.daemon.realtime`)."""
-    realtime.raise_thread(realtime.SERVICE_PRIORITY)
-    return daemon.handle(request)
-
-
 class LiveFeed:
     """The newest status, shared by every live client and ``/api/status``: at most one
     ``status`` request reaches the daemon per :data:`STATUS_MAX_AGE_S` however many pages
@@ -85,7 +77,7 @@ class LiveFeed:
         async with self._lock:
             if time.monotonic() - self._taken_s >= STATUS_MAX_AGE_S:
                 wall = time.time()
-                self._status = await run_in_threadpool(_at_daemon_priority, self.daemon, {"cmd": "status"})
+                self._status = await run_in_threadpool(self.daemon.handle, {"cmd": "status"})
                 self._taken_s = time.monotonic()
                 self._message = json.dumps(
                     {"type": "status", "time_s": wall, "status": self._status}, allow_nan=False, default=str
@@ -111,7 +103,7 @@ def console_app(
     pages = {name: resources.files("feeder.web.static").joinpath(name).read_bytes() for name in STATIC}
 
     async def ask(request: dict[str, Any]) -> dict[str, Any]:
-        return await run_in_threadpool(_at_daemon_priority, daemon, request)
+        return await run_in_threadpool(daemon.handle, request)
 
     def reply(answer: dict[str, Any]) -> JSONResponse:
         """200 for an answer (a move that ran, even when it did not end done), 409 for a refusal."""

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import uvicorn
 
-from feeder.daemon import realtime
 from feeder.daemon.config import HttpConfig
 from feeder.errors import InputError
 from feeder.web.app import Handler, console_app
@@ -98,5 +97,4 @@ def start_console(
     except InputError:
         server.stop()
         raise
-    realtime.raise_daemon_threads()  # its threads too: they hold the interpreter while the tick waits
     return server
