@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 import time
 from typing import Any
@@ -376,3 +379,35 @@ def test_a_navigator_that_fails_ends_the_job_with_why_and_the_loop_goes_on(world
         loop.shutdown()
     assert failed.status == "fault" and failed.reason == "the navigator failed: RuntimeError: boom"
     assert failed.steps == 0 and ok.status == "done", ok.reason
+
+
+def test_the_reconnect_and_the_simulator_it_restarts_run_at_ordinary_priority(world: FakeWorld) -> None:
+    """The tick runs SCHED_FIFO where allowed; the fault handler runs on a thread the tick
+    starts, and it may start firmware_sim again: neither may inherit real-time priority (a
+    simulator on a virtual clock would take a core from everything else)."""
+    seen: dict[str, int] = {}
+    event = threading.Event()
+
+    def on_fault(kind: str, message: str) -> None:
+        seen["handler"] = os.sched_getscheduler(0)
+        child = subprocess.run(
+            [sys.executable, "-c", "import os; print(os.sched_getscheduler(0))"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        seen["child"] = int(child.stdout)
+        event.set()
+
+    loop, amp, _ = make_loop(world, on_fault=on_fault)
+    try:
+        time.sleep(0.05)
+        if loop.scheduling != "fifo":
+            pytest.skip("SCHED_FIFO not allowed here: the tick runs at ordinary priority anyway")
+        assert loop.submit(Job("move", target_m=900e-6)) is None
+        time.sleep(0.1)
+        amp.link_up = False
+        assert event.wait(10)
+    finally:
+        loop.shutdown()
+    assert seen == {"handler": os.SCHED_OTHER, "child": os.SCHED_OTHER}

@@ -90,7 +90,9 @@ def raise_tick_priority() -> str:
     hand over every :data:`TICK_SWITCH_INTERVAL_S`; the thread's policy's name."""
     sys.setswitchinterval(min(sys.getswitchinterval(), TICK_SWITCH_INTERVAL_S))
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(TICK_PRIORITY))
+        # reset on fork: the threads it starts (the fault handler, a reconnect) and the programs
+        # they start (firmware_sim again) run at ordinary priority
+        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(TICK_PRIORITY))
     except OSError as err:  # PermissionError without the right to raise it
         log.info("the tick runs at ordinary priority (SCHED_FIFO refused: %s)", err.strerror or err)
         return "other"
