@@ -58,6 +58,14 @@ def _order(targets: dict[int, Pose]) -> tuple[int, int]:
     return a - 1, b - 1
 
 
+def _relative_error(poses: list[Pose], targets: dict[int, Pose]) -> tuple[float, float]:
+    """(d − d_t): how far B sits from A off what the targets ask (m)."""
+    ia, ib = _order(targets)
+    a, b = poses[ia], poses[ib]
+    ta, tb = targets[ia + 1], targets[ib + 1]
+    return b[0] - a[0] - (tb[0] - ta[0]), b[1] - a[1] - (tb[1] - ta[1])
+
+
 def _anchor(d: tuple[float, float], d_t: tuple[float, float], drift_m: float) -> tuple[float, float]:
     """Point a nearest O with |a + d_t| − |a + d| = drift (Newton from the bisector's foot)."""
     ax, ay = -(d[0] + d_t[0]) / 2, -(d[1] + d_t[1]) / 2  # midpoint of −d and −d_t
@@ -128,8 +136,7 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
     size = planner.part.patch.radius_m
     if math.hypot(tb[0] - ta[0], tb[1] - ta[1]) < 2 * size:
         return f"the targets of parts {ia + 1} and {ib + 1} overlap (centres closer than {2 * size:.3g} m)"
-    a, b = poses[ia], poses[ib]
-    if math.hypot(b[0] - a[0] - (tb[0] - ta[0]), b[1] - a[1] - (tb[1] - ta[1])) <= planner.tolerance_m:
+    if math.hypot(*_relative_error(poses, targets)) <= planner.tolerance_m:
         return None  # as far apart as their targets (within the tolerance): translations will do
     if not planner.model.modes("theta"):
         return "no θ mode: translations move both parts alike"
@@ -147,6 +154,7 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
             f"but only parts within {r_anchor:.3g} m of O stay held: the distance between the parts "
             "cannot change that much"
         )
+    a, b = poses[ia], poses[ib]
     radius = math.hypot(anchor[0] + b[0] - a[0], anchor[1] + b[1] - a[1])
     orbit = max(abs(planner.model.turn_step(d, coarse, radius, 0.0, 0.0).orbit_rad) for d in (1, -1))
     if orbit * radius < planner.tolerance_m:
@@ -166,7 +174,7 @@ def next_pair_burst(
     ia, ib = _order(targets)
     a, b = poses[ia], poses[ib]
     ta, tb = targets[ia + 1], targets[ib + 1]
-    rel = (b[0] - a[0] - (tb[0] - ta[0]), b[1] - a[1] - (tb[1] - ta[1]))
+    rel = _relative_error(poses, targets)
     tol = planner.tolerance_m
     if max(math.hypot(a[0] - ta[0], a[1] - ta[1]), math.hypot(b[0] - tb[0], b[1] - tb[1])) <= tol:
         return None
