@@ -10,12 +10,21 @@ A third run keeps the loop busy with moves (the part never moves, so each
 ends stalled after two bursts and the next starts) while every record write
 (move start, end, position) takes 50 ms, as on a slow disk: ``slow_commit_*``
 are its tick jitter figures (goal p99 ≤ 0.5 ms: no commit is on the tick).
+
+Two more runs keep another thread making cyclic garbage (1000 objects every 2 ms, as a
+console serving requests does; 10 of them kept among the last 2000, as recent history and
+caches are) over a heap of 500 000 long-lived objects built before the loop starts (the
+daemon's modules, configuration and drivers): ``collector_*`` with the
+collections run in the tick's slack (the default), ``automatic_*`` with CPython collecting
+wherever allocation triggers it; ``collector_ratio`` = automatic max lateness / collector max
+lateness.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 
 import numpy as np
 
@@ -99,6 +108,30 @@ def _busy_with_slow_commits(settings: LoopSettings, duration: float) -> tuple[di
     return loop.timing(), jobs
 
 
+class _Cycle:
+    def __init__(self) -> None:
+        self.me = self
+
+
+def _allocating(settings: LoopSettings, duration: float, in_slack: bool) -> dict[str, float | int | str]:
+    """The idle loop's timing while another thread makes cyclic garbage over a large heap."""
+    heap = [[_Cycle() for _ in range(100)] for _ in range(5000)]
+    amplifier, sensor = _InstantAmplifier(), _StillSensor()
+    loop = ControlLoop(amplifier, sensor, MODES, settings, collect_in_slack=in_slack)
+    loop.start()
+    recent: deque[_Cycle] = deque(maxlen=2000)
+    end = time.monotonic() + duration
+    while time.monotonic() < end:
+        for k in range(1000):
+            made = _Cycle()
+            if k % 100 == 0:
+                recent.append(made)
+        time.sleep(0.002)
+    loop.shutdown()
+    del heap
+    return loop.timing()
+
+
 def run(quick: bool) -> dict[str, float | int]:
     duration = 2.0 if quick else 10.0
     settings = LoopSettings()
@@ -110,6 +143,8 @@ def run(quick: bool) -> dict[str, float | int]:
     timing = loop.timing()
     slow, jobs = _busy_with_slow_commits(settings, duration)
     base_p99 = float(np.percentile(baseline, 99))
+    collector = _allocating(settings, duration, in_slack=True)
+    automatic = _allocating(settings, duration, in_slack=False)
     return {
         "ratio": base_p99 / max(float(timing["jitter_p99_s"]), 1e-9),
         "rate_hz": settings.rate_hz,
@@ -127,4 +162,10 @@ def run(quick: bool) -> dict[str, float | int]:
         "slow_commit_overruns": int(slow["overruns"]),
         "slow_commit_jitter_p99_s": float(slow["jitter_p99_s"]),
         "slow_commit_jitter_max_s": float(slow["jitter_max_s"]),
+        "collector_ratio": float(automatic["jitter_max_s"]) / max(float(collector["jitter_max_s"]), 1e-9),
+        **{
+            f"{name}_{key}": float(timing[key])
+            for name, timing in (("collector", collector), ("automatic", automatic))
+            for key in ("jitter_p99_s", "jitter_max_s", "overruns", "collection_max_s")
+        },
     }

@@ -244,6 +244,11 @@ def run_status(args: argparse.Namespace) -> int:
                 f"navigator (off the tick): last decision {t['decision_last_s'] * 1e3:.1f} ms, "
                 f"longest {t['decision_max_s'] * 1e3:.1f} ms"
             )
+        if t.get("collections"):
+            print(
+                f"garbage collections (in the tick's slack): {t['collections']}, "
+                f"longest {t['collection_max_s'] * 1e3:.2f} ms"
+            )
     if reply.get("interrupted_moves"):
         print(f"interrupted moves (daemon was killed): {reply['interrupted_moves']}")
     return 0

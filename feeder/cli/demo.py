@@ -192,7 +192,8 @@ def run_plane(part: Part, args: argparse.Namespace) -> int:
         print(
             f"control loop: {timing['ticks']} ticks at {timing['rate_hz']:g} Hz, "
             f"{timing['overruns']} overruns, jitter p99 {timing['jitter_p99_s'] * 1e3:.2f} ms; "
-            f"the planner's longest decision {timing['decision_max_s'] * 1e3:.1f} ms (off the tick)"
+            f"the planner's longest decision {timing['decision_max_s'] * 1e3:.1f} ms (off the tick), "
+            f"the longest garbage collection {timing['collection_max_s'] * 1e3:.1f} ms (in the tick's slack)"
         )
     return code
 

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from feeder.daemon.collector import TickCollector
 from feeder.daemon.decision_worker import DecisionWorker
 from feeder.daemon.executor import AmplifierExecutor, RecordWriter
 from feeder.daemon.policy import (
@@ -178,7 +179,8 @@ class ControlLoop:
     ``on_position`` is called (on the record writer's thread) with each settled
     position (m) and, during a job, with the latest reading every
     ``position_save_s``; ``on_fault`` with ``("amplifier"|"sensor", message)``
-    when a link is lost.
+    when a link is lost.  ``collect_in_slack``: the tick runs the interpreter's garbage
+    collections after its work (:mod:`~feeder.daemon.collector`); False leaves them to CPython.
     """
 
     def __init__(
@@ -195,6 +197,7 @@ class ControlLoop:
         on_fault: Callable[[str, str], None] | None = None,
         sensor_timeout_s: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
+        collect_in_slack: bool = True,
     ) -> None:
         settings = settings or LoopSettings()
         self.settings = settings
@@ -216,6 +219,8 @@ class ControlLoop:
         self.scheduling = "other"
         """The tick thread's scheduling policy: ``fifo`` (real-time) or ``other``."""
         self.overruns = 0
+        self.collector = TickCollector(active=collect_in_slack)
+        """Runs the interpreter's garbage collections in the tick's slack while the loop runs."""
 
     # -- read-only views -----------------------------------------------------------
     @property
@@ -381,11 +386,20 @@ class ControlLoop:
             **figures,
             "decision_last_s": self.decisions.last_s,
             "decision_max_s": self.decisions.longest_s,
+            "collections": self.collector.collections,
+            "collection_max_s": self.collector.longest_s,
         }
 
     # -- the loop ----------------------------------------------------------------------
     def _run(self) -> None:
         self.scheduling = raise_tick_priority()
+        self.collector.take_over()
+        try:
+            self._tick_until_shutdown()
+        finally:
+            self.collector.hand_back()
+
+    def _tick_until_shutdown(self) -> None:
         period = 1.0 / self.settings.rate_hz
         deadline = self._clock() + period
         while not self._shutdown.is_set():
@@ -395,6 +409,7 @@ class ControlLoop:
             woke = self._clock()
             self.lateness.append(woke - deadline)
             self.tick(woke)
+            self.collector.collect_due()  # in the slack the tick leaves, not before a deadline
             deadline += period
             if self._clock() > deadline:
                 self.overruns += 1
