@@ -228,10 +228,15 @@ print(json.dumps([replies, time.monotonic() - began]), flush=True)
 """
 
 
-ROUNDS = 5
+ROUNDS = 10
+JITTER_GOAL_P99_S = 0.5e-3
+"""The tick's own goal (benchmarks/loop_jitter.py), which must hold during the burst."""
+ATTEMPTS = 3
 
 
-def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(console: Console) -> None:
+def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float]:
+    """ROUNDS × 100 concurrent status requests during a move: the tick lateness just before
+    and during it (s), the states answered, the burst's duration (s)."""
     daemon: Daemon = console.daemon
     clients = subprocess.Popen(  # in a process of their own, as browsers and scripts are
         [sys.executable, "-c", BURST, str(console.server.port), console.token, str(ROUNDS)],
@@ -254,29 +259,40 @@ def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(cons
     replies, took_s = json.loads(clients.stdout.readline())
     during = daemon.loop.lateness.last(daemon.loop.ticks - ticks)
     assert clients.wait(10) == 0
-    states = [state for _, state in replies]
     assert console.call("POST", "/api/stop")[0] == 200
     wait_for(lambda: daemon.status()["state"] == "idle", 30)
     last = daemon.status()["last_result"]
-    p99_ms, before_p99_ms = 1e3 * np.percentile(during, 99), 1e3 * np.percentile(before, 99)
-    print(
-        f"\n{ROUNDS} × 100 concurrent status requests in {took_s:.2f} s during a move "
-        f"({states.count('moving')} answered while it ran): tick jitter p99 "
-        f"{p99_ms:.2f} ms, max {1e3 * during.max():.2f} ms over {during.size} ticks "
-        f"(the same move just before: p99 {before_p99_ms:.2f} ms over {before.size} ticks)"
-    )
     assert [code for code, _ in replies] == [200] * 100 * ROUNDS
-    # answered while the move ran: at least a round's worth (the fake world's move may end
-    # before a slow burst does: 240 of 500 once on a loaded CI machine)
-    assert states.count("moving") >= 100
     assert last["status"] in ("stopped", "done") and last["steps"] > 0
-    # the tick kept its rate: no tick late by a period.  Its own goal (p99 ≤ 0.5 ms,
-    # benchmarks/loop_jitter.py) holds before the burst on a quiet machine; during it the
-    # console's threads hold the interpreter, and one the clients' threads preempt keeps the
-    # tick waiting for it (a few ms on this shared 2-core machine; docs/console.md)
     period_s = 1 / daemon.loop.settings.rate_hz
-    assert during.size >= 0.5 * took_s / period_s
-    assert np.percentile(during, 99) < period_s, during.max()
+    assert during.size >= 0.5 * took_s / period_s  # the tick kept its rate
+    return before, during, [state for _, state in replies], took_s
+
+
+def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(console: Console) -> None:
+    """The console's threads stand back while the tick is due (feeder/daemon/quiet_window.py):
+    the tick keeps its goal during the burst. Without that, every burst measured 1.6-5.9 ms p99
+    here (the console's threads held the interpreter when the tick woke). The shared machine
+    alone has put the same move's p99 at 1.2 ms without any request, so the goal must hold in
+    one of up to ATTEMPTS bursts (docs/console.md has the figures)."""
+    p99s = []
+    for _ in range(ATTEMPTS):
+        before, during, states, took_s = _burst(console)
+        p99s.append(float(np.percentile(during, 99)))
+        print(
+            f"\n{ROUNDS} × 100 concurrent status requests in {took_s:.2f} s during a move "
+            f"({states.count('moving')} answered while it ran): tick jitter p99 "
+            f"{1e3 * p99s[-1]:.2f} ms, max {1e3 * during.max():.2f} ms over {during.size} ticks "
+            f"(the same move just before: p99 {1e3 * np.percentile(before, 99):.2f} ms over "
+            f"{before.size} ticks)"
+        )
+        # answered while the move ran: at least a round's worth (the fake world's move may end
+        # before a slow burst does: 240 of 500 once on a loaded CI machine)
+        assert states.count("moving") >= 100
+        if p99s[-1] <= JITTER_GOAL_P99_S:
+            break
+    assert min(p99s) <= JITTER_GOAL_P99_S, [f"{1e3 * p:.2f} ms" for p in p99s]
+    assert console.daemon.status()["timing"]["quiet_holds"] > 0  # the console did stand back
 
 
 def test_the_websocket_authenticates_on_connect(console: Console) -> None:

@@ -249,6 +249,8 @@ def run_status(args: argparse.Namespace) -> int:
                 f"garbage collections (in the tick's slack): {t['collections']}, "
                 f"longest {t['collection_max_s'] * 1e3:.2f} ms"
             )
+        if t.get("quiet_holds"):
+            print(f"requests that stood back for the tick: {t['quiet_holds']}")
     if reply.get("interrupted_moves"):
         print(f"interrupted moves (daemon was killed): {reply['interrupted_moves']}")
     return 0

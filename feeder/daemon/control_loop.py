@@ -53,6 +53,7 @@ from feeder.daemon.policy import (
     Started,
     StepMode,
 )
+from feeder.daemon.quiet_window import QuietWindow
 from feeder.daemon.step_estimator import StepEstimate
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSample, PositionSensor, SensorLost
@@ -221,6 +222,8 @@ class ControlLoop:
         self.overruns = 0
         self.collector = TickCollector(active=collect_in_slack)
         """Runs the interpreter's garbage collections in the tick's slack while the loop runs."""
+        self.quiet = QuietWindow(clock=clock)
+        """Where the daemon's request threads stand back for the tick (:meth:`QuietWindow.hold`)."""
 
     # -- read-only views -----------------------------------------------------------
     @property
@@ -369,7 +372,8 @@ class ControlLoop:
 
     def timing(self) -> dict[str, float | int | str]:
         """Tick jitter p50/p99/max (s), ticks and overruns, the tick's scheduling policy; the
-        navigator's last and longest decision (s, off the tick)."""
+        navigator's last and longest decision (s, off the tick); the garbage collections in the
+        slack; how often a request thread stood back for the tick."""
         jitter = np.sort(self.lateness.last(JITTER_WINDOW))
         figures = {"ticks": 0, "overruns": 0, "jitter_p50_s": 0.0, "jitter_p99_s": 0.0, "jitter_max_s": 0.0}
         if jitter.size:
@@ -388,6 +392,7 @@ class ControlLoop:
             "decision_max_s": self.decisions.longest_s,
             "collections": self.collector.collections,
             "collection_max_s": self.collector.longest_s,
+            "quiet_holds": self.quiet.holds,
         }
 
     # -- the loop ----------------------------------------------------------------------
@@ -397,18 +402,21 @@ class ControlLoop:
         try:
             self._tick_until_shutdown()
         finally:
+            self.quiet.served()
             self.collector.hand_back()
 
     def _tick_until_shutdown(self) -> None:
         period = 1.0 / self.settings.rate_hz
         deadline = self._clock() + period
         while not self._shutdown.is_set():
+            self.quiet.due(deadline)
             delay = deadline - self._clock()
             if delay > 0:
                 time.sleep(delay)
             woke = self._clock()
             self.lateness.append(woke - deadline)
             self.tick(woke)
+            self.quiet.served()
             self.collector.collect_due()  # in the slack the tick leaves, not before a deadline
             deadline += period
             if self._clock() > deadline:

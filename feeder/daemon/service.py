@@ -40,6 +40,7 @@ from feeder.daemon.control_loop import (
     StepMode,
 )
 from feeder.daemon.executor import per_axis
+from feeder.daemon.quiet_window import QuietWindow
 from feeder.daemon.socket_server import SocketServer
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.daemon.store import Calibration, Store
@@ -384,8 +385,15 @@ class Daemon:
             self.loop.amplifier_lost("firmware_sim was restarted; reopening its new console")
 
     # -- requests ------------------------------------------------------------
+    @property
+    def quiet(self) -> QuietWindow:
+        """Where request threads stand back for the tick (:mod:`~feeder.daemon.quiet_window`)."""
+        return self.loop.quiet
+
     def handle(self, request: Any) -> dict[str, Any]:
-        """Answer one request object (see :mod:`feeder.daemon.client`)."""
+        """Answer one request object (see :mod:`feeder.daemon.client`); waits first while the
+        tick is due (:meth:`QuietWindow.hold`)."""
+        self.loop.quiet.hold()
         if not isinstance(request, dict):
             return {"ok": False, "error": "a request must be a JSON object"}
         cmd = request.get("cmd")

@@ -41,6 +41,7 @@ from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
 
 from feeder.daemon.config import HttpConfig
+from feeder.daemon.quiet_window import QuietWindow
 from feeder.web.camera import CameraFeed
 from feeder.web.requests import ApiError, checked, error_response, jog_request, json_body
 from feeder.web.security import ApiGuard, RateLimit, own_origins, websocket_admitted
@@ -56,9 +57,13 @@ STATIC = ("console.html", "console.js")
 
 
 class Handler(Protocol):
-    """What the console needs of the daemon: its request handler."""
+    """What the console needs of the daemon: its request handler, and the window in which the
+    console's threads stand back for the tick (:mod:`feeder.daemon.quiet_window`)."""
 
     def handle(self, request: Any) -> dict[str, Any]: ...
+
+    @property
+    def quiet(self) -> QuietWindow: ...
 
 
 class LiveFeed:
