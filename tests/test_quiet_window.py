@@ -27,6 +27,19 @@ def held_for(window: QuietWindow) -> float:
     return time.monotonic() - began
 
 
+def serve_in(window: QuietWindow, delay_s: float) -> list[float]:
+    """The tick, on a thread: served after ``delay_s``; the list gets the time it was."""
+    served_at: list[float] = []
+
+    def tick() -> None:
+        time.sleep(delay_s)
+        served_at.append(time.monotonic())
+        window.served()
+
+    threading.Thread(target=tick).start()
+    return served_at
+
+
 def test_outside_the_window_a_request_thread_runs_on() -> None:
     clock = Clock()
     window = QuietWindow(guard_s=2e-3, max_hold_s=1.0, clock=clock)
@@ -43,14 +56,7 @@ def test_inside_the_window_a_request_thread_waits_until_the_tick_is_served() -> 
     clock = Clock()
     window = QuietWindow(guard_s=2e-3, max_hold_s=10.0, clock=clock)
     window.due(clock.now + 1e-3)  # 1 ms ahead: open
-    served_at: list[float] = []
-
-    def tick() -> None:
-        time.sleep(0.2)
-        served_at.append(time.monotonic())
-        window.served()
-
-    threading.Thread(target=tick).start()
+    served_at = serve_in(window, 0.2)
     window.hold()
     returned = time.monotonic()
     assert served_at and returned >= served_at[0]
@@ -84,14 +90,7 @@ def test_the_consoles_event_loop_runs_no_callback_while_the_window_is_open() -> 
         assert ran[-1] - began < 0.1
         ran.clear()
         window.due(time.monotonic() + 1.0)  # open from now (10 s guard) until served
-        served_at: list[float] = []
-
-        def tick() -> None:
-            time.sleep(0.2)
-            served_at.append(time.monotonic())
-            window.served()
-
-        threading.Thread(target=tick).start()
+        served_at = serve_in(window, 0.2)
         loop.run_until_complete(request())
         assert served_at and min(ran) >= served_at[0]
         assert window.holds >= 1
