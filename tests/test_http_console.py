@@ -21,6 +21,7 @@ pytest.importorskip("uvicorn")
 from test_daemon_service import short_dir, start, wait_for  # noqa: F401  (short_dir: fixture)
 
 from feeder.daemon.config import HttpConfig, load_config
+from feeder.daemon.control_loop import TICK_PRIORITY
 from feeder.daemon.service import Daemon
 from feeder.errors import InputError
 from feeder.web.security import RateLimit
@@ -228,37 +229,74 @@ print(json.dumps([replies, time.monotonic() - began]), flush=True)
 """
 
 
+WITNESS = """
+import json, os, select, sys, time
+try:  # the tick's own scheduling where allowed
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(sys.argv[1])))
+except OSError:
+    pass
+print("ready", flush=True)
+sys.stdin.readline()
+late, deadline = [], time.monotonic() + 0.01
+while not select.select([sys.stdin], [], [], 0)[0]:  # until told to stop
+    delay = deadline - time.monotonic()
+    if delay > 0:
+        time.sleep(delay)
+    late.append(time.monotonic() - deadline)
+    deadline += 0.01
+print(json.dumps(late), flush=True)
+"""
+"""The machine's own jitter: a process of its own sleeping to 10 ms deadlines, as the tick does
+but with no interpreter to share, at the tick's priority where allowed."""
+
 ROUNDS = 10
 JITTER_GOAL_P99_S = 0.5e-3
 """The tick's own goal (benchmarks/loop_jitter.py), which must hold during the burst."""
 ATTEMPTS = 5
 
 
-def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float]:
-    """ROUNDS × 100 concurrent status requests during a move: the tick lateness of the idle
-    loop just before, and during the burst (s), the states answered, the burst's duration (s)."""
-    daemon: Daemon = console.daemon
-    clients = subprocess.Popen(  # in a process of their own, as browsers and scripts are
-        [sys.executable, "-c", BURST, str(console.server.port), console.token, str(ROUNDS)],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
+def _started(script: str, *args: str) -> subprocess.Popen[str]:
+    """A helper process, once it says it is ready (it then waits for a line on stdin)."""
+    process = subprocess.Popen(
+        [sys.executable, "-c", script, *args], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
     )
-    assert clients.stdout is not None and clients.stdin is not None
-    assert clients.stdout.readline().strip() == "ready"
-    ticks = daemon.loop.ticks
-    time.sleep(0.5)  # the machine's own jitter: the idle loop just before
-    before = daemon.loop.lateness.last(daemon.loop.ticks - ticks)
+    assert process.stdout is not None and process.stdin is not None
+    assert process.stdout.readline().strip() == "ready"
+    return process
+
+
+def _tell(process: subprocess.Popen[str], line: str) -> None:
+    assert process.stdin is not None
+    process.stdin.write(line + "\n")
+    process.stdin.flush()
+
+
+def _reply(process: subprocess.Popen[str]) -> Any:
+    assert process.stdout is not None
+    reply = json.loads(process.stdout.readline())
+    assert process.wait(10) == 0
+    return reply
+
+
+def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float]:
+    """ROUNDS × 100 concurrent status requests during a move: the tick lateness during the
+    burst and the witness' lateness over the same time (s), the states answered, the burst's
+    duration (s)."""
+    daemon: Daemon = console.daemon
+    # the clients in a process of their own, as browsers and scripts are
+    clients = _started(BURST, str(console.server.port), console.token, str(ROUNDS))
+    witness = _started(WITNESS, str(TICK_PRIORITY))
     far = -0.95e-3 if daemon.status()["position_m"] > 0 else 0.95e-3  # the travel is ±1 mm
     code, reply, _ = console.call("POST", "/api/move", {"target_m": far, "wait": False})
     assert code == 200 and reply["accepted"], reply
     wait_for(lambda: daemon.status()["state"] == "moving")
     ticks = daemon.loop.ticks
-    clients.stdin.write("go\n")
-    clients.stdin.flush()
-    replies, took_s = json.loads(clients.stdout.readline())
+    _tell(witness, "go")
+    _tell(clients, "go")
+    replies, took_s = _reply(clients)
     during = daemon.loop.lateness.last(daemon.loop.ticks - ticks)
-    assert clients.wait(10) == 0
+    _tell(witness, "stop")
+    machine = np.array(_reply(witness))
     assert console.call("POST", "/api/stop")[0] == 200
     wait_for(lambda: daemon.status()["state"] == "idle", 30)
     last = daemon.status()["last_result"]
@@ -266,7 +304,7 @@ def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float]:
     assert last["status"] in ("stopped", "done") and last["steps"] > 0
     period_s = 1 / daemon.loop.settings.rate_hz
     assert during.size >= 0.5 * took_s / period_s  # the tick kept its rate
-    return before, during, [state for _, state in replies], took_s
+    return during, machine, [state for _, state in replies], took_s
 
 
 def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(console: Console) -> None:
@@ -274,21 +312,22 @@ def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(cons
     the tick keeps its goal during the burst. Without that, every burst measured 1.2-3.5 ms p99
     here on a quiet machine (the console's threads held the interpreter when the tick woke).
 
-    The shared machine is itself noisy at times: the loop without any request has measured
-    p99 up to 11 ms, and a C program sleeping to 10 ms deadlines at real-time priority p99 3.8
-    ms (docs/console.md). So the goal must hold in one of up to ATTEMPTS bursts; if none keeps
-    it, the code is at fault only if the machine kept the goal just before some burst (the idle
-    loop for 0.5 s), else the test skips, saying so."""
+    The shared machine is itself noisy at times (a C program sleeping to 10 ms deadlines at
+    real-time priority has measured p99 3.8 ms; docs/console.md). A witness process sleeps to
+    10 ms deadlines during each burst (its p99 tracks the tick's: 3.4/1.3, 2.8/1.7, 0.22/0.17,
+    0.60/0.86, 0.50/0.59 ms). The goal must hold in one of up to ATTEMPTS bursts; if none keeps
+    it, the daemon is at fault only if the machine was plainly quiet during some burst (the
+    witness within half the goal), else the test skips, saying so."""
     attempts = []
     for _ in range(ATTEMPTS):
-        before, during, states, took_s = _burst(console)
-        p99_s, before_p99_s = float(np.percentile(during, 99)), float(np.percentile(before, 99))
-        attempts.append((p99_s, before_p99_s))
+        during, machine, states, took_s = _burst(console)
+        p99_s, machine_p99_s = float(np.percentile(during, 99)), float(np.percentile(machine, 99))
+        attempts.append((p99_s, machine_p99_s))
         print(
             f"\n{ROUNDS} × 100 concurrent status requests in {took_s:.2f} s during a move "
             f"({states.count('moving')} answered while it ran): tick jitter p99 "
             f"{1e3 * p99_s:.2f} ms, max {1e3 * during.max():.2f} ms over {during.size} ticks "
-            f"(the idle loop just before: p99 {1e3 * before_p99_s:.2f} ms over {before.size} ticks)"
+            f"(the witness process meanwhile: p99 {1e3 * machine_p99_s:.2f} ms over {machine.size})"
         )
         # answered while the move ran: at least a round's worth (the fake world's move may end
         # before a slow burst does: 240 of 500 once on a loaded CI machine)
@@ -296,10 +335,11 @@ def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(cons
         if p99_s <= JITTER_GOAL_P99_S:
             break
     assert console.daemon.status()["timing"]["quiet_holds"] > 0  # the console did stand back
-    figures = [f"{1e3 * p:.2f} ms (before: {1e3 * b:.2f} ms)" for p, b in attempts]
-    if min(p for p, _ in attempts) > JITTER_GOAL_P99_S and min(b for _, b in attempts) > JITTER_GOAL_P99_S:
-        pytest.skip(f"this machine missed the tick's goal without any request before every burst: {figures}")
-    assert min(p for p, _ in attempts) <= JITTER_GOAL_P99_S, figures
+    figures = [f"{1e3 * p:.2f} ms (witness: {1e3 * w:.2f} ms)" for p, w in attempts]
+    best_s, quietest_s = min(p for p, _ in attempts), min(w for _, w in attempts)
+    if best_s > JITTER_GOAL_P99_S and quietest_s > JITTER_GOAL_P99_S / 2:
+        pytest.skip(f"this machine was too noisy by itself during every burst: {figures}")
+    assert best_s <= JITTER_GOAL_P99_S, figures
 
 
 def test_the_websocket_authenticates_on_connect(console: Console) -> None:
