@@ -5,7 +5,7 @@ VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint browser bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -22,8 +22,16 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-test: lint
+test: lint browser
 	$(BIN)/python -m pytest
+
+# the console's browser tests drive Debian's Chromium: installed here where this can (root with
+# apt-get); elsewhere they skip, saying why
+browser:
+	@command -v chromium >/dev/null || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null \
+	    && echo "installing Debian's chromium for the browser tests" \
+	    && { apt-get update -qq && apt-get install -y -qq chromium; } >/dev/null 2>&1; } \
+	    || echo "chromium not installed: the browser tests will skip"
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
