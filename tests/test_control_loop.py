@@ -241,6 +241,23 @@ def test_timing_reports_jitter_and_overruns(world: FakeWorld) -> None:
     assert 0 <= timing["jitter_p50_s"] <= timing["jitter_p99_s"] <= timing["jitter_max_s"]
 
 
+def test_a_fast_loop_leaves_its_request_threads_most_of_each_period(world: FakeWorld) -> None:
+    """The quiet window before each tick (request threads stand back) is at most a quarter of
+    the period: at 1 kHz a 2 ms window would hold them all the time."""
+    settings = LoopSettings(**{**SETTINGS.__dict__, "rate_hz": 1000.0})
+    loop, _, _ = make_loop(world, settings=settings)
+    assert loop.quiet.guard_s == pytest.approx(0.25e-3)
+    held_s, end = 0.0, time.monotonic() + 0.5
+    while time.monotonic() < end:  # a request thread, reaching its checkpoint again and again
+        holds, began = loop.quiet.holds, time.monotonic()
+        loop.quiet.hold()
+        if loop.quiet.holds > holds:  # it stood back: the window and the tick's work
+            held_s += time.monotonic() - began
+    loop.shutdown()
+    assert loop.quiet.holds > 100  # about once a period
+    assert held_s < 0.7 * 0.5  # measured ~0.4 of each period (with a 2 ms window: all of it)
+
+
 def test_a_latched_watchdog_fault_is_cleared_by_a_new_move_others_are_reported(world: FakeWorld) -> None:
     loop, amp, _ = make_loop(world)
     try:

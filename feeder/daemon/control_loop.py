@@ -53,7 +53,7 @@ from feeder.daemon.policy import (
     Started,
     StepMode,
 )
-from feeder.daemon.quiet_window import QuietWindow
+from feeder.daemon.quiet_window import QuietWindow, guard_for
 from feeder.daemon.step_estimator import StepEstimate
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSample, PositionSensor, SensorLost
@@ -222,7 +222,7 @@ class ControlLoop:
         self.overruns = 0
         self.collector = TickCollector(active=collect_in_slack)
         """Runs the interpreter's garbage collections in the tick's slack while the loop runs."""
-        self.quiet = QuietWindow(clock=clock)
+        self.quiet = QuietWindow(guard_for(1.0 / settings.rate_hz), clock=clock)
         """Where the daemon's request threads stand back for the tick (:meth:`QuietWindow.hold`)."""
 
     # -- read-only views -----------------------------------------------------------

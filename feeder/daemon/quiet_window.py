@@ -32,10 +32,18 @@ QUIET_BEFORE_TICK_S = 2e-3
 loop that starts just before the window opens runs on into it; the window must outlast it.
 Measured on the console's burst: 1 ms left p99 lateness at 0.7–2.8 ms, 2 ms brought it
 within 0.5 ms (docs/console.md)."""
+MAX_SHARE = 0.25
+"""At most this share of a period is quiet: a fast loop (up to 1 kHz) still leaves its request
+threads most of each period."""
 MAX_HOLD_S = 3e-3
 """The longest a request thread waits past a deadline for the tick to finish its work."""
 
 log = logging.getLogger(__name__)
+
+
+def guard_for(period_s: float) -> float:
+    """How long before each deadline a loop of this period (s) keeps its request threads quiet."""
+    return min(QUIET_BEFORE_TICK_S, MAX_SHARE * period_s)
 
 
 class QuietWindow:
