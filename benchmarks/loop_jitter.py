@@ -181,6 +181,15 @@ def _serving(settings: LoopSettings, duration: float, quiet: bool) -> dict[str, 
     return loop.timing()
 
 
+def _prefixed(runs: dict[str, dict[str, float | int | str]], keys: tuple[str, ...]) -> dict[str, float]:
+    """Each run's p99 and max lateness and ``keys``, named ``run_key``."""
+    return {
+        f"{name}_{key}": float(timing[key])
+        for name, timing in runs.items()
+        for key in ("jitter_p99_s", "jitter_max_s", *keys)
+    }
+
+
 def run(quick: bool) -> dict[str, float | int]:
     duration = 2.0 if quick else 10.0
     settings = LoopSettings()
@@ -214,15 +223,7 @@ def run(quick: bool) -> dict[str, float | int]:
         "slow_commit_jitter_p99_s": float(slow["jitter_p99_s"]),
         "slow_commit_jitter_max_s": float(slow["jitter_max_s"]),
         "collector_ratio": float(automatic["jitter_max_s"]) / max(float(collector["jitter_max_s"]), 1e-9),
-        **{
-            f"{name}_{key}": float(timing[key])
-            for name, timing in (("collector", collector), ("automatic", automatic))
-            for key in ("jitter_p99_s", "jitter_max_s", "overruns", "collection_max_s")
-        },
+        **_prefixed({"collector": collector, "automatic": automatic}, ("overruns", "collection_max_s")),
         "requests_ratio": float(unheld["jitter_p99_s"]) / max(float(requests["jitter_p99_s"]), 1e-9),
-        **{
-            f"{name}_{key}": float(timing[key])
-            for name, timing in (("requests", requests), ("unheld", unheld))
-            for key in ("jitter_p50_s", "jitter_p99_s", "jitter_max_s", "quiet_holds")
-        },
+        **_prefixed({"requests": requests, "unheld": unheld}, ("jitter_p50_s", "quiet_holds")),
     }

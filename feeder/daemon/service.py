@@ -393,7 +393,7 @@ class Daemon:
     def handle(self, request: Any) -> dict[str, Any]:
         """Answer one request object (see :mod:`feeder.daemon.client`); waits first while the
         tick is due (:meth:`QuietWindow.hold`)."""
-        self.loop.quiet.hold()
+        self.quiet.hold()
         if not isinstance(request, dict):
             return {"ok": False, "error": "a request must be a JSON object"}
         cmd = request.get("cmd")
