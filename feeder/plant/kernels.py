@@ -124,6 +124,31 @@ def stick_slip_run(st: np.ndarray, accel: np.ndarray, dts: np.ndarray, jumps: np
 
 FILTER_ORDER = 3
 """The compiled plant's stack filters are third order (rows padded to 4 coefficients)."""
+DriveState = tuple[float, float, float, float, float, float, float]
+DRIVE_STATES = 19
+"""Columns of a channel's drive row: 0–18 the coefficients (v_min, v_max, max step per sample
+(V), then the stack filter's position row b[0:4], a[0:4] and velocity row b[0:4], a[0:4], a[0] = 1;
+direct form II transposed, as scipy's lfilter), then the two rows' states (3 + 3)."""
+
+
+@_jit_inline
+def drive_sample(cf: np.ndarray, command: float, state: DriveState) -> tuple[float, float, DriveState]:
+    """One sample of an output stage and stack filter (coefficients ``cf``, :data:`DRIVE_STATES`):
+    the command (V) through the rails and the slope limit from the output voltage, then the
+    filter; returns (stack position, stack velocity, the new state).  state: (output voltage,
+    the position row's 3 filter states, the velocity row's 3)."""
+    y, p0, p1, p2, q0, q1, q2 = state
+    u = min(max(command, cf[0]), cf[1])
+    y = min(max(u, y - cf[2]), y + cf[2])  # rails, then the slope limit
+    x = cf[3] * y + p0
+    p0 = cf[4] * y + p1 - cf[8] * x
+    p1 = cf[5] * y + p2 - cf[9] * x
+    p2 = cf[6] * y - cf[10] * x
+    v = cf[11] * y + q0
+    q0 = cf[12] * y + q1 - cf[16] * v
+    q1 = cf[13] * y + q2 - cf[17] * v
+    q2 = cf[14] * y - cf[18] * v
+    return x, v, (y, p0, p1, p2, q0, q1, q2)
 
 
 @_jit
@@ -132,76 +157,31 @@ def plant_run(command: np.ndarray, coef: np.ndarray, z: np.ndarray, plate: np.nd
               part_out: np.ndarray, plate_out: np.ndarray, start: int) -> int:  # fmt: skip
     """Samples ``start``… of :meth:`.plant.Plant.advance_traces`, one at a time.
 
-    coef: v_min, v_max, max step per sample (V), then the position row b[0:4],
-    a[0:4] and the velocity row b[0:4], a[0:4] of the stack filter (a[0] = 1;
-    direct form II transposed, as scipy's lfilter); z: the two rows' states
-    (3 + 3, updated); plate: (output voltage, plate velocity before, sample
-    rate), updated.  Returns the index reached (see :func:`stick_slip_run`).
+    coef: the channel's coefficients (:data:`DRIVE_STATES`); z: the stack
+    filter's two rows' states (3 + 3, updated); plate: (output voltage, plate
+    velocity before, sample rate), updated.  Returns the index reached (see
+    :func:`stick_slip_run`).
     """
     n = command.size
-    lo, hi, d = coef[0], coef[1], coef[2]
-    pb0, pb1, pb2, pb3, pa1, pa2, pa3 = coef[3], coef[4], coef[5], coef[6], coef[8], coef[9], coef[10]
-    vb0, vb1, vb2, vb3, va1, va2, va3 = coef[11], coef[12], coef[13], coef[14], coef[16], coef[17], coef[18]
-    p0, p1, p2, q0, q1, q2 = z[0], z[1], z[2], z[3], z[4], z[5]
-    y, v_prev, rate = plate[0], plate[1], plate[2]
+    drive = (plate[0], z[0], z[1], z[2], z[3], z[4], z[5])
+    v_prev, rate = plate[1], plate[2]
     h = 1.0 / rate
     stuck, w, s, slip, a_s, k = st[STUCK] != 0.0, st[W], st[S], st[SLIP], st[A_S], int(st[NORMAL])
     i = start
     while i < n:
         if scatter > 0.0 and k >= normals.size:
             break
-        u = min(max(command[i], lo), hi)
-        y = min(max(u, y - d), y + d)  # rails, then the slope limit
-        x = pb0 * y + p0
-        p0 = pb1 * y + p1 - pa1 * x
-        p1 = pb2 * y + p2 - pa2 * x
-        p2 = pb3 * y - pa3 * x
-        v = vb0 * y + q0
-        q0 = vb1 * y + q1 - va1 * v
-        q1 = vb2 * y + q2 - va2 * v
-        q2 = vb3 * y - va3 * v
+        x, v, drive = drive_sample(coef, command[i], drive)
         stuck, w, s, slip, a_s, k = contact_interval(stuck, w, s, slip, a_s, k, (v - v_prev) * rate, h, 0.0,
                                              nominal, ratio, scatter, normals)  # fmt: skip
         part_out[i] = x + s
         plate_out[i] = x
         v_prev = v
         i += 1
-    z[0], z[1], z[2], z[3], z[4], z[5] = p0, p1, p2, q0, q1, q2
-    plate[0], plate[1] = y, v_prev
+    plate[0], z[0], z[1], z[2], z[3], z[4], z[5] = drive
+    plate[1] = v_prev
     st[STUCK], st[W], st[S], st[SLIP], st[A_S], st[NORMAL] = 1.0 if stuck else 0.0, w, s, slip, a_s, k
     return i
-
-
-@_jit
-def drive_run(command: np.ndarray, coef: np.ndarray, z: np.ndarray, volts: np.ndarray, scale: np.ndarray,
-              velocity: np.ndarray) -> None:  # fmt: skip
-    """Several channels' output stage and stack filter (as :func:`plant_run`, no contact), sample by sample.
-
-    command (channels, n) in V; coef, z: per channel as :func:`plant_run`
-    (rows); volts: each output's voltage, updated; scale: each channel's
-    factor from stack velocity to plate velocity; velocity (channels, n) out.
-    """
-    for c in range(command.shape[0]):
-        cf, zc = coef[c], z[c]
-        lo, hi, d = cf[0], cf[1], cf[2]
-        pb0, pb1, pb2, pb3, pa1, pa2, pa3 = cf[3], cf[4], cf[5], cf[6], cf[8], cf[9], cf[10]
-        vb0, vb1, vb2, vb3, va1, va2, va3 = cf[11], cf[12], cf[13], cf[14], cf[16], cf[17], cf[18]
-        p0, p1, p2, q0, q1, q2 = zc[0], zc[1], zc[2], zc[3], zc[4], zc[5]
-        y, k = volts[c], scale[c]
-        for i in range(command.shape[1]):
-            u = min(max(command[c, i], lo), hi)
-            y = min(max(u, y - d), y + d)  # rails, then the slope limit
-            x = pb0 * y + p0
-            p0 = pb1 * y + p1 - pa1 * x
-            p1 = pb2 * y + p2 - pa2 * x
-            p2 = pb3 * y - pa3 * x
-            v = vb0 * y + q0
-            q0 = vb1 * y + q1 - va1 * v
-            q1 = vb2 * y + q2 - va2 * v
-            q2 = vb3 * y - va3 * v
-            velocity[c, i] = v * k
-        zc[0], zc[1], zc[2], zc[3], zc[4], zc[5] = p0, p1, p2, q0, q1, q2
-        volts[c] = y
 
 
 @_jit

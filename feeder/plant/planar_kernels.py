@@ -27,14 +27,27 @@ import math
 
 import numpy as np
 
-from feeder.plant.kernels import _jit, _jit_inline, contact_interval, drive_run, rectangle_integrals
+from feeder.plant.kernels import (
+    DRIVE_STATES,
+    DriveState,
+    _jit,
+    _jit_inline,
+    contact_interval,
+    drive_sample,
+    rectangle_integrals,
+)
 
 SEG_SIZE = 11
 DURATION, V, A, C, KAPPA = 0, 1, 4, 7, 10
 PLATE_SIZE = 7
 ELAPSED = 6
-PARAM_SIZE = 14
-DISC, HALF_A, HALF_B, MASS, INERTIA, TAU_S, TAU_K, A_S, RATIO, AREA, POLAR, JXX, JYY, RTOL = range(PARAM_SIZE)
+DRIVE_VOLTS, DRIVE_SCALE = DRIVE_STATES + 6, DRIVE_STATES + 7
+DRIVE_SIZE = DRIVE_STATES + 8
+"""A channel's drive row (:func:`run_plant`): coefficients and filter states, voltage, scale."""
+PARAM_SIZE = 16
+DISC, HALF_A, HALF_B, MASS, INERTIA, TAU_S, TAU_K, A_S, RATIO, AREA, POLAR, JXX, JYY, RTOL = range(14)
+HOLD_F, HOLD_M = 14, 15
+"""HOLD_F = m/(τ_s·A) (s²/m), HOLD_M = I/(τ_s·P) (s²): a wrench's diamond measure per unit of acceleration."""
 STATE_SIZE = 23
 STUCK, POSE, LAB, SLIP, STOP, STEP, RADIUS, FADE_STEP, STEPS = 0, 1, 4, 10, 11, 12, 13, 14, 15
 DERIV, DERIV_AT = 16, 22
@@ -100,7 +113,8 @@ def part_params(disc: bool, length_m: float, width_m: float, mass_kg: float, ine
     tau_s = mass_kg * static_accel_m_s2 / area_m2
     return np.array([1.0 if disc else 0.0, 0.5 * length_m, 0.5 * width_m, mass_kg, inertia_kg_m2, tau_s,
                      kinetic_ratio * tau_s, static_accel_m_s2, kinetic_ratio, area_m2, polar_m3,
-                     second_moments_m4[0], second_moments_m4[1], rtol])  # fmt: skip
+                     second_moments_m4[0], second_moments_m4[1], rtol, mass_kg / (tau_s * area_m2),
+                     inertia_kg_m2 / (tau_s * polar_m3)])  # fmt: skip
 
 
 def initial_state(pose: tuple[float, float, float], radius_m: float) -> np.ndarray:
@@ -152,7 +166,7 @@ def _plate_at(seg: np.ndarray, plate: np.ndarray, tau: float) -> tuple[float, fl
     return plate[0] + d[0], plate[1] + d[1], plate[2] + d[2]
 
 
-@_jit
+@_jit_inline
 def finish_segment(seg: np.ndarray, plate: np.ndarray) -> None:
     """The plate at the segment's end: pose, velocity, elapsed time."""
     x, y, th = _plate_at(seg, plate, seg[DURATION])
@@ -275,24 +289,47 @@ def holds(pp: np.ndarray, radius: float, nodes: np.ndarray, fx: float, fy: float
 # --- one part (:class:`.planar._PartState`) ----------------------------------------------------
 
 
+_SMALL_TURN = 1e-2
+"""Below this angle (rad) :func:`_turn` sums the series: the plate turns by ~1e-2 rad at most (stroke
+over lever arm), and its pose is needed at every sample."""
+
+
+@_jit_inline
+def _turn(angle: float) -> tuple[float, float]:
+    """(cos, sin) of ``angle``; below _SMALL_TURN the Taylor series to the 6th and 7th power (the
+    next terms < 3e-21: to rounding, a few multiplications instead of the library's sincos)."""
+    if abs(angle) >= _SMALL_TURN:
+        return math.cos(angle), math.sin(angle)
+    a2 = angle * angle
+    return (1.0 - a2 * (0.5 - a2 * (1 / 24 - a2 / 720)),
+            angle * (1.0 - a2 * (1 / 6 - a2 * (1 / 120 - a2 / 5040))))  # fmt: skip
+
+
 @_jit
 def plate_frame_pose(st: np.ndarray, px: float, py: float, pth: float) -> tuple[float, float, float]:
     """The part's pose in the plate frame, the plate at (px, py, pth)."""
     if st[STUCK] != 0:
         return st[POSE], st[POSE + 1], st[POSE + 2]
-    c, s = math.cos(pth), math.sin(pth)
+    c, s = _turn(pth)
     dx, dy = st[LAB] - px, st[LAB + 1] - py
     return c * dx + s * dy, -s * dx + c * dy, st[LAB + 2] - pth
+
+
+@_jit_inline
+def _lab_pose_of(states: np.ndarray, i: int, px: float, py: float, pth: float) -> tuple[float, float, float]:
+    """The pose of part i (a row of ``states``) in the lab frame, the plate at (px, py, pth): as
+    :func:`lab_pose`, indexing the rows in place (a row's view costs ~10 ns per sample in numba)."""
+    if states[i, STUCK] == 0:
+        return states[i, LAB], states[i, LAB + 1], states[i, LAB + 2]
+    c, s = _turn(pth)
+    x, y, psi = states[i, POSE], states[i, POSE + 1], states[i, POSE + 2]
+    return px + c * x - s * y, py + s * x + c * y, pth + psi
 
 
 @_jit
 def lab_pose(st: np.ndarray, px: float, py: float, pth: float) -> tuple[float, float, float]:
     """The part's pose in the lab frame, the plate at (px, py, pth)."""
-    if st[STUCK] == 0:
-        return st[LAB], st[LAB + 1], st[LAB + 2]
-    c, s = math.cos(pth), math.sin(pth)
-    x, y, psi = st[POSE], st[POSE + 1], st[POSE + 2]
-    return px + c * x - s * y, py + s * x + c * y, pth + psi
+    return _lab_pose_of(st.reshape(1, STATE_SIZE), 0, px, py, pth)
 
 
 @_jit
@@ -844,14 +881,21 @@ def run_segment(
 
 
 @_jit
+def _through(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, seg: np.ndarray,
+             plate: np.ndarray) -> None:  # fmt: skip
+    """Every part through ``seg`` (a call of its own: inlined, it slows the held samples' loop ~2×)."""
+    for i in range(states.shape[0]):
+        run_segment(states[i], params[i], nodes, seg, plate)
+
+
+@_jit
 def run_segments(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, segs: np.ndarray,
                  plate: np.ndarray, every: int, out: np.ndarray) -> None:  # fmt: skip
     """Segments (n, SEG_SIZE) for every part; plate-frame poses every ``every`` segments into ``out``."""
     j = 0
     for k in range(segs.shape[0]):
         seg = segs[k]
-        for i in range(states.shape[0]):
-            run_segment(states[i], params[i], nodes, seg, plate)
+        _through(states, params, nodes, seg, plate)
         finish_segment(seg, plate)
         if (k + 1) % every == 0:
             for i in range(states.shape[0]):
@@ -861,20 +905,19 @@ def run_segments(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, segs
             j += 1
 
 
-@_jit
-def _surely_held(states: np.ndarray, params: np.ndarray, seg: np.ndarray, end: np.ndarray, k: int) -> bool:
-    """No stuck part can break loose in sample k (:meth:`.planar.PlanarStickSlip._surely_held`)."""
-    a_lin = math.hypot(seg[A], seg[A + 1])
+@_jit_inline
+def _surely_held(states: np.ndarray, params: np.ndarray, seg: np.ndarray, spin_end: float) -> bool:
+    """No stuck part can break loose in the sample ``seg`` (the plate's spin at its end
+    ``spin_end``; :meth:`.planar.PlanarStickSlip._surely_held`)."""
+    a_lin = math.sqrt(seg[A] * seg[A] + seg[A + 1] * seg[A + 1])
     alpha = abs(seg[A + 2])
-    spin2 = max(seg[V + 2] ** 2, end[2, k] ** 2)
-    for i in range(states.shape[0]):
-        st, pp = states[i], params[i]
-        if st[STUCK] == 0:
+    spin2 = max(seg[V + 2] ** 2, spin_end**2)
+    for i in range(states.shape[0]):  # rows indexed in place, not viewed
+        if states[i, STUCK] == 0:
             return False
-        r = math.hypot(st[POSE], st[POSE + 1])
-        force = pp[MASS] * (a_lin + alpha * r + spin2 * r) / (pp[TAU_S] * pp[AREA])
-        moment = pp[INERTIA] * alpha / (pp[TAU_S] * pp[POLAR])
-        if not force + moment <= _HELD_MARGIN:
+        r = math.sqrt(states[i, POSE] ** 2 + states[i, POSE + 1] ** 2)
+        measure = params[i, HOLD_F] * (a_lin + alpha * r + spin2 * r) + params[i, HOLD_M] * alpha
+        if not measure <= _HELD_MARGIN:
             return False
     return True
 
@@ -885,35 +928,55 @@ def run_sampled(states: np.ndarray, params: np.ndarray, nodes: np.ndarray, veloc
     """Plate velocity samples (3, n), acceleration held between them, for every part; lab poses
     (parts, n, 3) into ``out`` (:meth:`.planar.PlanarStickSlip.advance_sampled`).
 
-    A sample where every part is surely held moves the plate only.
+    A sample where every part is surely held moves the plate only.  (The loop's body is written
+    out: as an inlined function, numba compiles it ~2× slower.)
     """
     seg = np.zeros(SEG_SIZE)
     seg[DURATION] = 1.0 / rate
     for k in range(velocity.shape[1]):
-        for c in range(3):
-            seg[V + c] = plate[3 + c]
-            seg[A + c] = (velocity[c, k] - plate[3 + c]) * rate
-        if not (skip and _surely_held(states, params, seg, velocity, k)):
-            for i in range(states.shape[0]):
-                run_segment(states[i], params[i], nodes, seg, plate)
+        vx, vy, om = velocity[0, k], velocity[1, k], velocity[2, k]
+        seg[V], seg[V + 1], seg[V + 2] = plate[3], plate[4], plate[5]
+        seg[A], seg[A + 1], seg[A + 2] = ((vx - plate[3]) * rate, (vy - plate[4]) * rate,
+                                          (om - plate[5]) * rate)  # fmt: skip
+        if not (skip and _surely_held(states, params, seg, om)):
+            _through(states, params, nodes, seg, plate)
         finish_segment(seg, plate)
         # the sample itself, not v₀ + a·dt (which rounds differently): no corner at the next one
-        plate[3], plate[4], plate[5] = velocity[0, k], velocity[1, k], velocity[2, k]
+        plate[3], plate[4], plate[5] = vx, vy, om
         for i in range(states.shape[0]):
-            out[i, k, 0], out[i, k, 1], out[i, k, 2] = lab_pose(states[i], plate[0], plate[1], plate[2])
+            out[i, k, 0], out[i, k, 1], out[i, k, 2] = _lab_pose_of(states, i, plate[0], plate[1], plate[2])
+
+
+@_jit_inline
+def _drive_state(row: np.ndarray) -> DriveState:
+    """A channel's output voltage and filter states from its drive row."""
+    z = DRIVE_STATES
+    return row[DRIVE_VOLTS], row[z], row[z + 1], row[z + 2], row[z + 3], row[z + 4], row[z + 5]
+
+
+@_jit_inline
+def _keep_drive_state(row: np.ndarray, state: DriveState) -> None:
+    z = DRIVE_STATES
+    row[DRIVE_VOLTS], row[z], row[z + 1], row[z + 2], row[z + 3], row[z + 4], row[z + 5] = state
 
 
 @_jit
 def run_plant(command: np.ndarray, drive: np.ndarray, states: np.ndarray, params: np.ndarray,
               nodes: np.ndarray, rate: float, plate: np.ndarray, skip: bool,
               out: np.ndarray) -> None:  # fmt: skip
-    """:meth:`.planar_plant.PlanarPlant.advance`: :func:`.kernels.drive_run`, then :func:`run_sampled`.
+    """:meth:`.planar_plant.PlanarPlant.advance`: the three channels' output stages and stack
+    filters (:func:`.kernels.drive_sample`), then :func:`run_sampled`.
 
-    drive (3, k): per channel the output stage's and stack filter's coefficients, the filter
-    states (:data:`.kernels.FILTER_ORDER` · 2), the voltage, the scale to plate units (one
-    array: one argument to hand over per call, not four).
+    drive (3, DRIVE_SIZE): per channel (x, y, θ) the coefficients and filter states
+    (:data:`.kernels.DRIVE_STATES`), the output voltage and the scale from stack velocity to plate
+    velocity (one array: one argument to hand over per call, not four); states and voltages updated.
     """
-    k = drive.shape[1]
     velocity = np.empty(command.shape)
-    drive_run(command, drive[:, : k - 8], drive[:, k - 8 : k - 2], drive[:, k - 2], drive[:, k - 1], velocity)
+    for c in range(3):
+        row = drive[c]
+        state, scale = _drive_state(row), row[DRIVE_SCALE]
+        for k in range(command.shape[1]):
+            _, v, state = drive_sample(row, command[c, k], state)
+            velocity[c, k] = v * scale
+        _keep_drive_state(row, state)
     run_sampled(states, params, nodes, velocity, rate, plate, skip, out)

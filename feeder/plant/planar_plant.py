@@ -15,6 +15,7 @@ import numpy as np
 
 from feeder.errors import InputError
 from feeder.plant import kernels
+from feeder.plant import planar_kernels as pk
 from feeder.plant.amplifier import AmplifierLimits, OutputStage
 from feeder.plant.planar import PlanarPart, PlanarStickSlip, Pose
 from feeder.plant.plant import DEFAULT_SAMPLE_RATE_HZ
@@ -27,7 +28,7 @@ STREAMING_RTOL = 1e-6
 waveform on x, y and θ (parts at O, 2 mm from it, rotated off it) the poses stay within
 1e-10 m and 1e-6 rad of rtol 1e-10 (1e-8: 3e-12 m, 1e-8 rad), ~1.5× faster than 1e-8."""
 
-_STATES, _VOLTS = slice(-2 - 2 * kernels.FILTER_ORDER, -2), -2
+_STATES = slice(kernels.DRIVE_STATES, kernels.DRIVE_STATES + 2 * kernels.FILTER_ORDER)
 """Columns of the compiled path's drive array (:func:`.planar_kernels.run_plant`)."""
 
 
@@ -72,7 +73,7 @@ class PlanarPlant:
     @property
     def output_voltages_v(self) -> tuple[float, float, float]:
         if self._drive is not None:
-            x, y, theta = self._drive[:, _VOLTS].tolist()
+            x, y, theta = self._drive[:, pk.DRIVE_VOLTS].tolist()
             return x, y, theta
         return (self.outputs[0].voltage_v, self.outputs[1].voltage_v, self.outputs[2].voltage_v)
 
@@ -114,5 +115,5 @@ class PlanarPlant:
         if self._drive is not None:
             for k in range(3):
                 self.mechanics[k].states = self._drive[k, _STATES].copy()
-                self.outputs[k].voltage_v = float(self._drive[k, _VOLTS])
+                self.outputs[k].voltage_v = float(self._drive[k, pk.DRIVE_VOLTS])
             self._drive = None
