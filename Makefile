@@ -4,6 +4,7 @@ PY      ?= python3
 VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
+KERNELS := $(VENV)/.kernels
 
 .PHONY: demo test lint browser bench clean
 
@@ -11,10 +12,17 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[all]'
-	$(BIN)/python -m feeder.plant.warm_kernels
 	touch $(STAMP)
 
-demo: $(STAMP)
+# numba's kernels, compiled once ahead of use (firmware_sim's plant runs them in real time).
+# numba checks a cached kernel against its own file only, and the planar kernels inline
+# kernels.py's: a change to either compiles both again.
+$(KERNELS): $(STAMP) feeder/plant/kernels.py feeder/plant/planar_kernels.py
+	rm -f feeder/plant/__pycache__/*.nbi feeder/plant/__pycache__/*.nbc
+	$(BIN)/python -m feeder.plant.warm_kernels
+	touch $(KERNELS)
+
+demo: $(KERNELS)
 	$(BIN)/feeder demo
 
 lint: $(STAMP)
@@ -22,7 +30,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-test: lint browser
+test: lint browser $(KERNELS)
 	$(BIN)/python -m pytest
 
 # the console's browser tests drive Debian's Chromium: installed here where this can (root with
@@ -33,7 +41,7 @@ browser:
 	    && { apt-get update -qq && apt-get install -y -qq chromium; } >/dev/null 2>&1; } \
 	    || echo "chromium not installed: the browser tests will skip"
 
-bench: $(STAMP)
+bench: $(KERNELS)
 	$(BIN)/python benchmarks/run.py
 
 clean:

@@ -146,9 +146,16 @@ class World:
             raise InputError("--axes", f"the planar plant needs axes 1–{PLANAR_AXES}, "
                              f"got {self.firmware_config.axes}")  # fmt: skip
         parts = [PlanarPart.from_part(part, self.friction, pose) for pose in self.config.poses]
-        return PlanarPlant(parts, amplifier=self.firmware_config.amplifier, stack=self.config.stack,
-                           sample_rate_hz=self.firmware_config.sample_rate_hz,
-                           lever_arm_m=self.config.lever_arm_m)  # fmt: skip
+
+        def build() -> PlanarPlant:
+            return PlanarPlant(parts, amplifier=self.firmware_config.amplifier, stack=self.config.stack,
+                               sample_rate_hz=self.firmware_config.sample_rate_hz,
+                               lever_arm_m=self.config.lever_arm_m)  # fmt: skip
+
+        # a throwaway copy takes one sample: numba compiles (or loads, ~50 ms) the plant's kernels
+        # now, before the ready line, not in the first tick that drives the plate
+        build().advance(np.zeros((3, 1)))
+        return build()
 
     def attach(self, firmware: Firmware) -> None:
         """Feed the plant axis' DAC stream to the plant and release camera frames each tick."""
