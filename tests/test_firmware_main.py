@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from feeder.contact.breakaway import DEFAULT_TAU_PA
-from feeder.daemon.launcher import Simulator
+from feeder.daemon.launcher import LaunchError, Simulator
 from feeder.drivers.anc300 import Anc300Link
 
 pytestmark = pytest.mark.timeout(120)
@@ -78,3 +78,11 @@ def test_virtual_clock_tau_offset_and_clean_shutdown(tmp_path: Path) -> None:
     assert sim.process.returncode == 0
     final = json.loads(log.read_text().strip().splitlines()[-1])
     assert final["stopped"] is True and final["tick"]["ticks"] >= 5_000  # ≥ 5 s of virtual time at 1 kHz
+
+
+def test_a_simulator_late_with_its_ready_line_is_stopped_with_the_likely_reason() -> None:
+    """No ready line in time: the child is stopped and the error says a first start compiles the
+    plant's kernels, and how to do that ahead."""
+    with pytest.raises(LaunchError, match=r"within 0\.01 s .*feeder\.plant\.warm_kernels") as caught:
+        Simulator(["--clock", "virtual"], timeout_s=0.01)
+    assert "compiles them" in str(caught.value)

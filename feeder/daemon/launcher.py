@@ -113,7 +113,11 @@ class Simulator:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     self.stop()
-                    raise LaunchError(f"firmware_sim sent no ready line within {timeout_s:g} s")
+                    raise LaunchError(
+                        f"firmware_sim sent no ready line within {timeout_s:g} s (its first start after "
+                        "an install or a change to the plant's kernels compiles them for about a minute: "
+                        "`python -m feeder.plant.warm_kernels` does it ahead; `make` too)"
+                    )
                 if not selector.select(remaining):
                     continue
                 line = self.process.stdout.readline()
