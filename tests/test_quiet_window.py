@@ -7,9 +7,7 @@ import asyncio
 import threading
 import time
 
-import pytest
-
-from feeder.daemon.quiet_window import QuietWindow
+from feeder.daemon.quiet_window import QuietWindow, quiet_event_loop
 
 
 class Clock:
@@ -72,9 +70,6 @@ def test_a_stalled_tick_holds_a_request_thread_at_most_max_hold_past_its_deadlin
 
 
 def test_the_consoles_event_loop_runs_no_callback_while_the_window_is_open() -> None:
-    pytest.importorskip("uvicorn")
-    from feeder.daemon.quiet_window import quiet_event_loop
-
     window = QuietWindow(guard_s=10.0, max_hold_s=10.0)
     loop = quiet_event_loop(window)
     ran: list[float] = []
