@@ -204,7 +204,12 @@ def test_a_jog_moves_by_learned_steps(console: Console) -> None:
     code, reply, _ = console.call("POST", "/api/jog", {"axis": "x", "steps": 30})
     assert code == 200 and reply["accepted"] is True, reply
     assert reply["jog"]["by_m"] == pytest.approx(30 * step)
-    wait_for(lambda: console.call("GET", "/api/history")[1]["moves"][0]["status"] != "running")
+
+    # the move's record begins when the loop starts the job, a tick after it was accepted
+    def statuses() -> list[str]:
+        return [move["status"] for move in console.call("GET", "/api/history")[1]["moves"]]
+
+    wait_for(lambda: statuses() not in ([], ["running"]))
     (move,) = console.call("GET", "/api/history?limit=5")[1]["moves"]
     assert move["status"] == "done"
     assert move["reached_m"] - start["position_m"] == pytest.approx(30 * step, abs=2e-6)
