@@ -123,8 +123,10 @@ def stop_on_all_axes(axes: Axes, camera: PositionSensor) -> None:
     axes.stop()
     stopped = settled(camera)
     assert not any(amplifier.status().moving for amplifier in axes.values())
-    assert stopped[0] > before[0]  # it ran, and stopped:
-    assert stopped[0] - before[0] < 0.05e-3  # far less than 100000 steps
+    assert stopped[0] > before[0]  # it ran, and stopped far short of 100000 steps (~300 mm): how
+    # far depends on the world time the virtual clock runs during the three stops' round trips
+    # (3.5-53 µm seen, more on a loaded machine), so the bound is ~300 steps, not a latency
+    assert stopped[0] - before[0] < 1e-3
     time.sleep(0.2)
     assert settled(camera) == pytest.approx(stopped, abs=1e-9)
 

@@ -527,19 +527,22 @@ def test_camera_clients_are_capped_and_a_stalled_one_never_blocks_publish() -> N
         time.sleep(0.3)
         assert server.client_count == MAX_SENSOR_CLIENTS
         line = b"x" * 199 + b"\n"
-        slowest = 0.0
+        waits = []
         for _ in range(100):  # 1 MB at 1 MB/s: past every stalled client's buffers
             for _ in range(50):
                 t = time.perf_counter()
                 server.publish(line)
-                slowest = max(slowest, time.perf_counter() - t)
+                waits.append(time.perf_counter() - t)
             time.sleep(0.01)
         deadline = time.monotonic() + 10
         while server.client_count > 1 and time.monotonic() < deadline:
             server.publish(line)
             time.sleep(0.05)
         assert server.client_count == 1  # the stalled ones were dropped
-        assert slowest < 0.02, slowest  # publish (the tick) never waited
+        # publish (the tick) never waited for a client: a send to a stalled one would block for
+        # its send timeout (0.3 s); the slowest call is the OS's preemption (52 ms seen under load)
+        assert max(waits) < 0.2, max(waits)
+        assert sorted(waits)[int(0.99 * len(waits))] < 2e-3
         assert len(received) >= 1_000_000  # the reader kept up
     finally:
         stop.set()
