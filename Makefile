@@ -15,9 +15,11 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # numba's kernels, compiled once ahead of use (firmware_sim's plant runs them in real time).
-# numba checks a cached kernel against its own file only, and the planar kernels inline
-# kernels.py's: a change to either compiles both again.
-$(KERNELS): $(STAMP) feeder/plant/kernels.py feeder/plant/planar_kernels.py
+# numba checks a cached kernel against its own file only, and the kernels inline each other's
+# functions across these files: a change to any of them compiles them all again.
+KERNEL_SOURCES := $(addprefix feeder/plant/,kernels.py planar_arrays.py limit_surface_kernels.py \
+	slip_kernels.py planar_kernels.py)
+$(KERNELS): $(STAMP) $(KERNEL_SOURCES)
 	rm -f feeder/plant/__pycache__/*.nbi feeder/plant/__pycache__/*.nbc
 	$(BIN)/python -m feeder.plant.warm_kernels
 	touch $(KERNELS)

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from feeder.parts import Part
-from feeder.plant import kernels, planar_kernels
+from feeder.plant import kernels, planar_arrays, slip_kernels
 from feeder.plant.ideal_plate import sawtooth_motion
 from feeder.plant.limit_surface import Patch
+from feeder.plant.limit_surface_kernels import DISC_NODES, gauge
 from feeder.plant.planar import PlanarPart, simulate
 from feeder.plant.planar_plant import PlanarPlant
 from feeder.plant.plant import Plant
@@ -124,7 +125,7 @@ def test_rectangle_integrals_compiled_equal_plain_python() -> None:
 def test_the_plates_small_turn_series_equals_the_library_to_rounding() -> None:
     """cos and sin of the plate's angle by the Taylor series below 1e-2 rad: within 2 ulp of the
     library's, at both ends of the range and across it (compiled and plain Python)."""
-    turn = planar_kernels._turn
+    turn = planar_arrays._turn
     angles = np.concatenate([np.linspace(-0.0099999, 0.0099999, 2001), [0.0, 1e-12, -3e-7, 0.01, -0.5, 2.0]])
     for angle in angles:
         for c, s in (turn(angle), turn.py_func(angle)):
@@ -168,7 +169,7 @@ def test_rectangle_integrals_equal_the_corner_sum(centre: tuple[float, float]) -
         assert np.all(np.isfinite(got))
 
 
-# --- planar stick-slip: the compiled solver (planar_kernels) against the scipy reference -----------
+# --- planar stick-slip: the compiled solver (planar_kernels & co) against the scipy reference -----------
 
 
 PLANAR_PART = Part.parse("300x200x50")
@@ -243,11 +244,11 @@ def test_planar_plant_hands_its_drive_back_when_the_kernels_are_switched_off() -
 def test_planar_gauge_compiled_equals_scipy() -> None:
     """The compiled BFGS gauge finds the scipy one's limit-surface point (rectangle and disc)."""
     for patch in (Patch("rectangle", 300e-6, 200e-6), Patch("disc", 200e-6, 200e-6)):
-        params = planar_kernels.part_params(patch.shape == "disc", patch.length_m, patch.width_m, 1e-9,
+        params = planar_arrays.part_params(patch.shape == "disc", patch.length_m, patch.width_m, 1e-9,
                                             1e-17, 100.0, 0.8, patch.area_m2, patch.polar_m3,
                                             patch.second_moments_m4, 1e-10)  # fmt: skip
         for wrench in [(1e-7, 0.0, 1e-11), (0.5e-7, 0.3e-7, -2e-11), (1e-8, -2e-9, 3e-13), (0.0, 0.0, 1e-11)]:
-            g, wx, wy, om = planar_kernels.gauge(params, patch.radius_m, planar_kernels.DISC_NODES, *wrench)
+            g, wx, wy, om = gauge(params, patch.radius_m, DISC_NODES, *wrench)
             ref, _ = patch.gauge(*wrench)
             assert g == pytest.approx(ref, rel=1e-9)
             ux, uy, mu, _ = patch.integrals(wx, wy, om)
@@ -259,7 +260,7 @@ def test_planar_slip_hands_its_derivative_to_the_next_sample() -> None:
     """A slip that reaches a sample's end stores d(lab state)/dt there (DERIV, at the plate's elapsed
     time DERIV_AT); the next sample starts its steps from it instead of six limit-surface integrals
     more.  It is the derivative a fresh evaluation gives at the next sample's start."""
-    pk = planar_kernels
+    pk = planar_arrays
     waveform = Waveform(frequency_hz=100.0, amplitude_vpp=200.0)
     line = waveform.voltage_at_phase((np.arange(1, 1201) % 1000) / 1000)
     part = PlanarPart.from_part(PLANAR_PART, Friction(105.25, 0.8), (2e-3, 0.0, 0.0))
@@ -275,8 +276,8 @@ def test_planar_slip_hands_its_derivative_to_the_next_sample() -> None:
         seg[pk.V : pk.V + 3] = plate[3:6]
         y = np.array([0.0, 0.0, 0.0, *st[pk.LAB + 3 : pk.LAB + 6]])
         fresh = np.empty(7)
-        pk._rhs(plant.contact._params[0], st[pk.RADIUS], pk.DISC_NODES, seg, plate, *st[pk.LAB : pk.LAB + 3],
-                0.0, y, fresh)  # fmt: skip
+        slip_kernels._rhs(plant.contact._params[0], st[pk.RADIUS], DISC_NODES, seg, plate,
+                          *st[pk.LAB : pk.LAB + 3], 0.0, y, fresh)  # fmt: skip
         # the same to rounding (the sample end: v₀ + a·dt there, the sample itself here)
         np.testing.assert_allclose(st[pk.DERIV : pk.DERIV + 6], fresh[:6], rtol=1e-6, atol=1e-12)
         checked += 1

@@ -41,7 +41,7 @@ from scipy.optimize import brentq
 
 from feeder.errors import InputError
 from feeder.parts import Part
-from feeder.plant import kernels
+from feeder.plant import kernels, limit_surface_kernels, planar_arrays, slip_kernels
 from feeder.plant import planar_kernels as pk
 from feeder.plant.limit_surface import Patch
 from feeder.plant.plate_motion import PlanarMotion, Segment
@@ -58,13 +58,13 @@ _ROUNDING = 1e-14
 _SKIP_HELD = True
 """Skip samples in bulk while every part is surely held (tests switch it off to compare)."""
 _HELD_MARGIN = 1 - 1e-6
-_MISS2 = pk._MISS2
+_MISS2 = slip_kernels._MISS2
 """A twist whose linear closest approach stays above half its size (squared: this) turns, not vanishes."""
-_NEAR_ZERO = pk._NEAR_ZERO
-_UNRESOLVED = pk._UNRESOLVED
+_NEAR_ZERO = slip_kernels._NEAR_ZERO
+_UNRESOLVED = slip_kernels._UNRESOLVED
 """A shrinking twist within this many absolute error scales of the velocities has vanished."""
 _NO_DRAWS = np.zeros(0)
-_DISC_NODES = pk.DISC_NODES
+_DISC_NODES = limit_surface_kernels.DISC_NODES
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
 """Absolute tolerances of (c − c₀, φ − φ₀, v, ω) at :data:`RTOL` (scaled with rtol)."""
 RTOL = 1e-10
@@ -428,7 +428,7 @@ class _PartState:
 def _params(part: PlanarPart, rtol: float) -> np.ndarray:
     """The part's parameter row for :mod:`.planar_kernels`."""
     patch, friction = part.patch, part.friction
-    return pk.part_params(patch.shape == "disc", patch.length_m, patch.width_m, part.mass_kg,
+    return planar_arrays.part_params(patch.shape == "disc", patch.length_m, patch.width_m, part.mass_kg,
                           part.inertia_kg_m2, friction.static_accel_m_s2, friction.kinetic_ratio,
                           patch.area_m2, patch.polar_m3, patch.second_moments_m4, rtol)  # fmt: skip
 
@@ -456,13 +456,13 @@ class PlanarStickSlip:
         self._plate = _Plate(initial_velocity)
         # the compiled solver's state (:mod:`.planar_kernels`), used when kernels are enabled
         self._params = np.array([_params(p, rtol) for p in parts])
-        self._array = np.array([pk.initial_state(p.pose, p.patch.radius_m) for p in parts])
+        self._array = np.array([planar_arrays.initial_state(p.pose, p.patch.radius_m) for p in parts])
         self._plate_array = np.array([0.0, 0.0, 0.0, *initial_velocity, 0.0])
 
     @property
     def elapsed_s(self) -> float:
         """Time run so far (s)."""
-        return self._plate_array.item(pk.ELAPSED) if self._compiled else self._elapsed
+        return self._plate_array.item(planar_arrays.ELAPSED) if self._compiled else self._elapsed
 
     @property
     def plate_pose(self) -> Pose:
@@ -475,31 +475,31 @@ class PlanarStickSlip:
     @property
     def slip_time_s(self) -> list[float]:
         if self._compiled:
-            return self._array[:, pk.SLIP].tolist()
+            return self._array[:, planar_arrays.SLIP].tolist()
         return [s.slip_time_s for s in self._states]
 
     @property
     def integration_steps(self) -> list[int]:
         """Dormand-Prince steps tried per part so far (compiled only: a cost gauge; else zeros)."""
         if self._compiled:
-            return [int(n) for n in self._array[:, pk.STEPS]]
+            return [int(n) for n in self._array[:, planar_arrays.STEPS]]
         return [0] * len(self._states)
 
     def poses(self) -> list[Pose]:
         """Each part's pose in the plate frame now."""
         if self._compiled:
-            return [pk.plate_frame_pose(st, *self.plate_pose) for st in self._array]
+            return [planar_arrays.plate_frame_pose(st, *self.plate_pose) for st in self._array]
         return [s.plate_pose(self._plate.pose) for s in self._states]
 
     def lab_poses(self) -> list[Pose]:
         """Each part's pose in the lab frame now (what a camera sees)."""
         if self._compiled:
-            return [pk.lab_pose(st, *self.plate_pose) for st in self._array]
+            return [planar_arrays.lab_pose(st, *self.plate_pose) for st in self._array]
         return [s.lab_pose(self._plate.pose) for s in self._states]
 
     def stuck(self) -> list[bool]:
         if self._compiled:
-            return [bool(st[pk.STUCK]) for st in self._array]
+            return [bool(st[planar_arrays.STUCK]) for st in self._array]
         return [s.stuck for s in self._states]
 
     def advance(self, segments: tuple[Segment, ...] | list[Segment], every: int = 1) -> np.ndarray:
@@ -507,8 +507,8 @@ class PlanarStickSlip:
         if self._compiled:
             rows = [[s.duration_s, *s.velocity, *s.accel, *s.cosine, s.kappa] for s in segments]
             poses = np.empty((len(self.parts), len(rows) // every, 3))
-            pk.run_segments(self._array, self._params, pk.DISC_NODES,
-                            np.array(rows, dtype=float).reshape(len(rows), pk.SEG_SIZE),
+            pk.run_segments(self._array, self._params, _DISC_NODES,
+                            np.array(rows, dtype=float).reshape(len(rows), planar_arrays.SEG_SIZE),
                             self._plate_array, every, poses)  # fmt: skip
             return poses
         out = []
@@ -534,7 +534,7 @@ class PlanarStickSlip:
         n = v.shape[1]
         if self._compiled:
             lab = np.empty((len(self.parts), n, 3))
-            pk.run_sampled(self._array, self._params, pk.DISC_NODES, np.ascontiguousarray(v),
+            pk.run_sampled(self._array, self._params, _DISC_NODES, np.ascontiguousarray(v),
                            float(sample_rate_hz), self._plate_array, _SKIP_HELD, lab)  # fmt: skip
             return lab
         dt = 1.0 / sample_rate_hz

@@ -14,8 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from feeder.errors import InputError
-from feeder.plant import kernels
-from feeder.plant import planar_kernels as pk
+from feeder.plant import kernels, planar_arrays
 from feeder.plant.amplifier import AmplifierLimits, OutputStage
 from feeder.plant.planar import PlanarPart, PlanarStickSlip, Pose
 from feeder.plant.plant import DEFAULT_SAMPLE_RATE_HZ
@@ -73,7 +72,7 @@ class PlanarPlant:
     @property
     def output_voltages_v(self) -> tuple[float, float, float]:
         if self._drive is not None:
-            x, y, theta = self._drive[:, pk.DRIVE_VOLTS].tolist()
+            x, y, theta = self._drive[:, planar_arrays.DRIVE_VOLTS].tolist()
             return x, y, theta
         return (self.outputs[0].voltage_v, self.outputs[1].voltage_v, self.outputs[2].voltage_v)
 
@@ -115,5 +114,5 @@ class PlanarPlant:
         if self._drive is not None:
             for k in range(3):
                 self.mechanics[k].states = self._drive[k, _STATES].copy()
-                self.outputs[k].voltage_v = float(self._drive[k, pk.DRIVE_VOLTS])
+                self.outputs[k].voltage_v = float(self._drive[k, planar_arrays.DRIVE_VOLTS])
             self._drive = None
