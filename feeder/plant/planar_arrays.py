@@ -40,7 +40,7 @@ rhs is continuous where the plate's velocity is: first same as last)."""
 def part_params(disc: bool, length_m: float, width_m: float, mass_kg: float, inertia_kg_m2: float,
                 static_accel_m_s2: float, kinetic_ratio: float, area_m2: float, polar_m3: float,
                 second_moments_m4: tuple[float, float], rtol: float) -> np.ndarray:  # fmt: skip
-    """A part's parameter row (τ_s = m·a_s/A, τ_k = r·τ_s as :class:`.planar._PartState`; rtol
+    """A part's parameter row (τ_s = m·a_s/A, τ_k = r·τ_s as :class:`.planar_reference.PartState`; rtol
     of its slips)."""
     tau_s = mass_kg * static_accel_m_s2 / area_m2
     return np.array([1.0 if disc else 0.0, 0.5 * length_m, 0.5 * width_m, mass_kg, inertia_kg_m2, tau_s,

@@ -1,6 +1,6 @@
 """Compiled planar stick-slip (numba, extra ``fast``; plain Python without it): :mod:`.planar` on arrays.
 
-The same event-driven solver as :class:`feeder.plant.planar._PartState` (the
+The same event-driven solver as :class:`feeder.plant.planar_reference.PartState` (the
 reference, run when :func:`feeder.plant.kernels.enabled` is false), in scalar
 code over float arrays so that numba compiles a whole segment, a whole
 sampled chunk or a whole run: a part's events here (breakaway by Brent's

@@ -1,7 +1,7 @@
 """One slip episode of a part on the plate, compiled (numba, extra ``fast``): Dormand-Prince 5(4)
 (scipy's RK45 step control; the step size carries over from one segment to the next within an
 episode), in time while the twist grows and in ln|twist| (:func:`_fade`) while it fades, the
-twist's vanishing by the reference's drop-and-shorten rule (:meth:`.planar._PartState._integrate`).
+twist's vanishing by the reference's drop-and-shorten rule (:meth:`.planar_reference.PartState._integrate`).
 """
 
 from __future__ import annotations
@@ -259,7 +259,7 @@ def integrate_slip(st: np.ndarray, pp: np.ndarray, nodes: np.ndarray, seg: np.nd
     """From t towards the segment's end until the twist vanishes; y updated, returns (time, vanished).
 
     In time (scipy's RK45 step control) while the twist grows, as
-    :meth:`.planar._PartState._integrate` (a step that reverses the twist is
+    :meth:`.planar_reference.PartState._integrate` (a step that reverses the twist is
     dropped and the integration aims at 0.9 of the linearly predicted time to
     zero); in ln|twist| (:func:`_fade`) once it shrinks faster than the steps
     in time can follow.  Ends at the same threshold: the twist below _STOP of
