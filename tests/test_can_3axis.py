@@ -26,7 +26,7 @@ from test_can_driver import FAST, HEARTBEAT_S
 from test_can_node import STATUS_MOVING, STATUS_REFUSED, wait_emcy
 from test_eds import variable
 
-from feeder.daemon.config import load_config
+from feeder.daemon.config_file import load_config
 from feeder.daemon.links import simulator_args
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost
 from feeder.drivers.axes import open_canopen_axes

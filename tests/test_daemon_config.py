@@ -15,13 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from feeder.daemon.config import (
-    SECTIONS,
-    DaemonConfig,
-    default_socket_path,
-    default_state_dir,
-    load_config,
-)
+from feeder.daemon.config import DaemonConfig, default_socket_path, default_state_dir
+from feeder.daemon.config_file import SECTIONS, load_config
 from feeder.daemon.links import open_links, simulator_args
 from feeder.errors import InputError
 

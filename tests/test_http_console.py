@@ -20,7 +20,8 @@ pytest.importorskip("uvicorn")
 
 from test_daemon_service import short_dir, start, wait_for  # noqa: F401  (short_dir: fixture)
 
-from feeder.daemon.config import HttpConfig, load_config
+from feeder.daemon.config import HttpConfig
+from feeder.daemon.config_file import load_config
 from feeder.daemon.control_loop import TICK_PRIORITY
 from feeder.daemon.service import Daemon
 from feeder.errors import InputError

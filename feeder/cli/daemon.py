@@ -13,7 +13,8 @@ from types import FrameType
 from typing import TYPE_CHECKING
 
 from feeder.cli.output import print_json
-from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, embedded_plane, load_config
+from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, embedded_plane
+from feeder.daemon.config_file import load_config
 from feeder.daemon.launcher import LaunchError
 from feeder.daemon.links import spawn_simulator
 from feeder.daemon.store import StoreError, check_state_file, move_aside

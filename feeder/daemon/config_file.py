@@ -1,0 +1,402 @@
+"""The daemon's configuration file (TOML): read, checked key by key, into :class:`.config.DaemonConfig`.
+
+Every section and key is optional; what is missing takes the default below.
+An unknown section or key is refused, naming the nearest known one; a number outside
+:data:`RANGES` is refused, not clipped.
+With no ``amplifier.port`` (serial) or ``amplifier.can.channel`` (CAN) and no
+``sensor.address``, the daemon starts ``python -m firmware_sim`` itself and
+drives it exactly as it would real hardware.
+
+```toml
+[amplifier]
+transport = "serial"          # "serial" (ANC300 console) or "can" (CANopen)
+model = "anc300"              # the rating the planner plans within: "anc300" (0–150 V,
+                              # ≤ 10 kHz; default for serial) or "firmware_sim" (200 V; CAN)
+port = "/dev/ttyUSB0"         # serial device or pyserial URL (socket://, rfc2217://)
+axis = 1
+timeout_s = 1.0
+password = "123456"           # sent when the console asks (TCP; ANC300 default)
+[amplifier.limits]            # narrows the model's rating (AmplifierLimits); never beyond it
+v_max_v = 120.0
+current_limit_a = 0.55
+max_frequency_hz = 2000.0
+[amplifier.can]               # python-can keyword arguments + node id (+ eds, heartbeat_s)
+interface = "slcan"
+channel = "/dev/ttyACM0"
+bitrate = 500000
+node_id = 1
+eds = "feeder_amplifier.eds"  # the nodes' EDS: axes per node (feeder_amplifier_3axis.eds: 3), or a path
+
+[sensor]
+address = "socket://127.0.0.1:7240"   # pyserial URL syntax, as for the amplifier
+timeout_s = 1.0
+
+[simulator]                   # only when the daemon starts firmware_sim itself
+args = []                     # extra command-line arguments for firmware_sim
+
+[part]
+size = "300x300x50"           # µm
+support = "flat"
+surface = "surface.toml"      # optional; default: the paper's surface
+tau_pa = 22.18e9              # optional; default: the contact model's τ
+
+[control]
+rate_hz = 100.0
+tolerance_m = 1e-6
+min_position_m = -5e-3
+max_position_m = 5e-3
+settle_s = 0.05
+average_samples = 3
+
+[state]
+dir = "~/.local/state/feeder" # calibration, history, last position (SQLite)
+socket = "/run/user/1000/feeder/feeder.sock"
+
+[http]                        # the browser console (docs/console.md); off without [http] or --http
+listen = "127.0.0.1:8470"     # HOST:PORT (port 0: any free one)
+allow_remote = false          # true: allow a listen address other than loopback
+origins = []                  # further Origin values allowed to change state (a reverse proxy's)
+camera = "http://127.0.0.1:8080/video.mjpg"   # the live view's frames (open_camera spec)
+moves_per_s = 2.0             # rate limit of move, jog and calibrate requests ...
+move_burst = 5                # ... after a burst of this many
+```
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+from pathlib import Path
+from typing import Any
+
+from feeder.daemon.config import (
+    AXES,
+    DEFAULT_AXIS_MAP,
+    DEFAULT_HTTP_LISTEN,
+    DEFAULT_MODELS,
+    DEFAULT_PART,
+    TRANSPORTS,
+    TRAVEL_KEYS,
+    AmplifierConfig,
+    CameraConfig,
+    DaemonConfig,
+    HttpConfig,
+    PlateConfig,
+)
+from feeder.daemon.control_loop import LoopSettings
+from feeder.errors import InputError
+from feeder.files import read_toml
+from feeder.parts import Part, Support
+from feeder.plant.amplifier import AmplifierLimits, amplifier_model, within_rating
+from feeder.pose import parse_poses
+
+
+def _table(doc: dict[str, Any], name: str, where: str) -> dict[str, Any]:
+    value = doc.get(name, {})
+    if not isinstance(value, dict):
+        raise InputError(where, f"[{name}] must be a table")
+    return value
+
+
+SECTIONS: dict[str, frozenset[str]] = {
+    "amplifier": frozenset({"transport", "model", "port", "axis", "timeout_s", "password", "limits", "can"}),
+    "sensor": frozenset({"address", "timeout_s"}),
+    "simulator": frozenset({"args"}),
+    "part": frozenset({"size", "support", "surface", "tau_pa"}),
+    "control": frozenset(f.name for f in dataclasses.fields(LoopSettings)),
+    "state": frozenset({"dir", "socket"}),
+    "http": frozenset({"listen", "allow_remote", "origins", "camera", "moves_per_s", "move_burst"}),
+    "plate": frozenset({"axes", "axis_map", "lever_arm_m", "parts"}),
+    "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps"}),
+}
+"""The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
+``[amplifier.can]``: python-can keyword arguments plus ``node_id``, ``heartbeat_s`` and ``eds``)."""
+
+RANGES: dict[str, tuple[float, float]] = {
+    "rate_hz": (1.0, 1000.0),
+    "tolerance_m": (1e-9, 1e-3),
+    "settle_s": (0.0, 10.0),
+    "average_samples": (1, 1000),
+    "max_burst_steps": (1, 100_000),
+    "stall_fraction": (0.0, 1.0),
+    "stall_bursts": (1, 1000),
+    "max_reversals": (1, 1000),
+    "max_bursts": (1, 100_000),
+    "burst_grace_s": (0.0, 60.0),
+    "sensor_noise_m": (0.0, 1e-3),
+    "step_scatter_fraction": (0.0, 1.0),
+    "forgetting": (0.5, 1.0),
+    "position_save_s": (0.0, 3600.0),
+    "hold_timeout_s": (0.0, 60.0),
+    "timeout_s": (1e-3, 60.0),
+    "axis": (1, 7),
+    "node_id": (1, 127),
+    "heartbeat_s": (0.01, 10.0),
+    "min_position_m": (-1.0, 1.0),
+    "max_position_m": (-1.0, 1.0),
+    "moves_per_s": (0.01, 1000.0),
+    "move_burst": (1, 1000),
+    "min_y_m": (-1.0, 1.0),
+    "max_y_m": (-1.0, 1.0),
+    "tolerance_rad": (1e-6, 0.5),
+    "lever_arm_m": (1e-4, 1.0),
+    "pixel_size_m": (1e-9, 1e-3),
+    "width_px": (16, 8192),
+    "height_px": (16, 8192),
+    "fps": (0.1, 1000.0),
+}
+"""Accepted ranges of numeric keys (a value outside is refused, not clipped)."""
+
+
+def check_keys(table: dict[str, Any], known: frozenset[str] | set[str], where: str, prefix: str) -> None:
+    """Refuse an unknown key, naming the nearest known one."""
+    for key in table:
+        if key not in known:
+            near = difflib.get_close_matches(str(key), sorted(known), n=1)
+            hint = f"; did you mean {prefix}{near[0]}?" if near else f"; known: {', '.join(sorted(known))}"
+            raise InputError(where, f"unknown key {prefix}{key}{hint}")
+
+
+def _number(
+    table: dict[str, Any], key: str, where: str, default: float, positive: bool = False, section: str = ""
+) -> float:
+    """``table[key]`` as a finite float within :data:`RANGES`; errors name ``section + key``."""
+    name = section + key
+    value = table.get(key, default)
+    try:
+        number = math.nan if isinstance(value, bool) else float(value)
+    except (TypeError, ValueError, OverflowError):
+        number = math.nan
+    if not math.isfinite(number):
+        shown = value if isinstance(value, (str, float, bool)) else type(value).__name__
+        raise InputError(where, f"{name} must be a finite number, got {shown!r}")
+    if positive and number <= 0:
+        raise InputError(where, f"{name} must be positive, got {number!r}")
+    low, high = RANGES.get(key, (-math.inf, math.inf))
+    if not low <= number <= high:
+        raise InputError(where, f"{name} = {number:g} is outside [{low:g}, {high:g}]")
+    return number
+
+
+def _integer(table: dict[str, Any], key: str, where: str, default: int, section: str = "") -> int:
+    """``table[key]`` as an integer within :data:`RANGES`; errors name ``section + key``."""
+    name = section + key
+    value = table.get(key, default)
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise InputError(where, f"{name} must be an integer, got {type(value).__name__}")
+    low, high = RANGES.get(key, (1, math.inf))
+    if not low <= value <= high:
+        shown = value if abs(value) < 10**12 else "a huge integer"
+        raise InputError(where, f"{name} = {shown} is outside [{low:g}, {high:g}]")
+    return value
+
+
+def _string(table: dict[str, Any], key: str, where: str, default: str | None) -> str | None:
+    value = table.get(key, default)
+    if value is not None and not isinstance(value, str):
+        raise InputError(where, f"{key} must be a string, got {value!r}")
+    return value
+
+
+def _path(value: str | None) -> Path | None:
+    return None if value is None else Path(value).expanduser()
+
+
+def _plate(table: dict[str, Any], where: str) -> PlateConfig:
+    """``[plate]``: axes (any of x, y, theta; x first), axis map, lever arm, simulated parts."""
+    axes = table.get("axes", ["x"])
+    if not (isinstance(axes, list) and axes and all(a in AXES for a in axes) and len(set(axes)) == len(axes)):
+        raise InputError(where, f"plate.axes must be a list of distinct axes among {', '.join(AXES)}")
+    if axes[0] != "x":
+        raise InputError(where, "plate.axes must start with x (the axis one-axis moves address)")
+    axis_map = table.get("axis_map", DEFAULT_AXIS_MAP)
+    if not isinstance(axis_map, dict):
+        raise InputError(where, "plate.axis_map must be a table, e.g. { x = 1, y = 2, theta = 3 }")
+    check_keys(axis_map, set(AXES), where, "plate.axis_map.")
+    numbers = {str(k): _integer(axis_map, k, where, 1, "plate.axis_map.") for k in axis_map}
+    mapped = {**DEFAULT_AXIS_MAP, **numbers}
+    if len({mapped[a] for a in axes}) != len(axes):
+        raise InputError(where, "plate.axis_map gives two axes the same number")
+    parts_text = table.get("parts", "0,0,0")
+    if not isinstance(parts_text, str):
+        raise InputError(where, "plate.parts must be a string X,Y,PSI;X,Y,PSI (m, m, rad)")
+    try:
+        parts = parse_poses(parts_text, "plate.parts")
+    except InputError as err:
+        raise InputError(where, f"plate.parts: {err.message}") from None
+    return PlateConfig(
+        axes=tuple(axes),
+        axis_map=mapped,
+        lever_arm_m=_number(
+            table, "lever_arm_m", where, PlateConfig.lever_arm_m, positive=True, section="plate."
+        ),
+        parts=parts,
+    )
+
+
+def _eds(value: Any, where: str, folder: Path) -> str:
+    """``amplifier.can.eds``: a packaged EDS's name, or the path of an EDS this driver can read
+    (relative to the configuration's ``folder``); returns the name or the absolute path."""
+    from feeder.protocol.eds import PACKAGED_EDS, object_dictionary  # canopen only when CAN is used
+
+    if not isinstance(value, str):
+        raise InputError(where, f"amplifier.can.eds must be a string (an EDS name or path), got {value!r}")
+    eds = value if value in PACKAGED_EDS else str(folder / Path(value).expanduser())
+    try:
+        object_dictionary(1, eds, "amplifier.can.eds")
+    except InputError as err:
+        raise InputError(where, str(err)) from None
+    return eds
+
+
+def load_config(path: Path | None) -> DaemonConfig:
+    """Read the TOML file at ``path`` (None → the embedded default)."""
+    if path is None:
+        return DaemonConfig()
+    where = str(path)
+    doc = read_toml(path)
+    for name in doc:
+        if name not in SECTIONS:
+            near = difflib.get_close_matches(str(name), sorted(SECTIONS), n=1)
+            hint = f"; did you mean [{near[0]}]?" if near else f"; known: {', '.join(SECTIONS)}"
+            raise InputError(where, f"unknown section [{name}]{hint}")
+        check_keys(_table(doc, name, where), SECTIONS[name], where, f"{name}.")
+
+    amp = _table(doc, "amplifier", where)
+    transport = _string(amp, "transport", where, "serial")
+    if transport not in TRANSPORTS:
+        raise InputError(where, f"amplifier.transport must be one of {', '.join(TRANSPORTS)}")
+    can = _table(amp, "can", where)
+    axis = _integer(amp, "axis", where, 1, "amplifier.")
+    if "node_id" in can:
+        _integer(can, "node_id", where, 1, "amplifier.can.")
+    if "heartbeat_s" in can:
+        _number(can, "heartbeat_s", where, 0.25, positive=True, section="amplifier.can.")
+    if "eds" in can:
+        can["eds"] = _eds(can["eds"], where, path.parent)
+    if set(can) - {"node_id", "heartbeat_s", "eds"} and "channel" not in can:
+        # python-can keywords without the adapter: a misspelt channel must never fall back
+        # to the simulator
+        near = difflib.get_close_matches("channel", [str(k) for k in can], n=1)
+        raise InputError(
+            where,
+            "amplifier.can names a bus but no channel"
+            + (f" (is {near[0]!r} meant to be 'channel'?)" if near else ""),
+        )
+    model = str(_string(amp, "model", where, DEFAULT_MODELS[str(transport)]))
+    try:
+        rating = amplifier_model(model)
+    except InputError as err:
+        raise InputError(where, f"amplifier.model: {err.message}") from None
+    limits_t = _table(amp, "limits", where)
+    check_keys(limits_t, {f.name for f in dataclasses.fields(AmplifierLimits)}, where, "amplifier.limits.")
+    for key in limits_t:
+        _number(limits_t, key, where, 0.0, section="amplifier.limits.")
+    try:
+        limits = dataclasses.replace(rating, **{k: float(v) for k, v in limits_t.items()})
+        within_rating(limits, rating, model)
+    except InputError as err:
+        raise InputError(where, f"amplifier.limits.{err.field}: {err.message}") from None
+    amplifier = AmplifierConfig(
+        transport=str(transport),
+        model=model,
+        port=_string(amp, "port", where, None),
+        axis=axis,
+        timeout_s=_number(amp, "timeout_s", where, 1.0, positive=True, section="amplifier."),
+        password=str(_string(amp, "password", where, "123456")),
+        limits=limits,
+        can=dict(can),
+    )
+
+    sensor = _table(doc, "sensor", where)
+    sensor_address = _string(sensor, "address", where, None)
+    if sensor_address is not None and not sensor_address.startswith("socket://"):
+        raise InputError(
+            where,
+            f"sensor.address must be a socket://HOST:PORT URL (the "
+            f"amplifier's address syntax), got {sensor_address!r}",
+        )
+    sim = _table(doc, "simulator", where)
+    sim_args = sim.get("args", [])
+    if not (isinstance(sim_args, list) and all(isinstance(a, str) for a in sim_args)):
+        raise InputError(where, "simulator.args must be a list of strings")
+
+    part_t = _table(doc, "part", where)
+    part = Part.parse(str(_string(part_t, "size", where, DEFAULT_PART)))
+    support = Support.parse(str(_string(part_t, "support", where, "flat")))
+    tau = part_t.get("tau_pa")
+    tau_pa = None if tau is None else _number(part_t, "tau_pa", where, 0.0, positive=True, section="part.")
+
+    control = _table(doc, "control", where)
+    defaults = DaemonConfig().loop
+    loop_fields: dict[str, Any] = {}
+    for f in dataclasses.fields(LoopSettings):
+        if f.name in control:
+            default = getattr(defaults, f.name)
+            if isinstance(default, int):
+                loop_fields[f.name] = _integer(control, f.name, where, default, "control.")
+            else:
+                loop_fields[f.name] = _number(
+                    control, f.name, where, default, positive=f.name not in TRAVEL_KEYS, section="control."
+                )
+    loop = dataclasses.replace(defaults, **loop_fields)
+    if not loop.min_position_m < loop.max_position_m:
+        raise InputError(where, "control.min_position_m must be below control.max_position_m")
+    if not loop.min_y_m < loop.max_y_m:
+        raise InputError(where, "control.min_y_m must be below control.max_y_m")
+    plate = _plate(_table(doc, "plate", where), where)
+    camera_t = _table(doc, "camera", where)
+    cam = CameraConfig()
+    camera = CameraConfig(
+        address=_string(camera_t, "address", where, None),
+        timeout_s=_number(camera_t, "timeout_s", where, cam.timeout_s, positive=True, section="camera."),
+        pixel_size_m=_number(
+            camera_t, "pixel_size_m", where, cam.pixel_size_m, positive=True, section="camera."
+        ),
+        width_px=_integer(camera_t, "width_px", where, cam.width_px, "camera."),
+        height_px=_integer(camera_t, "height_px", where, cam.height_px, "camera."),
+        fps=_number(camera_t, "fps", where, cam.fps, positive=True, section="camera."),
+    )
+
+    state = _table(doc, "state", where)
+    base = DaemonConfig()
+    http = _http_config(_table(doc, "http", where), where) if "http" in doc else None
+    return DaemonConfig(
+        amplifier=amplifier,
+        sensor_address=sensor_address,
+        sensor_timeout_s=_number(sensor, "timeout_s", where, 1.0, positive=True, section="sensor."),
+        simulator_args=tuple(sim_args),
+        part=part,
+        support=support,
+        surface_path=_path(_string(part_t, "surface", where, None)),
+        tau_pa=tau_pa,
+        loop=loop,
+        plate=plate,
+        camera=camera,
+        state_dir=_path(_string(state, "dir", where, None)) or base.state_dir,
+        socket_path=_path(_string(state, "socket", where, None)) or base.socket_path,
+        http=http,
+    )
+
+
+def _http_config(table: dict[str, Any], where: str) -> HttpConfig:
+    """The ``[http]`` section (its presence turns the console on)."""
+    allow_remote = table.get("allow_remote", False)
+    if not isinstance(allow_remote, bool):
+        raise InputError(where, f"http.allow_remote must be true or false, got {allow_remote!r}")
+    origins = table.get("origins", [])
+    if not (isinstance(origins, list) and all(isinstance(o, str) and "://" in o for o in origins)):
+        raise InputError(where, "http.origins must be a list of origins such as 'https://console.lab'")
+    http = HttpConfig(
+        allow_remote=allow_remote,
+        origins=tuple(o.rstrip("/") for o in origins),
+        camera=_string(table, "camera", where, None),
+        moves_per_s=_number(table, "moves_per_s", where, 2.0, positive=True, section="http."),
+        move_burst=_integer(table, "move_burst", where, 5, "http."),
+    )
+    listen = str(_string(table, "listen", where, DEFAULT_HTTP_LISTEN))
+    try:
+        return http.listening_on(listen, "http.listen")
+    except InputError as err:
+        raise InputError(where, f"http.listen: {err.message}") from None
