@@ -339,6 +339,7 @@ def _quiver(rows: np.ndarray, args: argparse.Namespace, path: Path) -> None:
     ax.set_title(f"{args.part} µm, ψ = {args.pose[2]:g} rad, axis {args.axis}: pose change per period",
                  fontsize=9)  # fmt: skip
     fig.tight_layout()
+    fig.subplots_adjust(bottom=0.15)  # room for the key below the x label
     save_figure(fig, path)
 
 
