@@ -114,6 +114,9 @@ def test_calibrate_cli_from_rendered_images(tmp_path: Path, capsys: pytest.Captu
         store.close()
     assert stored is not None and stored["pixel_size_m"] == report["pixel_size_m"]
     assert stored["origin_x_px"] == report["origin_x_px"]
+    assert "note" not in report  # written and stored: nothing to warn about
+    assert main([*argv[: argv.index("--out")], "--json"]) == 0
+    assert "--save-state" in json.loads(capsys.readouterr().out)["note"]  # printed only: how to keep it
     assert report["pixel_size_from_part_m"] == pytest.approx(1.2e-6, rel=5e-4)
     assert report["pixel_size_m"] == pytest.approx(1.2e-6, rel=5e-4)
     assert report["rotation_rad"] == pytest.approx(0.3, abs=2e-3) and report["mirrored"] is True

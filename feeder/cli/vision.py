@@ -23,7 +23,7 @@ from feeder.vision.calibration import (
 )
 from feeder.vision.model import Detection, LocateResult, PartTemplate
 
-CALIBRATION_NOTE = "not yet stored with the daemon's step calibration (SQLite): keep the JSON"
+CALIBRATION_NOTE = "printed only: --out writes it as JSON, --save-state stores it for the daemon"
 
 
 def register(sub: Any) -> None:
@@ -330,7 +330,7 @@ def _save_state(state_dir: Path | None, report: dict[str, Any]) -> Path:
     except (StoreError, OSError) as err:
         raise InputError("--state-dir", str(err)) from None
     try:
-        store.save_camera_calibration({k: v for k, v in report.items() if v is not None and k != "note"})
+        store.save_camera_calibration({k: v for k, v in report.items() if v is not None})
     finally:
         store.close()
     return path
@@ -388,8 +388,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
         "origin_x_px": report.get("origin_x_px"),
         "origin_y_px": report.get("origin_y_px"),
         **report,
-        "note": CALIBRATION_NOTE,
     }
+    if args.out is None and not args.save_state:
+        report["note"] = CALIBRATION_NOTE
     if args.out is not None:
         write_text(args.out, json.dumps({k: v for k, v in report.items() if v is not None}, indent=2) + "\n")
         report["out"] = str(args.out)
@@ -407,4 +408,6 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 else ""
             )
         )
+        if "note" in report:
+            print(report["note"])
     return 0
