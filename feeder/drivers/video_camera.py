@@ -33,12 +33,13 @@ import cv2
 import numpy as np
 
 from feeder.drivers.sensor import SensorLost
+from feeder.errors import FeederError
 
 log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".pgm")
 
 
-class CameraError(RuntimeError):
+class CameraError(FeederError, RuntimeError):
     """A camera cannot be opened as asked (bad spec, missing optional package)."""
 
 
