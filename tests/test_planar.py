@@ -323,6 +323,36 @@ def test_cli_theta_pose_forms_poses_and_steady_state(capsys: pytest.CaptureFixtu
     assert usage.value.code == 2 and "--pose" in capsys.readouterr().err
 
 
+def test_cli_map_on_the_planar_plant_is_the_simulated_pose_change(capsys: pytest.CaptureFixture[str],
+                                                                     tmp_path: object) -> None:  # fmt: skip
+    """--map with --waveform runs the planar plant (amplifier, stack, stick-slip) at every grid
+    pose: a row is what ``simulate --pose`` gives for the second period there; under θ a part at
+    O does not translate and one at (+e, +e) orbits towards −x, +y; under x the field is uniform."""
+    import json
+    from pathlib import Path
+
+    from feeder.cli import main
+
+    png = Path(str(tmp_path)) / "map.png"
+    wave = ["simulate", "--part", "300x300x50", "--waveform", "waveforms/paper-100hz-200vpp.toml", "--json"]
+    grid = ["--map", str(png), "--map-points", "3", "--map-extent-m", "3e-3"]
+    assert main([*wave, "--axis", "theta", *grid]) == 0
+    rows = np.array(json.loads(capsys.readouterr().out)["map_pose_changes"])
+    assert rows.shape == (9, 5) and png.stat().st_size > 10_000
+    assert np.all(np.abs(rows[4, 2:4]) < 1e-12)  # at O: no translation
+    corner = rows[8]
+    assert corner[2] < -1e-6 and corner[3] > 1e-6 and corner[4] > 1e-3
+    assert main([*wave, "--axis", "theta", "--pose=3e-3,3e-3,0", "--periods", "2"]) == 0
+    poses = np.array(json.loads(capsys.readouterr().out)["poses"])
+    np.testing.assert_allclose(corner[2:], poses[1] - poses[0], rtol=0, atol=1e-15)
+    assert main([*wave, "--axis", "x", *grid]) == 0
+    rows = np.array(json.loads(capsys.readouterr().out)["map_pose_changes"])
+    assert rows[0, 2] > 1e-6 and np.allclose(rows[:, 2], rows[0, 2], rtol=1e-9, atol=0)
+    assert np.all(np.abs(rows[:, 3:]) < 1e-15)
+    assert main(["simulate", "--part", "300x300x50", "--axis", "x", "--json", *grid]) == 2
+    assert "--map" in capsys.readouterr().err
+
+
 def test_cli_y_axis_is_the_x_step_on_y(capsys: pytest.CaptureFixture[str]) -> None:
     import json
 

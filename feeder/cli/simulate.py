@@ -34,7 +34,7 @@ from feeder.plant.plant import DEFAULT_SAMPLE_RATE_HZ, run_waveform
 from feeder.plant.plate_motion import AXES, sawtooth
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, StickSlip
-from feeder.waveform import DIRECTIONS
+from feeder.waveform import DIRECTIONS, Waveform
 
 MAX_PERIODS = 10**6
 _BYTES_PER_SAMPLE = 64  # the plant's traces and temporaries, 8 float64 per sample
@@ -107,7 +107,8 @@ def register(sub: Any) -> None:
         "--map",
         type=output_path,
         metavar="PNG",
-        help="ideal plate: quiver plot of the per-period pose change over a grid of poses",
+        help="quiver plot of the steady per-period pose change over a grid of poses "
+        "(the planar plant with --waveform, else the ideal plate)",
     )
     p.add_argument(
         "--map-extent-m",
@@ -128,8 +129,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--scatter", f"must be a non-negative number, got {args.scatter}")
     if args.axis == "theta" and not args.ideal and args.waveform is None:
         raise InputError("--waveform", "required with --axis theta unless --ideal")
-    if args.map is not None and not args.ideal:
-        raise InputError("--map", "needs --ideal")
+    if args.map is not None and not args.ideal and args.waveform is None:
+        raise InputError("--map", "needs --waveform (the planar plant) or --ideal")
     if not 2 <= args.map_points <= 41:
         raise InputError("--map-points", f"must be 2–41, got {args.map_points}")
     if args.axis == "theta" and args.plot:
@@ -280,44 +281,67 @@ def _theta(args: argparse.Namespace, part: Part, friction: Friction) -> tuple[
     return steps, float(run_.slip_fraction[0]), run_.poses[0], extra
 
 
+def _planar_plant_drive(args: argparse.Namespace) -> tuple[AmplifierLimits, Waveform, float]:
+    """The amplifier, waveform and θ lever arm (m) of --waveform (its [axis] table, else the
+    plant's default) for the planar plant."""
+    from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
+    from feeder.waveform import read_waveform_tables
+
+    amplifier = file_amplifier(args.waveform)
+    waveform = load_checked(args.waveform, amplifier)
+    lever_arm_m = read_waveform_tables(args.waveform).get("axis", {}).get("lever_arm_m", DEFAULT_LEVER_ARM_M)
+    return amplifier, waveform, float(lever_arm_m)
+
+
 def _theta_plant(args: argparse.Namespace, part: Part, friction: Friction) -> tuple[
         np.ndarray, float, np.ndarray, dict[str, Any]]:  # fmt: skip
     """The waveform on the θ channel of the planar plant (amplifier, stack, planar stick-slip)."""
     from feeder.axis_design import run_axis_waveform
-    from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
-    from feeder.waveform import read_waveform_tables
 
     if args.scatter > 0:
         raise InputError("--scatter", "the planar plant has no scatter (--axis theta)")
-    amplifier = file_amplifier(args.waveform)
-    waveform = load_checked(args.waveform, amplifier)
+    amplifier, waveform, lever_arm_m = _planar_plant_drive(args)
     planar = PlanarPart.from_part(part, friction, args.pose, args.part_shape)
-    lever_arm_m = read_waveform_tables(args.waveform).get("axis", {}).get("lever_arm_m", DEFAULT_LEVER_ARM_M)
-    run_ = run_axis_waveform(
-        planar, waveform, "theta", args.periods, amplifier, lever_arm_m=float(lever_arm_m)
-    )
+    run_ = run_axis_waveform(planar, waveform, "theta", args.periods, amplifier, lever_arm_m=lever_arm_m)
     extra = {"model": "planar-plant", "waveform": str(args.waveform), "part_shape": args.part_shape,
              "lever_arm_m": lever_arm_m}  # fmt: skip
     return run_.steps_m, run_.slip_fraction, run_.poses[1:], extra
 
 
 def _map(args: argparse.Namespace, part: Part, friction: Friction) -> list[list[float]]:
-    """Steady-state pose change (second period) at each grid pose; draws the quiver plot."""
-    strokes, frequency, flyback, shape = _strokes(args)
-    motion = sawtooth(strokes, frequency, flyback, shape, 2)
+    """Steady-state pose change (the second period) at each grid pose; draws the quiver plot.
+
+    With --waveform (not --ideal) the planar plant (amplifier, stack, planar stick-slip) driven
+    on --axis; else the ideal plate's sawtooth.
+    """
     grid = np.linspace(-args.map_extent_m, args.map_extent_m, args.map_points)
+    points = [(float(x), float(y), float(args.pose[2])) for y in grid for x in grid]
+    if args.ideal:
+        strokes, frequency, flyback, shape = _strokes(args)
+        motion = sawtooth(strokes, frequency, flyback, shape, 2)
+        model = "ideal plate"
+
+        def change(planar: PlanarPart) -> np.ndarray:
+            return simulate([planar], motion).changes[0, -1]
+    else:
+        from feeder.axis_design import run_axis_waveform
+
+        amplifier, waveform, lever_arm_m = _planar_plant_drive(args)
+        model = f"planar plant, {args.waveform.name}"
+
+        def change(planar: PlanarPart) -> np.ndarray:
+            run_ = run_axis_waveform(planar, waveform, args.axis, 2, amplifier, lever_arm_m=lever_arm_m)
+            return run_.pose_changes[-1]
+
     rows = []
-    for y in grid:
-        for x in grid:
-            planar = PlanarPart.from_part(part, friction, (float(x), float(y), args.pose[2]),
-                                          args.part_shape)  # fmt: skip
-            dx, dy, dpsi = simulate([planar], motion).changes[0, -1]
-            rows.append([float(x), float(y), float(dx), float(dy), float(dpsi)])
-    _quiver(np.array(rows), args, args.map)
+    for point in points:
+        dx, dy, dpsi = change(PlanarPart.from_part(part, friction, point, args.part_shape))
+        rows.append([point[0], point[1], float(dx), float(dy), float(dpsi)])
+    _quiver(np.array(rows), args, args.map, model)
     return rows
 
 
-def _quiver(rows: np.ndarray, args: argparse.Namespace, path: Path) -> None:
+def _quiver(rows: np.ndarray, args: argparse.Namespace, path: Path, model: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -336,8 +360,8 @@ def _quiver(rows: np.ndarray, args: argparse.Namespace, path: Path) -> None:
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.set_aspect("equal")
-    ax.set_title(f"{args.part} µm, ψ = {args.pose[2]:g} rad, axis {args.axis}: pose change per period",
-                 fontsize=9)  # fmt: skip
+    ax.set_title(f"{args.part} µm, ψ = {args.pose[2]:g} rad, axis {args.axis}: pose change per period\n"
+                 f"{model}", fontsize=9)  # fmt: skip
     fig.tight_layout()
     fig.subplots_adjust(bottom=0.15)  # room for the key below the x label
     save_figure(fig, path)
