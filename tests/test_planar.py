@@ -324,14 +324,17 @@ def test_cli_theta_pose_forms_poses_and_steady_state(capsys: pytest.CaptureFixtu
 
 
 def test_cli_map_on_the_planar_plant_is_the_simulated_pose_change(capsys: pytest.CaptureFixture[str],
+                                                                     monkeypatch: pytest.MonkeyPatch,
                                                                      tmp_path: object) -> None:  # fmt: skip
     """--map with --waveform runs the planar plant (amplifier, stack, stick-slip) at every grid
     pose: a row is what ``simulate --pose`` gives for the second period there; under θ a part at
-    O does not translate and one at (+e, +e) orbits towards −x, +y; under x the field is uniform."""
+    O does not translate and one at (+e, +e) orbits towards −x, +y; under x the field is uniform.
+    A long map reports its progress on stderr."""
     import json
     from pathlib import Path
 
     from feeder.cli import main
+    from feeder.cli import simulate as simulate_cli
 
     png = Path(str(tmp_path)) / "map.png"
     wave = ["simulate", "--part", "300x300x50", "--waveform", "waveforms/paper-100hz-200vpp.toml", "--json"]
@@ -345,8 +348,11 @@ def test_cli_map_on_the_planar_plant_is_the_simulated_pose_change(capsys: pytest
     assert main([*wave, "--axis", "theta", "--pose=3e-3,3e-3,0", "--periods", "2"]) == 0
     poses = np.array(json.loads(capsys.readouterr().out)["poses"])
     np.testing.assert_allclose(corner[2:], poses[1] - poses[0], rtol=0, atol=1e-15)
+    monkeypatch.setattr(simulate_cli, "MAP_PROGRESS_S", 0.0)  # as if every pose took long
     assert main([*wave, "--axis", "x", *grid]) == 0
-    rows = np.array(json.loads(capsys.readouterr().out)["map_pose_changes"])
+    printed = capsys.readouterr()
+    assert "--map 1/9 poses" in printed.err and "--map 9/9 poses" in printed.err
+    rows = np.array(json.loads(printed.out)["map_pose_changes"])
     assert rows[0, 2] > 1e-6 and np.allclose(rows[:, 2], rows[0, 2], rtol=1e-9, atol=0)
     assert np.all(np.abs(rows[:, 3:]) < 1e-15)
     assert main(["simulate", "--part", "300x300x50", "--axis", "x", "--json", *grid]) == 2

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -308,6 +309,10 @@ def _theta_plant(args: argparse.Namespace, part: Part, friction: Friction) -> tu
     return run_.steps_m, run_.slip_fraction, run_.poses[1:], extra
 
 
+MAP_PROGRESS_S = 2.0
+"""A --map that runs longer prints its progress to stderr this often (s)."""
+
+
 def _map(args: argparse.Namespace, part: Part, friction: Friction) -> list[list[float]]:
     """Steady-state pose change (the second period) at each grid pose; draws the quiver plot.
 
@@ -334,9 +339,13 @@ def _map(args: argparse.Namespace, part: Part, friction: Friction) -> list[list[
             return run_.pose_changes[-1]
 
     rows = []
+    shown = time.monotonic()
     for point in points:
         dx, dy, dpsi = change(PlanarPart.from_part(part, friction, point, args.part_shape))
         rows.append([point[0], point[1], float(dx), float(dy), float(dpsi)])
+        if time.monotonic() - shown > MAP_PROGRESS_S:  # long maps say how far they are
+            print(f"feeder simulate: --map {len(rows)}/{len(points)} poses", file=sys.stderr, flush=True)
+            shown = time.monotonic()
     _quiver(np.array(rows), args, args.map, model)
     return rows
 
