@@ -131,8 +131,6 @@ def stop_on_all_axes(axes: Axes, camera: PositionSensor) -> None:
     assert settled(camera) == pytest.approx(stopped, abs=1e-9)
 
 
-@pytest.mark.slow  # θ slips are far slower than real time in the planar plant for now (minutes)
-@pytest.mark.timeout(600)
 def test_theta_turns_the_plate_about_o() -> None:
     sim = start("serial")
     try:
