@@ -241,6 +241,20 @@ def test_planar_plant_hands_its_drive_back_when_the_kernels_are_switched_off() -
     np.testing.assert_allclose(switched.output_voltages_v, whole.output_voltages_v, rtol=0, atol=1e-9)
 
 
+def test_planar_arrays_have_the_sizes_their_layout_names() -> None:
+    """A part's parameter row, its state, the plate and a drive row are as long as
+    :mod:`.planar_arrays` says: a column added in one place and not the other fails here."""
+    part = PlanarPart.from_part(PLANAR_PART, Friction(105.25, 0.8), (2e-3, 0.0, 0.0))
+    plant = PlanarPlant([part])
+    plant.advance(np.full((3, 10), 5.0))
+    pa = planar_arrays
+    assert plant.contact._params.shape == (1, pa.PARAM_SIZE)
+    assert plant.contact._array.shape == (1, pa.STATE_SIZE)
+    assert plant.contact._plate_array.shape == (pa.PLATE_SIZE,)
+    if kernels.enabled():  # the drive array exists on the compiled path only
+        assert plant._drive is not None and plant._drive.shape == (3, pa.DRIVE_SIZE)
+
+
 def test_planar_gauge_compiled_equals_scipy() -> None:
     """The compiled BFGS gauge finds the scipy one's limit-surface point (rectangle and disc)."""
     for patch in (Patch("rectangle", 300e-6, 200e-6), Patch("disc", 200e-6, 200e-6)):

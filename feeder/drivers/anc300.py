@@ -212,8 +212,6 @@ class Anc300Amplifier(Amplifier):
     is the time base of the host's burst bookkeeping (``time.monotonic``).
     """
 
-    counts_steps = False
-
     def __init__(self, link: Anc300Link, axis: int = 1, clock: Callable[[], float] = time.monotonic) -> None:
         self.link = link
         self.axis = axis

@@ -51,8 +51,7 @@ reference's (1e-16 m, ...), and 1e-16 s for the time (a part at 0.1 m/s: 1e-17 m
 _EPS = float(np.finfo(np.float64).eps)
 
 
-# Dormand-Prince 5(4) (scipy's RK45)
-_C2, _C3, _C4, _C5 = 1 / 5, 3 / 10, 4 / 5, 8 / 9
+# Dormand-Prince 5(4) (scipy's RK45); no nodes c_i: the time is z's last component
 _A21 = 1 / 5
 _A31, _A32 = 3 / 40, 9 / 40
 _A41, _A42, _A43 = 44 / 45, -56 / 15, 32 / 9
