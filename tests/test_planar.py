@@ -355,6 +355,8 @@ def test_cli_map_on_the_planar_plant_is_the_simulated_pose_change(capsys: pytest
     assert np.all(np.abs(rows[:, 3:]) < 1e-15)
     assert main(["simulate", "--part", "300x300x50", "--axis", "x", "--json", *grid]) == 2
     assert "--map" in capsys.readouterr().err
+    assert main([*wave, "--axis", "x", "--scatter", "0.1", *grid]) == 2
+    assert "--scatter" in capsys.readouterr().err
 
 
 def test_cli_y_axis_is_the_x_step_on_y(capsys: pytest.CaptureFixture[str]) -> None:

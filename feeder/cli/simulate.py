@@ -132,6 +132,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--waveform", "required with --axis theta unless --ideal")
     if args.map is not None and not args.ideal and args.waveform is None:
         raise InputError("--map", "needs --waveform (the planar plant) or --ideal")
+    if args.map is not None and not args.ideal and args.scatter > 0:
+        raise InputError("--scatter", "the planar plant behind --map has no scatter")
     if not 2 <= args.map_points <= 41:
         raise InputError("--map-points", f"must be 2–41, got {args.map_points}")
     if args.axis == "theta" and args.plot:
