@@ -39,13 +39,13 @@ import numpy as np
 from feeder.errors import InputError
 from feeder.plant import kernels, limit_surface_kernels, planar_arrays
 from feeder.plant import planar_kernels as pk
+from feeder.plant.planar_kernels import _HELD_MARGIN
 from feeder.plant.planar_part import PlanarPart, Pose, check_overlaps
 from feeder.plant.planar_reference import RTOL, PartState, Plate
 from feeder.plant.plate_motion import PlanarMotion, Segment
 
 _SKIP_HELD = True
 """Skip samples in bulk while every part is surely held (tests switch it off to compare)."""
-_HELD_MARGIN = 1 - 1e-6
 _DISC_NODES = limit_surface_kernels.DISC_NODES
 
 

@@ -56,14 +56,15 @@ from feeder.plant.planar_arrays import (
     relative_twist,
     twist_dot,
 )
-from feeder.plant.slip_kernels import integrate_slip
+from feeder.plant.slip_kernels import _EPS, integrate_slip
 
 _SEED_TIME_S = 1e-12
+"""A part breaking loose starts with the twist a_s·1e-12 s along its breakaway direction."""
 _STOP = 1e-10
+"""A slip ends when the twist has fallen below this fraction of its value at the start."""
 _BREAKAWAY_SAMPLES = 16
 _HELD_MARGIN = 1 - 1e-6
 _NO_DRAWS = np.zeros(0)
-_EPS = float(np.finfo(np.float64).eps)
 
 
 @_jit

@@ -14,23 +14,12 @@ import numpy as np
 from scipy.integrate import DOP853
 from scipy.optimize import brentq
 
-from feeder.plant import kernels, slip_kernels
+from feeder.plant import kernels
+from feeder.plant.planar_kernels import _BREAKAWAY_SAMPLES, _NO_DRAWS, _SEED_TIME_S, _STOP
 from feeder.plant.planar_part import PlanarPart, Pose
 from feeder.plant.plate_motion import Segment
+from feeder.plant.slip_kernels import _MISS2, _NEAR_ZERO, _ROUNDING, _UNRESOLVED
 
-_SEED_TIME_S = 1e-12
-"""A part breaking loose starts with the twist a_s·1e-12 s along its breakaway direction."""
-_STOP = 1e-10
-"""A slip ends when the twist has fallen below this fraction of its value at the start."""
-_BREAKAWAY_SAMPLES = 16
-_ROUNDING = 1e-14
-"""A twist this small relative to the part's lab velocity is rounding: it has vanished."""
-_MISS2 = slip_kernels._MISS2
-"""A twist whose linear closest approach stays above half its size (squared: this) turns, not vanishes."""
-_NEAR_ZERO = slip_kernels._NEAR_ZERO
-_UNRESOLVED = slip_kernels._UNRESOLVED
-"""A shrinking twist within this many absolute error scales of the velocities has vanished."""
-_NO_DRAWS = np.zeros(0)
 _ATOL = np.array([1e-16, 1e-16, 1e-13, 1e-13, 1e-13, 1e-9])
 """Absolute tolerances of (c − c₀, φ − φ₀, v, ω) at :data:`RTOL` (scaled with rtol)."""
 RTOL = 1e-10

@@ -34,6 +34,7 @@ from feeder.plant.planar_arrays import (
 )
 
 _ROUNDING = 1e-14
+"""A twist this small relative to the part's lab velocity is rounding: it has vanished."""
 _ALIGNED = 0.9
 _STRAIGHT = 0.5
 """A twist shrinking this straight (cosine of twist and its rate) fades in ln|twist| (:func:`_fade`)."""
