@@ -42,15 +42,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from feeder.sweep import (
-    DEFAULTS,
-    WORKER_MALLOC_ENV,
-    SweepSettings,
-    SweepSpec,
-    local_cluster,
-    run_sweep,
-    warm_up,
-)
+from feeder.sweep import WORKER_MALLOC_ENV, local_cluster, run_sweep, warm_up
+from feeder.sweep_spec import DEFAULTS, SweepSettings, SweepSpec
 
 PROBE_LOOPS = 10_000_000
 PERIODS = 150

@@ -120,8 +120,8 @@ def test_wrong_objects_and_sub_indices_abort_over_slcan(
 def stops_every_axis(axes: Axes, camera: PositionSensor) -> None:
     """A long burst on x, then :meth:`Axes.stop`: the part stops far short of the burst.
 
-    (test_axes' ``stop_on_all_axes`` bounds the run-on by 50 µm, ~17 steps: on the virtual
-    clock the plant runs as fast as the CPU allows, so that bound measures the machine's
+    (test_axes' ``stop_on_all_axes`` bounds the run-on by 1 mm, ~300 steps: on the virtual
+    clock the plant runs as fast as the CPU allows, so the run-on measures the machine's
     load as much as the link; measured 14–53 µm with one node per axis, 16–122 µm with one
     node of three axes on a loaded 2-core machine.)"""
     before = settled(camera)

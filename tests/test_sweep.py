@@ -18,7 +18,8 @@ from feeder.parts import Part  # noqa: E402
 from feeder.plant.ideal_plate import linear_flyback_step  # noqa: E402
 from feeder.plant.plant import run_waveform  # noqa: E402
 from feeder.plant.stick_slip import Friction  # noqa: E402
-from feeder.sweep import load_spec, parts_dir, run_sweep  # noqa: E402
+from feeder.sweep import parts_dir, run_sweep  # noqa: E402
+from feeder.sweep_spec import DEFAULTS, SweepSettings, load_spec  # noqa: E402
 from feeder.waveform import Waveform  # noqa: E402
 
 BIG = """
@@ -193,12 +194,12 @@ def test_the_contact_is_solved_once_per_input_not_per_chunk(monkeypatch):
 
     monkeypatch.setattr(sweep, "contact", counting)
     sweep.breakaway_accel_m_s2.cache_clear()
-    rows = [{**sweep.DEFAULTS, "part": p, "amplitude_vpp": v} for p in ("300x300x50", "500x500x50")
+    rows = [{**DEFAULTS, "part": p, "amplitude_vpp": v} for p in ("300x300x50", "500x500x50")
             for v in (100.0, 150.0)]  # fmt: skip
-    settings = sweep.SweepSettings(model="ideal", periods=2)
+    settings = SweepSettings(model="ideal", periods=2)
     frames = [sweep.evaluate_chunk(settings, rows[k : k + 1]) for k in range(4)]
     assert sorted(calls) == ["300x300x50", "500x500x50"]
-    expected = contact(Part.parse("500x500x50"), tau_pa=sweep.DEFAULTS["tau_pa"]).breakaway_accel_m_s2
+    expected = contact(Part.parse("500x500x50"), tau_pa=DEFAULTS["tau_pa"]).breakaway_accel_m_s2
     assert frames[3]["breakaway_accel_m_s2"].iloc[0] == expected
     sweep.breakaway_accel_m_s2.cache_clear()
 

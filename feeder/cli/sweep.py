@@ -33,7 +33,8 @@ def run(args: argparse.Namespace) -> int:
     if args.out.suffix.lower() != ".parquet":
         raise InputError("--out", f"expected a .parquet file, got {args.out}")
     try:
-        from feeder.sweep import load_spec, run_sweep
+        from feeder.sweep import run_sweep
+        from feeder.sweep_spec import load_spec
     except ImportError as err:
         raise InputError(
             "feeder sweep", f"needs the sweep extra (pip install 'feeder[sweep]'): {err}"
