@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
 
+from feeder.daemon.calibration import calibration_bursts
 from feeder.daemon.control_loop import (
     COARSE,
     FINE,
@@ -27,7 +28,6 @@ from feeder.daemon.control_loop import (
 )
 from feeder.daemon.jobs import Reading
 from feeder.daemon.line_navigator import LineNavigator
-from feeder.daemon.service import calibration_bursts
 from feeder.drivers.amplifier import DriveSettings
 
 COARSE_V, FINE_V = 100.0, 40.0

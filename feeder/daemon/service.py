@@ -28,9 +28,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Protocol
 
+from feeder.daemon.calibration import CALIBRATION_STEPS, calibration_bursts, calibration_room, fine_steps_for
 from feeder.daemon.control_loop import (
     COARSE,
-    FINE,
     Burst,
     ControlLoop,
     Job,
@@ -40,17 +40,17 @@ from feeder.daemon.control_loop import (
     StepMode,
 )
 from feeder.daemon.executor import per_axis
+from feeder.daemon.move_records import MoveRecords
 from feeder.daemon.quiet_window import QuietWindow
 from feeder.daemon.socket_server import SocketServer
-from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
-from feeder.daemon.store import Calibration, Store
+from feeder.daemon.step_estimator import FORWARD
+from feeder.daemon.store import Store
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import FeederError, InputError
 
 log = logging.getLogger(__name__)
 
-CALIBRATION_STEPS = 20
 POSE_KEYS = ("x_m", "y_m", "angle_rad")
 """A pose move's target, any subset (m, m, rad; plate frame)."""
 BACKOFF_FIRST_S = 0.2
@@ -89,22 +89,6 @@ class DaemonSetup:
     parts: tuple[dict[str, Any], ...] = ()
 
 
-def calibration_bursts(coarse_steps: int, fine_steps: int) -> tuple[Burst, ...]:
-    """Per waveform and direction: one step (takes up a reversal, not learned from), then a
-    short and a long burst (¼ and ¾ of the steps: two lengths separate the step from the
-    burst offset).  The part ends about where it started."""
-    bursts = []
-    for mode, total in ((COARSE, coarse_steps), (FINE, fine_steps)):
-        short = max(1, total // 4)
-        for direction in (FORWARD, BACKWARD):
-            bursts += [
-                Burst(mode, direction, 1),
-                Burst(mode, direction, short),
-                Burst(mode, direction, total - short),
-            ]
-    return tuple(bursts)
-
-
 def lock_state(database_path: Path) -> IO[bytes]:
     """An exclusive lock beside the database (released when the process dies, even by SIGKILL).
 
@@ -139,6 +123,7 @@ class Daemon:
             undo.callback(self._state_lock.close)
             self.store = Store(setup.database_path)
             undo.callback(self.store.close)
+            self.records = MoveRecords(self.store, setup.calibration_key, setup.pose_navigator is not None)
             self.interrupted_moves = self.store.interrupt_running_moves()
             amplifiers = per_axis(links.open_amplifier())
             self._amplifier_generation = getattr(links, "respawns", 0)
@@ -148,15 +133,13 @@ class Daemon:
             sensor = links.open_sensor()
             navigator = None
             if setup.pose_navigator is not None:
-                kept = self.store.pose_response()  # only what was learned with this part and waveforms
-                restored = kept if kept is not None and kept.get("key") == setup.calibration_key else None
-                navigator = setup.pose_navigator(restored)
+                navigator = setup.pose_navigator(self.records.restored_pose_response())
             self.loop = ControlLoop(
                 amplifiers,
                 sensor,
                 setup.modes,
                 setup.loop,
-                estimates=self._restored_estimates(),
+                estimates=self.records.restored_estimates(),
                 axis_modes=setup.axis_modes,
                 navigator=navigator,
                 on_position=self.store.save_position,
@@ -206,47 +189,6 @@ class Daemon:
         self.store.close()
         self._state_lock.close()
 
-    # -- calibration persistence -------------------------------------------
-    def _key(self, mode_direction: str) -> str:
-        return f"{self.setup.calibration_key}/{mode_direction}"
-
-    def _restored_estimates(self) -> dict[str, StepEstimate]:
-        out = {}
-        for mode in (COARSE, FINE):
-            for direction in (FORWARD, BACKWARD):
-                name = f"{mode}/{direction}"
-                cal = self.store.calibration(self._key(name))
-                if cal is not None:
-                    out[name] = StepEstimate(
-                        cal.step_m,
-                        cal.variance_m2,
-                        cal.steps,
-                        cal.offset_m,
-                        cal.offset_variance_m2,
-                        cal.covariance_m2,
-                    )
-        return out
-
-    def _save_estimates(self) -> None:
-        if self.setup.pose_navigator is not None:
-            self.store.save_pose_response({"key": self.setup.calibration_key, **self.loop.estimates_json()})
-            return
-        now = time.time()
-        for name, est in self.loop.estimates().items():
-            if est.steps > 0:
-                self.store.save_calibration(
-                    Calibration(
-                        self._key(name),
-                        est.step_m,
-                        est.variance_m2,
-                        est.steps,
-                        now,
-                        est.offset_m,
-                        est.offset_variance_m2,
-                        est.covariance_m2,
-                    )
-                )
-
     # -- jobs ----------------------------------------------------------------
     def _new_job(
         self,
@@ -259,51 +201,9 @@ class Daemon:
         part: int = 1,
     ) -> Job:
         job = Job(kind, target_m=target_m, by_m=by_m, bursts=bursts, pose_target=pose_target, part=part)
-        job.on_start = lambda: self._record_start(job)
-        job.on_done = lambda result: self._record_end(job, result)
+        job.on_start = lambda: self.records.begin(job, self.loop)
+        job.on_done = lambda result: self.records.finish(job, result, self.loop)
         return job
-
-    def _record_start(self, job: Job) -> None:
-        if job.kind == "move" and job.target_m is not None:
-            reading = self.loop.reading
-            start = None if reading is None or job.target_pose is None else reading[job.part - 1]
-            job.record_id = self.store.begin_move(
-                job.target_m,
-                self.loop.position_m if start is None else start[0],
-                part=job.part if job.target_pose is not None else None,
-                target_pose=job.target_pose,
-                start_pose=start,
-            )
-
-    def _record_end(self, job: Job, result: JobResult) -> None:
-        log.info(
-            "%s %s: %s (target %s m, reached %s m, %d steps in %d bursts)",
-            job.kind,
-            result.status,
-            result.reason,
-            result.target_m,
-            result.reached_m,
-            result.steps,
-            result.bursts,
-        )
-        self._save_estimates()
-        if job.record_id is not None:
-            est = result.estimates
-            forward, backward = (est.get(f"{COARSE}/{d}", {}).get("step_m") for d in (FORWARD, BACKWARD))
-            self.store.finish_move(
-                job.record_id,
-                status=result.status,
-                reason=result.reason,
-                reached_m=result.reached_m,
-                steps=result.steps,
-                bursts=result.bursts,
-                step_forward_m=forward,
-                step_backward_m=backward,
-                steps_estimated=result.steps_estimated,
-                reached_pose=result.reached_pose if result.target_pose is not None else None,
-                error_m=result.error_m,
-                error_rad=result.error_rad,
-            )
 
     def _refuse_queued(self, job: Job, reason: str) -> None:
         job.result = JobResult(job.kind, "refused", reason, job.target_m, None, None, 0, 0, 0.0, {})
@@ -489,15 +389,7 @@ class Daemon:
             return {"ok": False, "error": allowed}
         limited = steps > allowed
         steps = min(steps, allowed)
-        fine_steps = max(
-            2,
-            round(
-                steps
-                * self.setup.modes[COARSE].predicted_step_m
-                / self.setup.modes[FINE].predicted_step_m
-                / 4
-            ),
-        )
+        fine_steps = fine_steps_for(steps, self.setup.modes)
         reply = self._run_job(
             self._new_job("calibrate", None, None, calibration_bursts(steps, fine_steps)), request
         )
@@ -510,29 +402,16 @@ class Daemon:
         return reply
 
     def _calibration_room(self) -> int | str:
-        """The most coarse steps per direction a calibration may take from where the part is:
-        its bursts go forward first and come back (the excursion, with a pessimistic step
-        and 25 % margin, must fit before the upper limit; the return's asymmetry, 25 % of
-        it, behind).  A reason string when there is no room or no position."""
+        """:func:`.calibration_room` from where the part is (waiting up to the sensor timeout for a
+        first reading); a reason string when there is no room or no position."""
         deadline = time.monotonic() + self.setup.sensor_timeout_s
         while self.loop.position_m is None and time.monotonic() < deadline:
             time.sleep(0.01)  # just started: the first frame is on its way
         x = self.loop.position_m
         if x is None:
             return "position uncertain: calibration needs a sensor reading first"
-        s = self.loop.settings
-        est = self.loop.estimates()[f"{COARSE}/{FORWARD}"]
-        step_high = max(
-            est.step_m + 2 * math.sqrt(est.variance_m2), self.setup.modes[COARSE].predicted_band_m[1]
-        )
-        ahead, behind = s.max_position_m - x, x - s.min_position_m
-        allowed = math.floor(min(ahead / 1.25, behind / 0.25) / step_high) - 1
-        if allowed < 2:
-            return (
-                f"no room to calibrate: the part at {x:.6g} m is {ahead:.3g} m from the "
-                f"upper and {behind:.3g} m from the lower travel limit; move it inwards"
-            )
-        return allowed
+        estimate = self.loop.estimates()[f"{COARSE}/{FORWARD}"]
+        return calibration_room(x, self.loop.settings, estimate, self.setup.modes[COARSE].predicted_band_m[1])
 
     def _cmd_stop(self, request: dict[str, Any]) -> dict[str, Any]:
         with self._lock:

@@ -1,0 +1,120 @@
+"""What the daemon keeps in its state database for its jobs: the learned steps (or, in the plane,
+the learned pose response) under the calibration key, and every move from start to end."""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+from feeder.daemon.control_loop import ControlLoop
+from feeder.daemon.jobs import Job, JobResult
+from feeder.daemon.line_navigator import COARSE, FINE
+from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
+from feeder.daemon.store import Calibration, Store
+
+log = logging.getLogger(__name__)
+
+
+class MoveRecords:
+    """The store as the jobs use it.
+
+    calibration_key: identifies part, support and waveforms: a learned step is only
+    reused for the same combination.  pose_control: the plane's navigator, whose
+    learned response is kept whole instead of per mode and direction.
+    """
+
+    def __init__(self, store: Store, calibration_key: str, pose_control: bool) -> None:
+        self.store = store
+        self.calibration_key = calibration_key
+        self.pose_control = pose_control
+
+    def _key(self, mode_direction: str) -> str:
+        return f"{self.calibration_key}/{mode_direction}"
+
+    def restored_estimates(self) -> dict[str, StepEstimate]:
+        """The learned steps per ``mode/direction`` kept for this calibration key."""
+        out = {}
+        for mode in (COARSE, FINE):
+            for direction in (FORWARD, BACKWARD):
+                name = f"{mode}/{direction}"
+                cal = self.store.calibration(self._key(name))
+                if cal is not None:
+                    out[name] = StepEstimate(
+                        cal.step_m,
+                        cal.variance_m2,
+                        cal.steps,
+                        cal.offset_m,
+                        cal.offset_variance_m2,
+                        cal.covariance_m2,
+                    )
+        return out
+
+    def restored_pose_response(self) -> dict[str, Any] | None:
+        """The plane's learned response, only if it was learned with this part and waveforms."""
+        kept = self.store.pose_response()
+        return kept if kept is not None and kept.get("key") == self.calibration_key else None
+
+    def save_estimates(self, loop: ControlLoop) -> None:
+        if self.pose_control:
+            self.store.save_pose_response({"key": self.calibration_key, **loop.estimates_json()})
+            return
+        now = time.time()
+        for name, est in loop.estimates().items():
+            if est.steps > 0:
+                self.store.save_calibration(
+                    Calibration(
+                        self._key(name),
+                        est.step_m,
+                        est.variance_m2,
+                        est.steps,
+                        now,
+                        est.offset_m,
+                        est.offset_variance_m2,
+                        est.covariance_m2,
+                    )
+                )
+
+    def begin(self, job: Job, loop: ControlLoop) -> None:
+        """A move is recorded ``running`` before its first step (a daemon killed mid-move finds it)."""
+        if job.kind == "move" and job.target_m is not None:
+            reading = loop.reading
+            start = None if reading is None or job.target_pose is None else reading[job.part - 1]
+            job.record_id = self.store.begin_move(
+                job.target_m,
+                loop.position_m if start is None else start[0],
+                part=job.part if job.target_pose is not None else None,
+                target_pose=job.target_pose,
+                start_pose=start,
+            )
+
+    def finish(self, job: Job, result: JobResult, loop: ControlLoop) -> None:
+        """The learned steps, and the move's end (status, reason, where it ended)."""
+        log.info(
+            "%s %s: %s (target %s m, reached %s m, %d steps in %d bursts)",
+            job.kind,
+            result.status,
+            result.reason,
+            result.target_m,
+            result.reached_m,
+            result.steps,
+            result.bursts,
+        )
+        self.save_estimates(loop)
+        if job.record_id is not None:
+            est = result.estimates
+            forward, backward = (est.get(f"{COARSE}/{d}", {}).get("step_m") for d in (FORWARD, BACKWARD))
+            self.store.finish_move(
+                job.record_id,
+                status=result.status,
+                reason=result.reason,
+                reached_m=result.reached_m,
+                steps=result.steps,
+                bursts=result.bursts,
+                step_forward_m=forward,
+                step_backward_m=backward,
+                steps_estimated=result.steps_estimated,
+                reached_pose=result.reached_pose if result.target_pose is not None else None,
+                error_m=result.error_m,
+                error_rad=result.error_rad,
+            )
