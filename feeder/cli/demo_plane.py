@@ -189,6 +189,7 @@ def _plot(path: Path, moves: list[dict[str, Any]], part: Part) -> None:
         points = [((x + c * u - s * v) * 1e3, (y + s * u + c * v) * 1e3) for u, v in corners]
         ax.add_patch(Polygon(points, closed=True, fill=False, **style))
 
+    numbers: dict[tuple[float, float], list[str]] = {}
     for i, move in enumerate(moves):
         trace = move["trace"]
         if trace:
@@ -196,7 +197,9 @@ def _plot(path: Path, moves: list[dict[str, Any]], part: Part) -> None:
                     label="path (camera)" if i == 0 else "_")  # fmt: skip
         outline(move["target"], edgecolor="C3", ls="--", lw=1.2)
         outline(move["true_pose"], edgecolor="C2", lw=1.0)
-        ax.annotate(str(i + 1), (move["target"][0] * 1e3, move["target"][1] * 1e3), color="C3", fontsize=9)
+        numbers.setdefault((move["target"][0], move["target"][1]), []).append(str(i + 1))
+    for (x, y), names in numbers.items():  # moves to one place (e.g. only turning there) share a label
+        ax.annotate(", ".join(names), (x * 1e3, y * 1e3), color="C3", fontsize=9)
     ax.plot([], [], color="C3", ls="--", label="target outline")
     ax.plot([], [], color="C2", label="reached (simulator's truth)")
     ax.plot(0, 0, "k+", ms=10, label="rotation centre O")
