@@ -123,14 +123,23 @@ class PoseNavigator:
     # -- what it learned ---------------------------------------------------------------
 
     def axis_steps(self, pose: Pose | None) -> dict[str, dict[str, float]]:
-        """Each axis' learned coarse step forward: x and y in m; θ: the turn (rad) of a part
-        at ``pose`` (None: not seen)."""
+        """Each axis' learned coarse step forward and back: x and y in m (``step_m``,
+        ``step_back_m``, sizes); θ: the turn (rad) of a part at ``pose`` by one +θ step
+        (``step_rad``) and by one −θ step, sign flipped (``step_back_rad``; None: not seen)."""
         model = self.planner.model
         out: dict[str, dict[str, float]] = {
-            axis: {"step_m": model.step_m(axis, 1, "coarse")[0]} for axis in ("x", "y") if axis in self.axes
+            axis: {
+                "step_m": model.step_m(axis, 1, "coarse")[0],
+                "step_back_m": model.step_m(axis, -1, "coarse")[0],
+            }
+            for axis in ("x", "y")
+            if axis in self.axes
         }
         if "theta" in self.axes and pose is not None and "coarse" in model.modes("theta"):
-            out["theta"] = {"step_rad": model.turn_step(1, "coarse", *pose).turn_rad}
+            out["theta"] = {
+                "step_rad": model.turn_step(1, "coarse", *pose).turn_rad,
+                "step_back_rad": -model.turn_step(-1, "coarse", *pose).turn_rad,
+            }
         return out
 
     def estimates(self) -> dict[str, StepEstimate]:

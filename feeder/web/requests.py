@@ -78,7 +78,8 @@ def jog_request(status: dict[str, Any], axis: str, steps: int, part: int) -> dic
     """The move request for ``steps`` learned steps (sign = direction) of ``axis``.
 
     On a plane (more than one axis in the status' ``axes``): the part's pose plus ``steps`` ×
-    the axis' learned step (``axes[axis]["step_m"]``, ``["step_rad"]`` for theta); on one axis:
+    the axis' learned step in that direction (``axes[axis]["step_m"]`` forward,
+    ``["step_back_m"]`` back; ``["step_rad"]``, ``["step_back_rad"]`` for theta); on one axis:
     ``by_m``, with the coarse step learned in that direction.
     """
     if not 0 < abs(steps) <= MAX_JOG_STEPS:
@@ -101,6 +102,8 @@ def jog_request(status: dict[str, Any], axis: str, steps: int, part: int) -> dic
     key, index, field = {"x": ("step_m", 0, "x_m"), "y": ("step_m", 1, "y_m")}.get(
         axis, ("step_rad", 2, "angle_rad")
     )
+    if steps < 0:
+        key = key.replace("step_", "step_back_")
     step = axes[axis].get(key) if isinstance(axes[axis], dict) else None
     if not isinstance(step, (int, float)):
         raise ApiError(409, f"no learned step of axis {axis} to jog with")

@@ -357,6 +357,7 @@ function updateAxes(part) {
       const t = status.target_pose || (status.targets && status.targets[String(selectedPart())]);
       if (t && index !== undefined) goal = show(t[index]);
       forward = a.step_m !== undefined ? um(a.step_m) : a.step_rad !== undefined ? deg(a.step_rad) : summary(a);
+      backward = a.step_back_m !== undefined ? um(a.step_back_m) : a.step_back_rad !== undefined ? deg(a.step_back_rad) : "–";
     } else {
       position = um(status.position_m);
       goal = um(status.target_m);
