@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from feeder.cli.control import plane_status_lines
 from feeder.cli.demo_plane import config_for, move_to, true_poses, wait_for_pose
 from feeder.daemon.client import Client
 from feeder.daemon.runner import RunningDaemon, start_daemon
@@ -111,6 +112,18 @@ def test_the_embedded_default_is_the_plane_and_line_is_the_one_axis_world(tmp_pa
     try:
         with daemon.client() as client:
             status = wait_for_pose(client)
+            x, y, _ = status["parts"][0]["pose"]
+            accepted = client.request("move", part=1, x_m=x + 50e-6, y_m=y, wait=False)
+            assert accepted["ok"], accepted
+            moving = client.request("status")  # the running move's target, for the console and CLI
+            assert moving["target_part"] == 1 and moving["target_pose"][:2] == [x + 50e-6, y]
+            assert moving["target_pose"][2] == pytest.approx(status["parts"][0]["pose"][2], abs=1e-2)
+            text = plane_status_lines(moving)
+            assert text[0].startswith("part 1: (") and ", moving to (" in text[0]
+            assert text[1] == "tolerance: ±1.000 µm, ±0.100°; travel x [-2500.000 µm, 2500.000 µm]; " \
+                "travel y [-2500.000 µm, 2500.000 µm]"  # fmt: skip
+            assert [line.split(":")[0] for line in text[2:]] == ["axis x", "axis y", "axis theta"]
+            client.request("stop")
     finally:
         assert daemon.stop() == 0
     assert list(status["axes"]) == ["x", "y", "theta"]

@@ -11,6 +11,7 @@ import argparse
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from feeder.cli.arguments import allow_negative_values, angle_rad, int_in, length_m, positive_float
 from feeder.cli.output import print_json
@@ -109,10 +110,46 @@ def _client(args: argparse.Namespace) -> Client:
     return Client(args.socket, timeout_s=args.timeout)
 
 
-def _pose(pose: tuple[float, float, float] | None) -> str:
+def _pose(pose: tuple[float, float, float | None] | None) -> str:
     if pose is None:
         return "?"
-    return f"({pose[0] * 1e6:.2f}, {pose[1] * 1e6:.2f}) µm, {math.degrees(pose[2]):.3f}°"
+    angle = "any angle" if pose[2] is None else f"{math.degrees(pose[2]):.3f}°"
+    return f"({pose[0] * 1e6:.2f}, {pose[1] * 1e6:.2f}) µm, {angle}"
+
+
+def plane_status_lines(reply: dict[str, Any]) -> list[str]:
+    """``feeder status`` of a plate driven in x, y and θ: every part's pose (and target), the
+    tolerances, the travel and each axis' learned coarse step both ways."""
+    lines = []
+    for part in reply.get("parts") or ():
+        pose = part.get("pose")
+        target = reply.get("target_pose") if reply.get("target_part") == part.get("id") else None
+        lines.append(
+            f"part {part.get('id')}: {_pose(None if pose is None else tuple(pose))}"
+            + (f", moving to {_pose(tuple(target))}" if target is not None else "")
+        )
+    travel = reply.get("travel_m") or {}
+    tolerance_rad = reply.get("tolerance_rad")
+    lines.append(
+        f"tolerance: ±{_um(reply.get('tolerance_m'))}"
+        + (f", ±{math.degrees(tolerance_rad):.3f}°" if tolerance_rad is not None else "")
+        + "".join(f"; travel {axis} [{_um(lo)}, {_um(hi)}]" for axis, (lo, hi) in travel.items())
+    )
+    for axis, info in (reply.get("axes") or {}).items():
+        if "step_m" in info:
+            steps = f"+{_um(info['step_m'])} / −{_um(info.get('step_back_m'))}"
+        elif "step_rad" in info:
+            steps = (
+                f"+{_deg(info['step_rad'])} / −{_deg(info.get('step_back_rad'))} (part 1's turn where it is)"
+            )
+        else:
+            steps = "not learned yet"
+        lines.append(f"axis {axis}: coarse step {steps}")
+    return lines
+
+
+def _deg(value: float | None) -> str:
+    return "?" if value is None else f"{math.degrees(value):.4f}°"
 
 
 def _um(value: float | None) -> str:
@@ -213,24 +250,25 @@ def run_status(args: argparse.Namespace) -> int:
         print_json(reply)
         return 0
     print(f"state: {status.state}" + (f" ({status.fault})" if status.fault else ""))
-    print(
-        f"position: {_um(status.position_m)} ({status.position_state}; last known "
-        f"{_um(status.last_known_position_m)})"
-    )
-    if status.target_m is not None:
-        print(f"target: {_um(status.target_m)}")
-    if len(reply.get("axes") or {}) > 1:  # a plate driven in the plane: every part's pose
-        for part in status.parts:
-            print(f"part {part.id}: {_pose(part.pose)}")
-    lo, hi = status.travel_limits_m
-    print(f"tolerance: ±{_um(status.tolerance_m)}, travel limits [{_um(lo)}, {_um(hi)}]")
-    predicted = reply.get("predicted_steps_m", {})
-    for name, est in status.estimates.items():
-        mode = name.split("/")[0]
+    if len(reply.get("axes") or {}) > 1:  # a plate driven in the plane
+        for line in plane_status_lines(reply):
+            print(line)
+    else:
         print(
-            f"step {name}: {_um(est.step_m)} ± {_um(est.std_m)} after {est.steps} steps"
-            + (f" (predicted {_um(predicted[mode])})" if mode in predicted else "")
+            f"position: {_um(status.position_m)} ({status.position_state}; last known "
+            f"{_um(status.last_known_position_m)})"
         )
+        if status.target_m is not None:
+            print(f"target: {_um(status.target_m)}")
+        lo, hi = status.travel_limits_m
+        print(f"tolerance: ±{_um(status.tolerance_m)}, travel limits [{_um(lo)}, {_um(hi)}]")
+        predicted = reply.get("predicted_steps_m", {})
+        for name, est in status.estimates.items():
+            mode = name.split("/")[0]
+            print(
+                f"step {name}: {_um(est.step_m)} ± {_um(est.std_m)} after {est.steps} steps"
+                + (f" (predicted {_um(predicted[mode])})" if mode in predicted else "")
+            )
     t = reply.get("timing")
     if t:
         print(

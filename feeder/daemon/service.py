@@ -456,6 +456,7 @@ class Daemon:
             "position_state": "confirmed" if confirmed else "uncertain",
             "last_known_position_m": None if last_known is None else last_known.position_m,
             "target_m": None if job is None else job.target_m,
+            **_pose_target(job),
             "fault": loop.fault or (None if loop.sensor_lost is None else f"sensor lost: {loop.sensor_lost}"),
             "reconnecting": reconnecting,
             "faults": faults,
@@ -525,6 +526,14 @@ class Daemon:
         """What may change while running (a respawned simulator's pid and endpoints)."""
         describe = getattr(self.links, "describe", None)
         return describe() if callable(describe) else {}
+
+
+def _pose_target(job: Job | None) -> dict[str, Any]:
+    """The running pose move's part and target [x_m, y_m, psi_rad] (None: "any angle"), or nothing."""
+    if job is None or job.target_pose is None:
+        return {}
+    x, y, psi = job.target_pose
+    return {"target_part": job.part, "target_pose": [x, y, None if job.angle_free else psi]}
 
 
 def _close(amplifiers: dict[str, Amplifier]) -> None:

@@ -354,7 +354,7 @@ function updateAxes(part) {
       const index = { x: 0, y: 1, theta: 2 }[axis];
       const show = axis === "theta" ? deg : um;
       if (part && index !== undefined) position = show(part.pose[index]);
-      const t = status.target_pose || (status.targets && status.targets[String(selectedPart())]);
+      const t = part && status.target_part === part.id ? status.target_pose : null;  // the running pose move's
       if (t && index !== undefined) goal = show(t[index]);
       forward = a.step_m !== undefined ? um(a.step_m) : a.step_rad !== undefined ? deg(a.step_rad) : summary(a);
       backward = a.step_back_m !== undefined ? um(a.step_back_m) : a.step_back_rad !== undefined ? deg(a.step_back_rad) : "–";
