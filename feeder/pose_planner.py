@@ -150,6 +150,21 @@ class PosePlanner:
             self._job.bursts += 1
         return nxt
 
+    def burst_effect(self, burst: AxisBurst, poses: list[Pose]) -> list[tuple[float, float]]:
+        """Per part, how far (m) and by how much (rad, size) ``burst`` should move and turn it:
+        its first step's predicted effect times the steps (cheap; not the stepped
+        :meth:`~feeder.pose_response.ResponseModel.predict`)."""
+        model, n = self.model, burst.steps
+        if burst.axis != "theta":
+            return [(n * model.step_m(burst.axis, burst.direction, burst.mode)[0], 0.0)] * len(poses)
+        out = []
+        for x, y, psi in poses:
+            step = model.turn_step(burst.direction, burst.mode, x, y, psi)
+            out.append(
+                (n * math.hypot(step.radial_m, step.orbit_rad * math.hypot(x, y)), n * abs(step.turn_rad))
+            )
+        return out
+
     def learn(self, burst: AxisBurst, before: list[Pose], after: list[Pose]) -> None:
         """Fold in what ``burst`` did to every part."""
         for b, a in zip(before, after, strict=True):

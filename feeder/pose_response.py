@@ -20,6 +20,7 @@ whose prior correlates neighbouring bins (so one burst at 1.6 mm also informs
 from __future__ import annotations
 
 import bisect
+import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -32,6 +33,8 @@ from feeder.errors import InputError
 from feeder.plant.planar import PlanarPart, simulate
 from feeder.plant.plate_motion import AXES, PlanarMotion, sawtooth
 
+log = logging.getLogger(__name__)
+
 MODES = ("coarse", "fine")
 SEED_STD = 0.3
 """Prior relative uncertainty of every seed (1σ): the plant model within 30 %."""
@@ -39,6 +42,13 @@ BIN_CORRELATION_M = 0.5e-3
 """Correlation length of the θ gains over the radius (m)."""
 MODEL_STD = 0.03
 """Relative scatter a single burst adds beyond the sensor (pose-dependence the table misses)."""
+GATE_SIGMAS = 5.0
+"""A burst whose effect lies further than this many σ from the prediction is not learned from
+(σ² = the predicted effect's variance, at least the seed's :data:`SEED_STD`, plus the
+measurement's): a reading of another burst's motion (frames lagging behind on a loaded
+machine: a 2-step fine θ burst once "orbited" a part 0.24 rad and set gains of 228), not a
+change of the plant.  The seed's floor keeps a confident filter open to real drift (up to
+~1.5× the seed per burst)."""
 
 
 @dataclass(frozen=True)
@@ -180,16 +190,23 @@ class GainFilter:
         variance = t * t * c[i, i] + t * u * (c[i, i + 1] + c[i + 1, i]) + u * u * c[i + 1, i + 1]
         return float(t * g[i] + u * g[i + 1]), math.sqrt(max(float(variance), 0.0))
 
-    def update(self, r_m: float, predicted: float, measured: float, noise_var: float) -> None:
+    def update(self, r_m: float, predicted: float, measured: float, noise_var: float) -> bool:
+        """Fold in ``measured`` = g(r)·``predicted`` (variance ``noise_var``); False (nothing
+        changed) when it lies beyond :data:`GATE_SIGMAS` of the prediction."""
         h = self.weights(r_m) * predicted
-        s = float(h @ self.covariance @ h) + noise_var
+        spread = float(h @ self.covariance @ h)
+        s = spread + noise_var
         if s <= 0:
-            return
+            return False
+        innovation = measured - float(h @ self.gain)
+        if innovation**2 > GATE_SIGMAS**2 * (max(spread, (SEED_STD * predicted) ** 2) + noise_var):
+            return False
         k = self.covariance @ h / s
-        self.gain = self.gain + k * (measured - float(h @ self.gain))
+        self.gain = self.gain + k * innovation
         self.covariance = self.covariance - np.outer(k, h @ self.covariance)
         self.covariance = 0.5 * (self.covariance + self.covariance.T)
         self.updates += 1
+        return True
 
 
 @dataclass(frozen=True)
@@ -303,7 +320,8 @@ class ResponseModel:
             moved = direction * (after[0] - before[0] if axis == "x" else after[1] - before[1])
             predicted = steps * seed
             noise = 2 * self.sensor_noise_m**2 + (MODEL_STD * predicted) ** 2
-            self._gains[_key(axis, direction, mode)].update(0.0, predicted, moved, noise)
+            if not self._gains[_key(axis, direction, mode)].update(0.0, predicted, moved, noise):
+                _not_learned(_key(axis, direction, mode), predicted, moved)
             return
         table = self.turn[mode]
         # the seed's own prediction over the burst (gains 1), stepped through the table
@@ -321,14 +339,14 @@ class ResponseModel:
             math.atan2(after[1], after[0]) - math.atan2(before[1], before[0]), 2 * math.pi
         )
         angle_noise = 2 * self.sensor_noise_rad**2
-        self._gains[_key("theta", direction, mode, "turn")].update(
-            r_mid, turn_seed, turned, angle_noise + (MODEL_STD * turn_seed) ** 2
-        )
+        key = _key("theta", direction, mode, "turn")
+        if not self._gains[key].update(r_mid, turn_seed, turned, angle_noise + (MODEL_STD * turn_seed) ** 2):
+            _not_learned(key, turn_seed, turned)
         if r_mid > 0:
             orbit_noise = 2 * (self.sensor_noise_m / r_mid) ** 2 + (MODEL_STD * orbit_seed) ** 2
-            self._gains[_key("theta", direction, mode, "orbit")].update(
-                r_mid, orbit_seed, orbited, orbit_noise
-            )
+            key = _key("theta", direction, mode, "orbit")
+            if not self._gains[key].update(r_mid, orbit_seed, orbited, orbit_noise):
+                _not_learned(key, orbit_seed, orbited)
 
     def restore(self, estimates: dict[str, Any]) -> int:
         """Take back gains learned earlier (:meth:`estimates_json`, e.g. kept by the daemon's
@@ -359,6 +377,11 @@ class ResponseModel:
                 "bursts": f.updates,
             }
         return out
+
+
+def _not_learned(key: str, predicted: float, measured: float) -> None:
+    log.warning("%s: a burst's effect %.4g is far off the prediction %.4g; not learned from "
+                "(a reading of another motion?)", key, measured, predicted)  # fmt: skip
 
 
 def _key(axis: str, direction: int, mode: str, quantity: str = "step") -> str:

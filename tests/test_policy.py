@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import pytest
@@ -10,6 +11,7 @@ import pytest
 from feeder.daemon.policy import (
     COARSE,
     FINE,
+    MAX_SETTLE_S,
     Burst,
     Command,
     Completion,
@@ -363,3 +365,83 @@ def test_a_sensor_later_than_the_settle_time_is_waited_for_by_its_latency_as_see
     learned = policy.navigator.estimates_json()
     assert learned["coarse/forward"]["step_m"] == pytest.approx(3.0e-6, rel=0.05)
     assert abs(truth[-1][1] - 150e-6) <= SETTINGS.tolerance_m
+
+
+Timed = list[tuple[float, Output]]
+Camera = Callable[[float, list[tuple[float, float]], float], float]
+
+
+def run_with_camera(policy: Policy, job: Job, seen: Camera, until: Callable[[Timed], bool]) -> Timed:
+    """Drive ``policy`` on a fake clock until ``until(outputs)``; the part steps at 1 kHz from each
+    acknowledged step command; ``seen(now, truth, first_step_s)`` is what the camera shows at
+    ``now``.  Returns (time, output) pairs."""
+    step_m = {COARSE: 3.0e-6, FINE: 0.8e-6}
+    truth: list[tuple[float, float]] = [(0.0, 0.0)]
+    burst: tuple[float, int, float, str] | None = None
+    first_step_s = math.inf
+    now, outputs = 0.0, []
+    assert policy.submit(job, now) is None
+    while not until(outputs):
+        assert now < 30, outputs[-5:]
+        now += DT
+        if burst is not None:
+            start, steps, origin, mode = burst
+            played = min(abs(steps), int((now - start) * 1000.0))
+            truth.append((now, origin + math.copysign(played, steps) * step_m[mode]))
+        policy.on_sample(seen(now, truth, first_step_s), now)
+        for out in policy.tick(now):
+            outputs.append((now, out))
+            if isinstance(out, Started):
+                out.job.recorded = True
+            if isinstance(out, Decide):
+                policy.on_decision(policy.decide(out))
+            if isinstance(out, Command):
+                if out.kind == "step":
+                    burst = (now, out.steps, truth[-1][1], policy.applied("x") or COARSE)
+                    first_step_s = min(first_step_s, now)
+                policy.on_completion(Completion(out, now, counter=0))
+    return outputs
+
+
+def measured_after_burst(outputs: Timed) -> tuple[float, float] | None:
+    """(the first burst's confirmed end, the decision after it) once there is one."""
+    ends = [t for t, out in outputs if isinstance(out, Command) and out.kind == "confirm_end"]
+    later = [t for t, out in outputs if isinstance(out, Decide) and ends and t >= ends[0]]
+    return (ends[0], later[0]) if later else None
+
+
+def test_a_burst_is_measured_once_the_frames_agree_not_while_they_still_show_the_motion() -> None:
+    """The camera's lag jumps from 20 ms (the latency the policy has seen) to 150 ms in mid-burst
+    (a loaded machine): the frames after the settle time still show the part moving, then
+    not yet moved by the next burst.  Measured from them, the policy stepped 112 steps too far
+    and came back; it waits until the frames agree and show the burst's motion."""
+    policy = Policy(MODES, SETTINGS)
+
+    def seen(now: float, truth: list[tuple[float, float]], first_step_s: float) -> float:
+        lag = 0.02 if now < first_step_s + 0.1 else 0.15
+        return next((x for t, x in reversed(truth) if t <= now - lag), 0.0)
+
+    job = Job("move", target_m=900e-6)
+    outputs = run_with_camera(policy, job, seen, lambda o: any(isinstance(out, Finished) for _, out in o))
+    result = next(out.result for _, out in outputs if isinstance(out, Finished))
+    assert result.status == "done" and abs(result.error_m or 1) <= SETTINGS.tolerance_m
+    steps = [out.steps for _, out in outputs if isinstance(out, Command) and out.kind == "step"]
+    assert sum(n for n in steps[:2]) <= 300 and min(steps) >= -1, steps  # 900 µm: 300 coarse steps
+    learned = policy.navigator.estimators["coarse/forward"]  # type: ignore[attr-defined]
+    assert learned.estimate.step_m == pytest.approx(3.0e-6, rel=0.02)
+
+
+def test_frames_that_never_agree_are_measured_after_max_settle_but_not_learned_from() -> None:
+    policy = Policy(MODES, SETTINGS)
+
+    def seen(now: float, truth: list[tuple[float, float]], first_step_s: float) -> float:
+        flicker = 5e-6 if round(now / DT) % 2 else -5e-6  # ±5 µm: ten tolerances, frame to frame
+        return truth[-1][1] + (flicker if now > first_step_s else 0.0)
+
+    learned = policy.navigator.estimators["coarse/forward"]  # type: ignore[attr-defined]
+    outputs = run_with_camera(
+        policy, Job("move", target_m=900e-6), seen, lambda o: bool(measured_after_burst(o))
+    )
+    end_s, decided_s = measured_after_burst(outputs) or (0.0, 0.0)
+    assert decided_s - end_s >= MAX_SETTLE_S
+    assert learned.estimate.steps == 0  # measured (the move goes on), not learned from

@@ -58,6 +58,10 @@ class StepPlanner:
     def learn(self, burst: AxisBurst, before: list[Pose], after: list[Pose]) -> None:
         self.learned.append((burst.axis, burst.direction * burst.steps))
 
+    def burst_effect(self, burst: AxisBurst, poses: list[Pose]) -> list[tuple[float, float]]:
+        moved = (0.0, burst.steps * TURN_RAD) if burst.axis == "theta" else (burst.steps * STEP_M, 0.0)
+        return [moved] * len(poses)
+
     def estimates_json(self) -> dict[str, object]:
         return {"bursts": len(self.learned)}
 

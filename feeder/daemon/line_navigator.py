@@ -120,6 +120,12 @@ class LineNavigator:
             est.update(burst.steps, moved)
         return False
 
+    def expects_motion(self, burst: Burst, reading: Reading) -> bool:
+        """The burst should move the part by over three settle bands (:meth:`settled`)."""
+        s = self.settings
+        expected = self.estimators[f"{burst.mode}/{burst.direction}"].estimate.displacement_m(burst.steps)
+        return expected > 3 * max(s.tolerance_m, 6 * s.sensor_noise_m)
+
     def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
         """The next burst towards ``job.target_m``, or (status, reason) when the job is over."""
         s = self.settings

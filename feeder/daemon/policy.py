@@ -15,7 +15,11 @@ States (:data:`STATES`):
 - ``moving``: a job is preparing the output or a burst is playing.
 - ``settling``: the burst is over; wait ``settle_s`` (stack ringing, sensor
   latency) or, if longer, the sensor's latency as seen (:attr:`Policy.latency_s`),
-  average ``average_samples`` fresh readings, learn, decide.  The navigator
+  average ``average_samples`` fresh readings that agree (the part settled in them) and,
+  for a burst the navigator expects to move a part visibly, show that it moved: frames that
+  lag behind the latency seen still show the part moving or not yet moved.  Up to
+  :data:`MAX_SETTLE_S` more for that, then measure (without learning from frames that never
+  agreed); learn, decide.  The navigator
   decides off the tick: the policy emits a :class:`~feeder.daemon.jobs.Decide`,
   the loop runs :meth:`Policy.decide` on a thread of its own, and the answer
   comes back through :meth:`Policy.on_decision` (one answered after the job
@@ -111,6 +115,8 @@ class Navigator(Protocol):
 
     def learn(self, burst: Burst, learnable: bool, before: Reading, after: Reading) -> bool: ...
 
+    def expects_motion(self, burst: Burst, reading: Reading) -> bool: ...
+
     def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]: ...
 
     def reached(self, job: Job, reading: Reading) -> None: ...
@@ -138,6 +144,7 @@ class _Burst:
     started_s: float = math.inf  # acknowledged
     ended_s: float = math.inf  # its end confirmed
     moved_seen: bool = False  # a reading after the start showed the part moved
+    visible: bool = False  # expected to move a part beyond the settle band (the navigator's)
     confirming: bool = False
 
 
@@ -468,7 +475,14 @@ class Policy:
             return
         if now < self._settle_until or len(self._samples) < s.average_samples:
             return
-        reading = mean_reading(self._samples[-s.average_samples :])
+        b = self._measured
+        if b is not None and b.visible and not b.moved_seen and now < b.ended_s + MAX_SETTLE_S:
+            return  # the frames do not show the burst's motion yet (they lag more than seen): wait
+        recent = self._samples[-s.average_samples :]
+        steady = self.navigator.settled(recent)
+        if not steady and now < self._settle_until + MAX_SETTLE_S:
+            return  # the frames still show the part moving (they lag behind the motion): wait
+        reading = mean_reading(recent)
         self._samples = []
         self._out.append(SavePosition(reading[0][0], reading))
         if job.start_m is None:
@@ -476,7 +490,7 @@ class Policy:
             job.start_m = job.start_pose[0]
         if self._measured is not None:
             b = self._measured
-            if self.navigator.learn(b.burst, b.learnable, b.before, reading):
+            if self.navigator.learn(b.burst, b.learnable and steady, b.before, reading):
                 job.stalls += 1
             else:
                 job.stalls = 0
@@ -538,7 +552,8 @@ class Policy:
                 return
         reversed_ = self._last_direction.get(nxt.axis) != nxt.direction  # None: unknown history
         self._last_direction[nxt.axis] = nxt.direction
-        self._burst = _Burst(nxt, reading, learnable=not (reversed_ or unmeasured_switch), reversed=reversed_)
+        self._burst = _Burst(nxt, reading, learnable=not (reversed_ or unmeasured_switch), reversed=reversed_,
+                             visible=self.navigator.expects_motion(nxt, reading))  # fmt: skip
         job.steps += nxt.steps
         job.bursts += 1
         job.bursts_per_axis[nxt.axis] = job.bursts_per_axis.get(nxt.axis, 0) + 1

@@ -107,6 +107,13 @@ class PoseNavigator:
         changes = [pose_error(a, b, 2 * math.pi) for a, b in zip(before, after, strict=False)]
         return all(distance <= noise_m and angle <= 1e-4 for distance, angle in changes)
 
+    def expects_motion(self, burst: Burst, reading: Reading) -> bool:
+        """Some part should move by over three settle bands (:meth:`settled`)."""
+        s = self.settings
+        band_m, band_rad = 3 * max(s.tolerance_m, 6 * s.sensor_noise_m), 3 * s.tolerance_rad
+        effects = self.planner.burst_effect(_axis_burst(burst), list(reading))
+        return any(moved > band_m or turned > band_rad for moved, turned in effects)
+
     def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
         assert job.target_pose is not None
         nxt = self.planner.next_burst(list(reading), self._targets(job, job.target_pose))
