@@ -196,17 +196,22 @@ def console_app(
         reader = asyncio.create_task(drain())
         sent_frame = 0
         deadline = time.monotonic()
+        watching = camera.watching() if camera is not None else contextlib.nullcontext()
         try:
-            while not closed.is_set() and ws.application_state == WebSocketState.CONNECTED:
-                deadline = max(deadline + LIVE_PERIOD_S, time.monotonic())  # a fixed rate, never a burst
-                await ws.send_text(await live.message())
-                if camera is not None and camera.jpeg is not None and camera.sequence != sent_frame:
-                    sent_frame = camera.sequence
-                    width, height = camera.size_px
-                    await ws.send_text(json.dumps({"type": "frame", "width_px": width, "height_px": height}))
-                    await ws.send_bytes(camera.jpeg)
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(closed.wait(), max(0.0, deadline - time.monotonic()))
+            with watching:  # the camera's frames are encoded only while a page watches them
+                while not closed.is_set() and ws.application_state == WebSocketState.CONNECTED:
+                    deadline = max(deadline + LIVE_PERIOD_S, time.monotonic())  # a fixed rate, never a burst
+                    await ws.send_text(await live.message())
+                    jpeg = None if camera is None else camera.jpeg
+                    if camera is not None and jpeg is not None and camera.sequence != sent_frame:
+                        sent_frame = camera.sequence
+                        width, height = camera.size_px
+                        await ws.send_text(
+                            json.dumps({"type": "frame", "width_px": width, "height_px": height})
+                        )
+                        await ws.send_bytes(jpeg)
+                    with contextlib.suppress(TimeoutError):
+                        await asyncio.wait_for(closed.wait(), max(0.0, deadline - time.monotonic()))
         except (WebSocketDisconnect, RuntimeError, OSError):
             pass
         finally:
