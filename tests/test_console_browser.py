@@ -145,6 +145,12 @@ def test_the_page_shows_the_part_and_a_click_and_drag_moves_it(page: Any, daemon
     shown = shown_pose(page)  # the new pose appears
     assert shown[:2] == pytest.approx((x, y), abs=2e-6)
     assert shown[2] == pytest.approx(psi, abs=math.radians(0.05))  # a frame's noise: ~0.01°
+    record = daemon.request("history")["moves"][-1]  # this move's
+    page.wait_for_function(f"(window.consoleStats.history || []).some((p) => p[0] === {record['id']})")
+    plotted = dict(page.evaluate("window.consoleStats.history"))  # its error: the distance, µm
+    assert (
+        plotted[record["id"]] == pytest.approx(result["error_m"] * 1e6, rel=1e-9) and record["error_m"] >= 0
+    )
 
 
 def test_stop_and_escape_stop_a_long_move(page: Any, daemon: DaemonProcess) -> None:

@@ -490,10 +490,11 @@ function plot(canvas, series, xLabel) {
 async function loadHistory() {
   const answer = await api("GET", "/api/history?limit=50");
   if (!answer || !answer.ok) return;
-  const moves = answer.moves.filter((m) => m.reached_m !== null && m.target_m !== null);
-  plot($("history"), [
-    { points: moves.map((m) => [m.id, (m.reached_m - m.target_m) * UM]), color: "#1565c0", dots: true },
-  ], "move id");
+  // the recorded error: along x on one axis (signed), the centre's distance from the target in the plane
+  const moves = answer.moves.filter((m) => m.error_m !== null && m.error_m !== undefined);
+  const points = moves.map((m) => [m.id, m.error_m * UM]);
+  window.consoleStats.history = points;
+  plot($("history"), [{ points, color: "#1565c0", dots: true }], "move id");
 }
 
 function drawTrajectory() {
