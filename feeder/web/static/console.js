@@ -402,7 +402,8 @@ function updateCalibration() {
       const gain = low === high ? `×${low.toFixed(3)}` : `×${low.toFixed(3)}…${high.toFixed(3)} over ${g.radii_m.length} radii`;
       lines.push(`${name}: the model's step ${gain}, learned from ${g.bursts} bursts`);
     }
-    if (estimates.station_radius_m !== undefined) lines.push(`θ turns parts ${um(estimates.station_radius_m)} from O`);
+    const station = estimates.station_radius_m;  // where θ turns a part: at O, or on a circle about it
+    if (station !== undefined) lines.push(station > 0 ? `θ turns parts ${um(station)} from O` : "θ turns parts in place at O");
   } else {
     for (const [name, e] of Object.entries(estimates)) {
       lines.push(`${name}: ${um(e.step_m)} ± ${um(e.std_m)} per step, learned from ${e.steps} steps`);
