@@ -329,52 +329,16 @@ def test_no_step_before_the_record_is_written() -> None:
     assert rig.run_until_command("enable").kind == "enable"
 
 
-def test_a_sensor_later_than_the_settle_time_is_waited_for_by_its_latency_as_seen() -> None:
-    """A camera whose frames arrive 0.3 s after what they show (15× ``settle_s``): the first
-    burst shows the latency, later bursts are measured once the frames show their end, so
-    the steps are learned right and the move ends done without reversals."""
-    lag_s, step_m = 0.3, {COARSE: 3.0e-6, FINE: 0.8e-6}
-    policy = Policy(MODES, SETTINGS)
-    truth: list[tuple[float, float]] = [(0.0, 0.0)]  # (time s, position m), as the part moves
-    burst: tuple[float, int, float, str] | None = None  # (start s, signed steps, from m, mode)
-    now, outputs = 0.0, []
-    job = Job("move", target_m=150e-6)
-    assert policy.submit(job, now) is None
-    while policy.job is not None:
-        assert now < 60, outputs[-5:]
-        now += DT
-        if burst is not None:  # steps play at 1 kHz from the acknowledgement
-            start, steps, origin, mode = burst
-            played = min(abs(steps), int((now - start) * 1000.0))
-            truth.append((now, origin + math.copysign(played, steps) * step_m[mode]))
-        seen = next(x for t, x in reversed(truth) if t <= now - lag_s) if now > lag_s else 0.0
-        policy.on_sample(seen, now)
-        for out in policy.tick(now):
-            outputs.append(out)
-            if isinstance(out, Started):
-                out.job.recorded = True
-            if isinstance(out, Decide):
-                policy.on_decision(policy.decide(out))
-            if isinstance(out, Command):
-                if out.kind == "step":
-                    burst = (now, out.steps, truth[-1][1], policy.applied("x") or COARSE)  # signed
-                policy.on_completion(Completion(out, now, counter=0))
-    result = job.result or next(o for o in outputs if isinstance(o, Finished)).result
-    assert result.status == "done", result.reason
-    assert lag_s <= policy.latency_s <= lag_s + 3 * DT
-    learned = policy.navigator.estimates_json()
-    assert learned["coarse/forward"]["step_m"] == pytest.approx(3.0e-6, rel=0.05)
-    assert abs(truth[-1][1] - 150e-6) <= SETTINGS.tolerance_m
-
-
 Timed = list[tuple[float, Output]]
 Camera = Callable[[float, list[tuple[float, float]], float], float]
 
 
-def run_with_camera(policy: Policy, job: Job, seen: Camera, until: Callable[[Timed], bool]) -> Timed:
+def run_with_camera(
+    policy: Policy, job: Job, seen: Camera, until: Callable[[Timed], bool]
+) -> tuple[Timed, list[tuple[float, float]]]:
     """Drive ``policy`` on a fake clock until ``until(outputs)``; the part steps at 1 kHz from each
     acknowledged step command; ``seen(now, truth, first_step_s)`` is what the camera shows at
-    ``now``.  Returns (time, output) pairs."""
+    ``now``.  Returns the (time, output) pairs and the truth's (time s, position m)."""
     step_m = {COARSE: 3.0e-6, FINE: 0.8e-6}
     truth: list[tuple[float, float]] = [(0.0, 0.0)]
     burst: tuple[float, int, float, str] | None = None
@@ -400,7 +364,7 @@ def run_with_camera(policy: Policy, job: Job, seen: Camera, until: Callable[[Tim
                     burst = (now, out.steps, truth[-1][1], policy.applied("x") or COARSE)
                     first_step_s = min(first_step_s, now)
                 policy.on_completion(Completion(out, now, counter=0))
-    return outputs
+    return outputs, truth
 
 
 def measured_after_burst(outputs: Timed) -> tuple[float, float] | None:
@@ -408,6 +372,26 @@ def measured_after_burst(outputs: Timed) -> tuple[float, float] | None:
     ends = [t for t, out in outputs if isinstance(out, Command) and out.kind == "confirm_end"]
     later = [t for t, out in outputs if isinstance(out, Decide) and ends and t >= ends[0]]
     return (ends[0], later[0]) if later else None
+
+
+def test_a_sensor_later_than_the_settle_time_is_waited_for_by_its_latency_as_seen() -> None:
+    """A camera whose frames arrive 0.3 s after what they show (15× ``settle_s``): the first
+    burst shows the latency, later bursts are measured once the frames show their end, so
+    the steps are learned right and the move ends done without reversals."""
+    lag_s = 0.3
+    policy = Policy(MODES, SETTINGS)
+    job = Job("move", target_m=150e-6)
+
+    def seen(now: float, truth: list[tuple[float, float]], first_step_s: float) -> float:
+        return next(x for t, x in reversed(truth) if t <= now - lag_s) if now > lag_s else 0.0
+
+    outputs, truth = run_with_camera(policy, job, seen, lambda _: policy.job is None)
+    result = next(out.result for _, out in outputs if isinstance(out, Finished))
+    assert result.status == "done", result.reason
+    assert lag_s <= policy.latency_s <= lag_s + 3 * DT
+    learned = policy.navigator.estimates_json()
+    assert learned["coarse/forward"]["step_m"] == pytest.approx(3.0e-6, rel=0.05)
+    assert abs(truth[-1][1] - 150e-6) <= SETTINGS.tolerance_m
 
 
 def test_a_burst_is_measured_once_the_frames_agree_not_while_they_still_show_the_motion() -> None:
@@ -422,7 +406,7 @@ def test_a_burst_is_measured_once_the_frames_agree_not_while_they_still_show_the
         return next((x for t, x in reversed(truth) if t <= now - lag), 0.0)
 
     job = Job("move", target_m=900e-6)
-    outputs = run_with_camera(policy, job, seen, lambda o: any(isinstance(out, Finished) for _, out in o))
+    outputs, _ = run_with_camera(policy, job, seen, lambda o: any(isinstance(out, Finished) for _, out in o))
     result = next(out.result for _, out in outputs if isinstance(out, Finished))
     assert result.status == "done" and abs(result.error_m or 1) <= SETTINGS.tolerance_m
     steps = [out.steps for _, out in outputs if isinstance(out, Command) and out.kind == "step"]
@@ -439,7 +423,7 @@ def test_frames_that_never_agree_are_measured_after_max_settle_but_not_learned_f
         return truth[-1][1] + (flicker if now > first_step_s else 0.0)
 
     learned = policy.navigator.estimators["coarse/forward"]  # type: ignore[attr-defined]
-    outputs = run_with_camera(
+    outputs, _ = run_with_camera(
         policy, Job("move", target_m=900e-6), seen, lambda o: bool(measured_after_burst(o))
     )
     end_s, decided_s = measured_after_burst(outputs) or (0.0, 0.0)
