@@ -1,10 +1,11 @@
-"""``feeder status`` in the plane, as text: poses, the running move's target, tolerances, steps."""
+"""``feeder status`` and ``feeder history`` in the plane, as text: poses, targets, tolerances, steps."""
 
 from __future__ import annotations
 
 import math
 
-from feeder.cli.control import plane_status_lines
+from feeder.cli.control import history_line, plane_status_lines
+from feeder.daemon.replies import MoveRecord
 
 REPLY = {
     "parts": [{"id": 1, "pose": [1e-3, -2e-3, math.radians(30)]}, {"id": 2, "pose": None}],
@@ -31,3 +32,24 @@ def test_the_plane_as_text() -> None:
         "axis y: coarse step not learned yet",
         "axis theta: coarse step +0.5000° / −0.2500° (part 1's turn where it is)",
     ]
+
+
+RECORD = {
+    "id": 2, "started_s": 0.0, "finished_s": 1.3, "start_m": -6e-4, "target_m": 5e-4, "reached_m": 4.992e-4,
+    "error_m": 7.86e-7, "steps": 438, "bursts": 5, "status": "done", "reason": "every part within tolerance",
+    "part": 1, "target_pose": [5e-4, 3e-4, math.radians(20)],
+    "reached_pose": [4.992e-4, 3e-4, math.radians(20.01)], "error_rad": math.radians(0.01),
+}  # fmt: skip
+
+
+def test_a_pose_move_in_the_history_as_text() -> None:
+    assert history_line(MoveRecord.from_dict(RECORD)) == (
+        "#2     done        part 1 target (500.00, 300.00) µm, 20.000° reached (499.20, 300.00) µm, 20.010° "
+        "error 0.786 µm, 0.0100° steps   438"
+    )
+    interrupted = {**RECORD, "status": "interrupted", "reason": "daemon killed", "reached_pose": None}
+    assert " reached ? error " in history_line(MoveRecord.from_dict(interrupted))
+    line = {k: v for k, v in RECORD.items() if k not in ("target_pose", "reached_pose", "error_rad", "part")}
+    assert history_line(MoveRecord.from_dict(line)) == (
+        "#2     done        target     500.000 µm reached     499.200 µm error    0.786 µm steps   438"
+    )

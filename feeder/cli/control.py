@@ -16,7 +16,7 @@ from typing import Any
 from feeder.cli.arguments import allow_negative_values, angle_rad, int_in, length_m, positive_float
 from feeder.cli.output import print_json
 from feeder.daemon.client import DEFAULT_TIMEOUT_S, Client, default_socket_path
-from feeder.daemon.replies import Accepted, MoveResult
+from feeder.daemon.replies import Accepted, MoveRecord, MoveResult
 from feeder.errors import InputError, MoveFailed
 
 
@@ -303,10 +303,23 @@ def run_history(args: argparse.Namespace) -> int:
         print_json({"moves": [m.raw for m in moves]})
         return 0
     for m in moves:
-        print(
-            f"#{m.id:<5} {m.status:<11} target {_um(m.target_m):>14} reached "
-            f"{_um(m.reached_m):>14} error {_um(m.error_m):>11} steps {m.steps:>5}"
-            + (" (estimated)" if m.steps_estimated else "")
-            + (f"  {m.reason}" if m.status != "done" else "")
-        )
+        print(history_line(m))
     return 0
+
+
+def history_line(m: MoveRecord) -> str:
+    """One recorded move as ``feeder history`` prints it: along x, or a part's poses in the plane."""
+    pose = m.raw.get("target_pose")
+    if pose is None:
+        where = f"target {_um(m.target_m):>14} reached {_um(m.reached_m):>14} error {_um(m.error_m):>11}"
+    else:
+        reached, error_rad = m.raw.get("reached_pose"), m.raw.get("error_rad")
+        where = (
+            f"part {m.raw.get('part', 1)} target {_pose(tuple(pose))} reached "
+            f"{_pose(None if reached is None else tuple(reached))} error {_um(m.error_m)}, {_deg(error_rad)}"
+        )
+    return (
+        f"#{m.id:<5} {m.status:<11} {where} steps {m.steps:>5}"
+        + (" (estimated)" if m.steps_estimated else "")
+        + (f"  {m.reason}" if m.status != "done" else "")
+    )
