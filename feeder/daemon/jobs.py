@@ -36,6 +36,11 @@ class StepMode:
         return StepEstimate.seed(self.predicted_step_m, max(half, 0.05 * self.predicted_step_m))
 
 
+VISIBLE_BANDS = 3.0
+"""A burst expected to move a part by this many settle bands (m; or tolerances, rad) must show
+its motion in the frames before it is measured (:meth:`~feeder.daemon.policy.Navigator.expects_motion`)."""
+
+
 @dataclass(frozen=True)
 class LoopSettings:
     """Tuning of the loop; lengths in m, angles in rad, times in s.  The travel is
@@ -61,6 +66,11 @@ class LoopSettings:
     forgetting: float = 0.98
     position_save_s: float = 0.25
     hold_timeout_s: float = 3.0
+
+    @property
+    def settle_band_m(self) -> float:
+        """Readings this close agree: the part settled in them (the tolerance, or six sensor σ)."""
+        return max(self.tolerance_m, 6 * self.sensor_noise_m)
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from feeder.daemon.jobs import Burst, Job, LoopSettings, Reading, StepMode
+from feeder.daemon.jobs import VISIBLE_BANDS, Burst, Job, LoopSettings, Reading, StepMode
 from feeder.daemon.step_estimator import BACKWARD, DIRECTIONS, FORWARD, StepEstimate, StepEstimator
 
 COARSE = "coarse"
@@ -102,7 +102,7 @@ class LineNavigator:
         """The readings agree within the tolerance (or six sensor sigmas)."""
         s = self.settings
         xs = [r[0][0] for r in recent]
-        return max(xs) - min(xs) <= max(s.tolerance_m, 6 * s.sensor_noise_m)
+        return max(xs) - min(xs) <= s.settle_band_m
 
     # -- bursts -----------------------------------------------------------------------
 
@@ -121,10 +121,9 @@ class LineNavigator:
         return False
 
     def expects_motion(self, burst: Burst, reading: Reading) -> bool:
-        """The burst should move the part by over three settle bands (:meth:`settled`)."""
-        s = self.settings
+        """The burst should move the part by over :data:`VISIBLE_BANDS` settle bands."""
         expected = self.estimators[f"{burst.mode}/{burst.direction}"].estimate.displacement_m(burst.steps)
-        return expected > 3 * max(s.tolerance_m, 6 * s.sensor_noise_m)
+        return expected > VISIBLE_BANDS * self.settings.settle_band_m
 
     def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
         """The next burst towards ``job.target_m``, or (status, reason) when the job is over."""

@@ -488,8 +488,7 @@ class Policy:
         if job.start_m is None:
             job.start_pose = _part_pose(job, reading)
             job.start_m = job.start_pose[0]
-        if self._measured is not None:
-            b = self._measured
+        if b is not None:
             if self.navigator.learn(b.burst, b.learnable and steady, b.before, reading):
                 job.stalls += 1
             else:

@@ -15,7 +15,7 @@ import logging
 import math
 from typing import Any
 
-from feeder.daemon.jobs import Burst, Job, LoopSettings, Reading
+from feeder.daemon.jobs import VISIBLE_BANDS, Burst, Job, LoopSettings, Reading
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.pose import Pose, pose_error
 from feeder.pose_planner import AxisBurst, Finish, PosePlanner
@@ -88,7 +88,7 @@ class PoseNavigator:
     def settled(self, recent: list[Reading]) -> bool:
         """Every part's readings agree within the tolerances (or six sensor sigmas)."""
         s = self.settings
-        band_m = max(s.tolerance_m, 6 * s.sensor_noise_m)
+        band_m = s.settle_band_m
         first = recent[0]
         for reading in recent[1:]:
             for a, b in zip(first, reading, strict=False):
@@ -108,9 +108,9 @@ class PoseNavigator:
         return all(distance <= noise_m and angle <= 1e-4 for distance, angle in changes)
 
     def expects_motion(self, burst: Burst, reading: Reading) -> bool:
-        """Some part should move by over three settle bands (:meth:`settled`)."""
+        """Some part should move or turn by over :data:`VISIBLE_BANDS` settle bands (:meth:`settled`)."""
         s = self.settings
-        band_m, band_rad = 3 * max(s.tolerance_m, 6 * s.sensor_noise_m), 3 * s.tolerance_rad
+        band_m, band_rad = VISIBLE_BANDS * s.settle_band_m, VISIBLE_BANDS * s.tolerance_rad
         effects = self.planner.burst_effect(_axis_burst(burst), list(reading))
         return any(moved > band_m or turned > band_rad for moved, turned in effects)
 
