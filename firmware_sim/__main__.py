@@ -106,6 +106,8 @@ def start_endpoints(
             args.camera_pixel_size_m,
             args.camera_latency_s,
             CameraModel(width_px=args.camera_width_px, height_px=args.camera_height_px),
+            rotation_rad=args.camera_rotation_rad,
+            mirrored=args.camera_mirrored,
         )
         closers.append(http.close)
         endpoints["camera_http"] = http.url

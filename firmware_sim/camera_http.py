@@ -288,15 +288,21 @@ def serve_world_camera(
     pixel_size_m: float = 1e-6,
     latency_s: float = 0.0,
     camera: CameraModel | None = None,
+    rotation_rad: float = 0.0,
+    mirrored: bool = False,
 ) -> CameraHttpServer:
     """The world's camera on http://127.0.0.1:PORT: the plate origin at the image centre, plate
-    axes along the image axes, the world's part (``world.config.part``) at its true poses, each
-    frame released ``latency_s`` after its exposure."""
+    axes turned by ``rotation_rad`` (and mirrored) in the image, the world's part
+    (``world.config.part``) at its true poses, each frame released ``latency_s`` after its exposure."""
     camera = camera or CameraModel()
     # the render thread waits for the interpreter between its OpenCV calls: at most this long
     sys.setswitchinterval(min(sys.getswitchinterval(), RENDER_SWITCH_INTERVAL_S))
     calibration = CameraCalibration(
-        pixel_size_m, origin_x_px=(camera.width_px - 1) / 2, origin_y_px=(camera.height_px - 1) / 2
+        pixel_size_m,
+        rotation_rad,
+        mirrored,
+        origin_x_px=(camera.width_px - 1) / 2,
+        origin_y_px=(camera.height_px - 1) / 2,
     )
     part = Part.parse(world.config.part)
     length_px, width_px = part.length_m / pixel_size_m, part.width_m / pixel_size_m

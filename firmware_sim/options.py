@@ -146,6 +146,19 @@ def build_parser() -> argparse.ArgumentParser:
     add_number(ends, "--camera-http-fps", 0, 100, lo_open=True, default=10.0, help="its frame rate, Hz")
     add_number(ends, "--camera-pixel-size-m", 1e-9, 1e-3, default=1e-6, help="its pixel size, m")
     add_number(
+        ends,
+        "--camera-rotation-rad",
+        -math.pi,
+        math.pi,
+        default=0.0,
+        help="how far the image is turned from the plate's axes, rad (a camera's mounting)",
+    )
+    ends.add_argument(
+        "--camera-mirrored",
+        action="store_true",
+        help="the image is mirrored (a camera seeing the plate's y flipped)",
+    )
+    add_number(
         ends, "--camera-width-px", 16, MAX_CAMERA_SIDE_PX, integer=True, default=1024, help="its width, px"
     )
     add_number(

@@ -23,6 +23,7 @@ from feeder.daemon.socket_server import bind_socket
 from feeder.daemon.store import Store
 from feeder.drivers.amplifier import AmplifierLinkLost
 from feeder.errors import InputError
+from feeder.vision.calibration import CameraCalibration
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -33,6 +34,8 @@ class FakeLinks:
         self.amplifier_up = True
         self.amplifiers: list[FakeAmplifier] = []
         self.sensors: list[FakeSensor] = []
+        self.configured: CameraCalibration | None = None  # a camera's, as DriverLinks makes it
+        self.calibrations: list[CameraCalibration | None] = []  # what each sensor locates with
 
     def open_amplifier(self) -> FakeAmplifier:
         if not self.amplifier_up:
@@ -41,10 +44,14 @@ class FakeLinks:
         self.amplifiers.append(amp)
         return amp
 
-    def open_sensor(self) -> FakeSensor:
+    def open_sensor(self, calibration: CameraCalibration | None = None) -> FakeSensor:
         sensor = FakeSensor(self.world)
         self.sensors.append(sensor)
+        self.calibrations.append(calibration)
         return sensor
+
+    def configured_calibration(self) -> CameraCalibration | None:
+        return self.configured
 
 
 @pytest.fixture
@@ -326,3 +333,65 @@ def test_other_users_cannot_use_the_socket(short_dir: Path) -> None:
     assert blocked_by_mode == "EACCES"
     assert json.loads(answer) == {"ok": False, "error": "permission denied: not the owner"}
     assert still["ok"]
+
+
+CONFIGURED = CameraCalibration(2.7e-6, origin_x_px=1023.5, origin_y_px=1023.5)
+
+
+def store_calibration(base: Path, **record: object) -> None:
+    """What ``feeder vision calibrate --save-state`` stores, beside a daemon or before it starts."""
+    (base / "state").mkdir(exist_ok=True)
+    store = Store(base / "state" / "f.sqlite")
+    try:
+        store.save_camera_calibration(record)
+    finally:
+        store.close()
+
+
+def test_the_stored_camera_calibration_is_what_parts_are_located_with(short_dir: Path) -> None:
+    store_calibration(short_dir, pixel_size_m=1.1e-6, rotation_rad=0.3, mirrored=True, moves_residual_px=0.2)
+    links = FakeLinks(FakeWorld(TRUE, scatter=0.03, noise_m=0.05e-6, seed=3))
+    links.configured = CONFIGURED
+    daemon = Daemon(links, make_setup(short_dir))
+    daemon.start()
+    try:
+        # no θ turns were measured: the origin stays the configured one
+        assert links.calibrations == [CameraCalibration(1.1e-6, 0.3, True, 1023.5, 1023.5)]
+        status = daemon.handle({"cmd": "status"})["camera_calibration"]
+        assert status["source"] == "stored" and status["pixel_size_m"] == 1.1e-6 and status["mirrored"]
+        assert status["moves_residual_px"] == 0.2  # the report's figures come along
+        # calibrated again while the daemon runs: the next move locates with it
+        time.sleep(0.01)  # a new updated_s
+        store_calibration(short_dir, pixel_size_m=1.2e-6, rotation_rad=-0.1, mirrored=False,
+                          origin_x_px=1000.0, origin_y_px=990.0)  # fmt: skip
+        assert len(links.sensors) == 1
+        reply = daemon.handle({"cmd": "move", "target_m": 120e-6})
+        assert reply["ok"], reply
+        assert links.calibrations[-1] == CameraCalibration(1.2e-6, -0.1, False, 1000.0, 990.0)
+        assert len(links.sensors) == 2 and links.sensors[0].closed
+        assert daemon.handle({"cmd": "status"})["camera_calibration"]["origin_y_px"] == 990.0
+        assert daemon.handle({"cmd": "move", "target_m": 150e-6})["ok"]
+        assert len(links.sensors) == 2  # nothing new stored: the same camera link
+    finally:
+        daemon.shutdown()
+
+
+def test_without_a_camera_a_stored_calibration_is_not_used(short_dir: Path) -> None:
+    store_calibration(short_dir, pixel_size_m=1.1e-6)
+    daemon, links = start(short_dir)
+    try:
+        assert links.calibrations == [None]
+        assert daemon.handle({"cmd": "status"})["camera_calibration"] is None
+    finally:
+        daemon.shutdown()
+
+
+def test_a_broken_stored_calibration_is_refused_naming_its_field(short_dir: Path) -> None:
+    store_calibration(short_dir, pixel_size_m=-1.0, rotation_rad=0.3)
+    links = FakeLinks(FakeWorld(TRUE, seed=3))
+    links.configured = CONFIGURED
+    with pytest.raises(InputError, match=r"^the stored camera calibration\.pixel_size_m: must be a positive"):
+        Daemon(links, make_setup(short_dir))
+    store_calibration(short_dir, pixel_size_m=1e-6, mirrored="yes")
+    with pytest.raises(InputError, match=r"calibration\.mirrored: not a valid value: 'yes'"):
+        Daemon(links, make_setup(short_dir))

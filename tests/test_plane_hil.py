@@ -20,6 +20,7 @@ from feeder.cli.control import plane_status_lines
 from feeder.cli.demo_plane import config_for, move_to, true_poses, wait_for_pose
 from feeder.daemon.client import Client
 from feeder.daemon.runner import RunningDaemon, start_daemon
+from feeder.daemon.store import Store
 from feeder.parts import Part
 from feeder.pose import Pose, pose_error
 
@@ -103,6 +104,41 @@ def test_two_parts_each_reach_their_own_target_or_the_pair_is_refused_with_the_r
     finally:
         running.stop()
         shutil.rmtree(base, ignore_errors=True)
+
+
+def test_a_turned_mirrored_camera_is_located_with_the_stored_calibration() -> None:
+    """A real microscope's image is turned and often mirrored: `feeder vision calibrate
+    --save-state` measures that, and the daemon locates (and moves) parts with it."""
+    base = Path(tempfile.mkdtemp(prefix="fcal"))
+    config = config_for(PART, "can", base)
+    config = dataclasses.replace(
+        config,
+        plate=dataclasses.replace(config.plate, parts=((0.8e-3, 0.3e-3, 0.2),)),
+        simulator_args=(*config.simulator_args, "--camera-rotation-rad", "0.4", "--camera-mirrored"),
+    )
+    config.state_dir.mkdir(parents=True)
+    store = Store(config.database_path)
+    store.save_camera_calibration(
+        {"pixel_size_m": config.camera.pixel_size_m, "rotation_rad": 0.4, "mirrored": True}
+    )
+    store.close()
+    running = start_daemon(config)
+    try:
+        with Client(config.socket_path, timeout_s=120.0) as client:
+            status = wait_for_pose(client)
+            assert status["camera_calibration"]["source"] == "stored"
+            seen, truth = status["parts"][0]["pose"], true_poses(status)[0]
+            seen_m, seen_rad = pose_error(seen, truth, SQUARE)
+            assert seen_m <= 0.3e-6 and seen_rad <= 3e-3, (seen, truth)
+            target = (truth[0] - 150e-6, truth[1] + 100e-6, truth[2] + 0.1)
+            result = client.move_to_pose(*target, timeout_s=120.0)
+            reached = true_poses(client.request("status"))[0]
+    finally:
+        running.stop()
+        shutil.rmtree(base, ignore_errors=True)
+    assert result.status == "done", result.raw
+    true_m, true_rad = pose_error(reached, target, SQUARE)
+    assert true_m <= status["tolerance_m"] + CAMERA_M and true_rad <= status["tolerance_rad"] + CAMERA_RAD
 
 
 def test_the_embedded_default_is_the_plane_and_line_is_the_one_axis_world(tmp_path: Path) -> None:

@@ -53,7 +53,6 @@ class DriverLinks:
         self.simulator = simulator
         self.log_path = log_path
         self.respawns = 0
-        self.stored_calibration: CameraCalibration | None = None
         self._lock = threading.Lock()
         # PR_SET_PDEATHSIG fires when the *thread* that started the child ends: respawns run
         # on this one long-lived thread, never on a reconnect thread that is about to end
@@ -111,16 +110,18 @@ class DriverLinks:
             self.amplifier_address, amp.axis, timeout_s=amp.timeout_s, password=amp.password
         )
 
-    def open_sensor(self) -> PositionSensor:
-        """The JSON-lines stream when one is named, else the camera that locates the parts."""
+    def open_sensor(self, calibration: CameraCalibration | None = None) -> PositionSensor:
+        """The JSON-lines stream when one is named, else the camera that locates the parts with
+        ``calibration`` (the stored one; None: :meth:`configured_calibration`)."""
         self._simulator_alive()
-        if not uses_camera(self.config):
+        configured = self.configured_calibration()
+        if configured is None:
             return StreamCamera(self.sensor_address, connect_timeout_s=self.config.sensor_timeout_s)
         from feeder.drivers.pose_camera import CameraPoseSensor, part_template
         from feeder.drivers.video_camera import open_camera
 
         part = self.config.part
-        calibration = self.camera_calibration
+        calibration = calibration or configured
         return CameraPoseSensor(
             open_camera(self.sensor_address),
             calibration,
@@ -128,20 +129,15 @@ class DriverLinks:
             parts=len(self.config.plate.parts) if self.simulator is not None else None,
         )
 
-    @property
-    def camera_calibration(self) -> CameraCalibration:
-        """The stored calibration (``feeder vision calibrate --save-state``), else the
-        configured scale with the plate origin at the image centre."""
-        if self.stored_calibration is not None:
-            return self.stored_calibration
+    def configured_calibration(self) -> CameraCalibration | None:
+        """Where the daemon locates parts with a camera: the configured scale, the plate origin at
+        the image centre, not turned, not mirrored (a stored calibration updates it)."""
+        if not uses_camera(self.config):
+            return None
         cam = self.config.camera
         return CameraCalibration(
             cam.pixel_size_m, origin_x_px=(cam.width_px - 1) / 2, origin_y_px=(cam.height_px - 1) / 2
         )
-
-    def locating_calibration(self) -> CameraCalibration | None:
-        """The calibration the daemon locates parts with, where it reads a camera."""
-        return self.camera_calibration if uses_camera(self.config) else None
 
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {

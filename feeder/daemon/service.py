@@ -48,6 +48,7 @@ from feeder.daemon.store import Store
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import FeederError, InputError
+from feeder.vision.calibration import CameraCalibration
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +63,9 @@ class Links(Protocol):
 
     def open_amplifier(self) -> Amplifier | dict[str, Amplifier]: ...
 
-    def open_sensor(self) -> PositionSensor: ...
+    def open_sensor(self, calibration: CameraCalibration | None = None) -> PositionSensor: ...
+
+    def configured_calibration(self) -> CameraCalibration | None: ...
 
 
 @dataclass(frozen=True)
@@ -113,6 +116,7 @@ class Daemon:
         self._stopping = threading.Event()
         self._stopped = threading.Event()
         self._lock = threading.Lock()
+        self._submitting = threading.Lock()  # one submission at a time (never taken by the tick)
         self._queue: collections.deque[Job] = collections.deque()
         self._clients = 0
         self._faults: list[dict[str, Any]] = []
@@ -125,12 +129,13 @@ class Daemon:
             undo.callback(self.store.close)
             self.records = MoveRecords(self.store, setup.calibration_key, setup.pose_navigator is not None)
             self.interrupted_moves = self.store.interrupt_running_moves()
+            self._calibration_record, self._calibration = self._stored_calibration()  # checked first
             amplifiers = per_axis(links.open_amplifier())
             self._amplifier_generation = getattr(links, "respawns", 0)
             undo.callback(_close, amplifiers)
             for amplifier in amplifiers.values():
                 amplifier.ground()
-            sensor = links.open_sensor()
+            sensor = links.open_sensor(self._calibration)
             navigator = None
             if setup.pose_navigator is not None:
                 navigator = setup.pose_navigator(self.records.restored_pose_response())
@@ -211,13 +216,59 @@ class Daemon:
 
     def _dispatch_queue(self) -> None:
         while not self._stopping.wait(0.02):
-            with self._lock:
-                if not self._queue or self.loop.busy():
-                    continue
-                job = self._queue.popleft()
-            reason = self.loop.submit(job)
+            with self._submitting:
+                with self._lock:
+                    if not self._queue or self.loop.busy():
+                        continue
+                    job = self._queue.popleft()
+                reason = self._submit(job)
             if reason is not None:
                 self._refuse_queued(job, reason)
+
+    def _submit(self, job: Job) -> str | None:
+        """Hand ``job`` to the loop (holding ``_submitting``); the reason it is refused, or None."""
+        if not self.loop.busy() and self._calibration_saved():
+            reason = self._recalibrate()
+            if reason is not None:
+                return reason
+        return self.loop.submit(job)
+
+    # -- the camera's calibration -----------------------------------------------
+    def _stored_calibration(self) -> tuple[dict[str, Any] | None, CameraCalibration | None]:
+        """The stored record (``feeder vision calibrate --save-state``) and the calibration it
+        makes of the configured one, where the daemon locates parts with a camera (None: the
+        configured one)."""
+        configured = self.links.configured_calibration()
+        record = self.store.camera_calibration()
+        if configured is None or record is None:
+            return record, None
+        return record, configured.updated(record, "the stored camera calibration")
+
+    def _calibration_saved(self) -> bool:
+        """A camera calibration was stored since the sensor opened (the daemon may be running
+        while ``feeder vision calibrate --save-state`` measures it)."""
+        if self.links.configured_calibration() is None:
+            return False
+        record = self.store.camera_calibration()
+        used = self._calibration_record
+        return record is not None and (used is None or record["updated_s"] != used["updated_s"])
+
+    def _recalibrate(self) -> str | None:
+        """Locate parts with the newly stored calibration from the next move on: the camera is
+        opened again with it, and the move waits for its first poses (None) or is refused."""
+        try:
+            record, calibration = self._stored_calibration()
+            sensor = self.links.open_sensor(calibration)
+        except (FeederError, OSError) as err:
+            log.error("the stored camera calibration cannot be used: %s", err)
+            return f"the stored camera calibration cannot be used: {err}"
+        self.loop.replace_sensor(sensor)
+        self._calibration_record, self._calibration = record, calibration
+        log.info("locating parts with the camera calibration stored now: %s", calibration)
+        deadline = time.monotonic() + self.setup.sensor_timeout_s
+        while self.loop.reading is None and time.monotonic() < deadline and not self._stopping.wait(0.02):
+            pass
+        return None
 
     # -- faults ----------------------------------------------------------------
     def _on_fault(self, kind: str, message: str) -> None:
@@ -263,7 +314,9 @@ class Daemon:
                     self.loop.replace_amplifier(amps)
                     self._amplifier_generation = getattr(self.links, "respawns", 0)
                 else:
-                    self.loop.replace_sensor(self.links.open_sensor())
+                    stored, calibration = self._stored_calibration()
+                    self.loop.replace_sensor(self.links.open_sensor(calibration))
+                    self._calibration_record, self._calibration = stored, calibration
             except Exception as err:
                 # this reconnect thread's one boundary: whatever stops a link from opening
                 # (drivers, python-can, the launcher) is logged and retried with backoff; the
@@ -332,18 +385,16 @@ class Daemon:
 
     def _run_job(self, job: Job, request: dict[str, Any]) -> dict[str, Any]:
         queue = request.get("queue") is True
-        with self._lock:
-            if queue and (self.loop.busy() or self._queue):
-                self._queue.append(job)
-                position = len(self._queue)
-                reason = None
-            else:
-                position = 0
-                reason = (
-                    'moves are queued; add "queue": true to join the queue'
-                    if self._queue
-                    else self.loop.submit(job)
-                )
+        with self._submitting:
+            with self._lock:
+                position, reason = 0, None
+                if queue and (self.loop.busy() or self._queue):
+                    self._queue.append(job)
+                    position = len(self._queue)
+                elif self._queue:
+                    reason = 'moves are queued; add "queue": true to join the queue'
+            if position == 0 and reason is None:
+                reason = self._submit(job)
         if reason is not None:
             return {"ok": False, "error": reason}
         if request.get("wait", True) is False:
@@ -507,14 +558,12 @@ class Daemon:
         }
 
     def _camera_calibration(self) -> dict[str, Any] | None:
-        """The stored camera calibration, else the configured one the daemon locates with (if any);
-        ``source`` says which."""
-        stored = self.store.camera_calibration()
-        if stored is not None:
-            return {**stored, "source": "stored"}
-        locating = getattr(self.links, "locating_calibration", None)
-        configured = locating() if callable(locating) else None
-        return None if configured is None else {**dataclasses.asdict(configured), "source": "configuration"}
+        """The camera calibration the daemon locates parts with (None: no camera); ``source`` says
+        whether it is the stored one or the configured one."""
+        if self._calibration is not None:
+            return {**(self._calibration_record or {}), **self._calibration.to_dict(), "source": "stored"}
+        configured = self.links.configured_calibration()
+        return None if configured is None else {**configured.to_dict(), "source": "configuration"}
 
     def latest_image(self) -> Any:
         """The newest camera frame the sensor located parts in (an image array), or None."""

@@ -22,7 +22,9 @@ The parameters come from:
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -67,6 +69,29 @@ class CameraCalibration:
 
     def to_dict(self) -> dict[str, float | bool]:
         return asdict(self)
+
+    def updated(self, record: Mapping[str, Any], source: str = "camera calibration") -> CameraCalibration:
+        """This calibration with the fields ``record`` gives (a stored ``feeder vision calibrate``
+        report: an origin is only there when θ turns were measured); InputError naming the field."""
+        changes: dict[str, Any] = {}
+        for field in fields(self):
+            value = record.get(field.name)
+            if value is None:
+                continue
+            wrong = (
+                not isinstance(value, bool)
+                if field.name == "mirrored"
+                else (
+                    isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value)
+                )
+            )
+            if wrong:
+                raise InputError(f"{source}.{field.name}", f"not a valid value: {value!r}")
+            changes[field.name] = value if field.name == "mirrored" else float(value)
+        try:
+            return replace(self, **changes)
+        except InputError as err:
+            raise InputError(f"{source}.{err.field}", err.message) from None
 
 
 def pixel_size_from_part(length_px: float, width_px: float, length_m: float, width_m: float) -> float:
