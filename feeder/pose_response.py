@@ -48,7 +48,11 @@ GATE_SIGMAS = 5.0
 measurement's): a reading of another burst's motion (frames lagging behind on a loaded
 machine: a 2-step fine θ burst once "orbited" a part 0.24 rad and set gains of 228), not a
 change of the plant.  The seed's floor keeps a confident filter open to real drift (up to
-~1.5× the seed per burst)."""
+~1.5× the seed per burst).  Two bursts in a row beyond it whose ratios to the seed agree
+within :data:`AGREE` are the plant, not a misreading: the prior is reopened around that ratio
+(a real device's response may lie several times off the physics' seed)."""
+AGREE = 0.25
+"""Relative agreement of two gated bursts' ratios to the seed (same sign) that makes them real."""
 
 
 @dataclass(frozen=True)
@@ -167,8 +171,10 @@ class GainFilter:
         centres = np.array(self.centres_m)
         self.gain = np.ones(centres.size)
         gap = np.abs(centres[:, None] - centres[None, :])
-        self.covariance = SEED_STD**2 * np.exp(-gap / BIN_CORRELATION_M)
+        self._correlation = np.exp(-gap / BIN_CORRELATION_M)
+        self.covariance = SEED_STD**2 * self._correlation
         self.updates = 0
+        self._refused: float | None = None  # the last burst's ratio to the seed, if it was gated
 
     def weights(self, r_m: float) -> np.ndarray:
         w = np.zeros(len(self.centres_m))
@@ -192,7 +198,8 @@ class GainFilter:
 
     def update(self, r_m: float, predicted: float, measured: float, noise_var: float) -> bool:
         """Fold in ``measured`` = g(r)·``predicted`` (variance ``noise_var``); False (nothing
-        changed) when it lies beyond :data:`GATE_SIGMAS` of the prediction."""
+        changed) when it lies beyond :data:`GATE_SIGMAS` of the prediction, unless the burst
+        before it was as far off, alike (:data:`AGREE`): then the prior is reopened around it."""
         h = self.weights(r_m) * predicted
         spread = float(h @ self.covariance @ h)
         s = spread + noise_var
@@ -200,7 +207,13 @@ class GainFilter:
             return False
         innovation = measured - float(h @ self.gain)
         if innovation**2 > GATE_SIGMAS**2 * (max(spread, (SEED_STD * predicted) ** 2) + noise_var):
-            return False
+            earlier, self._refused = self._refused, measured / predicted if predicted else None
+            if earlier is None or self._refused is None or not _agree(earlier, self._refused):
+                return False
+            # a second burst as far off, alike: the plant differs from the seed by that ratio
+            self.covariance = (SEED_STD * self._refused) ** 2 * self._correlation
+            s = float(h @ self.covariance @ h) + noise_var
+        self._refused = None
         k = self.covariance @ h / s
         self.gain = self.gain + k * innovation
         self.covariance = self.covariance - np.outer(k, h @ self.covariance)
@@ -377,6 +390,11 @@ class ResponseModel:
                 "bursts": f.updates,
             }
         return out
+
+
+def _agree(a: float, b: float) -> bool:
+    """Two ratios of the same sign within :data:`AGREE` of the larger."""
+    return a * b > 0 and abs(a - b) <= AGREE * max(abs(a), abs(b))
 
 
 def _not_learned(key: str, predicted: float, measured: float) -> None:

@@ -152,6 +152,22 @@ def test_stall_stops_the_move_and_does_not_teach_a_zero_step(world: FakeWorld) -
     assert result.estimates["coarse/forward"]["step_m"] == pytest.approx(3.45e-6, rel=1e-12)
 
 
+def test_a_step_several_times_below_the_prediction_is_learned_not_taken_for_a_stall() -> None:
+    """A real device whose step is a quarter of the physics' prediction (its τ, or amplifier
+    limits, off the nominal ones): the first bursts move the part visibly but under the stall
+    fraction; they are learned from and the move ends done."""
+    weak = {key: 0.25 * step for key, step in TRUE.items()}
+    world = FakeWorld(weak, scatter=0.03, noise_m=0.05e-6, seed=7)
+    loop, _, _ = make_loop(world)
+    try:
+        result = run_job(loop, Job("move", target_m=150e-6))
+    finally:
+        loop.shutdown()
+    assert result.status == "done", result.reason
+    assert abs(world.position(time.monotonic()) - 150e-6) <= 1e-6 + 3 * 0.05e-6
+    assert result.estimates["coarse/forward"]["step_m"] == pytest.approx(0.75e-6, rel=0.1)
+
+
 def test_stop_request_halts_the_part(world: FakeWorld) -> None:
     loop, amp, _ = make_loop(world)
     try:

@@ -256,6 +256,26 @@ def test_a_burst_far_off_its_prediction_is_not_learned_from_but_a_real_change_is
     assert "theta/+/fine/orbit" in caplog.text and "not learned from" in caplog.text
 
 
+@pytest.mark.parametrize("ratio", [3.0, 8.0, 0.1, -1.0])
+def test_a_plant_several_times_off_its_seed_is_learned_from_two_alike_bursts(ratio: float) -> None:
+    """A real device may respond several times more (or less) than the physics' seed: beyond the
+    gate, but every burst alike.  The second such burst reopens the prior around it."""
+    gains = GainFilter([0.0, 0.7e-3, 1.5e-3])
+    noise = 1e-12
+    learned = [gains.update(0.7e-3, 1e-3, ratio * 1e-3 * (1 + 0.02 * k), noise) for k in range(6)]
+    assert learned[0] is (abs(ratio - 1) <= 1.5)  # one burst that far off: not learned from
+    assert all(learned[1:])
+    assert gains.at(0.7e-3)[0] == pytest.approx(ratio, rel=0.06)
+
+
+def test_two_unlike_readings_of_other_motions_are_not_learned_from() -> None:
+    """The loaded machine's misreadings gave gains of 228 and then −60: never alike."""
+    gains = GainFilter([0.0, 0.7e-3, 1.5e-3])
+    for measured in (0.24, -0.12, 0.4, 0.05, 0.24):
+        assert not gains.update(0.5e-3, 2e-3, measured, 2 * (0.1e-6 / 0.5e-3) ** 2)
+    assert gains.gain.tolist() == [1.0, 1.0, 1.0] and gains.updates == 0
+
+
 def test_turn_table_is_bilinear_in_radius_and_periodic_in_orientation() -> None:
     rng = np.random.default_rng(7)
     radii, betas, period = (0.0, 1e-3, 2.5e-3), (0.0, math.pi / 4, math.pi / 2, 3 * math.pi / 4), math.pi

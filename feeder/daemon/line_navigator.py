@@ -107,14 +107,19 @@ class LineNavigator:
     # -- bursts -----------------------------------------------------------------------
 
     def learn(self, burst: Burst, learnable: bool, before: Reading, after: Reading) -> bool:
-        """Learn from a burst that moved the part from ``before`` to ``after``; True if it stalled."""
+        """Learn from a burst that moved the part from ``before`` to ``after``; True if it stalled:
+        it moved under ``stall_fraction`` of what was expected, and either nothing beyond the
+        settle band or after the step was learned (a seed several times off a real device's
+        step is learned from, not taken for a stall)."""
         sign = 1.0 if burst.direction == FORWARD else -1.0
         moved = sign * (after[0][0] - before[0][0])
         est = self.estimators[f"{burst.mode}/{burst.direction}"]
         expected = est.estimate.displacement_m(burst.steps)
         if not learnable:  # e.g. after a reversal: may lose up to a step
             expected -= est.estimate.step_m
-        if moved < self.settings.stall_fraction * expected:
+        if moved < self.settings.stall_fraction * expected and (
+            est.estimate.steps > 0 or moved <= self.settings.settle_band_m
+        ):
             return True
         if learnable:
             est.update(burst.steps, moved)
