@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import http.client
 import json
+import os
+import resource
 import subprocess
 import sys
 import time
@@ -284,11 +286,30 @@ def _reply(process: subprocess.Popen[str]) -> Any:
     return reply
 
 
-def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float]:
+FOREIGN_CORES = 0.25
+"""Other programs' mean CPU use (cores) above which a burst's machine was not quiet: they take
+the cores from the daemon's threads of ordinary priority, which then hold the interpreter the
+tick waits for, while the witness at real-time priority does not notice them."""
+
+
+def _cpu_s() -> tuple[float, float]:
+    """(CPU seconds the whole machine spent busy, those of this process and its waited children)."""
+    with open("/proc/stat") as stat:
+        ticks = [int(v) for v in stat.readline().split()[1:9]]
+    busy = sum(ticks) - ticks[3] - ticks[4]  # all but idle and iowait
+    ours = sum(
+        usage.ru_utime + usage.ru_stime
+        for usage in (resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN))
+    )
+    return busy / os.sysconf("SC_CLK_TCK"), ours
+
+
+def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float, float]:
     """ROUNDS × 100 concurrent status requests during a move: the tick lateness during the
     burst and the witness' lateness over the same time (s), the states answered, the burst's
-    duration (s)."""
+    duration (s), other programs' mean CPU use meanwhile (cores)."""
     daemon: Daemon = console.daemon
+    busy_before, ours_before, began = *_cpu_s(), time.monotonic()
     # the clients in a process of their own, as browsers and scripts are
     clients = _started(BURST, str(console.server.port), console.token, str(ROUNDS))
     witness = _started(WITNESS, str(TICK_PRIORITY))
@@ -303,6 +324,8 @@ def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float]:
     during = daemon.loop.lateness.last(daemon.loop.ticks - ticks)
     _tell(witness, "stop")
     machine = np.array(_reply(witness))
+    busy, ours = _cpu_s()
+    foreign = max(0.0, (busy - busy_before) - (ours - ours_before)) / (time.monotonic() - began)
     assert console.call("POST", "/api/stop")[0] == 200
     wait_for(lambda: daemon.status()["state"] == "idle", 30)
     last = daemon.status()["last_result"]
@@ -310,7 +333,7 @@ def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float]:
     assert last["status"] in ("stopped", "done") and last["steps"] > 0
     period_s = 1 / daemon.loop.settings.rate_hz
     assert during.size >= 0.5 * took_s / period_s  # the tick kept its rate
-    return during, machine, [state for _, state in replies], took_s
+    return during, machine, [state for _, state in replies], took_s, foreign
 
 
 def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(console: Console) -> None:
@@ -323,17 +346,19 @@ def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(cons
     10 ms deadlines during each burst (its p99 tracks the tick's: 3.4/1.3, 2.8/1.7, 0.22/0.17,
     0.60/0.86, 0.50/0.59 ms). The goal must hold in one of up to ATTEMPTS bursts; if none keeps
     it, the daemon is at fault only if the machine was plainly quiet during some burst (the
-    witness within half the goal), else the test skips, saying so."""
+    witness within half the goal, and other programs using under FOREIGN_CORES), else the test
+    skips, saying so."""
     attempts = []
     for _ in range(ATTEMPTS):
-        during, machine, states, took_s = _burst(console)
+        during, machine, states, took_s, foreign = _burst(console)
         p99_s, machine_p99_s = float(np.percentile(during, 99)), float(np.percentile(machine, 99))
-        attempts.append((p99_s, machine_p99_s))
+        attempts.append((p99_s, machine_p99_s, foreign))
         print(
             f"\n{ROUNDS} × 100 concurrent status requests in {took_s:.2f} s during a move "
             f"({states.count('moving')} answered while it ran): tick jitter p99 "
             f"{1e3 * p99_s:.2f} ms, max {1e3 * during.max():.2f} ms over {during.size} ticks "
-            f"(the witness process meanwhile: p99 {1e3 * machine_p99_s:.2f} ms over {machine.size})"
+            f"(the witness process meanwhile: p99 {1e3 * machine_p99_s:.2f} ms over {machine.size}; "
+            f"other programs used {foreign:.2f} cores)"
         )
         # answered while the move ran: at least a round's worth (the fake world's move may end
         # before a slow burst does: 240 of 500 once on a loaded CI machine)
@@ -341,9 +366,10 @@ def test_100_concurrent_status_requests_during_a_move_keep_the_tick_on_time(cons
         if p99_s <= JITTER_GOAL_P99_S:
             break
     assert console.daemon.status()["timing"]["quiet_holds"] > 0  # the console did stand back
-    figures = [f"{1e3 * p:.2f} ms (witness: {1e3 * w:.2f} ms)" for p, w in attempts]
-    best_s, quietest_s = min(p for p, _ in attempts), min(w for _, w in attempts)
-    if best_s > JITTER_GOAL_P99_S and quietest_s > JITTER_GOAL_P99_S / 2:
+    figures = [f"{1e3 * p:.2f} ms (witness: {1e3 * w:.2f} ms, others: {f:.2f} cores)" for p, w, f in attempts]
+    best_s = min(p for p, _, _ in attempts)
+    quiet = any(w <= JITTER_GOAL_P99_S / 2 and f <= FOREIGN_CORES for _, w, f in attempts)
+    if best_s > JITTER_GOAL_P99_S and not quiet:
         pytest.skip(f"this machine was too noisy by itself during every burst: {figures}")
     assert best_s <= JITTER_GOAL_P99_S, figures
 

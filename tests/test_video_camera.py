@@ -10,7 +10,18 @@ import cv2
 import numpy as np
 import pytest
 
-from feeder.drivers.video_camera import CameraError, CameraLost, GenICamSource, open_camera
+from feeder.drivers.video_camera import (
+    CameraError,
+    CameraLost,
+    CameraSizeError,
+    CaptureOpening,
+    GenICamSource,
+    capture_opening,
+    component_image,
+    open_camera,
+    prefer_grey_free_running,
+    request_frame_size,
+)
 from firmware_sim.camera_http import CameraFeed, CameraHttpServer, Snapshot, free_port
 from firmware_sim.camera_render import CameraModel, FrameRenderer, PartInImage
 
@@ -35,7 +46,7 @@ def test_image_folder_in_name_order_then_end(tmp_path: Path) -> None:
 
 def test_video_file_keeps_every_frame(tmp_path: Path) -> None:
     path = tmp_path / "run.avi"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (48, 32), isColor=False)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"MJPG"), 10.0, (48, 32), isColor=False)
     for image in _frames(4):
         writer.write(image)
     writer.release()
@@ -93,3 +104,140 @@ def test_genicam_needs_harvesters_and_a_producer(monkeypatch: pytest.MonkeyPatch
 def test_bad_spec_is_a_camera_error(tmp_path: Path) -> None:
     with pytest.raises(CameraError, match="no such file"):
         open_camera(str(tmp_path / "nothing.avi"))
+
+
+def test_devices_open_through_v4l2_without_ffmpeg_timeouts() -> None:
+    # V4L2 (DirectShow, AVFoundation) refuse to open with the FFmpeg-only timeout parameters
+    for spec in (0, "/dev/video0", "/dev/v4l/by-id/usb-cam-video-index0"):
+        assert capture_opening(spec, 5.0, "linux") == CaptureOpening(cv2.CAP_V4L2, (), device=True)
+    assert capture_opening(1, 5.0, "win32") == CaptureOpening(cv2.CAP_ANY, (), device=True)
+    stream = capture_opening("http://127.0.0.1:8080/video.mjpg", 2.5, "linux")
+    assert stream.backend == cv2.CAP_FFMPEG and not stream.device
+    assert stream.params == (cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, 2500, cv2.CAP_PROP_READ_TIMEOUT_MSEC, 2500)
+    assert capture_opening("run.avi", 5.0, "linux") == CaptureOpening(cv2.CAP_ANY, (), device=False)
+
+
+def test_a_character_device_is_tried_as_a_camera() -> None:
+    if not Path("/dev/null").is_char_device():
+        pytest.skip("no /dev/null character device here")
+    with pytest.raises(CameraError, match=r"^/dev/null: not a camera") as raised:
+        open_camera("/dev/null")
+    assert "\n" not in str(raised.value)
+    with pytest.raises(CameraError, match=r"^/dev/video987: no such file"):
+        open_camera("/dev/video987")
+
+
+class _Capture:
+    """A device that gives ``native`` frames in YUYV and the asked size only in MJPG."""
+
+    def __init__(self, native: tuple[int, int]) -> None:
+        self.props = {cv2.CAP_PROP_FRAME_WIDTH: native[0], cv2.CAP_PROP_FRAME_HEIGHT: native[1]}
+        self.mjpg = False
+        self.asked: dict[int, float] = {}
+
+    def set(self, prop: int, value: float) -> bool:
+        if prop == cv2.CAP_PROP_FOURCC:
+            self.mjpg = value == cv2.VideoWriter.fourcc(*"MJPG")
+        else:
+            self.asked[prop] = value
+            if self.mjpg:
+                self.props[prop] = int(value)
+        return True
+
+    def get(self, prop: int) -> float:
+        return float(self.props[prop])
+
+
+def test_frame_size_asked_of_a_device_then_in_mjpg() -> None:
+    granted = _Capture((2048, 2048))
+    assert request_frame_size(granted, (2048, 2048)) == (2048, 2048) and not granted.mjpg
+    capture = _Capture((640, 480))
+    assert request_frame_size(capture, (2048, 1536)) == (2048, 1536) and capture.mjpg
+    assert capture.asked == {cv2.CAP_PROP_FRAME_WIDTH: 2048, cv2.CAP_PROP_FRAME_HEIGHT: 1536}
+
+
+def test_frames_of_another_size_than_asked_are_refused() -> None:
+    port = free_port()
+    server = _server(port)
+    url = f"http://127.0.0.1:{port}/video.mjpg"
+    try:
+        with open_camera(url, size_px=(128, 96)) as camera:
+            assert camera.read(timeout_s=10).image.shape[:2] == (96, 128)
+        with open_camera(url, size_px=(2048, 2048)) as camera:
+            # a CameraError, and a lost sensor to the pose sensor that waits for frames
+            with pytest.raises(CameraSizeError, match=r"frames are 128x96 px, not the 2048x2048") as raised:
+                camera.read(timeout_s=3)
+            assert isinstance(raised.value, CameraError) and isinstance(raised.value, CameraLost)
+            assert "\n" not in str(raised.value)
+    finally:
+        server.close()
+
+
+def test_folder_of_another_size_than_asked_ends_with_the_sizes(tmp_path: Path) -> None:
+    cv2.imwrite(str(tmp_path / "f00.png"), _frames(1)[0])
+    with (
+        open_camera(str(tmp_path), size_px=(64, 32)) as camera,
+        pytest.raises(CameraError, match=r"frames are 48x32 px, not the 64x32 px asked for"),
+    ):
+        camera.read(timeout_s=2)
+
+
+class _Component:
+    """What harvesters gives for a buffer's image component (the attributes the source reads)."""
+
+    def __init__(self, pixels: np.ndarray, data_format: str) -> None:
+        self.height, self.width = pixels.shape[:2]
+        self.num_components_per_pixel = float(pixels.shape[2]) if pixels.ndim == 3 else 1.0
+        self.data_format = data_format
+        self.data = pixels.ravel()  # harvesters' data is flat
+
+
+def test_genicam_components_become_grey_images() -> None:
+    mono = np.arange(12, dtype=np.uint16).reshape(3, 4) * 1000
+    image = component_image(_Component(mono, "Mono16"))
+    assert image.dtype == np.uint16 and np.array_equal(image, mono)
+    red = np.zeros((3, 4, 3), np.uint8)
+    red[..., 0] = 255  # red in RGB8, blue in BGR8
+    assert np.all(component_image(_Component(red, "RGB8")) == 76)
+    assert np.all(component_image(_Component(red, "BGR8")) == 29)
+    rgba = np.dstack([red, np.full((3, 4), 255, np.uint8)])
+    grey = component_image(_Component(rgba, "RGBa8"))
+    assert grey.shape == (3, 4) and np.all(grey == 76)
+    with pytest.raises(CameraError, match="YUV422_8 is not supported"):
+        component_image(_Component(np.zeros((3, 4, 2), np.uint8), "YUV422_8"))
+
+
+class _Node:
+    def __init__(self, value: str, symbolics: tuple[str, ...] = ()) -> None:
+        self.value = value
+        self.symbolics = symbolics
+
+
+def test_genicam_camera_set_to_grey_and_free_running() -> None:
+    class NodeMap:
+        PixelFormat = _Node("BayerRG8", ("BayerRG8", "RGB8", "Mono8"))
+        TriggerSelector = _Node("AcquisitionStart", ("AcquisitionStart", "FrameStart"))
+        TriggerMode = _Node("On", ("On", "Off"))
+
+    prefer_grey_free_running(NodeMap, (AttributeError,))
+    assert NodeMap.PixelFormat.value == "Mono8"
+    assert (NodeMap.TriggerSelector.value, NodeMap.TriggerMode.value) == ("FrameStart", "Off")
+
+    class Mono12NoTrigger:  # a Mono format is kept; missing features are left alone
+        PixelFormat = _Node("Mono12", ("Mono12", "Mono8"))
+
+    prefer_grey_free_running(Mono12NoTrigger, (AttributeError,))
+    assert Mono12NoTrigger.PixelFormat.value == "Mono12"
+
+
+def test_genicam_colour_camera_gives_grey_frames() -> None:
+    genicam = pytest.importorskip("genicam")
+    pytest.importorskip("harvesters.core")
+    producer = Path(genicam.__file__).parent / "viky.cti"  # the genicam package's simulated cameras
+    if not producer.is_file():
+        pytest.skip("no viky.cti in the genicam package")
+    # its cameras start in RGBa8 (4 components per pixel: reshaped as one, every frame failed)
+    # and give no buffer timestamps
+    with open_camera(f"genicam:{producer}") as camera:
+        frame = camera.read(timeout_s=20)
+    assert frame.image.ndim == 2 and frame.image.dtype == np.uint8

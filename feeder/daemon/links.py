@@ -123,10 +123,12 @@ class DriverLinks:
         part = self.config.part
         calibration = calibration or configured
         return CameraPoseSensor(
-            open_camera(self.sensor_address),
+            open_camera(
+                self.sensor_address, size_px=(self.config.camera.width_px, self.config.camera.height_px)
+            ),
             calibration,
             part_template(part.length_m, part.width_m, calibration),
-            parts=len(self.config.plate.parts) if self.simulator is not None else None,
+            parts=len(self.config.plate.parts),  # the plate's parts, as the planner and status count them
         )
 
     def configured_calibration(self) -> CameraCalibration | None:
