@@ -311,6 +311,53 @@ def test_configured_hardware_over_tcp_with_a_password(base: Path) -> None:
         sim.stop()
 
 
+def test_the_daemon_waits_for_hardware_that_comes_up_later(base: Path) -> None:
+    """Under systemd the daemon may start before the amplifier has booted: without
+    --wait-for-hardware it exits 1 at once with one line; with it, it keeps trying and serves
+    once the amplifier and the sensor answer."""
+    console, sensor = free_local_port(), free_local_port()
+    config = base / "feeder.toml"
+    config.write_text(
+        f'[amplifier]\nport = "socket://127.0.0.1:{console}"\nmodel = "firmware_sim"\n'
+        f'[sensor]\naddress = "socket://127.0.0.1:{sensor}"\n'
+    )
+    command = [sys.executable, "-m", "feeder", "daemon", "--config", str(config), "--log-level", "error",
+               "--state-dir", str(base / "state1"), "--socket", str(base / "w.sock")]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=60, env=env)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith("feeder daemon: error: "), done.stderr
+    daemons: list[DaemonProcess] = []
+    started = time.monotonic()
+    # the daemon starts first (a thread reads its ready line); the simulator 2 s later, from this
+    # thread (its PR_SET_PDEATHSIG fires when the thread that started it ends)
+    waiting = threading.Thread(
+        target=lambda: daemons.append(DaemonProcess(base, f"--config={config}", "--wait-for-hardware=60"))
+    )
+    waiting.start()
+    time.sleep(2.0)
+    sim = Simulator(["--console", f"tcp:127.0.0.1:{console}", "--sensor", f"tcp:127.0.0.1:{sensor}",
+                     "--dialect", "anc300", "--seed", "2"])  # fmt: skip
+    try:
+        waiting.join(60)
+        (daemon,) = daemons
+        waited = time.monotonic() - started
+        try:
+            reply = daemon.request("move", target_m=-60e-6)
+        finally:
+            assert daemon.stop() == 0
+    finally:
+        sim.stop()
+    assert waited >= 2.0 and daemon.ready["simulated"] is False
+    assert reply["ok"], reply
+
+
+def free_local_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
 class CameraRelay:
     """A TCP relay in front of the camera stream that the test can cut and restore."""
 

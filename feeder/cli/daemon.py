@@ -8,10 +8,12 @@ import logging
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING
 
+from feeder.cli.arguments import float_in
 from feeder.cli.output import print_json
 from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, embedded_plane, uses_camera
 from feeder.daemon.config_file import load_config
@@ -19,7 +21,7 @@ from feeder.daemon.launcher import LaunchError
 from feeder.daemon.links import spawn_simulator
 from feeder.daemon.store import StoreError, check_state_file, move_aside
 from feeder.drivers.amplifier import AmplifierError
-from feeder.drivers.sensor import SensorLost
+from feeder.drivers.sensor import CameraError, SensorLost
 from feeder.errors import InputError
 
 if TYPE_CHECKING:
@@ -74,6 +76,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "start with a fresh one: calibration and history start empty",
     )
     parser.add_argument(
+        "--wait-for-hardware",
+        type=float_in(0.0, 86400.0),
+        default=0.0,
+        metavar="SECONDS",
+        help="at start, keep trying to reach the amplifier and the camera (or sensor) this long, "
+        "every 1-30 s (e.g. under systemd, before the devices are up); default 0: exit 1 at once",
+    )
+    parser.add_argument(
         "--log-level",
         choices=LOG_LEVELS,
         default="info",
@@ -124,19 +134,6 @@ def run(args: argparse.Namespace) -> int:
         moved = move_aside(config.database_path)
         if moved is not None:
             logging.getLogger(__name__).warning("state database moved aside to %s", moved)
-    try:
-        running = launch(config)
-    except StoreError as err:  # the state file is not ours: bad input, left untouched
-        print(f"feeder daemon: error: {err}", file=sys.stderr)
-        return 2
-    except (AmplifierError, SensorLost, LaunchError) as err:
-        print(f"feeder daemon: error: {err}", file=sys.stderr)
-        return 1
-    try:
-        console = start_console(config, running)
-    except InputError:
-        running.stop()
-        raise
     stop = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
@@ -144,6 +141,21 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    try:
+        running = launch_when_reachable(config, args.wait_for_hardware, stop)
+    except StoreError as err:  # the state file is not ours: bad input, left untouched
+        print(f"feeder daemon: error: {err}", file=sys.stderr)
+        return 2
+    except (AmplifierError, SensorLost, CameraError, LaunchError) as err:
+        print(f"feeder daemon: error: {err}", file=sys.stderr)
+        return 1
+    if running is None:  # stopped while waiting for the hardware
+        return 0
+    try:
+        console = start_console(config, running)
+    except InputError:
+        running.stop()
+        raise
     ready = {
         "ready": True,
         "socket": str(config.socket_path),
@@ -181,6 +193,30 @@ def launch(config: DaemonConfig) -> RunningDaemon:
     from feeder.daemon.runner import start_daemon  # heavy: imported while the simulator loads
 
     return start_daemon(config, simulator)
+
+
+WAIT_FIRST_S = 1.0
+WAIT_MAX_S = 30.0
+
+
+def launch_when_reachable(config: DaemonConfig, wait_s: float, stop: threading.Event) -> RunningDaemon | None:
+    """:func:`launch`, tried again while the amplifier or the camera cannot be reached, for up to
+    ``wait_s`` (every 1 s, doubling up to 30 s; each failure logged); None if ``stop`` is set
+    meanwhile.  The last failure is raised."""
+    deadline = time.monotonic() + wait_s
+    delay = WAIT_FIRST_S
+    log = logging.getLogger(__name__)
+    while True:
+        try:
+            return launch(config)
+        except (AmplifierError, SensorLost, CameraError) as err:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise
+            log.warning("hardware not reachable (%s); trying again in %.0f s", err, min(delay, left))
+            if stop.wait(min(delay, left)):
+                return None
+            delay = min(2 * delay, WAIT_MAX_S)
 
 
 def start_console(config: DaemonConfig, running: RunningDaemon) -> ConsoleServer | None:

@@ -13,6 +13,10 @@ class SensorLost(FeederError, RuntimeError):
     """No sample within the timeout, or the sensor's link closed."""
 
 
+class CameraError(FeederError, RuntimeError):
+    """A camera cannot be opened as asked (bad spec, missing optional package)."""
+
+
 @dataclass(frozen=True)
 class PositionSample:
     """One measurement.

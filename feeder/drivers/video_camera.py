@@ -39,15 +39,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from feeder.drivers.sensor import SensorLost
-from feeder.errors import FeederError
+from feeder.drivers.sensor import CameraError, SensorLost
 
 log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".pgm")
-
-
-class CameraError(FeederError, RuntimeError):
-    """A camera cannot be opened as asked (bad spec, missing optional package)."""
 
 
 class CameraLost(SensorLost):
