@@ -19,6 +19,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -350,6 +351,35 @@ def test_the_daemon_waits_for_hardware_that_comes_up_later(base: Path) -> None:
         sim.stop()
     assert waited >= 2.0 and daemon.ready["simulated"] is False
     assert reply["ok"], reply
+
+
+def test_one_axis_located_by_a_camera(base: Path) -> None:
+    """One axis on hardware with a microscope camera, no position stream: the daemon locates the
+    part in the frames (part 1's x), as in the plane, and the truth agrees."""
+    pytest.importorskip("cv2", reason="the camera needs OpenCV (the vision extra)")
+    camera = ["--camera-http", "0", "--camera-pixel-size-m", "2.7e-6", "--camera-width-px", "1024",
+              "--camera-height-px", "512"]  # fmt: skip
+    sim = Simulator(["--console", "tcp:127.0.0.1:0", "--dialect", "anc300", "--seed", "2", *camera])
+    try:
+        config = base / "feeder.toml"
+        config.write_text(
+            f'[amplifier]\nport = "{sim.endpoints["console_tcp"]}"\nmodel = "firmware_sim"\n'
+            f'[camera]\naddress = "{sim.endpoints["camera_http"]}/video.mjpg"\n'
+            "pixel_size_m = 2.7e-6\nwidth_px = 1024\nheight_px = 512\n"
+            "[control]\nmin_position_m = -1e-3\nmax_position_m = 1e-3\n"
+        )
+        daemon = DaemonProcess(base, f"--config={config}")
+        try:
+            status = daemon.wait_for(lambda s: s["position_m"] is not None)
+            reply = daemon.request("move", target_m=-120e-6)
+            truth = json.loads(urllib.request.urlopen(f"{sim.endpoints['camera_http']}/truth.json").read())
+        finally:
+            assert daemon.stop() == 0
+    finally:
+        sim.stop()
+    assert status["camera_calibration"]["source"] == "configuration"
+    assert reply["ok"], reply
+    assert abs(truth["parts"][0]["x_m"] + 120e-6) <= status["tolerance_m"] + 0.1e-6
 
 
 def free_local_port() -> int:

@@ -254,12 +254,8 @@ def _hardware_sensor(config: DaemonConfig) -> str | None:
     if amp.simulated != (sensor is None):
         raise InputError(
             "config",
-            "name both the amplifier (port or can.channel) and the sensor (sensor.address, or "
-            "camera.address for a plate driven in the plane) for hardware, or neither for the simulator",
-        )
-    if sensor is not None and not config.plate.planar and config.sensor_address is None:
-        raise InputError(
-            "config", "one axis needs sensor.address (camera.address locates parts in the plane)"
+            "name both the amplifier (port or can.channel) and the sensor (camera.address, or "
+            "sensor.address for a position stream) for hardware, or neither for the simulator",
         )
     return sensor
 
