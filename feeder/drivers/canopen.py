@@ -24,6 +24,8 @@ The bus is plain python-can keyword arguments, so the transport is configuration
 Steps played: the node counts them (``Step counter``, in every TPDO), so
 ``AmplifierStatus.step_counter`` is the drive's own count, not an estimate; the
 end of a burst is the drive's ``moving`` bit going low in the TPDO (:meth:`wait`).
+:meth:`CanopenAmplifier.steps_played` takes the count from the TPDO when that count
+is final, else reads that one object by SDO.
 """
 
 from __future__ import annotations
@@ -122,6 +124,7 @@ class CanopenAmplifier(Amplifier):
         self._feedback = link.feedback[axis]
         self._lock = threading.RLock()
         self._closed = False
+        self._continuous = False  # a continuous run was started (by SDO) since the last RPDO command
         link.acquire()
 
     @property
@@ -164,6 +167,7 @@ class CanopenAmplifier(Amplifier):
                 refused = feedback.status_word & self._refused
             if not acked:
                 raise AmplifierLinkLost(f"{self.who}: step command not acknowledged")
+            self._continuous = False
         if refused:
             state = self.status()
             reason = f"fault {', '.join(state.faults)}" if state.fault_word else f"mode {state.mode}"
@@ -212,6 +216,7 @@ class CanopenAmplifier(Amplifier):
     def run_continuous(self, forward: bool) -> None:
         with self._lock:
             self._sdo_write("Continuous", 1 if forward else -1)
+            self._continuous = True
 
     def stop(self) -> None:
         self._command(0)
@@ -255,6 +260,30 @@ class CanopenAmplifier(Amplifier):
             fault_word=fault_word,
             faults=fault_names(fault_word),
         )
+
+    def steps_played(self) -> tuple[int, bool]:
+        """(the drive's step counter, False: it is never an estimate).
+
+        From the axis' latest TPDO, without bus traffic, when its count is final: that TPDO
+        acknowledges the last step command or stop (the node sent it after acting on the
+        command), shows the axis not moving, and no continuous run was started since (it
+        starts by SDO, unacknowledged by the TPDO).  That holds where the executor asks:
+        after :meth:`wait` saw a burst end, after a :meth:`stop`'s acknowledge once the
+        axis stood still.  Otherwise (still moving): one SDO read of ``Step counter``.
+        """
+        link, feedback = self.link, self._feedback
+        with self._lock:
+            with link.changed:
+                link.check()
+                final = (
+                    feedback.ack == feedback.sequence
+                    and not feedback.status_word & self._moving
+                    and not self._continuous
+                )
+                counter = feedback.counter
+            if not final:
+                counter = self._sdo_read("Step counter")
+        return counter, False
 
     @property
     def step_counter(self) -> int:

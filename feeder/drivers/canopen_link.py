@@ -3,8 +3,9 @@
 :class:`CanopenNodeLink` is one node on a python-can bus (``canopen``'s
 :class:`canopen.RemoteNode` with the node's EDS), shared by the drivers of its axes
 (:class:`feeder.drivers.canopen.CanopenAmplifier`): it starts the node, checks it
-is the product its EDS describes, serialises SDO transfers, receives every axis'
-TPDO and watches the node's heartbeat once for all axes.  Reference: docs/canopen.md.
+is the product its EDS describes and maps its PDOs as the EDS does, serialises SDO
+transfers, receives every axis' TPDO and watches the node's heartbeat once for all
+axes.  Reference: docs/canopen.md.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import contextlib
 import functools
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -69,7 +70,7 @@ class _Feedback:
 class CanopenNodeLink:
     """CANopen node ``node_id`` on a python-can bus, shared by the drivers of its axes.
 
-    Starts the node (heartbeat, PDOs from the EDS, NMT OPERATIONAL), serialises SDO
+    Starts the node (SDO probe, PDO mapping check, heartbeat, NMT OPERATIONAL), serialises SDO
     transfers (one SDO channel per node), receives every axis' TPDO and watches the
     node's heartbeat: once the node is lost, every axis is.
 
@@ -146,20 +147,34 @@ class CanopenNodeLink:
     # -- start-up and supervision -----------------------------------------------
 
     def _start(self) -> None:
-        """Wait for the node, check it is the EDS's product, set its heartbeat, take the
-        PDOs from the EDS, start it and wait for every axis' first TPDO."""
-        try:
-            self.node.nmt.wait_for_heartbeat(timeout=max(1.0, 5 * self.heartbeat_s))
-        except canopen.nmt.NmtError as exc:
-            raise AmplifierLinkLost(f"CANopen node {self.node_id}: no heartbeat") from exc
+        """Probe the node by SDO (its product code, which must be the EDS's), check its PDO
+        mappings against the EDS, enable its heartbeat (0x1017) and wait for a beat, start
+        it and wait for every axis' first TPDO.
+
+        The heartbeat is enabled before it is awaited: a node may ship with 0x1017 = 0
+        (CiA 301: no heartbeat), and a booted node's only unasked frame, its boot-up
+        message, may have gone by before the driver listened.
+        """
         product = self.node.object_dictionary.device_information.product_number
-        found = self.sdo_read(PRODUCT_CODE)
+        found = self.sdo_read(PRODUCT_CODE)  # the first request: "not answering" if nobody is there
         if product is not None and found != product:
             raise AmplifierError(
                 f"CANopen node {self.node_id} is product 0x{found:08X}, its EDS describes "
                 f"0x{product:08X} ({self.axes} axis per node): wrong EDS or node id"
             )
-        self.sdo_write("Producer heartbeat time", round(self.heartbeat_s * 1000))
+        self.node.tpdo.read(from_od=True)
+        self.node.rpdo.read(from_od=True)
+        for axis in self.feedback:
+            self._check_mapping(f"TPDO{axis}", self.node.tpdo[axis])
+            self._check_mapping(f"RPDO{axis}", self.node.rpdo[axis])
+        period_ms = round(self.heartbeat_s * 1000)
+        self.sdo_write("Producer heartbeat time", period_ms)
+        try:
+            self.node.nmt.wait_for_heartbeat(timeout=max(1.0, 5 * self.heartbeat_s))
+        except canopen.nmt.NmtError as exc:
+            raise AmplifierLinkLost(
+                f"CANopen node {self.node_id}: no heartbeat after setting its period to {period_ms} ms"
+            ) from exc
         if self.supervise_host:  # consumer first: it sees the first beat
             self.sdo_write(
                 CONSUMER_HEARTBEAT, self.host_id << 16 | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000)
@@ -167,8 +182,6 @@ class CanopenNodeLink:
             self.host_heartbeat = self.network.send_periodic(
                 0x700 + self.host_id, b"\x05", self.heartbeat_s
             )  # 5: OPERATIONAL
-        self.node.tpdo.read(from_od=True)
-        self.node.rpdo.read(from_od=True)
         for axis, feedback in self.feedback.items():
             self.sdo_write(tpdo_type(axis), 255)  # event-driven: on change and on its timer
             self.node.tpdo[axis].add_callback(functools.partial(self._on_tpdo, axis))
@@ -182,6 +195,34 @@ class CanopenNodeLink:
                 raise AmplifierLinkLost(f"CANopen node {self.node_id}: no TPDO after start")
             # TPDOs flow only in OPERATIONAL: from here on any other state is a loss.
             self._started = True
+
+    def _check_mapping(self, label: str, pdo: canopen.pdo.PdoMap) -> None:
+        """Refuse a node that maps ``pdo`` (named ``label``) otherwise than the EDS does: the
+        driver packs and unpacks the PDO by the EDS's mapping, so a different one would put
+        e.g. the step counter in the wrong bytes.  Reads the node's mapping by SDO."""
+        record = pdo.map_array.od
+        expected = [(variable.index, variable.subindex, variable.length) for variable in pdo.map]
+        found = []
+        for sub in range(1, self._sdo_upload(record.index, 0, 1, record.name) + 1):
+            entry = self._sdo_upload(record.index, sub, 4, record.name)
+            found.append((entry >> 16, entry >> 8 & 0xFF, entry & 0xFF))
+        if found != expected:
+            raise AmplifierError(
+                f"{self.who}: {label} (0x{record.index:04X}) maps {self._describe(found)}, "
+                f"its EDS {self._describe(expected)}: wrong EDS, or the drive's mapping was changed"
+            )
+
+    def _describe(self, mapping: list[tuple[int, int, int]]) -> str:
+        """A PDO mapping as object names (index:sub-index for objects the EDS lacks), each
+        with its bit length where that is not its type's."""
+        names = []
+        for index, subindex, bits in mapping:
+            variable = self.node.object_dictionary.get_variable(index, subindex)
+            if variable is None:
+                names.append(f"0x{index:04X}:{subindex:02X} ({bits} bit)")
+            else:
+                names.append(variable.qualname + (f" ({bits} bit)" if bits != len(variable) else ""))
+        return "[" + ", ".join(names) + "]"
 
     def name(self, axis: int, name: str) -> str:
         """The EDS name of axis ``axis``' object ``name`` on this node."""
@@ -240,34 +281,41 @@ class CanopenNodeLink:
     def sdo_write(self, name: str, value: int, who: str | None = None) -> None:
         """Write object ``name`` (its EDS name; ``Record.Sub`` for a sub-object); ``who``
         names the axis in errors."""
-        self.check()
-        try:
-            with self.sdo_lock:
-                self.node.sdo[name].raw = value
-        except SdoAbortedError as exc:
-            raise AmplifierError(self._abort_text(exc, name, value, who)) from exc
-        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
-            raise AmplifierLinkLost(f"{who or self.who}: {exc}") from exc
+        with self._transfer(f"{name} = {value}", who):
+            self.node.sdo[name].raw = value
 
     def sdo_read(self, name: str, who: str | None = None) -> int:
         """Read object ``name`` (its EDS name)."""
+        with self._transfer(name, who):
+            value = int(self.node.sdo[name].raw)
+        return value
+
+    def _sdo_upload(self, index: int, subindex: int, size: int, what: str) -> int:
+        """Read unsigned object ``index``:``subindex`` of ``size`` bytes by its numbers (for
+        sub-indices the EDS may lack); ``what`` names it in errors."""
+        with self._transfer(f"{what} sub-index {subindex}", None):
+            data = self.node.sdo.upload(index, subindex)
+        return int.from_bytes(data[:size], "little")
+
+    @contextlib.contextmanager
+    def _transfer(self, what: str, who: str | None) -> Iterator[None]:
+        """One SDO transfer (``what``: the object, and the value written), serialised; its
+        failures as :class:`AmplifierError` (an abort) or :class:`AmplifierLinkLost`."""
         self.check()
         try:
             with self.sdo_lock:
-                return int(self.node.sdo[name].raw)
+                yield
         except SdoAbortedError as exc:
-            raise AmplifierError(self._abort_text(exc, name, None, who)) from exc
-        except (SdoCommunicationError, can.CanError, OSError) as exc:  # no answer, or no bus
+            reason = ABORT_MESSAGES.get(exc.code, "refused")
+            raise AmplifierError(f"{who or self.who}: {what}: {reason} (SDO abort 0x{exc.code:08X})") from exc
+        except SdoCommunicationError as exc:  # no (valid) answer within the timeout
+            raise AmplifierLinkLost(f"{who or self.who}: not answering ({exc})") from exc
+        except (can.CanError, OSError) as exc:  # no bus
             raise AmplifierLinkLost(f"{who or self.who}: {exc}") from exc
 
     @property
     def who(self) -> str:
         return f"CANopen node {self.node_id}"
-
-    def _abort_text(self, exc: SdoAbortedError, name: str, value: int | None, who: str | None) -> str:
-        what = f"{name} = {value}" if value is not None else name
-        reason = ABORT_MESSAGES.get(exc.code, "refused")
-        return f"{who or self.who}: {what}: {reason} (SDO abort 0x{exc.code:08X})"
 
     # -- users ---------------------------------------------------------------------
 
