@@ -393,15 +393,18 @@ class CanopenNode:
             pdos_flow = self.nmt_state == NMT_OPERATIONAL and any(p.tpdo_type >= 254 for p in self.ports)
             self._wake.wait(self.poll_s if pdos_flow else max(self.poll_s, IDLE_POLL_S))
             self._wake.clear()
-            statuses = self._statuses()
-            seen = self._consumer_seen
-            if seen is not None and time.monotonic() - seen > self._consumer_timeout_s:
-                self._consumer_seen = None  # one event per silence
-                for port in self.ports:
-                    if statuses[port.number].moving:
-                        port.axis.inject_fault(Fault.HOST_WATCHDOG)
+            with self.firmware.lock:  # one instant, as a drive samples: an RPDO handled between
+                # the statuses and the packing would pair its acknowledge with the status before it
                 statuses = self._statuses()
-            register = self._register(statuses)
+                seen = self._consumer_seen
+                if seen is not None and time.monotonic() - seen > self._consumer_timeout_s:
+                    self._consumer_seen = None  # one event per silence
+                    for port in self.ports:
+                        if statuses[port.number].moving:
+                            port.axis.inject_fault(Fault.HOST_WATCHDOG)
+                    statuses = self._statuses()
+                register = self._register(statuses)
+                packed = {port.number: port.pack_tpdo(statuses[port.number], register) for port in self.ports}
             state = self.nmt_state
             reports = state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL)
             for port in self.ports:
@@ -413,7 +416,7 @@ class CanopenNode:
                     continue
                 now = time.monotonic()
                 with self._tpdo_lock:
-                    data = port.pack_tpdo(status, register)
+                    data = packed[port.number]
                     changed = data != port.last_data and now - port.last_sent >= port.inhibit_s
                     timer_due = port.event_timer_s > 0 and now - port.last_sent >= port.event_timer_s
                     if changed or timer_due:
