@@ -288,7 +288,7 @@ class _Search:
         log_f, v_frac, log_t = (float(v) for v in x)
         if not (self.f_lo - 1e-12 <= log_f <= self.f_hi + 1e-12 and 0.02 <= v_frac <= 1.0):
             return None
-        f = 10**log_f
+        f = amp.settable_hz(10**log_f)
         volts = v_frac * amp.max_amplitude_vpp
         if shape == "current-limited":
             t_f = float(flyback_time_s(volts, f, amp, stack)[0])

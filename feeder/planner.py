@@ -249,10 +249,11 @@ def plan(
     a_s = result.breakaway_accel_m_s2
     a_lo, a_hi = result.breakaway_accel_band_m_s2
 
-    if frequency_hz is None:
-        freqs = np.geomspace(amplifier.min_frequency_hz, amplifier.max_frequency_hz, _FREQUENCY_GRID)
+    if frequency_hz is None:  # what the amplifier can be set to (the ANC300: whole hertz)
+        grid = np.geomspace(amplifier.min_frequency_hz, amplifier.max_frequency_hz, _FREQUENCY_GRID)
+        freqs = np.unique([amplifier.settable_hz(float(f)) for f in grid])
     elif amplifier.min_frequency_hz <= frequency_hz <= amplifier.max_frequency_hz:
-        freqs = np.array([float(frequency_hz)])
+        freqs = np.array([amplifier.settable_hz(float(frequency_hz))])
     else:
         raise InputError(
             "frequency_hz",

@@ -144,8 +144,9 @@ class ConsoleSession:
     wait_timeout_s: longest ``stepw``/``capw`` wait before ERROR (continuous
         motion never ends by itself).
     dialect: ``anc300`` answers only a real ANC300's verbs (every extension gets
-        its error reply, ``Unknown command``); ``extended`` adds the extensions
-        (:data:`feeder.protocol.anc300.VERBS`).
+        its error reply, ``Unknown command``) and, like the unit, runs whole hertz
+        (``setf`` rounds to the nearest); ``extended`` adds the extensions
+        (:data:`feeder.protocol.anc300.VERBS`) and takes fractional hertz.
     throttle, source: password tries are paced by ``throttle`` under the name
         ``source`` (the peer's address); ``None`` = unpaced (tests).
     """
@@ -163,6 +164,7 @@ class ConsoleSession:
     ) -> None:
         self.firmware = firmware
         self.verbs = verbs_of(dialect)
+        self.whole_hertz = dialect == "anc300"
         self.password = password
         self.true_step = true_step
         self.max_line = max_line
@@ -305,7 +307,8 @@ class ConsoleSession:
 
     def _setf(self, axis: Axis, args: list[str]) -> list[str]:
         _arity(args, 1)
-        axis.set_frequency(_number(args[0], "frequency"))
+        hz = _number(args[0], "frequency")
+        axis.set_frequency(float(round(hz)) if self.whole_hertz else hz)
         return []
 
     def _getf(self, axis: Axis, args: list[str]) -> list[str]:

@@ -209,6 +209,7 @@ def test_anc300_design_uses_whole_table_steps_within_its_rail():
     steps = w.flyback_s * w.frequency_hz * 256
     assert steps == pytest.approx(round(steps), abs=1e-6) and round(steps) >= 1
     assert w.max_voltage_v <= 150.0 and w.frequency_hz <= 10_000.0
+    assert w.frequency_hz == round(w.frequency_hz)  # an ANC300 is set in whole hertz
     # the flyback draws no more than the current limit (it is a shape the amplifier follows)
     assert design.margins["current_margin"] >= 1.0 - 1e-9
     assert design.verified_step_mean_m == pytest.approx(design.predicted_step_m, rel=0.01)

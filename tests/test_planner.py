@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -13,7 +14,7 @@ from feeder.errors import InputError
 from feeder.paper import STEP_500_M
 from feeder.parts import GROOVED, Part
 from feeder.planner import Plan, plan, predict_step
-from feeder.plant.amplifier import AmplifierLimits
+from feeder.plant.amplifier import AMPLIFIER_MODELS, AmplifierLimits
 from feeder.plant.plant import run_waveform
 from feeder.plant.stick_slip import Friction
 from feeder.waveform import Waveform
@@ -63,6 +64,19 @@ def test_backward_and_fixed_frequency() -> None:
     assert p.direction == "backward" and p.frequency_hz == 100.0
     assert p.predicted_step_m < 0
     assert p.steps * p.predicted_step_m == pytest.approx(-40e-6, rel=1e-6)
+
+
+def test_an_amplifier_set_in_whole_hertz_is_planned_in_whole_hertz() -> None:
+    """An ANC300 takes and reports whole hertz: a plan at 3070.29 Hz would run at 3070 Hz."""
+    anc300 = AMPLIFIER_MODELS["anc300"]
+    p = plan(PART, distance_m=100e-6, amplifier=anc300)
+    assert p.frequency_hz == round(p.frequency_hz) and 1 <= p.frequency_hz <= 10_000
+    free = plan(PART, distance_m=100e-6, amplifier=dataclasses.replace(anc300, frequency_step_hz=0.0))
+    assert free.frequency_hz != round(free.frequency_hz)  # the same search, not rounded
+    assert plan(PART, distance_m=40e-6, frequency_hz=99.6, amplifier=anc300).frequency_hz == 100.0
+    assert anc300.settable_hz(0.2) == 1.0 and anc300.settable_hz(2e4) == 10_000.0
+    with pytest.raises(InputError, match="frequency_step_hz"):
+        AmplifierLimits(frequency_step_hz=-1.0)
 
 
 def test_band_follows_tau() -> None:

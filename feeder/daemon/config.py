@@ -48,6 +48,8 @@ class AmplifierConfig:
     axis: int = 1
     timeout_s: float = 1.0
     password: str = "123456"
+    baudrate: int = 38400
+    """Bit/s of a serial port (the ANC300's console: 38400; USB CDC-ACM ignores it)."""
     limits: AmplifierLimits = field(default_factory=lambda: AMPLIFIER_MODELS["anc300"])
     can: dict[str, Any] = field(default_factory=dict)
 
@@ -108,8 +110,9 @@ class PlateConfig:
     axes: which axes the daemon drives (``("x",)``: one axis, today's feeder;
     ``("x", "y", "theta")``: the plane, parts brought to poses); axis_map: each
     axis' ANC300 axis number or CANopen node id; lever_arm_m: radius about O at
-    which the θ stack drives the plate (simulator); parts: the parts' start poses
-    (m, m, rad; plate frame) in the simulator.
+    which the θ stack drives the plate (simulator); parts: the parts on the plate,
+    as their start poses (m, m, rad; plate frame): the simulator places them there;
+    on hardware their number is how many the camera must locate.
     """
 
     axes: tuple[str, ...] = ("x",)
@@ -236,6 +239,6 @@ def embedded_plane(config: DaemonConfig) -> DaemonConfig:
 
 
 def uses_camera(config: DaemonConfig) -> bool:
-    """The daemon locates parts in a camera's frames (a plate in the plane without a
-    position stream)."""
-    return config.plate.planar and config.sensor_address is None
+    """The daemon locates parts in a camera's frames: a plate in the plane, or one axis given
+    ``camera.address`` (part 1's x), unless a position stream (``sensor.address``) is named."""
+    return config.sensor_address is None and (config.plate.planar or config.camera.address is not None)

@@ -16,6 +16,7 @@ port = "/dev/ttyUSB0"         # serial device or pyserial URL (socket://, rfc221
 axis = 1
 timeout_s = 1.0
 password = "123456"           # sent when the console asks (TCP; ANC300 default)
+baudrate = 38400              # serial port rate, bit/s (the ANC300's; USB CDC-ACM ignores it)
 [amplifier.limits]            # narrows the model's rating (AmplifierLimits); never beyond it
 v_max_v = 120.0
 current_limit_a = 0.55
@@ -37,7 +38,7 @@ args = []                     # extra command-line arguments for firmware_sim
 [part]
 size = "300x300x50"           # µm
 support = "flat"
-surface = "surface.toml"      # optional; default: the paper's surface
+surface = "surface.toml"      # optional, relative to this file's folder; default: the paper's surface
 tau_pa = 22.18e9              # optional; default: the contact model's τ
 
 [control]
@@ -100,7 +101,9 @@ def _table(doc: dict[str, Any], name: str, where: str) -> dict[str, Any]:
 
 
 SECTIONS: dict[str, frozenset[str]] = {
-    "amplifier": frozenset({"transport", "model", "port", "axis", "timeout_s", "password", "limits", "can"}),
+    "amplifier": frozenset(
+        {"transport", "model", "port", "axis", "timeout_s", "password", "baudrate", "limits", "can"}
+    ),
     "sensor": frozenset({"address", "timeout_s"}),
     "simulator": frozenset({"args"}),
     "part": frozenset({"size", "support", "surface", "tau_pa"}),
@@ -131,6 +134,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "hold_timeout_s": (0.0, 60.0),
     "timeout_s": (1e-3, 60.0),
     "axis": (1, 7),
+    "baudrate": (300, 4_000_000),
     "node_id": (1, 127),
     "heartbeat_s": (0.01, 10.0),
     "min_position_m": (-1.0, 1.0),
@@ -199,8 +203,12 @@ def _string(table: dict[str, Any], key: str, where: str, default: str | None) ->
     return value
 
 
-def _path(value: str | None) -> Path | None:
-    return None if value is None else Path(value).expanduser()
+def _path(value: str | None, folder: Path | None = None) -> Path | None:
+    """``value`` with ``~`` expanded; a relative path joined to ``folder`` when given."""
+    if value is None:
+        return None
+    path = Path(value).expanduser()
+    return path if folder is None else folder / path
 
 
 def _plate(table: dict[str, Any], where: str) -> PlateConfig:
@@ -305,6 +313,7 @@ def load_config(path: Path | None) -> DaemonConfig:
         axis=axis,
         timeout_s=_number(amp, "timeout_s", where, 1.0, positive=True, section="amplifier."),
         password=str(_string(amp, "password", where, "123456")),
+        baudrate=_integer(amp, "baudrate", where, AmplifierConfig.baudrate, "amplifier."),
         limits=limits,
         can=dict(can),
     )
@@ -369,7 +378,7 @@ def load_config(path: Path | None) -> DaemonConfig:
         simulator_args=tuple(sim_args),
         part=part,
         support=support,
-        surface_path=_path(_string(part_t, "surface", where, None)),
+        surface_path=_path(_string(part_t, "surface", where, None), path.parent.absolute()),
         tau_pa=tau_pa,
         loop=loop,
         plate=plate,

@@ -104,10 +104,16 @@ class DriverLinks:
         if plate.planar:
             from feeder.drivers.axes import open_anc300_axes
 
-            link = Anc300Link(self.amplifier_address, password=amp.password, timeout_s=amp.timeout_s)
+            link = Anc300Link(
+                self.amplifier_address, password=amp.password, timeout_s=amp.timeout_s, baudrate=amp.baudrate
+            )
             return open_anc300_axes(link, axis_map)
         return Anc300Amplifier.open(
-            self.amplifier_address, amp.axis, timeout_s=amp.timeout_s, password=amp.password
+            self.amplifier_address,
+            amp.axis,
+            timeout_s=amp.timeout_s,
+            password=amp.password,
+            baudrate=amp.baudrate,
         )
 
     def open_sensor(self, calibration: CameraCalibration | None = None) -> PositionSensor:

@@ -7,7 +7,8 @@ Protocol: docs/anc300-protocol.md.
 
 - :class:`Anc300Link` is one connection: a lock (one command at a time, so
   any number of threads may share it), a timeout per reply, login when the
-  device asks for a password, ``echo off``, and recovery: any timeout, broken
+  device asks for a password (the TCP console always greets and asks; a
+  serial port may stay silent), ``echo off``, and recovery: any timeout, broken
   reply or I/O error closes the port and raises
   :class:`~feeder.drivers.amplifier.AmplifierLinkLost`; the next command
   reconnects and resynchronises (flush, ``echo off``, read up to ``OK``).
@@ -18,11 +19,13 @@ The driver speaks only a real ANC300's verbs
 (:data:`feeder.protocol.anc300.MOVE_PATH`), so it drives an attocube ANC300
 and firmware_sim alike: the flyback goes up as 256-point ``setpu``/``setpd``
 tables (:meth:`feeder.waveform.Waveform.anc300_tables`, uploaded when they
-change); the end of a burst is N/f after the step command was acknowledged,
-confirmed with ``stepw``; the step counter is the driver's own count of the
-steps it commanded, and after a ``stop`` mid-burst the steps played are
-*estimated* from the time the burst ran (``AmplifierStatus.counted_by`` says
-so): the ANC300 reports neither a counter nor a fault word.  Example::
+change); the frequency goes out in whole hertz (what an ANC300 takes) and f is
+the unit's own ``getf`` answer; the end of a burst is N/f after the step
+command was acknowledged, confirmed with ``stepw``; the step counter is the
+driver's own count of the steps it commanded, and after a ``stop`` mid-burst
+the steps played are *estimated* from the time the burst ran
+(``AmplifierStatus.counted_by`` says so): the ANC300 reports neither a counter
+nor a fault word.  Example::
 
     link = Anc300Link("socket://192.168.1.2:7230", password="123456")
     with Anc300Amplifier(link, axis=1) as amp:
@@ -33,6 +36,7 @@ so): the ANC300 reports neither a counter nor a fault word.  Example::
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import re
 import threading
@@ -40,6 +44,7 @@ import time
 from collections.abc import Callable
 
 import serial
+from serial.urlhandler.protocol_socket import Serial as SocketSerial
 
 from feeder.drivers.amplifier import (
     Amplifier,
@@ -51,8 +56,11 @@ from feeder.drivers.amplifier import (
 from feeder.protocol.anc300 import DEFAULT_PASSWORD
 from feeder.waveform import Waveform
 
-CONNECT_SETTLE_S = 0.05
-"""ANC300 clients wait this long after connecting, then flush the greeting."""
+DEFAULT_BAUDRATE = 38400
+"""The ANC300's serial console rate (ignored over USB CDC-ACM; RS-232 and USB adapters need it)."""
+GREETING_QUIET_S = 0.1
+"""A serial console silent this long (from connecting, or after its last byte) asks for no password
+(a serial port may send nothing; the TCP console always greets and asks)."""
 BURST_END_MARGIN_S = 0.002
 """``moving`` stays True this long past N/f (the burst starts at the DAC's next sample)."""
 _VALUE = re.compile(r"^(\w+) = (\S+)(?: (\S+))?$")
@@ -67,16 +75,41 @@ except ImportError:  # pragma: no cover - not POSIX
     pass
 QUERY_ERRORS: tuple[type[BaseException], ...] = (*LINK_ERRORS, AmplifierLinkLost)
 
+log = logging.getLogger(__name__)
+
+
+class _GreetingSocket(SocketSerial):
+    """pyserial's ``socket://`` port, except that opening it discards nothing: pyserial flushes
+    the input as it opens, which swallows the greeting of a console on a near host."""
+
+    _opening = False
+
+    def open(self) -> None:
+        self._opening = True
+        try:
+            super().open()
+        finally:
+            self._opening = False
+
+    def reset_input_buffer(self) -> None:
+        if not self._opening:
+            super().reset_input_buffer()
+
 
 class Anc300Link:
     """One serial/TCP connection to an ANC300-compatible console (thread-safe).
 
     url: anything ``serial.serial_for_url`` opens; timeout_s: longest wait for
-    a complete reply; password: sent when the device asks for it.
+    a complete reply (and, on ``socket://``, for the greeting); password: sent
+    when the device asks for it; baudrate: of a serial port (bit/s).
     """
 
     def __init__(
-        self, url: str, password: str = DEFAULT_PASSWORD, timeout_s: float = 1.0, baudrate: int = 115200
+        self,
+        url: str,
+        password: str = DEFAULT_PASSWORD,
+        timeout_s: float = 1.0,
+        baudrate: int = DEFAULT_BAUDRATE,
     ) -> None:
         self.url = url
         self.password = password
@@ -124,6 +157,11 @@ class Anc300Link:
 
     # -- internals (lock held) -------------------------------------------------
 
+    @property
+    def _greets(self) -> bool:
+        """The console greets every connection (the ANC300's TCP console, ``socket://``)."""
+        return self.url.startswith("socket://")
+
     def _drop(self) -> None:
         if self._port is not None:
             with contextlib.suppress(*LINK_ERRORS):
@@ -134,7 +172,8 @@ class Anc300Link:
         try:
             # pyserial's rfc2217 client has no write timeout
             write_timeout = None if self.url.startswith("rfc2217://") else self.timeout_s
-            port = serial.serial_for_url(
+            opener = _GreetingSocket if self._greets else serial.serial_for_url
+            port = opener(
                 self.url, baudrate=self.baudrate, timeout=self.timeout_s, write_timeout=write_timeout
             )
         except (serial.SerialException, OSError, ValueError) as exc:
@@ -142,10 +181,11 @@ class Anc300Link:
         self._port = port
         with contextlib.ExitStack() as undo:  # any failure from here drops the port
             undo.callback(self._drop)
-            port.reset_input_buffer()  # whatever a previous session left unread
-            time.sleep(CONNECT_SETTLE_S)
-            greeting = self._read_available(port)
-            if "Authorization code" in greeting:
+            # a serial port may hold what a previous session left unread; a new TCP
+            # connection holds nothing stale, only the greeting (read next: never flushed)
+            if not self._greets:
+                port.reset_input_buffer()
+            if self._asks_password(port):
                 self._login(port)
             # resynchronise: echo off, then everything up to its OK is discarded
             for _ in range(2):
@@ -169,12 +209,32 @@ class Anc300Link:
                 raise AmplifierError(f"{self.url}: wrong password")
         raise AmplifierLinkLost("no answer to the password")
 
-    @staticmethod
-    def _read_available(port: serial.SerialBase) -> str:
-        port.timeout = 0.1
-        data = port.read(4096)
-        port.timeout = None
-        return data.decode("ascii", errors="replace")
+    def _asks_password(self, port: serial.SerialBase) -> bool:
+        """Read the greeting up to the password prompt (True) or the console prompt (False).
+
+        On ``socket://`` (the ANC300's TCP console greets every connection) a greeting
+        line must arrive within ``timeout_s``, and the prompt is awaited as long; a
+        serial port silent for :data:`GREETING_QUIET_S` asks for nothing.
+        """
+        required = self._greets
+        start = time.monotonic()
+        deadline = start + self.timeout_s
+        quiet_until = deadline if required else start + GREETING_QUIET_S
+        seen = b""
+        while b"Authorization code" not in seen:
+            if seen.rstrip().endswith(b">"):
+                return False
+            wait = min(deadline, quiet_until) - time.monotonic()
+            if wait <= 0:
+                if required and b"\n" not in seen:
+                    raise AmplifierLinkLost(f"no greeting within {self.timeout_s:g} s")
+                return False
+            port.timeout = wait
+            chunk = port.read(max(1, port.in_waiting))
+            seen += chunk
+            if chunk and not required:
+                quiet_until = time.monotonic() + GREETING_QUIET_S
+        return True
 
     @staticmethod
     def _readline(port: serial.SerialBase, deadline: float) -> str:
@@ -199,6 +259,8 @@ class Anc300Link:
                 return lines, None
             if line == "ERROR":
                 return lines[:-1], (lines[-1] if lines else "ERROR")
+            if line.startswith("Authorization code"):  # a late prompt (+ the masked command)
+                continue
             if line.startswith("Authorization"):  # the command was taken as a password
                 return lines, "Authorization required"
             if line and line != command:
@@ -219,23 +281,36 @@ class Anc300Amplifier(Amplifier):
         self._lock = threading.Lock()
         self._counter = 0  # steps commanded (played, once a burst is over)
         self._tables: tuple[list[int], list[int]] | None = None  # what the device holds
-        self._frequency_hz = 0.0
+        self._frequency_hz = 0.0  # the unit's own (getf), Hz
         self._burst: tuple[float, int] | None = None  # (start s, signed steps) while it runs
         self._estimated = False
         self._continuous = False  # stepu/stepd c: never ends, so never ``stepw``
 
     @classmethod
-    def open(cls, url: str, axis: int = 1, **link_options: object) -> Anc300Amplifier:
-        """A driver on a new link to ``url`` (options: password, timeout_s, baudrate)."""
-        return cls(Anc300Link(url, **link_options), axis)  # type: ignore[arg-type]
+    def open(
+        cls,
+        url: str,
+        axis: int = 1,
+        password: str = DEFAULT_PASSWORD,
+        timeout_s: float = 1.0,
+        baudrate: int = DEFAULT_BAUDRATE,
+    ) -> Anc300Amplifier:
+        """A driver on a new link to ``url`` (timeout_s in s, baudrate in bit/s)."""
+        return cls(Anc300Link(url, password=password, timeout_s=timeout_s, baudrate=baudrate), axis)
 
     def apply(self, settings: DriveSettings) -> None:
+        """Send the frequency in whole hertz and keep the unit's ``getf`` answer for the
+        burst bookkeeping; then the amplitude and (when they changed) the tables."""
         a = self.axis
-        self.link.query(f"setf {a} {settings.frequency_hz:.6f}")
-        self._frequency_hz = settings.frequency_hz
+        self.link.query(f"setf {a} {round(settings.frequency_hz)}")
+        frequency = self._number(f"getf {a}", "frequency")
+        if frequency != settings.frequency_hz:
+            log.debug("axis %d: %g Hz asked, the unit runs at %g Hz", a, settings.frequency_hz, frequency)
+        with self._lock:
+            self._frequency_hz = frequency
         self.link.query(f"setv {a} {settings.amplitude_v:.6f}")
         tables = Waveform(
-            frequency_hz=settings.frequency_hz,
+            frequency_hz=frequency,
             amplitude_vpp=1.0,
             flyback_shape=settings.flyback_shape,
             flyback_s=settings.flyback_s,
@@ -308,8 +383,8 @@ class Anc300Amplifier(Amplifier):
 
     def status(self) -> AmplifierStatus:
         mode = self.link.value(f"getm {self.axis}", "mode")
-        frequency = float(self.link.value(f"getf {self.axis}", "frequency"))
-        amplitude = float(self.link.value(f"getv {self.axis}", "voltage"))
+        frequency = self._number(f"getf {self.axis}", "frequency")
+        amplitude = self._number(f"getv {self.axis}", "voltage")
         counter, estimated = self.steps_played()
         with self._lock:
             moving = self._burst is not None or self._continuous
@@ -324,6 +399,17 @@ class Anc300Amplifier(Amplifier):
 
     def close(self) -> None:
         self.link.close()
+
+    def _number(self, command: str, name: str) -> float:
+        """The finite number of ``command``'s ``name = value [unit]`` line."""
+        text = self.link.value(command, name)
+        try:
+            number = float(text)
+        except ValueError:
+            number = math.nan
+        if not math.isfinite(number):
+            raise AmplifierError(f"{self.link.url}: {command}: {name} = {text!r} is not a number")
+        return number
 
     # -- burst bookkeeping (lock held) -------------------------------------------
 

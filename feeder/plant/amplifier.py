@@ -10,8 +10,8 @@ Defaults (document of record: docs/plant.md): 0–200 V rails (the paper drives
 commercial piezo driver (0.1–1 A class); 1 Hz–2 kHz stepping frequency.
 
 :data:`AMPLIFIER_MODELS` names the ratings a planner plans within: ``anc300``
-(attocube ANC300 with ANM150 stepping modules: 0–150 V, 1 Hz–10 kHz, 256-point
-8-bit waveform tables; its current and slew limits are not published in the
+(attocube ANC300 with ANM150 stepping modules: 0–150 V, 1 Hz–10 kHz in whole hertz,
+256-point 8-bit waveform tables; its current and slew limits are not published in the
 console, so the mid-range defaults stand until ``[amplifier.limits]`` says
 better) and ``firmware_sim`` (the feeder's own amplifier, the paper's 200 Vpp).
 """
@@ -41,17 +41,36 @@ class AmplifierLimits:
     current_limit_a: float = 0.55
     min_frequency_hz: float = 1.0
     max_frequency_hz: float = 2000.0
+    frequency_step_hz: float = 0.0
+    """The stepping frequency is set in steps of this (the ANC300: whole hertz); 0: any."""
 
     def __post_init__(self) -> None:
         for name in ("slew_rate_v_per_s", "current_limit_a", "min_frequency_hz", "max_frequency_hz"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise InputError(name, f"must be a positive number, got {value!r}")
+        if not (
+            math.isfinite(self.frequency_step_hz) and 0 <= self.frequency_step_hz <= self.max_frequency_hz
+        ):
+            raise InputError(
+                "frequency_step_hz", f"must be 0 or a positive step, got {self.frequency_step_hz!r}"
+            )
         if not (math.isfinite(self.v_min_v) and math.isfinite(self.v_max_v)
                 and self.v_min_v < self.v_max_v):  # fmt: skip
             raise InputError("v_max_v", "rails must be finite with v_min_v < v_max_v")
         if self.min_frequency_hz > self.max_frequency_hz:
             raise InputError("max_frequency_hz", "must not be below min_frequency_hz")
+
+    def settable_hz(self, frequency_hz: float) -> float:
+        """The nearest frequency the amplifier can be set to (Hz; its steps, within its range)."""
+        step = self.frequency_step_hz
+        if step <= 0:
+            return frequency_hz
+        lowest, highest = (
+            math.ceil(self.min_frequency_hz / step) * step,
+            math.floor(self.max_frequency_hz / step) * step,
+        )
+        return min(max(round(frequency_hz / step) * step, lowest), highest)
 
     @property
     def max_amplitude_vpp(self) -> float:
@@ -146,7 +165,7 @@ class OutputStage:
 
 
 AMPLIFIER_MODELS: dict[str, AmplifierLimits] = {
-    "anc300": AmplifierLimits(v_max_v=150.0, max_frequency_hz=10_000.0),
+    "anc300": AmplifierLimits(v_max_v=150.0, max_frequency_hz=10_000.0, frequency_step_hz=1.0),
     "firmware_sim": AmplifierLimits(),
 }
 """Named amplifier ratings (``[amplifier] model`` in the daemon's configuration)."""
