@@ -5,16 +5,20 @@ The spec and its points: :mod:`feeder.sweep_spec`.
 Resuming: the points are cut into chunks in order; each chunk is a Parquet
 part file in ``<out>.parts/`` named by a hash of its inputs and the settings, so
 a restarted sweep recomputes only the chunks without a part file.  The result
-is the parts concatenated in point order, written atomically.  Every point's
+is the parts concatenated in point order, written atomically; the parts folder
+is made only when the first chunk is written (a sweep that fails before any
+work, e.g. an unreachable scheduler, leaves nothing behind).  Every point's
 computation depends only on its own row (seeded), so a Dask run and a serial
 run give identical numbers.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -34,7 +38,21 @@ from feeder.sweep_spec import DEFAULTS, OUTPUTS, SweepSettings, SweepSpec, chunk
 from feeder.waveform import Waveform
 
 if TYPE_CHECKING:
-    from dask.distributed import LocalCluster
+    from dask.distributed import Client, LocalCluster
+
+log = logging.getLogger(__name__)
+
+SCHEDULER_CONNECT_TIMEOUT_S = 10.0
+"""How long to try connecting to a ``scheduler`` address (Dask's default: 30 s)."""
+
+
+class SchedulerUnreachable(FeederError):
+    """No Dask scheduler answered at ``address`` within :data:`SCHEDULER_CONNECT_TIMEOUT_S`."""
+
+    def __init__(self, address: str, message: str) -> None:
+        super().__init__(f"{address}: {message}")
+        self.address = address
+        self.message = message
 
 
 def _surface(label: str) -> SurfaceParameters:
@@ -148,13 +166,16 @@ def parts_dir(out: Path) -> Path:
 
 @dataclass(frozen=True)
 class SweepReport:
-    """What a run did: points, chunks, how many were computed now and how many were already done."""
+    """What a run did: points, chunks, how many were computed now and how many were already done,
+    and how many points could not run (``failed``; ``first_error``: the lowest such point's error)."""
 
     points: int
     chunks: int
     computed: int
     cached: int
     path: Path
+    failed: int = 0
+    first_error: str = ""
 
 
 def run_sweep(
@@ -171,11 +192,12 @@ def run_sweep(
     serial: in this process; scheduler: an existing Dask scheduler's address
     (``tcp://host:8786``); otherwise a local Dask cluster of ``workers``
     processes (default: one per core) bound to 127.0.0.1.
-    progress(done, total, cached) is called as chunks finish.
+    progress(done, total, cached) is called as chunks finish.  A ``scheduler`` that does not
+    answer is :class:`SchedulerUnreachable` (a malformed address: :class:`InputError`), raised
+    before anything is written.
     """
     out = Path(out)
     folder = parts_dir(out)
-    folder.mkdir(parents=True, exist_ok=True)
     chunks = spec.chunks()
     offsets = np.cumsum([0] + [len(c) for c in chunks])
     keys = [chunk_key(spec.settings, rows) for rows in chunks]
@@ -183,16 +205,22 @@ def run_sweep(
     todo = [i for i, f in enumerate(files) if not f.exists()]
     cached = len(chunks) - len(todo)
     say = progress or (lambda done, total, skipped: None)
-    say(cached, len(chunks), cached)
-    done = cached
-    for index, frame in _evaluate(spec.settings, [chunks[i] for i in todo], todo, workers, scheduler, serial):
-        frame.insert(0, "point", np.arange(offsets[index], offsets[index + 1]))
-        _write_parquet(frame, files[index])
-        done += 1
-        say(done, len(chunks), cached)
+    with _dask_client(workers, scheduler, serial, needed=bool(todo)) as client:  # connects first
+        say(cached, len(chunks), cached)
+        done = cached
+        for index, frame in _evaluate(spec.settings, [chunks[i] for i in todo], todo, client):
+            frame.insert(0, "point", np.arange(offsets[index], offsets[index + 1]))
+            folder.mkdir(parents=True, exist_ok=True)
+            _write_parquet(frame, files[index])
+            done += 1
+            say(done, len(chunks), cached)
     result = pd.concat([pd.read_parquet(f) for f in files], ignore_index=True)
     _write_parquet(result, out)
-    return SweepReport(len(spec.points), len(chunks), len(todo), cached, out)
+    errors = result["error"][result["error"] != ""]
+    first = str(errors.iloc[0]) if len(errors) else ""
+    if len(errors):
+        log.info("%d of %d points could not run; the first: %s", len(errors), len(result), first)
+    return SweepReport(len(spec.points), len(chunks), len(todo), cached, out, len(errors), first)
 
 
 WORKER_MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": 32 * 2**20, "MALLOC_TRIM_THRESHOLD_": 64 * 2**20}
@@ -219,36 +247,59 @@ def local_cluster(workers: int) -> LocalCluster:
                             dashboard_address=None)  # fmt: skip
 
 
-def _evaluate(
-    settings: SweepSettings,
-    chunks: list[list[dict[str, Any]]],
-    indices: list[int],
-    workers: int | None,
-    scheduler: str | None,
-    serial: bool,
-) -> Iterator[tuple[int, pd.DataFrame]]:
-    """(chunk index, frame) as each chunk finishes (in any order on Dask)."""
-    if serial or not chunks:
-        for index, rows in zip(indices, chunks, strict=True):
-            yield index, evaluate_chunk(settings, rows)
+@contextmanager
+def _dask_client(
+    workers: int | None, scheduler: str | None, serial: bool, needed: bool
+) -> Iterator[Client | None]:
+    """A client of the ``scheduler`` or of a local cluster, closed on exit; None when serial or not needed."""
+    if serial or not needed:
+        yield None
         return
-    from dask.distributed import Client, as_completed
+    from dask.distributed import Client
 
     if scheduler:
-        client = Client(scheduler)
+        client = _connect(scheduler)
         cluster = None
     else:
         cluster = local_cluster(workers or os.cpu_count() or 1)
         client = Client(cluster)
     try:
-        futures = {client.submit(evaluate_chunk, settings, rows, pure=False): index
-                   for index, rows in zip(indices, chunks, strict=True)}  # fmt: skip
-        for future in as_completed(futures):
-            yield futures[future], future.result()
+        yield client
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _evaluate(
+    settings: SweepSettings,
+    chunks: list[list[dict[str, Any]]],
+    indices: list[int],
+    client: Client | None,
+) -> Iterator[tuple[int, pd.DataFrame]]:
+    """(chunk index, frame) as each chunk finishes (in any order on Dask; client None: serially)."""
+    if client is None:
+        for index, rows in zip(indices, chunks, strict=True):
+            yield index, evaluate_chunk(settings, rows)
+        return
+    from dask.distributed import as_completed
+
+    futures = {client.submit(evaluate_chunk, settings, rows, pure=False): index
+               for index, rows in zip(indices, chunks, strict=True)}  # fmt: skip
+    for future in as_completed(futures):
+        yield futures[future], future.result()
+
+
+def _connect(address: str) -> Client:
+    """A client of the Dask scheduler at ``address``, tried for :data:`SCHEDULER_CONNECT_TIMEOUT_S`."""
+    from dask.distributed import Client
+
+    try:
+        return Client(address, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+    except ValueError as err:  # distributed: unknown scheme, missing port, bad host
+        raise InputError("scheduler", f"{address!r}: {err}") from None
+    except OSError as err:  # distributed: "Timed out trying to connect …" (refused, no route, no host)
+        raise SchedulerUnreachable(address, str(err) or type(err).__name__) from None
 
 
 def plot_sweep(results: Path | str, png: Path | str) -> None:

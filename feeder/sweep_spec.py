@@ -24,7 +24,13 @@ Spec (TOML)::
     scatter = [0.0, 0.05]       # relative per-stick scatter of a_s (plant model)
     seed = [0, 1, 2]            # scatter seed
 
-Parameters left out take the defaults above.  Every point is one row of the
+Parameters left out take the defaults above.  Sizes are checked before anything
+is expanded or run (an :class:`~feeder.errors.InputError` naming the key):
+``periods`` is at most :data:`MAX_PERIODS` (as ``feeder simulate --periods``) and
+one evaluation (a plant point, or an ideal-model chunk) must fit the 2 GiB memory
+budget (:data:`~feeder.errors.MEMORY_BUDGET_BYTES`); the number of points (a grid's
+``num`` and the product of its value counts, or a random sample's ``points``) is at
+most :data:`MAX_POINTS`.  Every point is one row of the
 result, with every input column and ``point`` (its index), ``breakaway_accel_m_s2``,
 ``step_mean_m``, ``step_std_m``, ``speed_m_s``, ``slip_fraction`` and ``error``
 (empty, or why the point could not run, e.g. a flyback longer than the rise).
@@ -43,10 +49,12 @@ from typing import Any
 import numpy as np
 
 from feeder.contact.breakaway import DEFAULT_TAU_PA
-from feeder.errors import InputError
+from feeder.errors import MEMORY_BUDGET_BYTES, InputError
 from feeder.files import read_toml
 from feeder.parts import Part, Support
 from feeder.plant.amplifier import AmplifierLimits, resolve_amplifier
+from feeder.plant.ideal_plate import COSINE_PIECES
+from feeder.plant.plant import DEFAULT_SAMPLE_RATE_HZ
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
 from feeder.surface.parameters import load_surface
@@ -70,6 +78,13 @@ DEFAULTS: dict[str, Any] = {
 _TEXT = ("flyback_shape", "part", "support", "surface")
 _INTEGER = ("seed",)
 OUTPUTS = ("breakaway_accel_m_s2", "step_mean_m", "step_std_m", "speed_m_s", "slip_fraction", "error")
+MAX_PERIODS = 10**6
+"""The most periods per point (the cap of ``feeder simulate --periods``)."""
+_BYTES_PER_POINT = 2048  # a point's dict, its result row and Parquet round trip (measured ~1 KiB)
+MAX_POINTS = MEMORY_BUDGET_BYTES // _BYTES_PER_POINT
+"""The most points a sweep may have (1 048 576: the memory budget at ~2 KiB a point)."""
+# plant: traces and temporaries per sample; ideal: per interval of a row (both measured ~45)
+_BYTES_PER_SAMPLE = 64
 
 
 @dataclass(frozen=True)
@@ -128,9 +143,53 @@ def _values(name: str, value: Any, where: str, grid: bool) -> list[Any] | dict[s
         num = value.get("num")
         if not isinstance(num, int) or isinstance(num, bool) or num < 1:
             raise InputError(f"{where}.num", f"a grid range needs an integer num ≥ 1, got {num!r}")
+        _check_point_count(f"{where}.num", num)
         space = np.geomspace if log_scale else np.linspace
         return [float(v) for v in space(lo, hi, num)]
     return [value]
+
+
+def _check_point_count(field: str, count: int, detail: str = "") -> None:
+    """Refuse (InputError naming ``field``) more than :data:`MAX_POINTS` points."""
+    if count > MAX_POINTS:
+        raise InputError(
+            field,
+            f"{count:,} points{detail} would need ~{count * _BYTES_PER_POINT / 2**30:.3g} GiB, more than "
+            f"the {MEMORY_BUDGET_BYTES // 2**30} GiB memory budget (at most {MAX_POINTS:,} points)",
+        )
+
+
+def _check_evaluation_memory(
+    field: str, settings: SweepSettings, axes: dict[str, Any], count: int, chunk_size: int
+) -> None:
+    """Refuse ``periods`` whose single evaluation would not fit the memory budget.
+
+    Plant: one point at a time, (periods + 1) periods sampled at 100 kS/s, the lowest
+    frequency the amplifier accepts costing most.  Ideal: a chunk's rows at once,
+    2 intervals a period (401 with a half-cosine flyback).  Per process: each Dask
+    worker evaluates one chunk at a time.
+    """
+    periods = settings.periods
+    if settings.model == "plant":
+        freq = axes["frequency_hz"]
+        floor = settings.amplifier.min_frequency_hz  # lower ones fail the amplifier check, unrun
+        runnable = [freq["min"]] if isinstance(freq, dict) else [f for f in freq if f >= floor]
+        lowest = max(min(runnable, default=floor), floor)
+        nbytes = (periods + 1) * round(DEFAULT_SAMPLE_RATE_HZ / lowest) * _BYTES_PER_SAMPLE
+        what = f"a {lowest:g} Hz plant point"
+    else:
+        rows = min(chunk_size, count)
+        cosine = "half-cosine" in axes["flyback_shape"]
+        intervals = COSINE_PIECES + 1 if cosine else 2
+        nbytes = rows * intervals * periods * _BYTES_PER_SAMPLE
+        what = f"an ideal-model chunk of {rows} point{'' if rows == 1 else 's'}"
+        what += " (half-cosine)" if cosine else ""
+    if nbytes > MEMORY_BUDGET_BYTES:
+        raise InputError(
+            field,
+            f"{periods} periods of {what} would need ~{nbytes / 2**30:.3g} GiB, more than the "
+            f"{MEMORY_BUDGET_BYTES // 2**30} GiB memory budget",
+        )
 
 
 def _check(name: str, value: Any, where: str) -> Any:
@@ -166,8 +225,8 @@ def load_spec(path: Path | str) -> SweepSpec:
     if model not in MODELS:
         raise InputError(f"{path}: [sweep].model", f"expected one of {', '.join(MODELS)}, got {model!r}")
     periods = head.get("periods", 5)
-    if not isinstance(periods, int) or isinstance(periods, bool) or periods < 1:
-        raise InputError(f"{path}: [sweep].periods", f"must be an integer ≥ 1, got {periods!r}")
+    if not isinstance(periods, int) or isinstance(periods, bool) or not 1 <= periods <= MAX_PERIODS:
+        raise InputError(f"{path}: [sweep].periods", f"must be an integer 1–{MAX_PERIODS}, got {periods!r}")
     chunk_size = head.get("chunk_size", 50)
     if not isinstance(chunk_size, int) or isinstance(chunk_size, bool) or chunk_size < 1:
         raise InputError(f"{path}: [sweep].chunk_size", f"must be an integer ≥ 1, got {chunk_size!r}")
@@ -192,18 +251,27 @@ def load_spec(path: Path | str) -> SweepSpec:
     for name, values in axes.items():
         if isinstance(values, list):
             axes[name] = [_check(name, v, f"{path}: [parameters].{name}") for v in values]
+    # the sizes first: nothing is expanded before the point count and periods are known to fit
+    if grid:
+        count = math.prod(len(axes[name]) for name in DEFAULTS)
+        sizes = " × ".join(f"{len(axes[name])} {name}" for name in DEFAULTS if len(axes[name]) > 1)
+        _check_point_count(f"{path}: [parameters]", count, f" ({sizes})")
+    else:
+        wanted = head.get("points")
+        if not isinstance(wanted, int) or isinstance(wanted, bool) or wanted < 1:
+            raise InputError(
+                f"{path}: [sweep].points", f"random sampling needs an integer ≥ 1, got {wanted!r}"
+            )
+        count = wanted
+        _check_point_count(f"{path}: [sweep].points", count)
+        seed = head.get("seed", 0)
+        if not isinstance(seed, int) or isinstance(seed, bool):
+            raise InputError(f"{path}: [sweep].seed", f"must be an integer, got {seed!r}")
+    _check_evaluation_memory(f"{path}: [sweep].periods", settings, axes, count, chunk_size)
     if grid:
         lists = [axes[name] for name in DEFAULTS]
         points = [dict(zip(DEFAULTS, combo, strict=True)) for combo in itertools.product(*lists)]
     else:
-        count = head.get("points")
-        if not isinstance(count, int) or isinstance(count, bool) or count < 1:
-            raise InputError(
-                f"{path}: [sweep].points", f"random sampling needs an integer ≥ 1, got {count!r}"
-            )
-        seed = head.get("seed", 0)
-        if not isinstance(seed, int) or isinstance(seed, bool):
-            raise InputError(f"{path}: [sweep].seed", f"must be an integer, got {seed!r}")
         points = _random_points(axes, count, seed)
     _check_text_values(points, path)
     return SweepSpec(settings, points, chunk_size)

@@ -215,3 +215,135 @@ def test_local_workers_get_the_malloc_settings_before_they_start():
     with local_cluster(1) as cluster, Client(cluster) as client:
         seen = client.run(lambda: {k: os.environ.get(k) for k in WORKER_MALLOC_ENV})
     assert list(seen.values()) == [{k: str(v) for k, v in WORKER_MALLOC_ENV.items()}]
+
+
+class _GuardedNumpy:
+    """numpy for feeder.sweep_spec whose grid ranges refuse to build a huge axis (old code would)."""
+
+    def __getattr__(self, name: str):
+        return getattr(np, name)
+
+    @staticmethod
+    def linspace(lo, hi, num):
+        assert num <= 10**5, f"expanded a {num}-value axis before checking its size"
+        return np.linspace(lo, hi, num)
+
+    geomspace = linspace
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Fail (instead of eating memory) if a sweep expands or evaluates before its size checks."""
+    import itertools
+    import types
+
+    import feeder.sweep as sweep
+    import feeder.sweep_spec as sweep_spec
+
+    def product(*lists):
+        size = int(np.prod([len(values) for values in lists]))
+        assert size <= 10**5, f"expanded {size} grid points before checking the count"
+        return itertools.product(*lists)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("work started before the size checks")
+
+    monkeypatch.setattr(sweep_spec, "np", _GuardedNumpy())
+    monkeypatch.setattr(sweep_spec, "itertools", types.SimpleNamespace(product=product))
+    monkeypatch.setattr(sweep_spec, "_random_points", refuse)
+    monkeypatch.setattr(sweep, "evaluate_chunk", refuse)
+
+
+@pytest.mark.parametrize(
+    ("text", "field", "words"),
+    [
+        ("[sweep]\nperiods = 1000000000\n", "[sweep].periods", "1–1000000"),
+        ("[parameters]\nfrequency_hz = {min = 1.0, max = 1000.0, num = 100000000}\n",
+         "[parameters].frequency_hz.num", "memory budget"),
+        ("[sweep]\nsample = 'random'\npoints = 1000000000\n", "[sweep].points", "memory budget"),
+        ("[parameters]\nfrequency_hz = {min = 1.0, max = 1000.0, num = 1000}\n"
+         "amplitude_vpp = {min = 10.0, max = 200.0, num = 2000}\n",
+         "[parameters]", "1000 frequency_hz × 2000 amplitude_vpp"),
+        # 10^5 plant periods at 100 Hz: 10^10 samples
+        ("[sweep]\nperiods = 100000\n[parameters]\nfrequency_hz = [100.0]\n", "[sweep].periods", "GiB"),
+        # a frequency the amplifier refuses runs nothing: the costliest point is at its 1 Hz floor
+        ("[sweep]\nperiods = 50000\n[parameters]\nfrequency_hz = [0.01, 100.0]\n", "[sweep].periods",
+         "a 100 Hz plant point"),
+        ("[sweep]\nmodel = 'ideal'\nperiods = 100000\n[parameters]\nflyback_shape = ['half-cosine']\n",
+         "[sweep].periods", "ideal-model chunk"),
+    ],
+)  # fmt: skip
+def test_oversized_sweeps_are_refused_before_any_work(tmp_path, capsys, no_work, text, field, words):
+    spec = write(tmp_path, text)
+    out = tmp_path / "big.parquet"
+    assert main(["sweep", str(spec), "--out", str(out), "--serial"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("feeder sweep: error: ")
+    assert f"{spec}: {field}: " in err and words in err
+    assert sorted(tmp_path.iterdir()) == [spec]  # no result, no parts folder
+
+
+def test_sizes_within_the_limits_still_load(tmp_path):
+    from feeder.sweep_spec import MAX_PERIODS
+
+    ideal = load_spec(write(tmp_path, f"[sweep]\nmodel = 'ideal'\nperiods = {MAX_PERIODS}\n"))
+    assert ideal.settings.periods == MAX_PERIODS and len(ideal.points) == 1
+    # 3001 periods × 1000 samples at 100 Hz: ~0.2 GiB; 0.01 Hz is below the amplifier's range (unrun)
+    text = "[sweep]\nperiods = 3000\n[parameters]\nfrequency_hz = [0.01, 100.0]\n"
+    assert load_spec(write(tmp_path, text)).settings.periods == 3000
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("distributed", reason="the sweep extra (dask[distributed]) is not installed")
+    import time
+
+    import feeder.sweep as sweep
+
+    monkeypatch.setattr(sweep, "SCHEDULER_CONNECT_TIMEOUT_S", 0.5)
+    spec = write(tmp_path, "[sweep]\nmodel = 'ideal'\n")
+    out = tmp_path / "r.parquet"
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    start = time.monotonic()
+    assert main(["sweep", str(spec), "--out", str(out), "--scheduler", address]) == 3
+    assert time.monotonic() - start < 10
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert err.startswith(f"feeder sweep: scheduler unreachable: --scheduler {address}: ")
+    assert sorted(tmp_path.iterdir()) == [spec]
+    assert main(["sweep", str(spec), "--out", str(out), "--scheduler", "bogus://x"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("feeder sweep: error: --scheduler: 'bogus://x': ")
+    assert sorted(tmp_path.iterdir()) == [spec]
+
+
+def test_failed_points_are_counted_and_all_failed_exits_1(tmp_path, capsys):
+    half = write(
+        tmp_path, "[sweep]\nmodel = 'ideal'\n[parameters]\nfrequency_hz = [-5.0, 100.0]\n", "half.toml"
+    )
+    assert main(["sweep", str(half), "--out", str(tmp_path / "half.parquet"), "--serial"]) == 0
+    assert "2 points in 1 chunk (1 computed, 0 already done), 1 failed → " in capsys.readouterr().out
+    assert main(["sweep", str(half), "--out", str(tmp_path / "half.parquet"), "--serial", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["points_failed"], report["chunks_cached"]) == (1, 1)  # counted from the cached chunk
+    assert report["first_error"].startswith("frequency_hz: ")
+
+    text = "[sweep]\nmodel = 'ideal'\n[parameters]\nflyback_shape = ['linear']\nflyback_s = [0.02, 0.03]\n"
+    bad = write(tmp_path, text, "bad.toml")
+    out = tmp_path / "bad.parquet"
+    assert main(["sweep", str(bad), "--out", str(out), "--serial", "--json"]) == 1
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)
+    assert report["points"] == report["points_failed"] == 2
+    assert report["first_error"] == "flyback_s: 0.02 s is not shorter than the period 0.01 s"
+    assert captured.err.strip().splitlines()[-1] == (
+        "feeder sweep: failed: every point failed; the first: " + report["first_error"]
+    )
+    assert (pd.read_parquet(out)["error"] != "").all()  # the result file still says why, per point

@@ -1,4 +1,10 @@
-"""``feeder sweep``: evaluate a grid or random sample of designs × parts × surfaces × seeds on Dask."""
+"""``feeder sweep``: evaluate a grid or random sample of designs × parts × surfaces × seeds on Dask.
+
+Exit codes: 0 done (some points may have failed: ``points_failed``); 1 every point
+failed (the first one's error on stderr; the result file is written all the same);
+2 bad input (a spec or size refused before any work); 3 the ``--scheduler`` did not
+answer (nothing written).
+"""
 
 from __future__ import annotations
 
@@ -33,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out.suffix.lower() != ".parquet":
         raise InputError("--out", f"expected a .parquet file, got {args.out}")
     try:
-        from feeder.sweep import run_sweep
+        from feeder.sweep import SchedulerUnreachable, run_sweep
         from feeder.sweep_spec import load_spec
     except ImportError as err:
         raise InputError(
@@ -49,12 +55,22 @@ def run(args: argparse.Namespace) -> int:
               f"({cached} already done) {time.monotonic() - start:.1f} s",
               end="\n" if done == total else "", file=sys.stderr, flush=True)  # fmt: skip
 
-    report = run_sweep(spec, args.out, workers=args.workers, scheduler=args.scheduler,
-                       serial=args.serial, progress=progress)  # fmt: skip
+    try:
+        report = run_sweep(spec, args.out, workers=args.workers, scheduler=args.scheduler,
+                           serial=args.serial, progress=progress)  # fmt: skip
+    except SchedulerUnreachable as err:
+        print(f"feeder sweep: scheduler unreachable: --scheduler {err}", file=sys.stderr)
+        return 3
+    except InputError as err:
+        if err.field == "scheduler":
+            raise InputError("--scheduler", err.message) from None
+        raise
+    all_failed = report.failed == report.points
     out: dict[str, Any] = {"path": str(report.path), "points": report.points, "chunks": report.chunks,
                            "chunks_computed": report.computed, "chunks_cached": report.cached,
+                           "points_failed": report.failed, "first_error": report.first_error,
                            "elapsed_s": time.monotonic() - start}  # fmt: skip
-    if args.plot:
+    if args.plot and not all_failed:  # nothing to plot
         from feeder.sweep import plot_sweep
 
         png = args.out.with_suffix(".png") if args.plot is True else args.plot
@@ -63,8 +79,16 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(out)
     else:
-        print(f"{report.points} points in {report.chunks} chunks ({report.computed} computed, "
-              f"{report.cached} already done) → {report.path}")  # fmt: skip
+        print(f"{_count(report.points, 'point')} in {_count(report.chunks, 'chunk')} "
+              f"({report.computed} computed, {report.cached} already done), "
+              f"{report.failed} failed → {report.path}")  # fmt: skip
         if "plot" in out:
             print(f"plot → {out['plot']}")
+    if all_failed:
+        print(f"feeder sweep: failed: every point failed; the first: {report.first_error}", file=sys.stderr)
+        return 1
     return 0
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
