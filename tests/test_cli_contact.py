@@ -122,3 +122,89 @@ def test_malformed_surface_file(tmp_path: Path, text: str, field: str) -> None:
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and field in proc.stderr and "bad.toml" in proc.stderr
     assert proc.stdout == ""
+
+
+@pytest.mark.parametrize(
+    ("text", "field"),
+    [  # heights read in the wrong unit: positive and finite, but no surface
+        ("sigma_m = 0.98\nsummit_radius_m = 8.7e-18\nsummit_density_per_m2 = 2.9e16\n"
+         "mean_summit_height_m = 1.48\n", "[surface].sigma_m"),
+        ("sigma_m = 0.482e-9\nsummit_radius_m = 8.7e-18\nsummit_density_per_m2 = 124.1e12\n"
+         "mean_summit_height_m = 32.227e-9\n", "[surface].summit_radius_m"),
+        ("sigma_m = 0.482e-9\nsummit_radius_m = 55e-9\nsummit_density_per_m2 = 124.1e12\n"
+         "mean_summit_height_m = -2e-3\n", "[surface].mean_summit_height_m"),
+        ("sigma_m = 0.482e-9\nsummit_radius_m = 55e-9\nsummit_density_per_m2 = 1e24\n"
+         "mean_summit_height_m = 32.227e-9\n", "[surface].summit_density_per_m2"),
+    ],
+)  # fmt: skip
+def test_impossible_surface_statistics_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, field: str
+) -> None:
+    path = tmp_path / "unit_slip.toml"
+    path.write_text("[surface]\n" + text)
+    assert main(["contact", "--part", "300x300x50", "--surface", str(path)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1
+    assert f"unit_slip.toml: {field}" in captured.err and "wrong unit" in captured.err
+
+
+def test_material_lines_are_readable_and_the_shear_warning_names_the_material(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["contact", "--part", "300x300x50", "--material", "pmma", "--placements", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "effective_modulus_pa" not in out and "material_adhesion_work_j_m2" not in out
+    lines = out.splitlines()
+    assert "  E*                1.738 GPa" in lines
+    assert "  hardness H        0.25 GPa (the softer body's)" in lines
+    assert any(line.startswith("  library w         0.082 J/m²") for line in lines)
+    shear = [line for line in lines if "shear" in line and line.startswith("  warning: τ")]
+    assert len(shear) == 1 and "silicon's ideal" not in shear[0]
+    # 22.18 GPa against PMMA's k = H/(3√3) = 0.048 GPa
+    assert "pmma's shear yield strength" in shear[0] and "461×" in shear[0] and "pmma on pmma" in shear[0]
+
+
+def test_shear_warning_compares_with_the_softer_body() -> None:
+    from feeder.contact.breakaway import contact as contact_of
+    from feeder.parts import Part
+
+    part = Part.parse("300x300x50")
+    steel = replace(
+        DEFAULT_SURFACE, support_youngs_modulus_pa=210e9, support_poisson_ratio=0.3, hardness_pa=7.4e9
+    )
+    # 5 GPa: below silicon's ideal shear strength, above steel's k = 7.4/(3√3) = 1.42 GPa
+    on_silicon = contact_of(part, surface=DEFAULT_SURFACE, tau_pa=5e9).warnings
+    on_steel = contact_of(part, surface=steel, tau_pa=5e9).warnings
+    assert not any("shear" in w for w in on_silicon)
+    (warning,) = [w for w in on_steel if "shear" in w]
+    assert "steel's shear yield strength" in warning and "silicon on steel" in warning
+    assert not any("shear" in w for w in contact_of(part, surface=steel, tau_pa=1e9).warnings)
+    silicon = contact_of(part, surface=DEFAULT_SURFACE).warnings  # the paper's 22 GPa on silicon
+    assert any("exceeds silicon's ideal shear strength" in w for w in silicon)
+
+
+@pytest.mark.parametrize(
+    ("option", "value"), [("--part", "300x300x50"), ("--support", "grooved"), ("--density", "2000")]
+)
+def test_table_refuses_the_options_it_would_ignore(
+    capsys: pytest.CaptureFixture[str], option: str, value: str
+) -> None:
+    assert main(["contact", "--table", "--placements", "0", option, value]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1
+    assert f"{option}: not with --table" in captured.err
+
+
+@pytest.mark.parametrize("json_flag", [["--json"], []])
+def test_a_closed_stdout_exits_quietly(json_flag: list[str]) -> None:
+    """``feeder contact --table --json | head -c 400``: the reader leaves before the output."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "feeder", "contact", "--table", "--placements", "0", *json_flag],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # before the table is computed and written
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141
+    assert err == ""

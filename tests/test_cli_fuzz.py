@@ -161,6 +161,23 @@ def test_tiny_pixel_size_is_refused(image: str) -> None:
     assert_refused(["surface", image, "--pixel-size", "1e-300"], "--pixel-size")
 
 
+@pytest.mark.parametrize(("argv", "message"), [
+    (["tau", "--part", "300x300x50", "--force", "-1e-6"], "--force: must be a positive force"),
+    (["surface", CURVE, "--pixel-size", "-2e-9"], "--pixel-size: must be from 1e-12"),
+    (["contact", "--part", "300x300x50", "--tau", "-1e9"], "--tau: must be a positive number"),
+    (["plan", "--part", "300x300x50", "--distance-m", "-2e0"], "--distance-m: must be from -1 to 1"),
+])  # fmt: skip
+def test_negative_values_in_scientific_notation_reach_their_checks(argv: list[str], message: str) -> None:
+    assert "expected one argument" not in assert_refused(argv, message).err
+
+
+def test_plan_takes_a_backward_distance_in_scientific_notation() -> None:
+    argv = ["plan", "--part", "300x300x50", "--distance-m", "-1e-4"]
+    ran = run_cli(argv)
+    assert_clean(ran, argv)
+    assert ran.code == 0 and "move -100 µm" in ran.out and "backward" in ran.out, ran.err
+
+
 def test_negative_seed_is_refused() -> None:
     assert_refused(["simulate", "--part", "500x500x50", "--waveform", WAVEFORM, "--scatter", "0.1",
                     "--seed", "-1"], "--seed")  # fmt: skip

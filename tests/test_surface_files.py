@@ -4,6 +4,7 @@ detrend + RMS, broken files as one-line errors, and `feeder surface` → `feeder
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,7 @@ import pytest
 
 from feeder.cli import main
 from feeder.errors import InputError
-from feeder.surface.parameters import load_surface
+from feeder.surface.parameters import implausible, load_surface
 from feeder.surface.reading import read_height_map
 from feeder.surface.statistics import surface_statistics
 
@@ -143,3 +144,10 @@ def test_plain_npy_map_needs_a_pixel_size_and_reads_units(tmp_path: Path, capsys
     assert report["pixel_size_m"] == [2e-9, 2e-9]
     assert report["scan_size_m"] == pytest.approx([128e-9, 128e-9])
     assert 0.9e-9 < report["sq_m"] < 1.1e-9
+
+
+@pytest.mark.parametrize("name", READABLE)
+def test_shipped_scans_pass_the_plausibility_bounds(name: str) -> None:
+    surface = surface_statistics(read_height_map(AFM / name)).surface_parameters(169e9, 0.28)
+    assert implausible(surface) is None
+    assert implausible(replace(surface, sigma_m=surface.sigma_m * 1e9)) is not None  # nm read as m

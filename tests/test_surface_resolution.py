@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from feeder.cli import main
-from feeder.surface.reading import HeightMap
+from feeder.errors import InputError
+from feeder.surface.parameters import load_surface
+from feeder.surface.reading import HeightMap, read_height_map
 from feeder.surface.statistics import low_pass, surface_statistics
 
 
@@ -43,3 +45,30 @@ def test_cli_warns_about_noise_and_shows_the_cutoffs_effect(tmp_path: Path, caps
     assert filtered["warnings"] == [] and filtered["cutoff_wavelength_m"] == 20e-9
     assert filtered["summit_density_per_m2"] < 0.2 * filtered["unfiltered"][0]["summit_density_per_m2"]
     assert filtered["mean_summit_radius_m"] > 1.5 * filtered["unfiltered"][0]["mean_summit_radius_m"]
+
+
+def test_plain_map_needs_a_height_unit_and_nothing_is_written(tmp_path: Path, capsys) -> None:
+    np.save(tmp_path / "map.npy", np.random.default_rng(0).normal(size=(64, 64)))  # meant in nm
+    out = tmp_path / "s.toml"
+    base = ["surface", str(tmp_path / "map.npy"), "--pixel-size", "2e-9", "--out", str(out)]
+    assert main(base) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--height-unit: map.npy is a plain height map without units" in err
+    assert not out.exists()
+    with pytest.raises(InputError, match="--height-unit"):
+        read_height_map(tmp_path / "map.npy", pixel_size_m=2e-9)
+    assert main([*base, "--height-unit", "m"]) == 2  # nm read as metres: σ ≈ 1 m, R ≈ 1e-17 m
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1
+    assert "map.npy: sigma_m: 0.9974 m is beyond 1 mm" in captured.err and "--height-unit" in captured.err
+    assert not out.exists()
+    assert main([*base, "--height-unit", "nm"]) == 0
+    assert load_surface(out).sigma_m == pytest.approx(0.9974e-9, rel=1e-3)
+
+
+def test_negative_pixel_size_reaches_the_range_check(tmp_path: Path, capsys) -> None:
+    np.save(tmp_path / "map.npy", np.zeros((8, 8)))
+    with pytest.raises(SystemExit) as usage:
+        main(["surface", str(tmp_path / "map.npy"), "--pixel-size", "-2e-9", "--height-unit", "nm"])
+    assert usage.value.code == 2
+    assert "--pixel-size: must be from 1e-12 to 0.01, got '-2e-9'" in capsys.readouterr().err

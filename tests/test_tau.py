@@ -93,3 +93,22 @@ def test_cli_bad_force_exits_2_with_one_line(force: str, capsys) -> None:
     captured = capsys.readouterr()
     assert captured.out == "" and len(captured.err.strip().splitlines()) == 1
     assert "--force" in captured.err
+
+
+def test_cli_negative_force_in_scientific_notation_reaches_the_force_check(capsys) -> None:
+    # without '=': argparse used to take -1e-6 for an option ("expected one argument")
+    assert main(["tau", "--part", "300x300x50", "--force", "-1e-6", "--json"]) == 2
+    err = capsys.readouterr().err
+    assert "--force: must be a positive force in newtons" in err and err.count("\n") == 1
+
+
+def test_cli_warns_of_a_force_far_above_the_weight(capsys) -> None:
+    assert main(["tau", "--part", "300x300x50", "--force", "1", "--json"]) == 0  # 1 N, meant 1 µN
+    report = json.loads(capsys.readouterr().out)
+    (warning,) = [w for w in report["warnings"] if "wrong unit" in w]
+    assert warning.startswith("--force 1 N is 9.72e+06× the part's weight (1.03e-07 N)")
+    assert main(["tau", "--part", "300x300x50", "--force", "1"]) == 0
+    assert "warning: --force 1 N is 9.72e+06×" in capsys.readouterr().out
+    for force in RAW_FORCES_300_FLAT_N:  # the paper's: ~9× the weight, no such warning
+        assert main(["tau", "--part", "300x300x50", "--force", repr(force), "--json"]) == 0
+        assert not any("wrong unit" in w for w in json.loads(capsys.readouterr().out)["warnings"])

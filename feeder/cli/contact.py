@@ -8,12 +8,13 @@ from typing import Any
 from feeder.cli.arguments import (
     add_part_arguments,
     add_tau_arguments,
+    allow_negative_values,
     int_in,
     materials_from,
     part_from,
     surface_from,
 )
-from feeder.cli.output import print_json
+from feeder.cli.output import closed_stdout_exits, print_json
 from feeder.contact.breakaway import MIN_CONTACTS, ContactResult, contact
 from feeder.contact.resting_part import DEFAULT_PLACEMENTS
 from feeder.errors import InputError
@@ -24,7 +25,9 @@ from feeder.surface.parameters import SurfaceParameters
 
 def register(sub: Any) -> None:
     p = sub.add_parser("contact", help="real contact area and breakaway force of a part")
+    allow_negative_values(p)  # --tau -1e9 reaches its own check
     add_part_arguments(p, part_required=False)
+    p.set_defaults(support=None)  # None: not given (--table refuses it); flat otherwise
     add_tau_arguments(p)
     p.add_argument(
         "--placements",
@@ -35,19 +38,28 @@ def register(sub: Any) -> None:
         f"(default {DEFAULT_PLACEMENTS}; 0 skips; within the 2 GiB memory budget)",
     )
     p.add_argument(
-        "--table", action="store_true", help="paper-style table: four parts × two supports, model vs paper"
+        "--table",
+        action="store_true",
+        help="paper-style table: the paper's four silicon parts × two supports, model vs paper "
+        "(takes no --part, --support or --density)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(handler=run)
+    p.set_defaults(handler=closed_stdout_exits(run))
 
 
 def run(args: argparse.Namespace) -> int:
     if not 0 <= args.placements <= 1_000_000:
         raise InputError("--placements", f"must be between 0 and 1000000, got {args.placements}")
     if args.table:
+        for option in ("part", "support", "density"):
+            if getattr(args, option) is not None:
+                rows = "its rows are the paper's four silicon parts on both supports"
+                raise InputError(f"--{option}", f"not with --table ({rows})")
         return _table(surface_from(args), args, args.placements, args.json)
     if not args.part:
         raise InputError("--part", "required (LxWxT in µm, e.g. 300x300x50), or use --table")
+    if args.support is None:
+        args.support = "flat"
     part, support, surface = part_from(args)
     result = contact(
         part,
@@ -66,8 +78,7 @@ def run(args: argparse.Namespace) -> int:
         print_json(out)
     else:
         _print_result(result)
-        for key, value in materials.items():
-            print(f"  {key:<18}{value}")
+        _print_materials(materials)
         for note in notes:
             print(f"  warning: {note}")
     return 0
@@ -104,6 +115,21 @@ def _materials(args: argparse.Namespace, surface: SurfaceParameters) -> tuple[di
             f"--adhesion-work {w:.3g} includes Maugis–Dugdale adhesion"
         )
     return out, notes
+
+
+def _print_materials(m: dict[str, Any]) -> None:
+    """The ``--material`` lines of the text output, in the columns of :func:`_print_result`."""
+    if not m:
+        return
+    part = m["part_material"] or "the surface file's (silicon)"
+    print(f"  {'part material':<18}{part}")
+    print(f"  {'support material':<18}{m['support_material']}")
+    print(f"  {'E*':<18}{m['effective_modulus_pa'] / 1e9:.4g} GPa")
+    print(f"  {'hardness H':<18}{m['hardness_pa'] / 1e9:.4g} GPa (the softer body's)")
+    print(
+        f"  {'library w':<18}{m['material_adhesion_work_j_m2']:.3g} J/m² "
+        f"({m['material_adhesion_work_source']})"
+    )
 
 
 def _print_result(r: ContactResult) -> None:

@@ -1,11 +1,54 @@
-"""Shared output helpers for the sub-commands (JSON objects, SI units)."""
+"""Shared output helpers for the sub-commands (JSON objects, SI units; a closed stdout)."""
 
 from __future__ import annotations
 
+import argparse
+import functools
+import io
 import json
 import math
+import os
 import sys
-from typing import Any
+from collections.abc import Callable
+from typing import Any, NoReturn
+
+CLOSED_STDOUT_EXIT = 141
+"""Exit status when the reader of stdout went away (``feeder contact --table --json | head``):
+128 + SIGPIPE, what a shell reports for ``cat`` or ``grep`` killed by the same closed pipe. Not 0:
+the output was cut short, and ``set -o pipefail`` scripts may want to know; not 1–3, which say
+the daemon refused, the input was bad or the daemon is unreachable."""
+
+
+def exit_on_closed_stdout() -> NoReturn:
+    """Leave quietly after a BrokenPipeError on stdout: no traceback, no "Exception ignored" when
+    Python flushes stdout at exit (stdout now points at the null device), exit status 141."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, sys.stdout.fileno())
+        finally:
+            os.close(devnull)
+    except (OSError, ValueError, io.UnsupportedOperation):  # stdout is not a file (captured, closed)
+        pass
+    raise SystemExit(CLOSED_STDOUT_EXIT)
+
+
+def closed_stdout_exits(
+    handler: Callable[[argparse.Namespace], int],
+) -> Callable[[argparse.Namespace], int]:
+    """Wrap a sub-command's handler so that a closed stdout ends it quietly (see
+    :func:`exit_on_closed_stdout`); stdout is flushed inside, where the error can be caught."""
+
+    @functools.wraps(handler)
+    def run(args: argparse.Namespace) -> int:
+        try:
+            code = handler(args)
+            sys.stdout.flush()
+        except BrokenPipeError:
+            exit_on_closed_stdout()
+        return code
+
+    return run
 
 
 def _plain(value: Any) -> Any:
@@ -24,5 +67,9 @@ def _plain(value: Any) -> Any:
 
 
 def print_json(obj: dict[str, Any]) -> None:
-    """Print one JSON object (numpy values converted, NaN/inf as null)."""
-    print(json.dumps(_plain(obj), indent=2, sort_keys=False))
+    """Print one JSON object (numpy values converted, NaN/inf as null); a closed stdout
+    (``| head``) exits quietly with status 141."""
+    try:
+        print(json.dumps(_plain(obj), indent=2, sort_keys=False), flush=True)
+    except BrokenPipeError:
+        exit_on_closed_stdout()

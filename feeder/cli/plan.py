@@ -9,12 +9,13 @@ from typing import Any
 from feeder.cli.arguments import (
     add_part_arguments,
     add_tau_arguments,
+    allow_negative_values,
     float_in,
     output_path,
     part_from,
     positive_float,
 )
-from feeder.cli.output import print_json
+from feeder.cli.output import closed_stdout_exits, print_json
 from feeder.planner import DEFAULT_MARGIN, StepPrediction, plan
 from feeder.plant.amplifier import AmplifierLimits, resolve_amplifier
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
@@ -24,13 +25,13 @@ _DEFAULT_AMPLIFIER = AmplifierLimits()
 
 def register(sub: Any) -> None:
     p = sub.add_parser("plan", help="plan a move: waveform, steps, predicted step and band")
+    allow_negative_values(p)  # --distance-m -1e-4: a value, not an option
     add_part_arguments(p)
     p.add_argument(
         "--distance-m",
         type=float_in(-1.0, 1.0),
         required=True,
-        help="wanted displacement in m, at most 1 m either way; negative: backward "
-        "(write --distance-m=-20e-6)",
+        help="wanted displacement in m, at most 1 m either way; negative: backward (e.g. -20e-6)",
     )
     add_tau_arguments(p)
     p.add_argument(
@@ -77,7 +78,7 @@ def register(sub: Any) -> None:
         help="write the waveform with the prediction it was planned with (a design file)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(handler=run)
+    p.set_defaults(handler=closed_stdout_exits(run))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -10,12 +10,12 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.arguments import float_in, input_path, output_path
-from feeder.cli.output import print_json
+from feeder.cli.arguments import allow_negative_values, float_in, input_path, output_path
+from feeder.cli.output import closed_stdout_exits, print_json
 from feeder.errors import InputError
 from feeder.files import save_figure
-from feeder.surface.parameters import SurfaceParameters
-from feeder.surface.reading import HeightMap, read_height_map
+from feeder.surface.parameters import SurfaceParameters, implausible
+from feeder.surface.reading import LENGTH_UNITS_M, PLAIN_SUFFIXES, HeightMap, read_height_map
 from feeder.surface.statistics import (
     SurfaceStatistics,
     equivalent_surface,
@@ -38,6 +38,7 @@ NOTES = (
 
 def register(sub: Any) -> None:
     p = sub.add_parser("surface", help="summit statistics of AFM scans, GW surface TOML")
+    allow_negative_values(p)  # --pixel-size -2e-9 reaches its range check
     p.add_argument(
         "scans",
         nargs="+",
@@ -51,7 +52,11 @@ def register(sub: Any) -> None:
         type=float_in(1e-12, 1e-2),
         help="pixel size in m, 1 pm–10 mm, for plain .npy/.txt/.csv height maps",
     )
-    p.add_argument("--height-unit", default="m", help="unit of plain height maps (m, um, nm, ...)")
+    p.add_argument(
+        "--height-unit",
+        help=f"unit of the heights in plain .npy/.txt/.csv height maps, required there "
+        f"({', '.join(LENGTH_UNITS_M)})",
+    )
     p.add_argument(
         "--youngs-modulus",
         type=float_in(1e3, 1e13),
@@ -86,7 +91,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--support", default="flat", help="flat or grooved, for --bem's nominal pressure")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(handler=run)
+    p.set_defaults(handler=closed_stdout_exits(run))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -112,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
         surface = stats[0].surface_parameters(args.youngs_modulus, args.poisson)
     else:
         surface = equivalent_surface(stats[0], stats[1], args.youngs_modulus, args.poisson)
+    _refuse_implausible(surface, args.scans)
     report = _report(stats, surface)
     report["warnings"] = _resolution_warnings(stats, args.cutoff_wavelength)
     if unfiltered:
@@ -139,6 +145,18 @@ def run(args: argparse.Namespace) -> int:
     else:
         _print_report(report)
     return 0
+
+
+def _refuse_implausible(surface: SurfaceParameters, scans: list[Path]) -> None:
+    """One line naming the scan(s) and the field when the statistics are physically impossible
+    (heights in the wrong unit), before anything is written."""
+    problem = implausible(surface)
+    if problem is None:
+        return
+    key, message = problem
+    plain = any(p.suffix.lower() in PLAIN_SUFFIXES for p in scans)
+    hint = "; check --height-unit" if plain else ""
+    raise InputError(f"{', '.join(map(str, scans))}: {key}", message + hint)
 
 
 def _bem(height_map: HeightMap, surface: SurfaceParameters, args: argparse.Namespace) -> dict[str, Any]:

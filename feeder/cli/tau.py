@@ -8,9 +8,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.arguments import add_part_arguments, part_from, positive_float
+from feeder.cli.arguments import add_part_arguments, allow_negative_values, part_from, positive_float
 from feeder.cli.friction import add_curve_options, analyse_files
-from feeder.cli.output import print_json
+from feeder.cli.output import closed_stdout_exits, print_json
 from feeder.contact.breakaway import contact
 from feeder.contact.resting_part import DEFAULT_PLACEMENTS
 from feeder.contact.tau_pair import ADHESION_WORK_REL_BAND
@@ -28,16 +28,20 @@ BAND_NOTE = (
     "grooved/flat ratio 0.70-0.78), or --area-band; 0 with --real-area and no --area-band"
 )
 
+FORCE_WEIGHT_RATIO_WARNING = 1e4
+"""Warn when a force exceeds this many times the part's weight (the paper's: 7–15×)."""
+
 
 def register(sub: Any) -> None:
     p = sub.add_parser("tau", help="shear strength τ = F/A_r from friction forces or force curves")
+    allow_negative_values(p)  # --force -1e-6 reaches its own check
     add_part_arguments(p)
     p.add_argument(
         "--force",
         action="append",
         required=True,
         metavar="N|CURVE.csv",
-        help="a static-friction force in N, or a force-curve CSV; repeat for several",
+        help="a static-friction force in N (25 µN is 25e-6), or a force-curve CSV; repeat for several",
     )
     p.add_argument(
         "--real-area", type=positive_float, help="use this real contact area in m² instead of the GW model"
@@ -56,7 +60,7 @@ def register(sub: Any) -> None:
     )
     add_curve_options(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(handler=run)
+    p.set_defaults(handler=closed_stdout_exits(run))
 
 
 def _forces(args: argparse.Namespace) -> tuple[list[float], list[str]]:
@@ -78,6 +82,21 @@ def _forces(args: argparse.Namespace) -> tuple[list[float], list[str]]:
         forces.append(value)
         sources.append("value")
     return forces, sources
+
+
+def _force_warnings(forces: list[float], sources: list[str], weight_n: float) -> list[str]:
+    """A force far above the part's weight: most likely µN typed as N (--force takes newtons)."""
+    out = []
+    for force, source in zip(forces, sources, strict=True):
+        ratio = force / weight_n
+        if ratio > FORCE_WEIGHT_RATIO_WARNING:
+            given = f"--force {force:.4g} N" if source == "value" else f"--force {source} ({force:.4g} N)"
+            out.append(
+                f"{given} is {ratio:.3g}× the part's weight ({weight_n:.3g} N): wrong unit? --force "
+                "takes newtons (25 µN is 25e-6); the paper's forces are 7–15× the weight, and friction "
+                "this far above it needs adhesion-dominated micro-parts"
+            )
+    return out
 
 
 def _number(text: str) -> float | None:
@@ -115,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             single_scatter, scatter_source = TAU_SPREAD_PA / TAU_MEAN_PA, "paper's relative spread"
     result = shear_strength(forces, area, area_band, single_scatter)
+    warnings = _force_warnings(forces, sources, part.weight_n)
     checked = contact(
         part,
         support,
@@ -146,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
         "model_real_area_m2": model.real_area_m2,
         "separation_m": model.separation_m,
         "contacts": model.contacts,
-        "warnings": list(checked.warnings),
+        "warnings": warnings + list(checked.warnings),
         "notes": [BAND_NOTE],
     }
     if args.json:
@@ -159,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
     source = report["inputs"]["real_area_source"]
     print(f"real area A_r {area:.5g} m² ({source})")
     print(f"τ = {result.tau_pa / 1e9:.3f} ± {result.tau_band_pa / 1e9:.3f} GPa")
-    for warning in checked.warnings:
+    for warning in report["warnings"]:
         print(f"warning: {warning}")
     print(f"note: {BAND_NOTE}")
     return 0

@@ -20,12 +20,15 @@ from feeder.contact.tau_pair import tau_pair
 from feeder.errors import InputError
 from feeder.paper import GROOVED_AREA_RATIO, GROOVED_FRICTION_RATIO, TAU_MEAN_PA, TAU_SPREAD_PA
 from feeder.parts import FLAT, Part, Support
-from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters
+from feeder.surface.parameters import DEFAULT_SURFACE, SILICON_HARDNESS_PA, SurfaceParameters
 
 DEFAULT_TAU_PA = TAU_MEAN_PA
 DEFAULT_TAU_BAND_PA = TAU_SPREAD_PA
 IDEAL_SHEAR_STRENGTH_PA = 9.6e9
 """Silicon's ideal shear strength, G{111}/2π ≈ 9.6 GPa (range quoted 6–10 GPa)."""
+SHEAR_YIELD_PER_HARDNESS = 1.0 / (3.0 * math.sqrt(3.0))
+"""Shear yield strength k of a body from its hardness H: H ≈ 3Y (Tabor), k = Y/√3 (von Mises);
+no junction is stronger in shear than the softer body's k (Bowden & Tabor)."""
 MIN_CONTACTS = 10.0
 """Below this many contacting asperities GW's statistical averaging is unreliable."""
 ELASTIC_PLASTICITY_INDEX = 0.6
@@ -104,6 +107,63 @@ def adhesion_parameter(surface: SurfaceParameters) -> float:
     return s.effective_modulus_pa * s.sigma_m**1.5 / (s.adhesion_work_j_m2 * math.sqrt(s.summit_radius_m))
 
 
+def _pair_names(surface: SurfaceParameters) -> tuple[str | None, str | None, str | None]:
+    """Part, support and softer material of the materials library whose E, ν (and H) the
+    surface carries (``--material``/``--support-material`` copy them); None where none matches."""
+    from feeder.materials import library
+
+    def named(youngs_pa: float, poisson: float) -> str | None:
+        return next(
+            (
+                m.name
+                for m in library().values()
+                if m.youngs_modulus_pa == youngs_pa and m.poisson_ratio == poisson
+            ),
+            None,
+        )
+
+    s = surface
+    part = named(s.youngs_modulus_pa, s.poisson_ratio)
+    support = named(
+        s.youngs_modulus_pa if s.support_youngs_modulus_pa is None else s.support_youngs_modulus_pa,
+        s.poisson_ratio if s.support_poisson_ratio is None else s.support_poisson_ratio,
+    )
+    by_hardness = {m.name for m in library().values() if m.hardness_pa == surface.hardness_pa}
+    softer = next((name for name in (part, support) if name in by_hardness), None)
+    return part, support, softer
+
+
+def _shear_strength_warning(surface: SurfaceParameters, tau_pa: float, hint: str) -> str | None:
+    """τ above what the softer body can carry in shear: silicon's ideal shear strength for
+    silicon (the default hardness), else the softer body's shear yield strength H/(3√3)."""
+    w = surface.adhesion_work_j_m2
+    if surface.hardness_pa == SILICON_HARDNESS_PA:
+        if tau_pa <= IDEAL_SHEAR_STRENGTH_PA:
+            return None
+        reason = (
+            ": the model neglects adhesion, so A_r is underestimated and τ absorbs the difference" + hint
+            if not w
+            else f", even with adhesion w = {w:g} J/m²"
+        )
+        return (
+            f"τ = {tau_pa / 1e9:.2f} GPa exceeds silicon's ideal shear strength (≈ 6–10 GPa, "
+            f"G{{111}}/2π ≈ 9.6 GPa){reason}"
+        )
+    limit = SHEAR_YIELD_PER_HARDNESS * surface.hardness_pa
+    if tau_pa <= limit:
+        return None
+    part, support, softer = _pair_names(surface)
+    body = f"{softer}'s" if softer else "the softer body's"
+    pair = f"{part} on {support}" if part and support else "this pair"
+    return (
+        f"τ = {tau_pa / 1e9:.3g} GPa is {tau_pa / limit:.3g}× {body} shear yield strength "
+        f"(k ≈ H/(3√3) = {limit / 1e9:.3g} GPa, H = {surface.hardness_pa / 1e9:.3g} GPa), which no "
+        f"junction exceeds: this τ does not fit {pair} (the paper's τ is silicon on silicon's; give "
+        "--tau measured for this pair)"
+        + ("" if w else "; the model also neglects adhesion (--adhesion-work), underestimating A_r")
+    )
+
+
 def _warnings(
     part: Part,
     support: Support,
@@ -133,16 +193,9 @@ def _warnings(
             f"only {contacts:.2g} asperities in contact (< {MIN_CONTACTS:g}): Greenwood–Williamson "
             "statistics are unreliable at this size"
         )
-    if tau_pa > IDEAL_SHEAR_STRENGTH_PA:
-        out.append(
-            f"τ = {tau_pa / 1e9:.2f} GPa exceeds silicon's ideal shear strength (≈ 6–10 GPa, "
-            + (
-                "G{111}/2π ≈ 9.6 GPa): the model neglects adhesion, so A_r is underestimated and τ "
-                "absorbs the difference" + hint
-                if not w
-                else f"G{{111}}/2π ≈ 9.6 GPa), even with adhesion w = {w:g} J/m²"
-            )
-        )
+    shear = _shear_strength_warning(surface, tau_pa, hint)
+    if shear is not None:
+        out.append(shear)
     if w and adhesion_n > part.weight_n:
         out.append(
             f"adhesion ({adhesion_n:.3g} N) exceeds the part's weight ({part.weight_n:.3g} N): the "

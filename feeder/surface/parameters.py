@@ -32,6 +32,12 @@ SILICON_HARDNESS_PA = 12e9
 """Silicon's indentation hardness, 11–13 GPa (nanoindentation of (100) Si)."""
 DEFAULT_ADHESION_RANGE_M = 0.971 * 0.3e-9
 """Dugdale range h₀ = 0.971·z₀ (z₀ = 0.3 nm): σ₀h₀ = w with σ₀ = 1.03·w/z₀ (Maugis 1992)."""
+MAX_HEIGHT_M = 1e-3
+"""σ, |μ| and z_max above 1 mm are no surface roughness (AFM scans: 0.1–100 nm): a unit slip."""
+MIN_SUMMIT_RADIUS_M = 1e-12
+"""A summit radius below 1 pm (a hundredth of an atom) is no asperity: a unit slip."""
+MAX_SUMMIT_DENSITY_PER_M2 = 1e20
+"""More than one summit per (0.1 nm)² is denser than the atoms: a unit slip."""
 
 
 @dataclass(frozen=True)
@@ -188,6 +194,34 @@ def load_surface(path: Path) -> SurfaceParameters:
         if key not in values:
             raise InputError(f"{path}: [surface].{key}", "missing")
     try:
-        return SurfaceParameters(**values)
+        parameters = SurfaceParameters(**values)
     except InputError as err:
         raise InputError(f"{path}: {err.field}", err.message) from None
+    problem = implausible(parameters)
+    if problem is not None:
+        key, message = problem
+        raise InputError(f"{path}: [surface].{key}", message)
+    return parameters
+
+
+def implausible(surface: SurfaceParameters) -> tuple[str, str] | None:
+    """The first physically impossible summit statistic of ``surface`` as (field, why), else None.
+
+    Positive and finite is not enough: heights read in the wrong unit (metres for nm) give
+    σ ≈ 1 m and R ≈ 1e-17 m, which the contact model turns into a separation of 1e10 nm.
+    Bounds: σ, |μ|, z_max ≤ 1 mm; R ≥ 1 pm; η ≤ 1e20 m⁻² (one summit per (0.1 nm)²).
+    """
+    hint = ": not a surface's summit statistics (heights in the wrong unit?)"
+    heights = [("sigma_m", surface.sigma_m), ("mean_summit_height_m", surface.mean_summit_height_m)]
+    if surface.z_max_m is not None:
+        heights.append(("z_max_m", surface.z_max_m))
+    for key, value in heights:
+        if abs(value) > MAX_HEIGHT_M:
+            return key, f"{value:.4g} m is beyond {MAX_HEIGHT_M * 1e3:g} mm{hint}"
+    if surface.summit_radius_m < MIN_SUMMIT_RADIUS_M:
+        radius = surface.summit_radius_m
+        return "summit_radius_m", f"{radius:.4g} m is below {MIN_SUMMIT_RADIUS_M * 1e12:g} pm{hint}"
+    if surface.summit_density_per_m2 > MAX_SUMMIT_DENSITY_PER_M2:
+        density = surface.summit_density_per_m2
+        return "summit_density_per_m2", f"{density:.4g} m⁻² is above {MAX_SUMMIT_DENSITY_PER_M2:g} m⁻²{hint}"
+    return None

@@ -14,7 +14,8 @@ does. Channels without a length unit (phase, amplitude error, ...) are refused.
 
 Plain height maps: ``.npy`` (read by numpy, no pickles) and ``.txt``/``.csv``/``.dat``
 (whitespace or comma separated matrix, ``#`` comments) carry no scale, so the caller
-gives ``pixel_size_m`` and the ``height_unit`` of the stored numbers.
+gives ``pixel_size_m`` and the ``height_unit`` of the stored numbers (both required: a
+map of nanometres read as metres gives σ ≈ 1 m and a summit radius of 1e-17 m).
 
 Every problem is an :class:`~feeder.errors.InputError` naming the file.
 """
@@ -75,13 +76,13 @@ def read_height_map(
     path: Path,
     channel: str | None = None,
     pixel_size_m: float | None = None,
-    height_unit: str = "m",
+    height_unit: str | None = None,
 ) -> HeightMap:
     """Read a height map from an AFM instrument file or a plain array file.
 
     ``channel`` (instrument files): index or exact channel name. ``pixel_size_m`` and
-    ``height_unit`` (plain files only): sampling interval in metres and the unit of the
-    stored heights.
+    ``height_unit`` (plain files only, both required there): sampling interval in metres
+    and the unit of the stored heights (a key of :data:`LENGTH_UNITS_M`).
     """
     if not path.is_file():
         raise InputError(str(path), "no such file")
@@ -93,8 +94,11 @@ def read_height_map(
             raise InputError("--pixel-size", message)
         if not (math.isfinite(pixel_size_m) and pixel_size_m > 0):
             raise InputError("--pixel-size", f"must be a positive number of metres, got {pixel_size_m!r}")
+        known = ", ".join(LENGTH_UNITS_M)
+        if height_unit is None:
+            message = f"{path.name} is a plain height map without units; give its heights' unit ({known})"
+            raise InputError("--height-unit", message)
         if height_unit not in LENGTH_UNITS_M:
-            known = ", ".join(LENGTH_UNITS_M)
             raise InputError("--height-unit", f"expected one of {known}, got {height_unit!r}")
         return _checked(heights * LENGTH_UNITS_M[height_unit], (pixel_size_m, pixel_size_m), path, "")
     return _read_instrument(path, channel)
