@@ -42,6 +42,17 @@ def test_json_object_has_the_contract_keys(capsys: pytest.CaptureFixture[str]) -
     assert data["real_area_m2"] == pytest.approx(4.9734e-17, rel=2e-3)
 
 
+def test_the_smallest_part_gets_its_breakaway_without_the_placements_band(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A 1 µm part (the smallest side the CLI takes) rests on no summits the sampling can find:
+    GW's figures stand, the band is missing, and a warning says why (it was exit 2)."""
+    data = run_json(capsys, "--part", "1x1x1")
+    assert data["breakaway_accel_m_s2"] == pytest.approx(111.1, rel=1e-3)
+    assert data["real_area_band_m2"] is None
+    assert any("no A_r band from resting placements" in w for w in data["warnings"])
+
+
 def test_decimal_part_and_tau_option(capsys: pytest.CaptureFixture[str]) -> None:
     data = run_json(capsys, "--part", "123.5x80x49.9", "--tau", "10e9")
     assert data["mass_kg"] == pytest.approx(2330 * 123.5e-6 * 80e-6 * 49.9e-6)

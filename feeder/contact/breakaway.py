@@ -262,15 +262,19 @@ def contact(
             raise InputError(
                 "--placements", f"{err.message} (this part, {placements} placements; 0 skips the sampling)"
             ) from None
-        except ArithmeticError as err:
-            raise InputError("--part", f"cannot find this part's rest on the summits: {err}") from None
-        band_m2, sampled_mean = sampled.band_m2(), float(np.mean(sampled.real_area_m2))
-        if contacts < MIN_CONTACTS:
+        except ArithmeticError as err:  # GW's mean field stands; only the placements' band is missing
+            sampled = None
             warnings.append(
-                f"resting tilted on its highest summits (≥ 3, centre of mass inside), this part's A_r is "
-                f"{band_m2[0]:.3g}–{band_m2[1]:.3g} m² (68 % of {placements} placements, mean "
-                f"{sampled_mean:.3g}); GW's mean-field value {area:.3g} m² assumes fractional asperities"
+                f"no A_r band from resting placements: this part's rest on the summits was not found ({err})"
             )
+        if sampled is not None:
+            band_m2, sampled_mean = sampled.band_m2(), float(np.mean(sampled.real_area_m2))
+            if contacts < MIN_CONTACTS:
+                warnings.append(
+                    f"resting tilted on its highest summits (≥ 3, centre of mass inside), this part's A_r is "
+                    f"{band_m2[0]:.3g}–{band_m2[1]:.3g} m² (68 % of {placements} placements, mean "
+                    f"{sampled_mean:.3g}); GW's mean-field value {area:.3g} m² assumes fractional asperities"
+                )
     return ContactResult(
         part=part.label,
         support=support.kind,
