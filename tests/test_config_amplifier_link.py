@@ -78,3 +78,16 @@ def test_a_relative_surface_is_found_next_to_the_file_whatever_the_working_direc
     monkeypatch.chdir(tmp_path)
     (folder / "feeder.toml").write_text('[part]\nsurface = "surface.toml"\n')
     assert load_config(Path("etc/feeder/feeder.toml")).surface_path == folder / "surface.toml"
+
+
+def test_relative_state_paths_are_next_to_the_file_whatever_the_working_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    folder = tmp_path / "etc" / "feeder"
+    folder.mkdir(parents=True)
+    (folder / "feeder.toml").write_text('[state]\ndir = "state"\nsocket = "run/f.sock"\n')
+    monkeypatch.chdir(tmp_path)
+    config = load_config(Path("etc/feeder/feeder.toml"))
+    assert config.state_dir == folder / "state" and config.socket_path == folder / "run" / "f.sock"
+    (folder / "feeder.toml").write_text('[state]\ndir = "~/st"\n')
+    assert load_config(folder / "feeder.toml").state_dir == Path("~/st").expanduser()

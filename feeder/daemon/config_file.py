@@ -50,7 +50,7 @@ settle_s = 0.05
 average_samples = 3
 
 [state]
-dir = "~/.local/state/feeder" # calibration, history, last position (SQLite)
+dir = "~/.local/state/feeder" # calibration, history, last position (SQLite); relative: to this file
 socket = "/run/user/1000/feeder/feeder.sock"
 
 [http]                        # the browser console (docs/console.md); off without [http] or --http
@@ -383,8 +383,8 @@ def load_config(path: Path | None) -> DaemonConfig:
         loop=loop,
         plate=plate,
         camera=camera,
-        state_dir=_path(_string(state, "dir", where, None)) or base.state_dir,
-        socket_path=_path(_string(state, "socket", where, None)) or base.socket_path,
+        state_dir=_path(_string(state, "dir", where, None), path.parent.absolute()) or base.state_dir,
+        socket_path=_path(_string(state, "socket", where, None), path.parent.absolute()) or base.socket_path,
         http=http,
     )
 
