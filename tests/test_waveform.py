@@ -159,3 +159,24 @@ def test_cli_export_anc300_and_csv(tmp_path: Path, capsys: pytest.CaptureFixture
     assert not list(tmp_path.glob("*.tmp"))
     last = rows[-1].split(",")
     assert float(last[2]) == pytest.approx(200 * 63 / 64)
+
+
+def test_an_output_that_is_an_input_or_another_output_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`waveform export F.toml --format csv --out F.toml` replaced the design file with its CSV."""
+    design = tmp_path / "F.toml"
+    design.write_text(PAPER.read_text())
+    assert main(["waveform", "export", str(design), "--format", "csv", "--out", str(design)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--out:" in err and "read by this command" in err
+    assert design.read_text() == PAPER.read_text()
+    same = tmp_path / "sub" / ".." / "F.toml"  # the same file by another name
+    (tmp_path / "sub").mkdir()
+    assert main(["waveform", "show", str(design), "--plot", str(same)]) == 2
+    assert "--plot:" in capsys.readouterr().err and design.read_text() == PAPER.read_text()
+    out = tmp_path / "x.png"
+    assert main(["simulate", "--part", "300x300x50", "--ideal", "--periods", "2", "--map", str(out),
+                 "--plot", str(out)]) == 2  # fmt: skip
+    assert "another output" in capsys.readouterr().err and not out.exists()
+    assert main(["waveform", "export", str(design), "--format", "csv", "--out", str(tmp_path / "F.csv")]) == 0

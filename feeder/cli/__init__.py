@@ -25,6 +25,7 @@ import sys
 from collections.abc import Iterable, Sequence
 from typing import NoReturn
 
+from feeder.cli.arguments import refuse_overwriting_inputs
 from feeder.errors import DaemonRefused, DaemonUnreachable, InputError, MoveFailed
 
 #: sub-command → (module in this package, one-line help), in ``feeder --help`` order
@@ -86,9 +87,11 @@ def _command_in(argv: Sequence[str]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = build_parser(_command_in(argv)).parse_args(argv)
+    parser = build_parser(_command_in(argv))
+    args = parser.parse_args(argv)
     prefix = f"feeder {args.command}"
     try:
+        refuse_overwriting_inputs(parser, args)
         return int(args.handler(args))
     except InputError as err:
         print(f"{prefix}: error: {err}", file=sys.stderr)

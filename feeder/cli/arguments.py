@@ -99,6 +99,36 @@ def output_path(text: str) -> Path:
     return path
 
 
+def refuse_overwriting_inputs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """:class:`InputError` naming the option when a file to write (an :func:`output_path`) is
+    one the command reads, or another output of the same command (``waveform export F.toml
+    --out F.toml`` replaced the design file with its CSV)."""
+    actions: list[argparse.Action] = []
+    current: argparse.ArgumentParser | None = parser
+    while current is not None:  # the chosen (sub-)sub-command's options
+        subs = [a for a in current._actions if isinstance(a, argparse._SubParsersAction)]
+        actions += [a for a in current._actions if a not in subs]
+        chosen = getattr(args, subs[0].dest, None) if subs else None
+        current = subs[0].choices.get(chosen) if subs and isinstance(chosen, str) else None
+    outputs: list[tuple[str, Path]] = []
+    inputs: list[Path] = []
+    for action in actions:
+        value = getattr(args, action.dest, None)
+        values = value if isinstance(value, list) else [value]
+        paths = [Path(v) for v in values if isinstance(v, Path)]
+        if action.type is output_path:
+            name = action.option_strings[0] if action.option_strings else action.dest
+            outputs += [(name, p) for p in paths]
+        else:
+            inputs += [p for p in paths if p.is_file()]
+    for i, (option, out) in enumerate(outputs):
+        target = out.resolve()
+        if any(target == p.resolve() for p in inputs):
+            raise InputError(option, f"{out} is also read by this command: it would be overwritten")
+        if any(target == other.resolve() for _, other in outputs[:i]):
+            raise InputError(option, f"{out} is also another output of this command")
+
+
 def input_path(text: str) -> Path:
     """argparse type: a file to read: a regular file that exists (not a device such as /dev/zero)."""
     path = Path(text)
