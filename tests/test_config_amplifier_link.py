@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -42,21 +39,6 @@ def test_a_bad_serial_rate_is_refused_by_name_in_one_line(tmp_path: Path, value:
         load_config(path)
     assert words in str(err.value) and str(path) in str(err.value)
     assert "\n" not in str(err.value)
-
-
-def test_feeder_daemon_with_a_bad_serial_rate_exits_2_in_one_line(tmp_path: Path) -> None:
-    path = tmp_path / "bad.toml"
-    path.write_text("[amplifier]\nbaudrate = 12\n")
-    done = subprocess.run(
-        [sys.executable, "-m", "feeder", "daemon", "--config", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=tmp_path,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
-    assert done.returncode == 2
-    assert done.stderr.count("\n") == 1 and "amplifier.baudrate = 12 is outside" in done.stderr
 
 
 def test_a_relative_surface_is_found_next_to_the_file_whatever_the_working_directory(

@@ -129,9 +129,16 @@ def test_simulator_gets_our_part_and_amplifier_rating(tmp_path: Path) -> None:
     assert "--can" in simulator_args(load_config(path).with_transport("can"))
 
 
-def test_feeder_daemon_with_a_bad_config_exits_2_in_one_line(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("body", "words"),
+    [
+        ("[control]\nrate_hz = 0\n", "rate_hz"),
+        ("[amplifier]\nbaudrate = 12\n", "amplifier.baudrate = 12 is outside"),
+    ],
+)
+def test_feeder_daemon_with_a_bad_config_exits_2_in_one_line(tmp_path: Path, body: str, words: str) -> None:
     path = tmp_path / "bad.toml"
-    path.write_text("[control]\nrate_hz = 0\n")
+    path.write_text(body)
     done = subprocess.run(
         [sys.executable, "-m", "feeder", "daemon", "--config", str(path)],
         capture_output=True,
@@ -141,7 +148,7 @@ def test_feeder_daemon_with_a_bad_config_exits_2_in_one_line(tmp_path: Path) -> 
         env={**os.environ, "PYTHONPATH": str(ROOT)},
     )
     assert done.returncode == 2
-    assert done.stderr.count("\n") == 1 and "rate_hz" in done.stderr
+    assert done.stderr.count("\n") == 1 and words in done.stderr
 
 
 @pytest.mark.parametrize(
