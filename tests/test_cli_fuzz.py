@@ -165,7 +165,7 @@ def test_tiny_pixel_size_is_refused(image: str) -> None:
     (["tau", "--part", "300x300x50", "--force", "-1e-6"], "--force: must be a positive force"),
     (["surface", CURVE, "--pixel-size", "-2e-9"], "--pixel-size: must be from 1e-12"),
     (["contact", "--part", "300x300x50", "--tau", "-1e9"], "--tau: must be a positive number"),
-    (["plan", "--part", "300x300x50", "--distance-m", "-2e0"], "--distance-m: must be from -1 to 1"),
+    (["plan", "--part", "300x300x50", "--distance-m", "-2e0"], "--distance-m: must be from -1 m to 1 m"),
 ])  # fmt: skip
 def test_negative_values_in_scientific_notation_reach_their_checks(argv: list[str], message: str) -> None:
     assert "expected one argument" not in assert_refused(argv, message).err

@@ -249,3 +249,16 @@ def test_range_ends_and_units_are_accepted(capsys):
     assert turn["stroke_rad"] == 0.1 and turn["pose_start"] == [-0.1, 0.1, -6.28]
     err = refused(capsys, [*IDEAL, "--flyback-s", "0.01"])  # not below the period
     assert "--flyback-s" in err
+
+
+def test_a_pose_takes_units(capsys):
+    """DESIGN §12: lengths and angles accept units, a pose's too."""
+    argv = [*IDEAL, "--flyback-s", "3.5e-4", "--axis", "theta", "--stroke-rad", "7e-3", "--periods", "2"]
+    plain = run_json(capsys, *argv, "--pose", "1.5e-3,-2e-4,0.17453292519943295")
+    units = run_json(capsys, *argv, "--pose", "1.5mm,-200um,10deg")
+    assert units["pose_start"] == pytest.approx(plain["pose_start"], rel=1e-15)
+    for got, want in zip(units["poses"], plain["poses"], strict=True):
+        assert got == pytest.approx(want, rel=1e-12)
+    err = refused(capsys, [*argv, "--pose", "1.5mm,0"])
+    assert "--pose" in err and "three values" in err
+    assert "--pose" in refused(capsys, [*argv, "--pose", "1.5kg,0,0"])

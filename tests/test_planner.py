@@ -66,6 +66,17 @@ def test_backward_and_fixed_frequency() -> None:
     assert p.steps * p.predicted_step_m == pytest.approx(-40e-6, rel=1e-6)
 
 
+def test_cli_distance_takes_a_unit(capsys: pytest.CaptureFixture[str]) -> None:
+    outs = []
+    for distance in ("-1e-4", "-100um", "-0.1mm"):
+        assert main(["plan", "--part", "300x300x50", "--distance-m", distance, "--json"]) == 0
+        outs.append(json.loads(capsys.readouterr().out))
+    assert outs[0] == outs[1] == outs[2] and outs[0]["distance_m"] == -1e-4
+    with pytest.raises(SystemExit) as refused:  # argparse's own error: one line, exit 2
+        main(["plan", "--part", "300x300x50", "--distance-m", "2m"])
+    assert refused.value.code == 2 and "--distance-m: must be from -1 m to 1 m" in capsys.readouterr().err
+
+
 def test_an_amplifier_set_in_whole_hertz_is_planned_in_whole_hertz() -> None:
     """An ANC300 takes and reports whole hertz: a plan at 3070.29 Hz would run at 3070 Hz."""
     anc300 = AMPLIFIER_MODELS["anc300"]

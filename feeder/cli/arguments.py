@@ -311,14 +311,14 @@ def part_from(args: argparse.Namespace) -> tuple[Part, Support, SurfaceParameter
 
 
 def pose(text: str) -> tuple[float, float, float]:
-    """argparse type: ``X,Y,PSI`` (m, m, rad), finite numbers."""
+    """argparse type: ``X,Y,PSI`` (m, m, rad, or with units: ``1.5mm,0,10deg``), finite."""
+    fields = text.split(",")
+    if len(fields) != 3:
+        raise argparse.ArgumentTypeError(f"expected three values X,Y,PSI (m, m, rad), got {text!r}")
     try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X,Y,PSI in m, m, rad, got {text!r}") from None
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,PSI, got {text!r}")
-    return values[0], values[1], values[2]
+        return length_m(fields[0]), length_m(fields[1]), angle_rad(fields[2])
+    except argparse.ArgumentTypeError as err:
+        raise argparse.ArgumentTypeError(f"X,Y,PSI {text!r}: {err}") from None
 
 
 def allow_negative_values(p: argparse.ArgumentParser) -> None:

@@ -11,6 +11,7 @@ from feeder.cli.arguments import (
     add_tau_arguments,
     allow_negative_values,
     float_in,
+    length_in,
     output_path,
     part_from,
     positive_float,
@@ -29,9 +30,10 @@ def register(sub: Any) -> None:
     add_part_arguments(p)
     p.add_argument(
         "--distance-m",
-        type=float_in(-1.0, 1.0),
+        type=length_in(-1.0, 1.0),
         required=True,
-        help="wanted displacement in m, at most 1 m either way; negative: backward (e.g. -20e-6)",
+        help="wanted displacement in m (or with a unit: 100um), at most 1 m either way; negative: "
+        "backward (e.g. -20e-6)",
     )
     add_tau_arguments(p)
     p.add_argument(

@@ -23,6 +23,7 @@ from feeder.cli.arguments import (
     length_m,
     output_path,
     part_from,
+    pose,
     positive_float,
 )
 from feeder.cli.output import print_json
@@ -92,11 +93,9 @@ def _check_pose(values: tuple[float, ...], text: str) -> tuple[float, float, flo
 
 
 def plate_pose(text: str) -> tuple[float, float, float]:
-    """argparse type: ``X,Y,PSI`` (m, m, rad) on the plate: |X|, |Y| ≤ 0.1 m, |PSI| ≤ 2π."""
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X,Y,PSI in m, m, rad, got {text[:40]!r}") from None
+    """argparse type: ``X,Y,PSI`` (m, m, rad, or with units: ``1.5mm,0,10deg``) on the plate:
+    |X|, |Y| ≤ 0.1 m, |PSI| ≤ 2π."""
+    values = pose(text)
     try:
         return _check_pose(values, repr(text[:40]))
     except ValueError as err:
