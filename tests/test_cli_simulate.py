@@ -262,3 +262,15 @@ def test_a_pose_takes_units(capsys):
     err = refused(capsys, [*argv, "--pose", "1.5mm,0"])
     assert "--pose" in err and "three values" in err
     assert "--pose" in refused(capsys, [*argv, "--pose", "1.5kg,0,0"])
+
+
+@pytest.mark.parametrize("extra, option", [
+    (["--stroke-m", "5e-6"], "--stroke-m"), (["--frequency-hz", "200"], "--frequency-hz"),
+    (["--ideal", "--stroke-m", "5e-6", "--flyback-s", "1e-4"], "--flyback-s"),
+])  # fmt: skip
+def test_drive_options_nothing_would_read_are_refused(capsys, extra, option):
+    """They were silently ignored: the plant plays the waveform file, which also gives an ideal
+    plate's frequency and flyback."""
+    argv = ["simulate", "--part", "300x300x50", "--waveform", str(PAPER), "--periods", "2", *extra]
+    err = refused(capsys, argv)
+    assert err.startswith(f"feeder simulate: error: {option}:")

@@ -286,6 +286,7 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.scatter) and args.scatter >= 0):
         raise InputError("--scatter", f"must be a non-negative number, got {args.scatter}")
     prediction, notes = _design_defaults(args)
+    _refuse_ignored_drive_options(args)
     from_file = f" (from {args.waveform}'s [axis])" if args.axis_from_file else ""
     if args.axis == "theta" and not args.ideal and args.waveform is None:
         raise InputError("--waveform", "required with --axis theta unless --ideal")
@@ -417,6 +418,19 @@ def _sawtooth_parameters(args: argparse.Namespace, stroke: float | None) -> tupl
             "--flyback-s", f"{args.flyback_s:g} s is not shorter than the period {1 / args.frequency_hz:g} s"
         )
     return stroke, args.frequency_hz, args.flyback_s, args.flyback_shape, args.direction
+
+
+def _refuse_ignored_drive_options(args: argparse.Namespace) -> None:
+    """The ideal plate's drive options where nothing would read them: without --ideal the plant
+    plays --waveform; with --ideal and --waveform, the file gives frequency and flyback (a
+    stroke may still be given)."""
+    options = {"--stroke-m": args.stroke_m, "--stroke-rad": args.stroke_rad,
+               "--frequency-hz": args.frequency_hz, "--flyback-s": args.flyback_s}  # fmt: skip
+    for flag in (flag for flag, value in options.items() if value is not None):
+        if not args.ideal:
+            raise InputError(flag, "only with --ideal: the plant plays --waveform's drive")
+        if args.waveform is not None and flag in ("--frequency-hz", "--flyback-s"):
+            raise InputError(flag, f"not with --waveform: {args.waveform} gives the frequency and flyback")
 
 
 def _strokes(args: argparse.Namespace) -> tuple[tuple[float, float, float], float, float, str]:
