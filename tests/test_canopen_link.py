@@ -124,6 +124,28 @@ def test_a_rebooted_node_whose_boot_up_was_missed_is_reconnected() -> None:
             master.disconnect()
 
 
+def test_a_node_another_master_left_stopped_is_brought_back_and_connects() -> None:
+    """A STOPPED node serves no SDO: the driver sends NMT PRE-OPERATIONAL before its probe."""
+    with sim_node() as (_, _, bus):
+        master = canopen.Network()
+        master.connect(**bus)
+        try:
+            master.nmt.send_command(0x02)  # stop remote node
+            time.sleep(0.1)
+            amp = connect(bus)
+            try:
+                assert amp.status().mode == "gnd"
+                amp.apply(FAST)
+                amp.enable()
+                amp.step(20)
+                assert amp.wait(5.0)
+                assert amp.steps_played() == (20, False)
+            finally:
+                amp.close()
+        finally:
+            master.disconnect()
+
+
 def test_nothing_at_the_node_id_is_not_answering() -> None:
     bus = {"interface": "virtual", "channel": f"test-canopen-link-{uuid.uuid4().hex}"}
     started = time.monotonic()

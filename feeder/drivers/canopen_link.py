@@ -147,15 +147,18 @@ class CanopenNodeLink:
     # -- start-up and supervision -----------------------------------------------
 
     def _start(self) -> None:
-        """Probe the node by SDO (its product code, which must be the EDS's), check its PDO
-        mappings against the EDS, enable its heartbeat (0x1017) and wait for a beat, start
-        it and wait for every axis' first TPDO.
+        """Bring the node to PRE-OPERATIONAL, probe it by SDO (its product code, which must be
+        the EDS's), check its PDO mappings against the EDS, enable its heartbeat (0x1017) and
+        wait for a beat, start it and wait for every axis' first TPDO.
 
         The heartbeat is enabled before it is awaited: a node may ship with 0x1017 = 0
         (CiA 301: no heartbeat), and a booted node's only unasked frame, its boot-up
         message, may have gone by before the driver listened.
         """
         product = self.node.object_dictionary.device_information.product_number
+        # a node another master left STOPPED serves no SDO: bring it to PRE-OPERATIONAL (an NMT
+        # command every state takes; it stops the PDOs, which the driver starts again below)
+        self.node.nmt.state = "PRE-OPERATIONAL"
         found = self.sdo_read(PRODUCT_CODE)  # the first request: "not answering" if nobody is there
         if product is not None and found != product:
             raise AmplifierError(
