@@ -55,3 +55,40 @@ def test_frames_are_encoded_only_while_a_page_watches() -> None:
         started = time.monotonic()
         feed.close()
         assert time.monotonic() - started < 1.0
+
+
+class Camera(Source):
+    """A camera of the console's own: opened by a read, closed by a release, both counted."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.open = True  # opened at start (a bad spec is refused then)
+        self.opens = 1
+        self.releases = 0
+
+    def __call__(self) -> np.ndarray:
+        if not self.open:
+            self.open, self.opens = True, self.opens + 1
+        return super().__call__()
+
+    def release(self) -> None:
+        self.open, self.releases = False, self.releases + 1
+
+
+def test_a_camera_of_its_own_is_closed_while_no_page_watches(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Its reader thread decodes every frame while it is open ([http] camera)."""
+    monkeypatch.setattr("feeder.web.camera.IDLE_RELEASE_S", 0.3)
+    camera = Camera()
+    feed = CameraFeed(camera, camera.release, camera.release)
+    try:
+        assert wait_until(lambda: not camera.open)  # nobody watches: closed soon after the start
+        with feed.watching():
+            assert wait_until(lambda: feed.jpeg is not None)
+            assert camera.open and camera.opens == 2
+            time.sleep(0.5)
+            assert camera.open  # watched: kept open
+        assert wait_until(lambda: not camera.open) and camera.releases == 2
+        with feed.watching():  # the next page opens it again
+            assert wait_until(lambda: feed.jpeg is not None) and camera.opens == 3
+    finally:
+        feed.close()

@@ -27,18 +27,29 @@ UNWATCHED_CHECK_S = 0.25
 
 ImageSource = Callable[[], Any]
 """Returns the newest camera image (numpy, grey or BGR) or None; may block up to ~1 s."""
+IDLE_RELEASE_S = 5.0
+"""A camera of its own (``[http] camera``) is closed after no page watched it this long, and
+opened again for the next page: its reader thread decodes every frame while open."""
 
 
 class CameraFeed:
     """Reads the newest camera image on its own thread and keeps it JPEG-encoded, while a page
     watches it (:meth:`watching`)."""
 
-    def __init__(self, source: ImageSource, close_source: Callable[[], None] = lambda: None) -> None:
+    def __init__(
+        self,
+        source: ImageSource,
+        close_source: Callable[[], None] = lambda: None,
+        release_source: Callable[[], None] | None = None,
+    ) -> None:
+        """``release_source``: called on the feed's thread once no page watched for
+        :data:`IDLE_RELEASE_S` (the source opens itself again on its next read)."""
         import cv2  # OpenCV (the optional vision extra): only with a camera
 
         self._cv2 = cv2
         self.source = source
         self._close_source = close_source
+        self._release_source = release_source
         self.jpeg: bytes | None = None
         self.size_px = (0, 0)
         """(width, height) of the camera's image before it was scaled down for the page."""
@@ -54,10 +65,15 @@ class CameraFeed:
         cv2 = self._cv2
         began = -math.inf
         last: Any = None
+        held = True  # the source may be open (a configured camera is opened at start)
         while not self._closed.wait(max(0.0, began + CAMERA_PERIOD_S - time.monotonic())):
             if not self._watched.wait(UNWATCHED_CHECK_S) or self._closed.is_set():
+                if held and self._release_source is not None and time.monotonic() - began > IDLE_RELEASE_S:
+                    self._release_source()
+                    held = False
                 continue
             began = time.monotonic()
+            held = True
             try:
                 image = self.source()
             except (OSError, RuntimeError) as err:  # CameraLost (a SensorLost), a closed link
@@ -113,7 +129,8 @@ def camera_feed(spec: str | None, daemon: Any) -> CameraFeed | None:
                 frames = open_camera(spec)
             except CameraError as err:
                 raise InputError("http.camera", str(err)) from None
-            return CameraFeed(lambda: frames.read(1.0).image, frames.close)
+            camera = _OpenWhileWatched(spec, frames)
+            return CameraFeed(camera.image, camera.release, camera.release)
         latest = getattr(daemon, "latest_image", None)
         if callable(latest):
             return CameraFeed(lambda: _image(latest()))
@@ -122,6 +139,26 @@ def camera_feed(spec: str | None, daemon: Any) -> CameraFeed | None:
             "http.camera", f"the live camera needs OpenCV ({err}): pip install feeder[vision]"
         ) from None
     return None
+
+
+class _OpenWhileWatched:
+    """A camera of the console's own: open while pages watch it (see :data:`IDLE_RELEASE_S`)."""
+
+    def __init__(self, spec: str, frames: Any) -> None:
+        self.spec = spec
+        self.frames: Any = frames  # opened at start: a bad spec is refused then
+
+    def image(self) -> Any:
+        if self.frames is None:
+            from feeder.drivers.video_camera import open_camera
+
+            self.frames = open_camera(self.spec)
+        return self.frames.read(1.0).image
+
+    def release(self) -> None:
+        if self.frames is not None:
+            self.frames.close()
+            self.frames = None
 
 
 def _image(latest: Any) -> Any:
