@@ -118,12 +118,15 @@ def write_bytes(path: Path, data: bytes) -> None:
 
 
 def save_figure(fig: Any, path: Path, dpi: int = 120) -> None:
-    """Save a matplotlib figure as PNG atomically and close it."""
+    """Save a matplotlib figure atomically in the format its suffix names where matplotlib
+    writes it (``.pdf``, ``.svg``, ...), else PNG; and close it."""
     import matplotlib.pyplot as plt
 
+    suffix = path.suffix.lower().lstrip(".")
+    kind = suffix if suffix in fig.canvas.get_supported_filetypes() else "png"
     tmp = _temporary(path)
     try:
-        fig.savefig(tmp, dpi=dpi, format="png")
+        fig.savefig(tmp, dpi=dpi, format=kind)
         tmp.replace(path)
     except OSError as err:
         raise InputError(str(path), f"cannot write: {err.strerror or err}") from None

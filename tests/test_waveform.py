@@ -180,3 +180,12 @@ def test_an_output_that_is_an_input_or_another_output_is_refused(
                  "--plot", str(out)]) == 2  # fmt: skip
     assert "another output" in capsys.readouterr().err and not out.exists()
     assert main(["waveform", "export", str(design), "--format", "csv", "--out", str(tmp_path / "F.csv")]) == 0
+
+
+def test_a_plot_is_written_in_the_format_its_suffix_names(tmp_path: Path) -> None:
+    """`--plot m.pdf` wrote PNG bytes into a .pdf file; an unknown suffix still gets a PNG."""
+    pytest.importorskip("matplotlib")
+    cases = (("w.pdf", b"%PDF"), ("w.svg", b"<?xml"), ("w.png", b"\x89PNG"), ("w.plot", b"\x89PNG"))
+    for name, magic in cases:
+        assert main(["waveform", "show", str(PAPER), "--plot", str(tmp_path / name)]) == 0
+        assert (tmp_path / name).read_bytes().startswith(magic), name
