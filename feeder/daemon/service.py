@@ -40,6 +40,7 @@ from feeder.daemon.control_loop import (
     StepMode,
 )
 from feeder.daemon.executor import per_axis
+from feeder.daemon.located_calibration import LocatedCalibration
 from feeder.daemon.move_records import MoveRecords
 from feeder.daemon.quiet_window import QuietWindow
 from feeder.daemon.socket_server import SocketServer
@@ -129,13 +130,14 @@ class Daemon:
             undo.callback(self.store.close)
             self.records = MoveRecords(self.store, setup.calibration_key, setup.pose_navigator is not None)
             self.interrupted_moves = self.store.interrupt_running_moves()
-            self._calibration_record, self._calibration = self._stored_calibration()  # checked first
+            # a bad stored camera calibration is refused before the hardware is touched
+            self.camera_calibration = LocatedCalibration(links.configured_calibration, self.store)
             amplifiers = per_axis(links.open_amplifier())
             self._amplifier_generation = getattr(links, "respawns", 0)
             undo.callback(_close, amplifiers)
             for amplifier in amplifiers.values():
                 amplifier.ground()
-            sensor = links.open_sensor(self._calibration)
+            sensor = links.open_sensor(self.camera_calibration.calibration)
             navigator = None
             if setup.pose_navigator is not None:
                 navigator = setup.pose_navigator(self.records.restored_pose_response())
@@ -227,43 +229,23 @@ class Daemon:
 
     def _submit(self, job: Job) -> str | None:
         """Hand ``job`` to the loop (holding ``_submitting``); the reason it is refused, or None."""
-        if not self.loop.busy() and self._calibration_saved():
+        if not self.loop.busy() and self.camera_calibration.saved():
             reason = self._recalibrate()
             if reason is not None:
                 return reason
         return self.loop.submit(job)
 
-    # -- the camera's calibration -----------------------------------------------
-    def _stored_calibration(self) -> tuple[dict[str, Any] | None, CameraCalibration | None]:
-        """The stored record (``feeder vision calibrate --save-state``) and the calibration it
-        makes of the configured one, where the daemon locates parts with a camera (None: the
-        configured one)."""
-        configured = self.links.configured_calibration()
-        record = self.store.camera_calibration()
-        if configured is None or record is None:
-            return record, None
-        return record, configured.updated(record, "the stored camera calibration")
-
-    def _calibration_saved(self) -> bool:
-        """A camera calibration was stored since the sensor opened (the daemon may be running
-        while ``feeder vision calibrate --save-state`` measures it)."""
-        if self.links.configured_calibration() is None:
-            return False
-        record = self.store.camera_calibration()
-        used = self._calibration_record
-        return record is not None and (used is None or record["updated_s"] != used["updated_s"])
-
     def _recalibrate(self) -> str | None:
         """Locate parts with the newly stored calibration from the next move on: the camera is
         opened again with it, and the move waits for its first poses (None) or is refused."""
         try:
-            record, calibration = self._stored_calibration()
+            record, calibration = self.camera_calibration.read()
             sensor = self.links.open_sensor(calibration)
         except (FeederError, OSError) as err:
             log.error("the stored camera calibration cannot be used: %s", err)
             return f"the stored camera calibration cannot be used: {err}"
         self.loop.replace_sensor(sensor)
-        self._calibration_record, self._calibration = record, calibration
+        self.camera_calibration.use(record, calibration)
         log.info("locating parts with the camera calibration stored now: %s", calibration)
         deadline = time.monotonic() + self.setup.sensor_timeout_s
         while self.loop.reading is None and time.monotonic() < deadline and not self._stopping.wait(0.02):
@@ -314,9 +296,9 @@ class Daemon:
                     self.loop.replace_amplifier(amps)
                     self._amplifier_generation = getattr(self.links, "respawns", 0)
                 else:
-                    stored, calibration = self._stored_calibration()
+                    stored, calibration = self.camera_calibration.read()
                     self.loop.replace_sensor(self.links.open_sensor(calibration))
-                    self._calibration_record, self._calibration = stored, calibration
+                    self.camera_calibration.use(stored, calibration)
             except Exception as err:
                 # this reconnect thread's one boundary: whatever stops a link from opening
                 # (drivers, python-can, the launcher) is logged and retried with backoff; the
@@ -512,7 +494,7 @@ class Daemon:
             "reconnecting": reconnecting,
             "faults": faults,
             "queued_moves": queued,
-            "camera_calibration": self._camera_calibration(),
+            "camera_calibration": self.camera_calibration.status(),
             "store_unwritable": loop.writer.unwritable,
             "pending_records": loop.writer.pending(),
             "interrupted_moves": self.interrupted_moves,
@@ -556,14 +538,6 @@ class Daemon:
             "tolerance_rad": s.tolerance_rad,
             "travel_m": {"x": [s.min_position_m, s.max_position_m], "y": [s.min_y_m, s.max_y_m]},
         }
-
-    def _camera_calibration(self) -> dict[str, Any] | None:
-        """The camera calibration the daemon locates parts with (None: no camera); ``source`` says
-        whether it is the stored one or the configured one."""
-        if self._calibration is not None:
-            return {**(self._calibration_record or {}), **self._calibration.to_dict(), "source": "stored"}
-        configured = self.links.configured_calibration()
-        return None if configured is None else {**configured.to_dict(), "source": "configuration"}
 
     def latest_image(self) -> Any:
         """The newest camera frame the sensor located parts in (an image array), or None."""
