@@ -6,7 +6,6 @@ import argparse
 import math
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -23,15 +22,29 @@ from feeder.cli.arguments import (
     length_m,
     output_path,
     part_from,
-    pose,
     positive_float,
 )
 from feeder.cli.output import print_json
+from feeder.cli.simulate_options import (
+    FREQUENCY_RANGE_HZ,
+    MAP_POINTS_RANGE,
+    MAX_MAP_EXTENT_M,
+    MAX_POSE_M,
+    MAX_STROKE_M,
+    MAX_STROKE_RAD,
+    MIN_FLYBACK_S,
+    design_defaults,
+    flyback_s,
+    plate_pose,
+    positive_up_to,
+    prediction_warnings,
+    refuse_ignored_drive_options,
+)
 from feeder.cli.waveform import file_amplifier, load_checked
 from feeder.contact.breakaway import contact
 from feeder.errors import InputError, check_memory_budget
 from feeder.files import save_figure
-from feeder.parts import Part, Support
+from feeder.parts import Part
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.ideal_plate import linear_flyback_step, sawtooth_motion
 from feeder.plant.planar import PlanarPart, simulate
@@ -43,63 +56,6 @@ from feeder.waveform import DIRECTIONS, Waveform, read_waveform_tables
 
 MAX_PERIODS = 10**6
 _BYTES_PER_SAMPLE = 64  # the plant's traces and temporaries, 8 float64 per sample
-
-# Plate-scale ranges of the options (stated in --help).  A stack strokes ~14 µm at 200 V
-# (θ: 7 mrad over the 2 mm lever arm), a plate is a few cm across.
-MAX_STROKE_M = 1e-3
-MAX_STROKE_RAD = 0.1
-MAX_POSE_M = 0.1
-MAX_PSI_RAD = 2 * math.pi
-MAX_MAP_EXTENT_M = 0.1
-FREQUENCY_RANGE_HZ = (1e-3, 1e6)
-MIN_FLYBACK_S = 1e-9
-MAP_POINTS_RANGE = (2, 41)
-
-
-def _positive_up_to(parse: Callable[[str], float], high: float, unit: str) -> Callable[[str], float]:
-    """argparse type: ``parse(text)`` in (0, ``high``]."""
-
-    def parse_in(text: str) -> float:
-        value = parse(text)
-        if not 0 < value <= high:
-            raise argparse.ArgumentTypeError(
-                f"must be above 0 and at most {high:g} {unit}, got {text[:40]!r}"
-            )
-        return value
-
-    return parse_in
-
-
-def flyback_s(text: str) -> float:
-    """argparse type: a flyback duration ≥ MIN_FLYBACK_S in s (checked against the period later)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text[:40]!r}") from None
-    if not (math.isfinite(value) and value >= MIN_FLYBACK_S):
-        raise argparse.ArgumentTypeError(
-            f"must be from {MIN_FLYBACK_S:g} s to below the period 1/f, got {text[:40]!r}"
-        )
-    return value
-
-
-def _check_pose(values: tuple[float, ...], text: str) -> tuple[float, float, float]:
-    """(x, y, ψ) if three finite numbers with |x|, |y| ≤ MAX_POSE_M, |ψ| ≤ MAX_PSI_RAD; else ValueError."""
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise ValueError(f"expected three finite numbers X,Y,PSI, got {text}")
-    if not (abs(values[0]) <= MAX_POSE_M and abs(values[1]) <= MAX_POSE_M and abs(values[2]) <= MAX_PSI_RAD):
-        raise ValueError(f"needs |X|, |Y| ≤ {MAX_POSE_M:g} m and |PSI| ≤ 2π rad, got {text}")
-    return values[0], values[1], values[2]
-
-
-def plate_pose(text: str) -> tuple[float, float, float]:
-    """argparse type: ``X,Y,PSI`` (m, m, rad, or with units: ``1.5mm,0,10deg``) on the plate:
-    |X|, |Y| ≤ 0.1 m, |PSI| ≤ 2π."""
-    values = pose(text)
-    try:
-        return _check_pose(values, repr(text[:40]))
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 def register(sub: Any) -> None:
@@ -135,7 +91,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument(
         "--stroke-m",
-        type=_positive_up_to(length_m, MAX_STROKE_M, "m"),
+        type=positive_up_to(length_m, MAX_STROKE_M, "m"),
         metavar="S",
         help=f"ideal plate: stroke S in m (or 5um, 0.01mm), 0 < S ≤ {MAX_STROKE_M:g} m "
         "(--direction backward for the other sign)",
@@ -175,7 +131,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument(
         "--stroke-rad",
-        type=_positive_up_to(angle_rad, MAX_STROKE_RAD, "rad"),
+        type=positive_up_to(angle_rad, MAX_STROKE_RAD, "rad"),
         metavar="THETA",
         help=f"ideal plate, --axis theta: stroke in rad (or 0.4deg), 0 < THETA ≤ {MAX_STROKE_RAD:g} rad",
     )
@@ -194,7 +150,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument(
         "--map-extent-m",
-        type=_positive_up_to(length_m, MAX_MAP_EXTENT_M, "m"),
+        type=positive_up_to(length_m, MAX_MAP_EXTENT_M, "m"),
         default=2.5e-3,
         help=f"--map: grid half-width around O in m (or 3mm), above 0 and at most {MAX_MAP_EXTENT_M:g} m "
         "(default 2.5e-3)",
@@ -210,83 +166,13 @@ def register(sub: Any) -> None:
     p.set_defaults(handler=run)
 
 
-def _design_defaults(args: argparse.Namespace) -> tuple[dict[str, Any], list[str]]:
-    """Fill --axis and --pose from the --waveform design file's ``[axis]`` table (else x, 0,0,0).
-
-    Returns the file's ``[prediction]`` table (empty for a plain waveform file) and a warning
-    for each of --axis, --pose given against the file's ``[axis]``: the pose only where the
-    prediction depends on it (θ; a translation steps the same anywhere on the plate).
-    """
-    tables = read_waveform_tables(args.waveform) if args.waveform is not None else {}
-    axis_table, prediction = tables.get("axis", {}), tables.get("prediction", {})
-    file_axis, file_pose = axis_table.get("name"), axis_table.get("pose")
-    if file_axis is not None and file_axis not in AXES:
-        raise InputError(
-            f"{args.waveform}: [axis].name", f"must be one of {', '.join(AXES)}, got {file_axis!r}"
-        )
-    if file_pose is not None:
-        field = f"{args.waveform}: [axis].pose"
-        if not isinstance(file_pose, list) or not all(
-            isinstance(v, int | float) and not isinstance(v, bool) for v in file_pose
-        ):
-            raise InputError(field, f"expected [X, Y, PSI] in m, m, rad, got {file_pose!r}")
-        try:
-            file_pose = _check_pose(tuple(float(v) for v in file_pose), repr(file_pose))
-        except ValueError as err:
-            raise InputError(field, str(err)) from None
-    warnings: list[str] = []
-    args.axis_from_file = args.axis is None and file_axis is not None
-    if args.axis is None:
-        args.axis = file_axis or "x"
-    elif file_axis is not None and args.axis != file_axis:
-        warnings.append(f"--axis {args.axis} contradicts {args.waveform}'s [axis] name = {file_axis!r}: "
-                        f"its waveform and prediction are for axis {file_axis}")  # fmt: skip
-    if args.pose is None:
-        args.pose = file_pose or (0.0, 0.0, 0.0)
-    elif (
-        file_pose is not None
-        and args.axis == "theta"
-        and file_axis == "theta"
-        and not all(
-            math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12) for a, b in zip(args.pose, file_pose, strict=True)
-        )
-    ):
-        warnings.append(f"--pose {_pose_text(args.pose)} contradicts {args.waveform}'s [axis] pose "
-                        f"{_pose_text(file_pose)}: its θ prediction holds at that pose only")  # fmt: skip
-    return prediction, warnings
-
-
-def _pose_text(values: tuple[float, ...]) -> str:
-    return ",".join(f"{v:g}" for v in values)
-
-
-def _prediction_warnings(args: argparse.Namespace, prediction: dict[str, Any], part: Part,
-                         support: Support) -> list[str]:  # fmt: skip
-    """A warning for --part (and --support) against the design file's ``[prediction]``."""
-    warnings = []
-    file_part = prediction.get("part")
-    if isinstance(file_part, str):
-        try:
-            same = Part.parse(file_part).label == part.label
-        except InputError:
-            same = file_part.strip() == args.part.strip()
-        if not same:
-            warnings.append(f"--part {part.label} contradicts {args.waveform}'s [prediction] part = "
-                            f"{file_part!r}: its predicted step is for that part")  # fmt: skip
-    file_support = prediction.get("support")
-    if isinstance(file_support, str) and file_support.strip().lower() != support.kind:
-        warnings.append(f"--support {support.kind} contradicts {args.waveform}'s [prediction] support = "
-                        f"{file_support!r}: its predicted step is for that support")  # fmt: skip
-    return warnings
-
-
 def run(args: argparse.Namespace) -> int:
     if not args.kinetic_ratio <= 1:
         raise InputError("--kinetic-ratio", f"must lie in (0, 1], got {args.kinetic_ratio}")
     if not (math.isfinite(args.scatter) and args.scatter >= 0):
         raise InputError("--scatter", f"must be a non-negative number, got {args.scatter}")
-    prediction, notes = _design_defaults(args)
-    _refuse_ignored_drive_options(args)
+    prediction, notes = design_defaults(args)
+    refuse_ignored_drive_options(args)
     from_file = f" (from {args.waveform}'s [axis])" if args.axis_from_file else ""
     if args.axis == "theta" and not args.ideal and args.waveform is None:
         raise InputError("--waveform", "required with --axis theta unless --ideal")
@@ -297,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
     if args.axis == "theta" and args.plot:
         raise InputError("--plot", f"traces are for --axis x or y, not theta{from_file}; use --map for theta")
     part, support, surface = part_from(args)
-    notes += _prediction_warnings(args, prediction, part, support)
+    notes += prediction_warnings(args, prediction, part, support)
     result = contact(part, support, surface, args.tau)
     friction = Friction(result.breakaway_accel_m_s2, args.kinetic_ratio)
     out: dict[str, Any] = {"part": part.label, "support": args.support,
@@ -420,19 +306,6 @@ def _sawtooth_parameters(args: argparse.Namespace, stroke: float | None) -> tupl
     return stroke, args.frequency_hz, args.flyback_s, args.flyback_shape, args.direction
 
 
-def _refuse_ignored_drive_options(args: argparse.Namespace) -> None:
-    """The ideal plate's drive options where nothing would read them: without --ideal the plant
-    plays --waveform; with --ideal and --waveform, the file gives frequency and flyback (a
-    stroke may still be given)."""
-    options = {"--stroke-m": args.stroke_m, "--stroke-rad": args.stroke_rad,
-               "--frequency-hz": args.frequency_hz, "--flyback-s": args.flyback_s}  # fmt: skip
-    for flag in (flag for flag, value in options.items() if value is not None):
-        if not args.ideal:
-            raise InputError(flag, "only with --ideal: the plant plays --waveform's drive")
-        if args.waveform is not None and flag in ("--frequency-hz", "--flyback-s"):
-            raise InputError(flag, f"not with --waveform: {args.waveform} gives the frequency and flyback")
-
-
 def _strokes(args: argparse.Namespace) -> tuple[tuple[float, float, float], float, float, str]:
     """Signed (S_x, S_y, S_θ), frequency, flyback, shape for the driven axis."""
     if args.axis == "theta" and args.stroke_rad is None:
@@ -468,7 +341,6 @@ def _planar_plant_drive(args: argparse.Namespace) -> tuple[AmplifierLimits, Wave
     """The amplifier, waveform and θ lever arm (m) of --waveform (its [axis] table, else the
     plant's default) for the planar plant."""
     from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
-    from feeder.waveform import read_waveform_tables
 
     amplifier = file_amplifier(args.waveform)
     waveform = load_checked(args.waveform, amplifier)
