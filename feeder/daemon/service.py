@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import dataclasses
 import fcntl
 import logging
 import math
@@ -44,6 +43,7 @@ from feeder.daemon.located_calibration import LocatedCalibration
 from feeder.daemon.move_records import MoveRecords
 from feeder.daemon.quiet_window import QuietWindow
 from feeder.daemon.socket_server import SocketServer
+from feeder.daemon.status_report import plane_status, pose_target, waveforms_status
 from feeder.daemon.step_estimator import FORWARD
 from feeder.daemon.store import Store
 from feeder.drivers.amplifier import Amplifier
@@ -489,7 +489,7 @@ class Daemon:
             "position_state": "confirmed" if confirmed else "uncertain",
             "last_known_position_m": None if last_known is None else last_known.position_m,
             "target_m": None if job is None else job.target_m,
-            **_pose_target(job),
+            **pose_target(job),
             "fault": loop.fault or (None if loop.sensor_lost is None else f"sensor lost: {loop.sensor_lost}"),
             "reconnecting": reconnecting,
             "faults": faults,
@@ -501,42 +501,13 @@ class Daemon:
             "tolerance_m": loop.settings.tolerance_m,
             "travel_limits_m": [loop.settings.min_position_m, loop.settings.max_position_m],
             "estimates": loop.estimates_json(),
-            **self._plane_status(),
-            "predicted_steps_m": {k: m.predicted_step_m for k, m in self.setup.modes.items()},
-            "waveforms": {
-                k: {**dataclasses.asdict(m.settings), "predicted_step_band_m": list(m.predicted_band_m)}
-                for k, m in self.setup.modes.items()
-            },
+            **plane_status(loop, self.setup.parts),
+            **waveforms_status(self.setup.modes),
             "timing": loop.timing(),
             "sensor_latency_s": loop.policy.latency_s,
             "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
             **self.setup.info,
             **self._live_links(),
-        }
-
-    def _plane_status(self) -> dict[str, Any]:
-        """Every part's pose, the axes and the plane's travel and tolerances (pose control)."""
-        loop = self.loop
-        reading = loop.reading or ()
-        s = loop.settings
-        parts = []
-        for i, info in enumerate(self.setup.parts or ({"id": 1},), start=1):
-            pose = reading[i - 1] if i <= len(reading) else None
-            parts.append({**info, "id": i, "pose": None if pose is None else list(pose)})
-        steps_of = getattr(loop.policy.navigator, "axis_steps", None)
-        learned = steps_of(reading[0] if reading else None) if callable(steps_of) else {}
-        return {
-            "parts": parts,
-            "axes": {
-                axis: {
-                    "modes": {k: dataclasses.asdict(m.settings) for k, m in modes.items()},
-                    "applied": loop.policy.applied(axis),
-                    **learned.get(axis, {}),
-                }
-                for axis, modes in loop.policy.modes.items()
-            },
-            "tolerance_rad": s.tolerance_rad,
-            "travel_m": {"x": [s.min_position_m, s.max_position_m], "y": [s.min_y_m, s.max_y_m]},
         }
 
     def latest_image(self) -> Any:
@@ -549,14 +520,6 @@ class Daemon:
         """What may change while running (a respawned simulator's pid and endpoints)."""
         describe = getattr(self.links, "describe", None)
         return describe() if callable(describe) else {}
-
-
-def _pose_target(job: Job | None) -> dict[str, Any]:
-    """The running pose move's part and target [x_m, y_m, psi_rad] (None: "any angle"), or nothing."""
-    if job is None or job.target_pose is None:
-        return {}
-    x, y, psi = job.target_pose
-    return {"target_part": job.part, "target_pose": [x, y, None if job.angle_free else psi]}
 
 
 def _close(amplifiers: dict[str, Amplifier]) -> None:
