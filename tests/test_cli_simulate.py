@@ -4,11 +4,13 @@ the options' ranges (plant and ideal-plate physics: tests/test_plant.py, tests/t
 from __future__ import annotations
 
 import json
+import tomllib
 from pathlib import Path
 
 import pytest
 
 from feeder.cli import main
+from feeder.plant.stack import StackParameters
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "waveforms" / "paper-100hz-200vpp.toml"
@@ -163,8 +165,19 @@ def test_options_the_design_file_axis_rules_out_name_it(theta_design, capsys):
     err = refused(capsys, ["simulate", "--part", "500x500x50", "--waveform", str(theta_design), "--plot",
                            str(theta_design.with_suffix(".png"))])  # fmt: skip
     assert "--plot" in err and "[axis]" in err
-    err = refused(capsys, ["simulate", "--part", "500x500x50", "--waveform", str(theta_design), "--ideal"])
-    assert "--stroke-rad" in err and "[axis]" in err
+
+
+def test_an_ideal_theta_plate_takes_the_design_files_stroke_over_its_lever_arm(theta_design, capsys):
+    """`--ideal` with a θ design file asked for --stroke-rad: the file's stroke (m) over its
+    [axis] lever_arm_m (2 mm) is the plate's turn."""
+    base = ["simulate", "--part", "500x500x50", "--waveform", str(theta_design), "--ideal", "--periods", "3"]
+    derived = run_json(capsys, *base)
+    assert 1e-3 < derived["stroke_rad"] < 2e-2  # ~14 µm over 2 mm, not the metres themselves
+    design = tomllib.loads(theta_design.read_text())
+    full_m = StackParameters().gain_m_per_v * design["waveform"]["amplitude_vpp"]
+    full_rad = full_m / design["axis"]["lever_arm_m"]
+    given = run_json(capsys, *base, "--stroke-rad", repr(full_rad))
+    assert given["poses"] == derived["poses"] and given["stroke_rad"] == derived["stroke_rad"]
 
 
 @pytest.mark.parametrize("line, bad, field", [

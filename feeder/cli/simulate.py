@@ -307,12 +307,15 @@ def _sawtooth_parameters(args: argparse.Namespace, stroke: float | None) -> tupl
 
 
 def _strokes(args: argparse.Namespace) -> tuple[tuple[float, float, float], float, float, str]:
-    """Signed (S_x, S_y, S_θ), frequency, flyback, shape for the driven axis."""
-    if args.axis == "theta" and args.stroke_rad is None:
-        from_file = f" (from {args.waveform}'s [axis])" if getattr(args, "axis_from_file", False) else ""
-        raise InputError("--stroke-rad", f"required with --axis theta{from_file}")
-    stroke, frequency, flyback, shape, direction = _sawtooth_parameters(
-        args, args.stroke_rad if args.axis == "theta" else args.stroke_m)  # fmt: skip
+    """Signed (S_x, S_y, S_θ), frequency, flyback, shape for the driven axis; θ's stroke from
+    --stroke-rad, else --waveform's stroke over its θ lever arm ([axis] lever_arm_m)."""
+    if args.axis == "theta" and args.stroke_rad is None and args.waveform is None:
+        raise InputError("--stroke-rad", "required with --axis theta (or give --waveform)")
+    given = args.stroke_rad if args.axis == "theta" else args.stroke_m
+    if given is None and args.axis == "theta":  # the stack's full stroke (m) at the lever arm → rad
+        _, waveform, lever_arm_m = _planar_plant_drive(args)
+        given = StackParameters().gain_m_per_v * waveform.amplitude_vpp / lever_arm_m
+    stroke, frequency, flyback, shape, direction = _sawtooth_parameters(args, given)
     signed = stroke if direction == "forward" else -stroke
     strokes = [0.0, 0.0, 0.0]
     strokes[AXES.index(args.axis)] = signed
