@@ -54,7 +54,7 @@ from feeder.files import read_toml
 from feeder.parts import Part, Support
 from feeder.plant.amplifier import AmplifierLimits, resolve_amplifier
 from feeder.plant.ideal_plate import COSINE_PIECES
-from feeder.plant.plant import DEFAULT_SAMPLE_RATE_HZ
+from feeder.plant.plant import BYTES_PER_SAMPLE, DEFAULT_SAMPLE_RATE_HZ, MAX_PERIODS
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
 from feeder.surface.parameters import load_surface
@@ -78,13 +78,9 @@ DEFAULTS: dict[str, Any] = {
 _TEXT = ("flyback_shape", "part", "support", "surface")
 _INTEGER = ("seed",)
 OUTPUTS = ("breakaway_accel_m_s2", "step_mean_m", "step_std_m", "speed_m_s", "slip_fraction", "error")
-MAX_PERIODS = 10**6
-"""The most periods per point (the cap of ``feeder simulate --periods``)."""
 _BYTES_PER_POINT = 2048  # a point's dict, its result row and Parquet round trip (measured ~1 KiB)
 MAX_POINTS = MEMORY_BUDGET_BYTES // _BYTES_PER_POINT
 """The most points a sweep may have (1 048 576: the memory budget at ~2 KiB a point)."""
-# plant: traces and temporaries per sample; ideal: per interval of a row (both measured ~45)
-_BYTES_PER_SAMPLE = 64
 
 
 @dataclass(frozen=True)
@@ -175,13 +171,13 @@ def _check_evaluation_memory(
         floor = settings.amplifier.min_frequency_hz  # lower ones fail the amplifier check, unrun
         runnable = [freq["min"]] if isinstance(freq, dict) else [f for f in freq if f >= floor]
         lowest = max(min(runnable, default=floor), floor)
-        nbytes = (periods + 1) * round(DEFAULT_SAMPLE_RATE_HZ / lowest) * _BYTES_PER_SAMPLE
+        nbytes = (periods + 1) * round(DEFAULT_SAMPLE_RATE_HZ / lowest) * BYTES_PER_SAMPLE
         what = f"a {lowest:g} Hz plant point"
     else:
         rows = min(chunk_size, count)
         cosine = "half-cosine" in axes["flyback_shape"]
         intervals = COSINE_PIECES + 1 if cosine else 2
-        nbytes = rows * intervals * periods * _BYTES_PER_SAMPLE
+        nbytes = rows * intervals * periods * BYTES_PER_SAMPLE
         what = f"an ideal-model chunk of {rows} point{'' if rows == 1 else 's'}"
         what += " (half-cosine)" if cosine else ""
     if nbytes > MEMORY_BUDGET_BYTES:

@@ -284,7 +284,7 @@ def test_oversized_sweeps_are_refused_before_any_work(tmp_path, capsys, no_work,
 
 
 def test_sizes_within_the_limits_still_load(tmp_path):
-    from feeder.sweep_spec import MAX_PERIODS
+    from feeder.plant.plant import MAX_PERIODS
 
     ideal = load_spec(write(tmp_path, f"[sweep]\nmodel = 'ideal'\nperiods = {MAX_PERIODS}\n"))
     assert ideal.settings.periods == MAX_PERIODS and len(ideal.points) == 1

@@ -14,7 +14,8 @@ Exit codes (:func:`main`): 0 done; 1 the daemon refused or the move failed
 (:class:`~feeder.errors.DaemonRefused`, :class:`~feeder.errors.MoveFailed`, its
 reason on stderr); 2 bad input (:class:`~feeder.errors.InputError`, one line
 naming the field); 3 the daemon is unreachable or did not answer in time
-(:class:`~feeder.errors.DaemonUnreachable`, :class:`~feeder.errors.DaemonTimeout`).
+(:class:`~feeder.errors.DaemonUnreachable`, :class:`~feeder.errors.DaemonTimeout`); 141 stdout
+was closed by its reader (``| head``).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from collections.abc import Iterable, Sequence
 from typing import NoReturn
 
 from feeder.cli.arguments import refuse_overwriting_inputs
+from feeder.cli.output import exit_on_closed_stdout
 from feeder.errors import DaemonRefused, DaemonUnreachable, InputError, MoveFailed
 
 #: sub-command → (module in this package, one-line help), in ``feeder --help`` order
@@ -92,7 +94,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     prefix = f"feeder {args.command}"
     try:
         refuse_overwriting_inputs(parser, args)
-        return int(args.handler(args))
+        code = int(args.handler(args))
+        sys.stdout.flush()  # here, where a closed stdout can still be caught
+        return code
+    except BrokenPipeError:  # the reader went away (`feeder contact --table --json | head`)
+        exit_on_closed_stdout()
     except InputError as err:
         print(f"{prefix}: error: {err}", file=sys.stderr)
         return 2

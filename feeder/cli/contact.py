@@ -14,7 +14,7 @@ from feeder.cli.arguments import (
     part_from,
     surface_from,
 )
-from feeder.cli.output import closed_stdout_exits, print_json
+from feeder.cli.output import print_json
 from feeder.contact.breakaway import MIN_CONTACTS, ContactResult, contact
 from feeder.contact.resting_part import DEFAULT_PLACEMENTS
 from feeder.errors import InputError
@@ -44,7 +44,7 @@ def register(sub: Any) -> None:
         "(takes no --part, --support or --density)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(handler=closed_stdout_exits(run))
+    p.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-import argparse
-import functools
 import io
 import json
 import math
 import os
 import sys
-from collections.abc import Callable
 from typing import Any, NoReturn
 
 CLOSED_STDOUT_EXIT = 141
@@ -33,24 +30,6 @@ def exit_on_closed_stdout() -> NoReturn:
     raise SystemExit(CLOSED_STDOUT_EXIT)
 
 
-def closed_stdout_exits(
-    handler: Callable[[argparse.Namespace], int],
-) -> Callable[[argparse.Namespace], int]:
-    """Wrap a sub-command's handler so that a closed stdout ends it quietly (see
-    :func:`exit_on_closed_stdout`); stdout is flushed inside, where the error can be caught."""
-
-    @functools.wraps(handler)
-    def run(args: argparse.Namespace) -> int:
-        try:
-            code = handler(args)
-            sys.stdout.flush()
-        except BrokenPipeError:
-            exit_on_closed_stdout()
-        return code
-
-    return run
-
-
 def _plain(value: Any) -> Any:
     if isinstance(value, dict):
         return {str(k): _plain(v) for k, v in value.items()}
@@ -67,9 +46,5 @@ def _plain(value: Any) -> Any:
 
 
 def print_json(obj: dict[str, Any]) -> None:
-    """Print one JSON object (numpy values converted, NaN/inf as null); a closed stdout
-    (``| head``) exits quietly with status 141."""
-    try:
-        print(json.dumps(_plain(obj), indent=2, sort_keys=False), flush=True)
-    except BrokenPipeError:
-        exit_on_closed_stdout()
+    """Print one JSON object (numpy values converted, NaN/inf as null)."""
+    print(json.dumps(_plain(obj), indent=2, sort_keys=False))

@@ -16,7 +16,7 @@ from feeder.cli.arguments import (
     part_from,
     positive_float,
 )
-from feeder.cli.output import closed_stdout_exits, print_json
+from feeder.cli.output import print_json
 from feeder.planner import DEFAULT_MARGIN, StepPrediction, plan
 from feeder.plant.amplifier import AmplifierLimits, resolve_amplifier
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
@@ -80,7 +80,7 @@ def register(sub: Any) -> None:
         help="write the waveform with the prediction it was planned with (a design file)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(handler=closed_stdout_exits(run))
+    p.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:

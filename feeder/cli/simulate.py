@@ -48,14 +48,11 @@ from feeder.parts import Part
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.ideal_plate import linear_flyback_step, sawtooth_motion
 from feeder.plant.planar import PlanarPart, simulate
-from feeder.plant.plant import DEFAULT_SAMPLE_RATE_HZ, run_waveform
+from feeder.plant.plant import BYTES_PER_SAMPLE, DEFAULT_SAMPLE_RATE_HZ, MAX_PERIODS, run_waveform
 from feeder.plant.plate_motion import AXES, sawtooth
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, StickSlip
 from feeder.waveform import DIRECTIONS, Waveform, read_waveform_tables
-
-MAX_PERIODS = 10**6
-_BYTES_PER_SAMPLE = 64  # the plant's traces and temporaries, 8 float64 per sample
 
 
 def register(sub: Any) -> None:
@@ -206,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
             amplifier = file_amplifier(args.waveform)  # a design file's [amplifier], else the default
             waveform = load_checked(args.waveform, amplifier)
             samples = (args.periods + 1) * round(DEFAULT_SAMPLE_RATE_HZ / waveform.frequency_hz)
-            check_memory_budget("--periods", samples * _BYTES_PER_SAMPLE)
+            check_memory_budget("--periods", samples * BYTES_PER_SAMPLE)
             if not args.json:
                 print(f"simulating {args.periods} periods at 100 kS/s ...", file=sys.stderr)
             run_ = run_waveform(friction, waveform, args.periods, amplifier, scatter=args.scatter,

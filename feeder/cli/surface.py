@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from feeder.cli.arguments import allow_negative_values, float_in, input_path, output_path
-from feeder.cli.output import closed_stdout_exits, print_json
+from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure
 from feeder.surface.parameters import SurfaceParameters, implausible
@@ -91,7 +91,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--support", default="flat", help="flat or grooved, for --bem's nominal pressure")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(handler=closed_stdout_exits(run))
+    p.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:

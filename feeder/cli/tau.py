@@ -10,7 +10,7 @@ from typing import Any
 
 from feeder.cli.arguments import add_part_arguments, allow_negative_values, part_from, positive_float
 from feeder.cli.friction import add_curve_options, analyse_files
-from feeder.cli.output import closed_stdout_exits, print_json
+from feeder.cli.output import print_json
 from feeder.contact.breakaway import contact
 from feeder.contact.resting_part import DEFAULT_PLACEMENTS
 from feeder.contact.tau_pair import ADHESION_WORK_REL_BAND
@@ -60,7 +60,7 @@ def register(sub: Any) -> None:
     )
     add_curve_options(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(handler=closed_stdout_exits(run))
+    p.set_defaults(handler=run)
 
 
 def _forces(args: argparse.Namespace) -> tuple[list[float], list[str]]:

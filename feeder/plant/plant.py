@@ -26,6 +26,11 @@ from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters
 from feeder.waveform import Waveform
 
 DEFAULT_SAMPLE_RATE_HZ = 100e3
+MAX_PERIODS = 10**6
+"""The most periods one simulation runs (``feeder simulate --periods``, a sweep's ``periods``)."""
+BYTES_PER_SAMPLE = 64
+"""Memory a simulation holds per sample (the plant's traces and temporaries, 8 float64; the ideal
+plate's per interval of a row: both measured ~45), for the memory budget."""
 
 
 class Plant:
