@@ -8,10 +8,7 @@ from dataclasses import dataclass, field, replace
 
 import pytest
 
-from feeder.daemon.policy import (
-    COARSE,
-    FINE,
-    MAX_SETTLE_S,
+from feeder.daemon.jobs import (
     Burst,
     Command,
     Completion,
@@ -21,11 +18,13 @@ from feeder.daemon.policy import (
     Job,
     LoopSettings,
     Output,
-    Policy,
     SavePosition,
     Started,
     StepMode,
 )
+from feeder.daemon.line_navigator import COARSE, FINE
+from feeder.daemon.policy import Policy
+from feeder.daemon.sensor_latency import MAX_SETTLE_S
 from feeder.drivers.amplifier import DriveSettings
 
 MODES = {

@@ -12,7 +12,8 @@ import math
 from dataclasses import dataclass, field
 
 from feeder.daemon.jobs import Command, Completion, Decide, Finished, Job, LoopSettings, Started, StepMode
-from feeder.daemon.policy import COARSE, FINE, Policy
+from feeder.daemon.line_navigator import COARSE, FINE
+from feeder.daemon.policy import Policy
 from feeder.daemon.pose_navigator import PoseNavigator
 from feeder.drivers.amplifier import DriveSettings
 from feeder.pose import Pose, pose_error

@@ -199,7 +199,7 @@ PLANE_START_POSE = (0.8e-3, 0.4e-3, 0.2)
 PLANE_SETTLE_S = 0.1
 """After a burst, wait at least this long before reading the part: the camera's frames arrive
 (exposure, JPEG, HTTP, decoding, locating) 0.05–0.15 s after what they show, and the policy
-waits 1.25 × the latency it sees when that is longer (:data:`~feeder.daemon.policy.LATENCY_MARGIN`).
+waits 1.25 × the latency it sees when that is longer (:data:`~feeder.daemon.sensor_latency.LATENCY_MARGIN`).
 At 0.2 s and two frames averaged the demo's five poses took 37 s; at 0.1 s and one frame, 23 s."""
 PLANE_AVERAGE_FRAMES = 1
 """Frames averaged per measurement (15 frames/s; one frame's noise is ~0.05 µm, 0.01°, a

@@ -33,9 +33,7 @@ import numpy as np
 from feeder.daemon.collector import TickCollector
 from feeder.daemon.decision_worker import DecisionWorker
 from feeder.daemon.executor import AmplifierExecutor, RecordWriter
-from feeder.daemon.policy import (
-    COARSE,
-    FINE,
+from feeder.daemon.jobs import (
     Burst,
     Command,
     Decide,
@@ -45,14 +43,15 @@ from feeder.daemon.policy import (
     Job,
     JobResult,
     LoopSettings,
-    Navigator,
     Output,
-    Policy,
     Reading,
     SavePosition,
     Started,
     StepMode,
 )
+from feeder.daemon.line_navigator import COARSE, FINE
+from feeder.daemon.navigator import Navigator
+from feeder.daemon.policy import Policy
 from feeder.daemon.quiet_window import QuietWindow, guard_for
 from feeder.daemon.step_estimator import StepEstimate
 from feeder.drivers.amplifier import Amplifier

@@ -1,8 +1,8 @@
 """The I/O half of the loop: amplifier round trips and record writes, off the tick's thread.
 
-:class:`AmplifierExecutor` runs the policy's :class:`~feeder.daemon.policy.Command`s
+:class:`AmplifierExecutor` runs the policy's :class:`~feeder.daemon.jobs.Command`s
 on a worker thread, one at a time and in order, and reports each as a
-:class:`~feeder.daemon.policy.Completion`.  A ``stop`` jumps the queue: it
+:class:`~feeder.daemon.jobs.Completion`.  A ``stop`` jumps the queue: it
 drops the commands not yet started and goes out next (on a serial link it
 still waits for the one round trip in flight, never for a burst: bursts end
 by the clock, ``stepw`` is only sent once N/f has passed).
@@ -20,7 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 
-from feeder.daemon.policy import Command, Completion, StepMode
+from feeder.daemon.jobs import Command, Completion, StepMode
 from feeder.drivers.amplifier import Amplifier, AmplifierError, AmplifierLinkLost
 from feeder.errors import FeederError
 

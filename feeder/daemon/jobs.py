@@ -38,7 +38,7 @@ class StepMode:
 
 VISIBLE_BANDS = 3.0
 """A burst expected to move a part by this many settle bands (m; or tolerances, rad) must show
-its motion in the frames before it is measured (:meth:`~feeder.daemon.policy.Navigator.expects_motion`)."""
+its motion in the frames before it is measured (:meth:`~feeder.daemon.navigator.Navigator.expects_motion`)."""
 
 
 @dataclass(frozen=True)
@@ -260,6 +260,32 @@ class Job:
         self.start_pose: Pose | None = None
         self.bursts_per_axis: dict[str, int] = {}
         self.steps_estimated = False
+
+    def ended(self, status: str, reason: str, reached: Pose | None, now_s: float,
+              estimates: dict[str, dict[str, float]], symmetry_rad: float) -> JobResult:  # fmt: skip
+        """Its result: ended with ``status`` at loop time ``now_s``, the part at ``reached``."""
+        return JobResult(
+            kind=self.kind,
+            status=status,
+            reason=reason,
+            target_m=self.target_m,
+            start_m=self.start_m,
+            reached_m=None if reached is None else reached[0],
+            steps=self.steps,
+            bursts=self.bursts,
+            duration_s=max(0.0, now_s - self.started_s),
+            estimates=estimates,
+            trace=self.trace,
+            steps_estimated=self.steps_estimated,
+            part=self.part,
+            target_pose=self.target_pose,
+            start_pose=self.start_pose,
+            reached_pose=reached,
+            symmetry_rad=symmetry_rad,
+            pose_trace=self.pose_trace,
+            bursts_per_axis=self.bursts_per_axis,
+            angle_free=self.angle_free,
+        )
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,7 @@ def mean_reading(samples: list[Reading]) -> Reading:
 class LineNavigator:
     """Decisions along the x axis of part 1 (see the module doc).
 
-    modes: ``"coarse"``/``"fine"`` → :class:`~feeder.daemon.policy.StepMode`;
+    modes: ``"coarse"``/``"fine"`` → :class:`~feeder.daemon.jobs.StepMode`;
     estimates: learned steps to restore, keyed ``"mode/direction"``.
     """
 

@@ -43,10 +43,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 from feeder.daemon.jobs import (
-    COMMANDS,
     Burst,
     Command,
     Completion,
@@ -63,72 +62,12 @@ from feeder.daemon.jobs import (
     Started,
     StepMode,
 )
-from feeder.daemon.line_navigator import COARSE, FINE, LineNavigator, mean_reading
+from feeder.daemon.line_navigator import LineNavigator, mean_reading
+from feeder.daemon.navigator import Navigator, part_pose
+from feeder.daemon.sensor_latency import MAX_SETTLE_S, SensorLatency
 from feeder.daemon.step_estimator import FORWARD, StepEstimate
-from feeder.pose import Pose
-
-__all__ = [
-    "COARSE",
-    "COMMANDS",
-    "FINE",
-    "STATES",
-    "Burst",
-    "Command",
-    "Completion",
-    "Decide",
-    "Decision",
-    "Fault",
-    "Finished",
-    "Job",
-    "JobResult",
-    "LoopSettings",
-    "Navigator",
-    "Output",
-    "Policy",
-    "Reading",
-    "SavePosition",
-    "Started",
-    "StepMode",
-]
 
 STATES = ("idle", "moving", "settling", "holding", "fault")
-LATENCY_BURSTS = 8
-"""The sensor's latency is the longest seen over this many bursts ..."""
-LATENCY_MARGIN = 1.25
-"""... times this margin; a burst's latency: from its first step to the first reading that shows
-the part moved by more than the tolerance (a camera's frames arrive after exposure, encoding,
-transfer, decoding and locating: on a loaded machine longer than ``settle_s``)."""
-MAX_SETTLE_S = 3.0
-"""The longest wait after a burst, whatever the latency seen."""
-
-
-class Navigator(Protocol):
-    """Decides where a job steps next (see :class:`~feeder.daemon.line_navigator.LineNavigator`)."""
-
-    axes: tuple[str, ...]
-
-    def prepare(self, job: Job, reading: Reading | None) -> str | None: ...
-
-    def outside(self, reading: Reading) -> str | None: ...
-
-    def settled(self, recent: list[Reading]) -> bool: ...
-
-    def learn(self, burst: Burst, learnable: bool, before: Reading, after: Reading) -> bool: ...
-
-    def expects_motion(self, burst: Burst, reading: Reading) -> bool: ...
-
-    def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]: ...
-
-    def reached(self, job: Job, reading: Reading) -> None: ...
-
-    def estimates(self) -> dict[str, StepEstimate]: ...
-
-    def estimates_json(self) -> dict[str, Any]: ...
-
-
-def _part_pose(job: Job, reading: Reading) -> Pose:
-    """The job's part in ``reading`` (the last one seen if the camera sees fewer parts)."""
-    return reading[min(job.part, len(reading)) - 1]
 
 
 @dataclass
@@ -186,7 +125,7 @@ class Policy:
         self._enabled = False
         self._last_direction: dict[str, str] = {}  # axis → direction of its last burst
         self._settle_until = 0.0
-        self._latencies: list[float] = []  # the last LATENCY_BURSTS bursts' (s)
+        self._latency = SensorLatency()
         self._samples: list[Reading] = []
         self._measured: _Burst | None = None
         self._deciding: Decide | None = None  # asked, not yet answered
@@ -199,12 +138,11 @@ class Policy:
 
     @property
     def latency_s(self) -> float:
-        """The sensor's latency as seen (s): the longest over the last :data:`LATENCY_BURSTS`
-        bursts from a burst's start to the first reading that shows the part moved; 0 before."""
-        return max(self._latencies, default=0.0)
+        """The sensor's latency as seen (s; :class:`~feeder.daemon.sensor_latency.SensorLatency`)."""
+        return self._latency.latency_s
 
     def _settle_s(self) -> float:
-        return min(MAX_SETTLE_S, max(self.settings.settle_s, LATENCY_MARGIN * self.latency_s))
+        return self._latency.settle_s(self.settings.settle_s)
 
     def applied(self, axis: str) -> str | None:
         """The waveform mode loaded on ``axis`` (None: none since the link opened)."""
@@ -256,7 +194,7 @@ class Policy:
         job = self.job
         if job is None:
             return
-        part = _part_pose(job, reading)
+        part = part_pose(job, reading)
         job.trace.append((arrival_s, part[0]))
         if job.target_pose is not None:
             job.pose_trace.append((arrival_s, part))
@@ -267,7 +205,7 @@ class Policy:
                 continue
             if not self.navigator.settled([burst.before, reading]):
                 burst.moved_seen = True
-                self._latencies = [*self._latencies, arrival_s - burst.started_s][-LATENCY_BURSTS:]
+                self._latency.seen(arrival_s - burst.started_s)
                 if burst is self._measured and self.state == "settling":  # now it is known
                     self._settle_until = burst.ended_s + self._settle_s()
 
@@ -317,7 +255,7 @@ class Policy:
             self._measured = burst
             burst.ended_s = done.at_s
             self._enter_settling(done.at_s)
-            if not self._latencies and not burst.moved_seen:  # the sensor's latency is unknown:
+            if not self._latency.known and not burst.moved_seen:  # the sensor's latency is unknown:
                 self._settle_until = done.at_s + MAX_SETTLE_S  # wait to see the burst's motion
         elif kind == "stop":
             if burst is not None and self.job is not None:
@@ -486,7 +424,7 @@ class Policy:
         self._samples = []
         self._out.append(SavePosition(reading[0][0], reading))
         if job.start_m is None:
-            job.start_pose = _part_pose(job, reading)
+            job.start_pose = part_pose(job, reading)
             job.start_m = job.start_pose[0]
         if b is not None:
             if self.navigator.learn(b.burst, b.learnable and steady, b.before, reading):
@@ -578,29 +516,9 @@ class Policy:
     def _finish(self, job: Job, status: str, reason: str, reached: Reading | None) -> None:
         now = self._now
         reached = reached if reached is not None else self.reading
-        pose = None if reached is None else _part_pose(job, reached)
-        result = JobResult(
-            kind=job.kind,
-            status=status,
-            reason=reason,
-            target_m=job.target_m,
-            start_m=job.start_m,
-            reached_m=None if pose is None else pose[0],
-            steps=job.steps,
-            bursts=job.bursts,
-            duration_s=max(0.0, now - job.started_s),
-            estimates=self.estimates_json(),
-            trace=job.trace,
-            steps_estimated=job.steps_estimated,
-            part=job.part,
-            target_pose=job.target_pose,
-            start_pose=job.start_pose,
-            reached_pose=pose,
-            symmetry_rad=getattr(self.navigator, "symmetry_rad", 0.0),
-            pose_trace=job.pose_trace,
-            bursts_per_axis=job.bursts_per_axis,
-            angle_free=job.angle_free,
-        )
+        pose = None if reached is None else part_pose(job, reached)
+        result = job.ended(status, reason, pose, now, self.estimates_json(),
+                           getattr(self.navigator, "symmetry_rad", 0.0))  # fmt: skip
         self.job = None
         self._burst = None
         self._pending = None

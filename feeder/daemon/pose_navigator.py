@@ -2,7 +2,7 @@
 
 :class:`PoseNavigator` adapts the pose planner (:mod:`feeder.pose_planner`,
 pure: poses in, an axis burst out) to the policy's navigator interface
-(:class:`~feeder.daemon.policy.Navigator`).  Targets given in part (any of
+(:class:`~feeder.daemon.navigator.Navigator`).  Targets given in part (any of
 ``x_m``, ``y_m``, ``angle_rad``) keep the part's current value for the rest;
 a one-axis move (``target_m``/``by_m``) is a move of part 1's x.  Parts
 brought to a target stay *held* there: a later move of another part keeps

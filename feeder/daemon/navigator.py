@@ -1,0 +1,43 @@
+"""What the policy asks of a navigator: where a job steps next (:class:`Navigator`).
+
+:class:`~feeder.daemon.line_navigator.LineNavigator` steps along one axis,
+:class:`~feeder.daemon.pose_navigator.PoseNavigator` in x, y and θ; the policy
+(:mod:`feeder.daemon.policy`) only measures, steps, stops and records.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+from feeder.daemon.jobs import Burst, Job, Reading
+from feeder.daemon.step_estimator import StepEstimate
+from feeder.pose import Pose
+
+
+class Navigator(Protocol):
+    """Decides where a job steps next (see :class:`~feeder.daemon.line_navigator.LineNavigator`)."""
+
+    axes: tuple[str, ...]
+
+    def prepare(self, job: Job, reading: Reading | None) -> str | None: ...
+
+    def outside(self, reading: Reading) -> str | None: ...
+
+    def settled(self, recent: list[Reading]) -> bool: ...
+
+    def learn(self, burst: Burst, learnable: bool, before: Reading, after: Reading) -> bool: ...
+
+    def expects_motion(self, burst: Burst, reading: Reading) -> bool: ...
+
+    def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]: ...
+
+    def reached(self, job: Job, reading: Reading) -> None: ...
+
+    def estimates(self) -> dict[str, StepEstimate]: ...
+
+    def estimates_json(self) -> dict[str, Any]: ...
+
+
+def part_pose(job: Job, reading: Reading) -> Pose:
+    """The job's part in ``reading`` (the last one seen if the camera sees fewer parts)."""
+    return reading[min(job.part, len(reading)) - 1]
