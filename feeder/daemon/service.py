@@ -19,7 +19,6 @@ import collections
 import contextlib
 import fcntl
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable
@@ -42,6 +41,7 @@ from feeder.daemon.executor import per_axis
 from feeder.daemon.located_calibration import LocatedCalibration
 from feeder.daemon.move_records import MoveRecords
 from feeder.daemon.quiet_window import QuietWindow
+from feeder.daemon.request_fields import RequestFieldError, finite, integer
 from feeder.daemon.socket_server import SocketServer
 from feeder.daemon.status_report import plane_status, pose_target, waveforms_status
 from feeder.daemon.step_estimator import FORWARD
@@ -351,20 +351,6 @@ class Daemon:
             }
         return handler(request)
 
-    @staticmethod
-    def _finite(request: dict[str, Any], key: str) -> float | None:
-        value = request.get(key)
-        if value is None:
-            return None
-        try:
-            number = float(value) if not isinstance(value, bool) else math.nan
-        except (TypeError, ValueError, OverflowError):
-            number = math.nan
-        if not isinstance(value, (int, float)) or not math.isfinite(number):
-            unit = "radians" if key.endswith("_rad") else "metres"
-            raise ValueError(f"{key} must be a finite number of {unit}, got {_brief(value)}")
-        return number
-
     def _run_job(self, job: Job, request: dict[str, Any]) -> dict[str, Any]:
         queue = request.get("queue") is True
         with self._submitting:
@@ -390,14 +376,12 @@ class Daemon:
 
     def _cmd_move(self, request: dict[str, Any]) -> dict[str, Any]:
         try:
-            target = self._finite(request, "target_m")
-            by = self._finite(request, "by_m")
-            pose = {k: v for k in POSE_KEYS if (v := self._finite(request, k)) is not None}
-        except ValueError as err:
+            target = finite(request, "target_m")
+            by = finite(request, "by_m")
+            pose = {k: v for k in POSE_KEYS if (v := finite(request, k)) is not None}
+            part = integer(request, "part", 1, 1)
+        except RequestFieldError as err:
             return {"ok": False, "error": str(err)}
-        part = request.get("part", 1)
-        if not isinstance(part, int) or isinstance(part, bool) or part < 1:
-            return {"ok": False, "error": f"part must be a part id (an integer >= 1), got {_brief(part)}"}
         if pose:
             if target is not None or by is not None:
                 return {"ok": False, "error": "give a pose (x_m, y_m, angle_rad) or target_m/by_m, not both"}
@@ -414,9 +398,10 @@ class Daemon:
         return self._run_job(self._new_job("move", target, by, part=part), request)
 
     def _cmd_calibrate(self, request: dict[str, Any]) -> dict[str, Any]:
-        steps = request.get("steps", CALIBRATION_STEPS)
-        if not isinstance(steps, int) or isinstance(steps, bool) or not 2 <= steps <= 10_000:
-            return {"ok": False, "error": f"steps must be an integer in [2, 10000], got {steps!r}"}
+        try:
+            steps = integer(request, "steps", CALIBRATION_STEPS, 2, 10_000)
+        except RequestFieldError as err:
+            return {"ok": False, "error": str(err)}
         allowed = self._calibration_room()
         if isinstance(allowed, str):
             return {"ok": False, "error": allowed}
@@ -455,9 +440,10 @@ class Daemon:
         return {"ok": True, "stopped": stopped, "dequeued": len(queued)}
 
     def _cmd_history(self, request: dict[str, Any]) -> dict[str, Any]:
-        limit = request.get("limit", 100)
-        if not isinstance(limit, int) or isinstance(limit, bool) or not 1 <= limit <= 100_000:
-            return {"ok": False, "error": f"limit must be an integer in [1, 100000], got {limit!r}"}
+        try:
+            limit = integer(request, "limit", 100, 1, 100_000)
+        except RequestFieldError as err:
+            return {"ok": False, "error": str(err)}
         return {"ok": True, "moves": self.store.moves(limit)}
 
     def _cmd_shutdown(self, request: dict[str, Any]) -> dict[str, Any]:
@@ -530,12 +516,3 @@ def _close(amplifiers: dict[str, Amplifier]) -> None:
         return
     for amplifier in amplifiers.values():
         amplifier.close()
-
-
-def _brief(value: Any) -> str:
-    """``repr`` of a request value, cut short (a 4000-digit integer is no error message)."""
-    try:
-        text = repr(value)
-    except ValueError:  # an integer beyond the digit limit of str()
-        return f"<{type(value).__name__} too large to print>"
-    return text if len(text) <= 40 else text[:37] + "..."

@@ -1,0 +1,51 @@
+"""The fields of a client's request object (:mod:`feeder.daemon.client`), checked.
+
+Each reader returns the field's value or raises :class:`RequestFieldError`,
+whose message is the reply's ``error``: it names the field and what arrived
+(cut short by :func:`brief`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from feeder.errors import FeederError
+
+
+class RequestFieldError(FeederError):
+    """A request field is missing its type or range; ``str(err)`` names it."""
+
+
+def brief(value: Any) -> str:
+    """``repr`` of a request value, cut short (a 4000-digit integer is no error message)."""
+    try:
+        text = repr(value)
+    except ValueError:  # an integer beyond the digit limit of str()
+        return f"<{type(value).__name__} too large to print>"
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def finite(request: dict[str, Any], key: str) -> float | None:
+    """``request[key]`` as a finite number (m, or rad for a ``_rad`` key); None when absent."""
+    value = request.get(key)
+    if value is None:
+        return None
+    try:
+        number = float(value) if not isinstance(value, bool) else math.nan
+    except (TypeError, ValueError, OverflowError):
+        number = math.nan
+    if not isinstance(value, (int, float)) or not math.isfinite(number):
+        unit = "radians" if key.endswith("_rad") else "metres"
+        raise RequestFieldError(f"{key} must be a finite number of {unit}, got {brief(value)}")
+    return number
+
+
+def integer(request: dict[str, Any], key: str, default: int, low: int, high: int | None = None) -> int:
+    """``request[key]`` as an integer in [low, high] (no upper bound: None); ``default`` when absent."""
+    value = request.get(key, default)
+    whole = isinstance(value, int) and not isinstance(value, bool)
+    if not whole or value < low or (high is not None and value > high):
+        bounds = f">= {low}" if high is None else f"in [{low}, {high}]"
+        raise RequestFieldError(f"{key} must be an integer {bounds}, got {brief(value)}")
+    return value
