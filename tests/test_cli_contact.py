@@ -53,6 +53,18 @@ def test_the_smallest_part_gets_its_breakaway_without_the_placements_band(
     assert any("no A_r band from resting placements" in w for w in data["warnings"])
 
 
+@pytest.mark.parametrize(("part", "accel"), [("5000x5000x50", 105.25), ("100000x100000x10000", 95.49)])
+def test_large_parts_get_gw_without_sampling_their_placements(capsys: pytest.CaptureFixture[str],
+                                                              part: str, accel: float) -> None:  # fmt: skip
+    """Parts beyond 500 contacts (a 5 mm part: 890; their placements' draw needed 2.2 GiB and more,
+    exit 2 for sides the CLI takes) get GW's figures and say why the band is missing."""
+    data = run_json(capsys, "--part", part)
+    assert data["contacts"] > 500
+    assert data["breakaway_accel_m_s2"] == pytest.approx(accel, rel=2e-3)  # 10 mm thick: more pressure
+    assert data["real_area_band_m2"] is None
+    assert any("contacts under this part, beyond the 500" in w for w in data["warnings"])
+
+
 def test_decimal_part_and_tau_option(capsys: pytest.CaptureFixture[str]) -> None:
     data = run_json(capsys, "--part", "123.5x80x49.9", "--tau", "10e9")
     assert data["mass_kg"] == pytest.approx(2330 * 123.5e-6 * 80e-6 * 49.9e-6)
