@@ -73,6 +73,9 @@ def test_height_channel_is_chosen_and_named_channels_work() -> None:
     assert retrace.channel == "HeightRetrace"
     with pytest.raises(InputError, match="not a height map"):
         read_height_map(AFM / "di-1.di", channel="Phase")  # unit degrees, not a length
+    for other in ("AmplitudeTrace", "PhaseRetrace", "NapPotentialTrace"):  # the .ibw says metres for each
+        with pytest.raises(InputError, match=f"channel '{other}' of spot_1-1000nm.ibw is not a height map"):
+            read_height_map(AFM / "spot_1-1000nm.ibw", channel=other)
     with pytest.raises(InputError, match="no channel"):
         read_height_map(AFM / "di-5.di", channel="Nope")
 

@@ -162,11 +162,19 @@ def _read_instrument(path: Path, channel: str | None) -> HeightMap:
     return _checked(heights * factor, pixel, path, str(info.name))
 
 
+_NOT_HEIGHT_NAMES = ("amplitude", "phase", "potential", "deflection", "current", "friction", "lateral",
+                     "error", "frequency", "dissipation", "adhesion", "modulus", "force")  # fmt: skip
+"""Channel names of other quantities: Asylum's .ibw files (SurfaceTopography's reader) label every
+channel in metres, e.g. AmplitudeTrace beside HeightTrace."""
+
+
 def _choose_channel(reader: Any, path: Path, channel: str | None) -> Any:
     channels = list(reader.channels)
 
     def is_height(info: Any) -> bool:
-        return isinstance(info.unit, str) and info.unit in _length_unit_names() and info.dim == 2
+        named = str(info.name).lower()
+        return (isinstance(info.unit, str) and info.unit in _length_unit_names() and info.dim == 2
+                and not any(word in named for word in _NOT_HEIGHT_NAMES))  # fmt: skip
 
     if channel is not None:
         chosen = None
