@@ -25,8 +25,12 @@ Margins (DESIGN §4, for a sawtooth of stroke S, rise t_r, flyback t_f):
   ≥ k·a_break at the *upper* end of the band (the part must break loose even
   if τ is high).  t_f is the current-limited flyback, but never shorter than
   the stack's response time 1/(2 f_n) + R_out·C.
-- ramp acceleration ``2S/t_r²``: the least peak acceleration of any motion
-  covering S in t_r; required ≤ a_break/k at the *lower* end of the band.
+- ramp acceleration ``2S/t_r²``: the constant acceleration that covers S in t_r
+  from rest, a bound on how fast a rise may be (the ideal rise itself runs at
+  constant velocity); required ≤ a_break/k at the *lower* end of the band.  It is
+  not the plate's peak during the rise: the stack rings after each flyback (at
+  the default 30 kHz, |a| up to tens of a_break for ~0.1–0.2 ms), which is left
+  to the plant model: the step prediction includes it.
 
 Choice: for each allowed frequency the amplitudes meeting both margins are
 found on a grid (closed forms); the frequency with the shortest duration wins
