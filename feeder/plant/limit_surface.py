@@ -19,8 +19,8 @@ Rectangles are integrated in closed form about the instantaneous centre of
 rotation ρ_c = ẑ×w/ω (corner functions, checked against quadrature in the
 tests); when ρ_c lies far outside the patch (|ω|·r_patch < 10⁻³|w|) a series in
 ω/|w| to first order replaces them (relative error ≲ 10⁻⁶; exact for ω = 0).
-Discs use a polar Gauss quadrature (relative error ≲ 10⁻⁴ when ρ_c lies on the
-disc; exact by symmetry at the centre and for pure translation).
+Discs use a polar Gauss quadrature (relative error ≲ 2·10⁻⁴ when ρ_c lies on the
+disc, 1.3·10⁻⁴ against dblquad on a 300 µm disc; exact by symmetry at the centre and for pure translation).
 """
 
 from __future__ import annotations
