@@ -289,6 +289,25 @@ def test_an_amplifier_refusal_ends_the_job_and_checks_the_output_next_time() -> 
     assert rig.run_until_command("enable").kind == "enable"
 
 
+def test_an_amplifier_that_refuses_stop_is_a_lost_link() -> None:
+    """A unit answering ERROR to stop may still be playing: the job ends as a fault and the link
+    is reported lost (the daemon grounds and reconnects); the loop was wedged 'moving' before."""
+    rig = Rig()
+    _, step = to_first_burst(rig, 900e-6)
+    rig.complete(step, counter=1000)
+    rig.tick()
+    rig.policy.request_stop()
+    stop = next(o for o in rig.tick() if isinstance(o, Command) and o.kind == "stop")
+    rig.complete(stop, error="Internal failure")
+    rig.tick()
+    assert rig.policy.state == "fault"
+    assert rig.finished().result.status == "fault"
+    assert "refused stop: Internal failure" in rig.finished().result.reason
+    faults = [o for o in rig.outputs if isinstance(o, Fault)]
+    assert [f.link for f in faults] == ["amplifier"]
+    assert rig.policy.submit(Job("move", target_m=0.0), rig.now) is not None
+
+
 def test_sensor_loss_stops_the_output_and_faults() -> None:
     rig = Rig()
     to_first_burst(rig)

@@ -229,7 +229,9 @@ class Policy:
         if done.error is not None:
             if done.link_lost:
                 self._link_lost(done.error)
-            elif kind != "stop":
+            elif kind == "stop":  # the output may still play: a link that cannot stop is lost
+                self._link_lost(f"the amplifier refused stop: {done.error}")
+            else:
                 self._enabled = False  # the next job checks the output's state again
                 self._applied = {}
                 if self.job is not None:
