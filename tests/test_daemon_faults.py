@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import shutil
 import signal
@@ -18,6 +19,8 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -161,27 +164,40 @@ def test_fuzzed_request_lines_always_get_a_json_reply(running: DaemonProcess, da
 
 
 class _GarbageSensor(FakeSensor):
-    """Real frames, then NaN."""
+    """Real frames, then ``bad`` ones."""
 
-    def __init__(self, world: FakeWorld, good: int) -> None:
+    def __init__(self, world: FakeWorld, good: int, bad: Callable[[PositionSample], PositionSample]) -> None:
         super().__init__(world)
         self.good = good
+        self.bad = bad
 
     def read(self, timeout_s: float = 1.0) -> PositionSample:
         sample = super().read(timeout_s)
-        if self.sequence > self.good:
-            return PositionSample(sample.time_s, float("nan"), sample.sequence)
-        return sample
+        return self.bad(sample) if self.sequence > self.good else sample
 
 
-def test_a_nan_position_is_a_sensor_fault_and_nothing_invalid_is_stored() -> None:
+GARBAGE = {
+    "nan position": (lambda s: replace(s, position_m=float("nan")), "an impossible position: nan"),
+    "huge position": (lambda s: replace(s, position_m=1e308), "an impossible position: 1e+308"),
+    "nan pose": (lambda s: replace(s, poses=((s.position_m, float("nan"), 0.0),)), "part 1's y: nan"),
+    "huge angle": (lambda s: replace(s, poses=((s.position_m, 0.0, 1e18),)), "part 1's angle: 1e+18"),
+}
+
+
+@pytest.mark.parametrize("garbage", GARBAGE.values(), ids=GARBAGE.keys())
+def test_an_impossible_reading_is_a_sensor_fault_and_nothing_invalid_is_stored(
+    garbage: tuple[Callable[[PositionSample], PositionSample], str],
+) -> None:
+    """A NaN or off-plate reading (1e308 m was learned as an infinite step and stored; a NaN pose
+    broke every status reply) stops the move as a sensor fault; nothing of it is saved."""
+    bad, message = garbage
     world = FakeWorld(TRUE, scatter=0.02, noise_m=0.05e-6, seed=3)
     saved: list[float] = []
     faults: list[str] = []
     amp = FakeAmplifier(world)
     loop = ControlLoop(
         amp,
-        _GarbageSensor(world, good=60),
+        _GarbageSensor(world, good=60, bad=bad),
         MODES,
         SETTINGS,
         on_position=lambda x, poses: saved.append(x),
@@ -194,12 +210,14 @@ def test_a_nan_position_is_a_sensor_fault_and_nothing_invalid_is_stored() -> Non
         assert job.done.wait(20)
         assert loop.position_m is None and loop.sensor_lost is not None
         refused = loop.submit(Job("move", target_m=0.0))
+        estimates = loop.estimates()
     finally:
         loop.shutdown()
     assert job.result is not None and job.result.status == "fault"
-    assert "non-finite" in job.result.reason
+    assert message in job.result.reason
     assert refused is not None and "sensor" in refused
-    assert saved and all(x == x for x in saved)
+    assert saved and all(abs(x) < 1e-2 for x in saved)
+    assert all(math.isfinite(e.step_m) for e in estimates.values())
     assert not world.moving(time.monotonic())  # stopped, or the burst was over anyway
 
 

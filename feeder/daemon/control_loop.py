@@ -129,6 +129,25 @@ def percentile_of_sorted(values: np.ndarray, q: float) -> float:
     return float(values[low] + (rank - low) * (values[high] - values[low]))
 
 
+PLAUSIBLE_M = 1.0
+"""A position or pose coordinate beyond this (m) is no reading of a part on a feeder's plate."""
+PLAUSIBLE_RAD = 100.0
+"""An angle beyond this (rad) is no camera's reading (they give (−π, π])."""
+
+
+def implausible(sample: PositionSample) -> str | None:
+    """What is wrong with ``sample``'s numbers (non-finite, or off any plate), or None: such a
+    reading is a faulty sensor, never a position to learn from or store."""
+    values = [("position", sample.position_m, PLAUSIBLE_M)]
+    for part, (x, y, psi) in enumerate(sample.poses, start=1):
+        values += [(f"part {part}'s x", x, PLAUSIBLE_M), (f"part {part}'s y", y, PLAUSIBLE_M),
+                   (f"part {part}'s angle", psi, PLAUSIBLE_RAD)]  # fmt: skip
+    for name, value, bound in values:
+        if not (math.isfinite(value) and abs(value) <= bound):
+            return f"an impossible {name}: {value!r}"
+    return None
+
+
 class SensorFeed:
     """Reads the sensor in its own thread so a slow frame never stalls the tick."""
 
@@ -151,8 +170,9 @@ class SensorFeed:
                 if not self._closing:
                     self.lost = str(err) or type(err).__name__
                 return
-            if not math.isfinite(sample.position_m):
-                self.lost = f"the sensor reported a non-finite position {sample.position_m!r}"
+            wrong = implausible(sample)
+            if wrong is not None:
+                self.lost = f"the sensor reported {wrong}"
                 return
             with self._lock:
                 self._pending.append((self._clock(), sample))

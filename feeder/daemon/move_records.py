@@ -39,15 +39,14 @@ class MoveRecords:
             for direction in (FORWARD, BACKWARD):
                 name = f"{mode}/{direction}"
                 cal = self.store.calibration(self._key(name))
-                if cal is not None:
-                    out[name] = StepEstimate(
-                        cal.step_m,
-                        cal.variance_m2,
-                        cal.steps,
-                        cal.offset_m,
-                        cal.offset_variance_m2,
-                        cal.covariance_m2,
-                    )
+                if cal is None:
+                    continue
+                kept = StepEstimate(cal.step_m, cal.variance_m2, cal.steps, cal.offset_m,
+                                    cal.offset_variance_m2, cal.covariance_m2)  # fmt: skip
+                if kept.finite:
+                    out[name] = kept
+                else:
+                    log.warning("the stored step for %s is not a number (%r): learning it again", name, kept)
         return out
 
     def restored_pose_response(self) -> dict[str, Any] | None:
@@ -61,7 +60,9 @@ class MoveRecords:
             return
         now = time.time()
         for name, est in loop.estimates().items():
-            if est.steps > 0:
+            if not est.finite:
+                log.error("not stored: the step learned for %s is not a number (%r)", name, est)
+            elif est.steps > 0:
                 self.store.save_calibration(
                     Calibration(
                         self._key(name),

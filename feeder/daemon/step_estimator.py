@@ -47,6 +47,12 @@ class StepEstimate:
         return cls(step_m, step_std_m**2, 0, 0.0, (0.5 * step_m) ** 2, 0.0)
 
     @property
+    def finite(self) -> bool:
+        """Whether every figure is a number (a step learned from a broken reading may not be)."""
+        return all(math.isfinite(v) for v in (self.step_m, self.variance_m2, self.offset_m,
+                                              self.offset_variance_m2, self.covariance_m2))  # fmt: skip
+
+    @property
     def std_m(self) -> float:
         return math.sqrt(self.variance_m2)
 
