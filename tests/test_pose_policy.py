@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import pytest
+
 from feeder.daemon.jobs import Command, Completion, Decide, Finished, Job, LoopSettings, Started, StepMode
 from feeder.daemon.line_navigator import COARSE, FINE
 from feeder.daemon.policy import Policy
@@ -198,6 +200,23 @@ def test_targets_outside_the_travel_and_parts_leaving_it() -> None:
     done = plane.run(Job("move", pose_target={"x_m": 120e-6}))
     assert done.result.status == "limit" and "part 2" in done.result.reason
     assert not [c for c in plane.commands if c.kind == "step"]  # nothing stepped
+
+
+@pytest.mark.parametrize("angle", [1e18, -7.0, 90.0])
+def test_an_angle_beyond_one_turn_is_refused(angle: float) -> None:
+    """1e18 rad was accepted and turned the plate for 40 s (169 bursts); 90 is likely degrees."""
+    plane = Plane()
+    plane.sample()
+    refused = plane.policy.submit(Job("move", pose_target={"angle_rad": angle}), plane.now)
+    assert refused is not None and refused.startswith("angle_rad must lie within ±2π (one turn)")
+
+
+def test_an_angle_within_one_turn_is_taken_modulo_a_turn() -> None:
+    plane = Plane()
+    plane.sample()
+    job = Job("move", pose_target={"angle_rad": 2 * math.pi - 0.1})
+    assert plane.policy.submit(job, plane.now) is None
+    assert job.target_pose is not None and job.target_pose[2] == pytest.approx(-0.1, abs=1e-12)
 
 
 def test_a_one_axis_move_on_the_plane_is_a_move_of_part_ones_x() -> None:

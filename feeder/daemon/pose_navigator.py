@@ -52,7 +52,10 @@ class PoseNavigator:
         elif job.target_m is not None:
             spec["x_m"] = job.target_m
         now = reading[job.part - 1]
-        target = (spec.get("x_m", now[0]), spec.get("y_m", now[1]), spec.get("angle_rad", now[2]))
+        angle = spec.get("angle_rad", now[2])
+        if math.isfinite(angle) and abs(angle) > 2 * math.pi:  # 1e18 rad had the plate turn for 40 s
+            return f"angle_rad must lie within ±2π (one turn), got {angle:.6g} (radians, not degrees?)"
+        target = (spec.get("x_m", now[0]), spec.get("y_m", now[1]), math.remainder(angle, 2 * math.pi))
         if not all(math.isfinite(v) for v in target):
             return "the target pose must be finite"
         s = self.settings
