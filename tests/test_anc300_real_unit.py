@@ -226,3 +226,45 @@ def test_a_serial_console_that_sends_no_greeting_is_used_at_once() -> None:
     finally:
         link.close()
         pty.close()
+
+
+class StepwSession(ConsoleSession):
+    """A console that never answers ``stepw``: the burst plays on (``on_stepw`` runs instead)."""
+
+    def __init__(self, firmware: Firmware, on_stepw: Any) -> None:
+        super().__init__(firmware, dialect="anc300")
+        self.on_stepw = on_stepw
+
+    def feed(self, data: bytes) -> bytes:
+        if b"stepw" in data:
+            self.on_stepw()
+            return b""
+        return super().feed(data)
+
+
+@pytest.mark.parametrize("breaks", [False, True], ids=["slow burst", "link breaks"])
+def test_stepw_without_an_answer_is_a_slow_burst_but_a_broken_link_is_lost(breaks: bool) -> None:
+    """A link closed during ``stepw`` was reported as 'the burst did not finish in time' (no fault,
+    no ground, no reconnect); now only a reply that does not come in time is that."""
+    ptys: list[PtyConsole] = []
+
+    def on_stepw() -> None:
+        if breaks:
+            threading.Timer(0.1, ptys[0].close).start()
+
+    ptys.append(PtyConsole(lambda _source: StepwSession(Firmware(), on_stepw)))
+    amp = Anc300Amplifier(Anc300Link(ptys[0].path, timeout_s=1.0), axis=1)
+    try:
+        amp.enable()
+        amp.apply(DriveSettings(1000.0, 30.0))
+        amp.step(5)
+        if breaks:
+            with pytest.raises(AmplifierLinkLost) as err:
+                amp.wait(1.0)
+            assert not isinstance(err.value, anc300.ReplyTimeout)
+        else:
+            assert amp.wait(0.5) is False
+    finally:
+        amp.link.close()
+        if not breaks:
+            ptys[0].close()

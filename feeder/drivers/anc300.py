@@ -75,6 +75,12 @@ except ImportError:  # pragma: no cover - not POSIX
     pass
 QUERY_ERRORS: tuple[type[BaseException], ...] = (*LINK_ERRORS, AmplifierLinkLost)
 
+
+class ReplyTimeout(AmplifierLinkLost):
+    """No complete reply within the timeout, the link not known broken (a ``stepw`` on a burst
+    that plays longer than asked); a closed or failing link raises :class:`AmplifierLinkLost`."""
+
+
 log = logging.getLogger(__name__)
 
 
@@ -136,7 +142,8 @@ class Anc300Link:
                 lines, error = self._read_reply(port, timeout_s or self.timeout_s, command)
             except QUERY_ERRORS as exc:
                 self._drop()
-                raise AmplifierLinkLost(f"{self.url}: {command.split()[0]}: {exc}") from exc
+                lost = ReplyTimeout if isinstance(exc, ReplyTimeout) else AmplifierLinkLost
+                raise lost(f"{self.url}: {command.split()[0]}: {exc}") from exc
             if error is not None:
                 raise AmplifierError(f"{self.url}: {command.split()[0]}: {error}")
             return lines
@@ -240,11 +247,11 @@ class Anc300Link:
     def _readline(port: serial.SerialBase, deadline: float) -> str:
         remaining = deadline - time.monotonic()
         if remaining <= 0:
-            raise AmplifierLinkLost("timeout")
+            raise ReplyTimeout("timeout")
         port.timeout = remaining
         raw = port.read_until(b"\n")
         if not raw.endswith(b"\n"):
-            raise AmplifierLinkLost("timeout")
+            raise ReplyTimeout("timeout")
         return raw.decode("ascii", errors="replace").strip().removeprefix(">").strip()
 
     def _read_reply(
@@ -358,7 +365,7 @@ class Anc300Amplifier(Amplifier):
         time.sleep(max(0.0, remaining))
         try:
             self.link.query(f"stepw {self.axis}", timeout_s=max(0.05, deadline - time.monotonic()))
-        except AmplifierLinkLost:
+        except ReplyTimeout:  # still playing (a closed link is lost: the daemon grounds, reconnects)
             return False
         with self._lock:
             self._burst = None
