@@ -176,6 +176,14 @@ def test_the_daemon_links_open_one_node_for_x_y_and_theta() -> None:
             assert axes["y"].wait(60.0)
             after = {name: a.status().step_counter for name, a in axes.items()}
             assert after == {**before, "y": before["y"] + 3}
+            # by default the node consumes the daemon's heartbeat: a daemon that dies mid-move
+            # (here: stops beating) gets the moving axis grounded, with a latched fault
+            axes["y"].step(100_000)
+            axes["y"]._host_heartbeat.stop()  # type: ignore[attr-defined]
+            deadline = time.monotonic() + 5.0
+            while axes["y"].status().mode != "gnd" and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert (axes["y"].status().mode, axes["y"].status().faults) == ("gnd", ("host_watchdog",))
     finally:
         links.close()
         shutil.rmtree(base, ignore_errors=True)

@@ -160,6 +160,10 @@ def test_feeder_daemon_with_a_bad_config_exits_2_in_one_line(tmp_path: Path, bod
             '[amplifier]\ntransport = "can"\n[amplifier.can]\ninterface = "slcan"\nchanel = "/dev/x"\n',
             "is 'chanel' meant to be 'channel'",
         ),
+        (
+            '[amplifier]\ntransport = "can"\n[amplifier.can]\nchannel = "can0"\nsupervise_host = 1\n',
+            "amplifier.can.supervise_host must be true or false, got 1",
+        ),
         ("[amplifier]\naxis = " + "9" * 400 + "\n", "amplifier.axis = a huge integer"),
         ("[control]\nrate_hz = " + "1" * 400 + "\n", "control.rate_hz"),
         ("[control]\nrate_hz = 1e-9\n", "control.rate_hz = 1e-09 is outside"),

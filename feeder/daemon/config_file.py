@@ -21,7 +21,7 @@ baudrate = 38400              # serial port rate, bit/s (the ANC300's; USB CDC-A
 v_max_v = 120.0
 current_limit_a = 0.55
 max_frequency_hz = 2000.0
-[amplifier.can]               # python-can keyword arguments + node id (+ eds, heartbeat_s)
+[amplifier.can]               # python-can keyword arguments + node id (+ eds, heartbeat_s, supervise_host)
 interface = "slcan"
 channel = "/dev/ttyACM0"
 bitrate = 500000
@@ -114,7 +114,8 @@ SECTIONS: dict[str, frozenset[str]] = {
     "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps"}),
 }
 """The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
-``[amplifier.can]``: python-can keyword arguments plus ``node_id``, ``heartbeat_s`` and ``eds``)."""
+``[amplifier.can]``: python-can keyword arguments plus ``node_id``, ``heartbeat_s``, ``eds`` and
+``supervise_host``)."""
 
 RANGES: dict[str, tuple[float, float]] = {
     "rate_hz": (1.0, 1000.0),
@@ -283,7 +284,10 @@ def load_config(path: Path | None) -> DaemonConfig:
         _number(can, "heartbeat_s", where, 0.25, positive=True, section="amplifier.can.")
     if "eds" in can:
         can["eds"] = _eds(can["eds"], where, path.parent)
-    if set(can) - {"node_id", "heartbeat_s", "eds"} and "channel" not in can:
+    supervise = can.get("supervise_host", True)
+    if not isinstance(supervise, bool):
+        raise InputError(where, f"amplifier.can.supervise_host must be true or false, got {supervise!r}")
+    if set(can) - {"node_id", "heartbeat_s", "eds", "supervise_host"} and "channel" not in can:
         # python-can keywords without the adapter: a misspelt channel must never fall back
         # to the simulator
         near = difflib.get_close_matches("channel", [str(k) for k in can], n=1)

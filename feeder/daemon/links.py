@@ -32,7 +32,7 @@ SLCAN_BITRATE = 500_000
 CAN_HEARTBEAT_S = 0.25
 """Node heartbeat period the daemon asks for: a few lost periods mark the node dead, so a
 loaded host must not miss one (``[amplifier.can] heartbeat_s`` overrides it)."""
-CAN_KEYS = ("node_id", "heartbeat_s", "eds")
+CAN_KEYS = ("node_id", "heartbeat_s", "eds", "supervise_host")
 """``[amplifier.can]`` keys that are the driver's, not python-can's."""
 
 
@@ -89,18 +89,18 @@ class DriverLinks:
             node_id = int(self.amplifier_address.get("node_id", 1))
             heartbeat = float(self.amplifier_address.get("heartbeat_s", CAN_HEARTBEAT_S))
             eds = str(self.amplifier_address.get("eds", EDS_FILE))
+            # the node grounds its moving axes when this daemon's heartbeat stops (a crash mid-move)
+            supervise = bool(self.amplifier_address.get("supervise_host", True))
             bus = {k: v for k, v in self.amplifier_address.items() if k not in CAN_KEYS}
             if plate.planar:
                 from feeder.drivers.axes import open_canopen_axes
 
-                return open_canopen_axes(
-                    bus, axis_map, node_id, eds, heartbeat_s=heartbeat, timeout_s=amp.timeout_s
-                )
+                return open_canopen_axes(bus, axis_map, node_id, eds, heartbeat_s=heartbeat,
+                                         timeout_s=amp.timeout_s, supervise_host=supervise)  # fmt: skip
             od = object_dictionary(node_id, eds)  # one axis: amplifier.axis of a multi-axis node
             axis = amp.axis if axis_count(od) > 1 else 1
-            return CanopenAmplifier(
-                bus, node_id, od, heartbeat_s=heartbeat, timeout_s=amp.timeout_s, axis=axis
-            )
+            return CanopenAmplifier(bus, node_id, od, heartbeat_s=heartbeat, timeout_s=amp.timeout_s,
+                                    supervise_host=supervise, axis=axis)  # fmt: skip
         if plate.planar:
             from feeder.drivers.axes import open_anc300_axes
 
