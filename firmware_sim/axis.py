@@ -235,9 +235,19 @@ class Axis:
 
     def wait_idle(self, timeout_s: float | None = None) -> bool:
         """Block until the DAC has played the burst and no capacitance measurement
-        runs; False on timeout."""
+        runs; False on timeout.
+
+        Continuous motion never ends by itself: FirmwareError at once, or as soon as
+        another front end starts it during the wait.  ``stop`` or a non-stepping mode
+        from another front end ends the wait (the axis is idle then).
+        """
         with self._fw.lock:
-            return self._fw.lock.wait_for(lambda: not self._busy() or self._fw.stopped, timeout_s)
+            idle = self._fw.lock.wait_for(
+                lambda: not self._busy() or self._fw.stopped or self._remaining < 0, timeout_s
+            )
+            if self._remaining < 0:
+                raise FirmwareError("Axis in continuous motion")
+            return idle
 
     # -- faults ---------------------------------------------------------------
 

@@ -43,6 +43,12 @@ NODE_REGISTER = "Error register"
 """The node's object every TPDO carries besides the axis' own."""
 
 
+def int32(value: int) -> int:
+    """``value`` wrapped to a 32-bit two's-complement integer, as a drive's I32 counter runs:
+    ``2**31 - 1`` + 1 step is ``-2**31``; a host takes differences modulo ``2**32``."""
+    return (value + (1 << 31)) % (1 << 32) - (1 << 31)
+
+
 class AxisPort:
     """Axis ``number`` (1-based) of a node whose dictionary is ``od``, backed by firmware ``axis``."""
 
@@ -148,7 +154,7 @@ class AxisPort:
             "Flyback shape": lambda: SHAPE_CODES.index(status.flyback_shape),
             "Mode": lambda: MODES.index(status.mode),
             "Offset": lambda: round(status.offset_v * 1000),
-            "Step counter": lambda: status.step_counter,
+            "Step counter": lambda: int32(status.step_counter),  # the object is I32 (SDO and TPDO)
             "Output voltage": lambda: round(status.output_v * 1000),
             "Fault word": lambda: status.fault_word,
         }[base]()

@@ -36,7 +36,8 @@ What this module adds to ``LocalNode``:
 - TPDOn of axis n (step counter, status word, command acknowledge, the node's
   error register): transmission type 254/255 sends on change (no faster than
   the inhibit time) and at least every event-timer period; type 1..240 sends on
-  every n-th SYNC.
+  every n-th SYNC.  The step counter (I32, in the TPDO and by SDO) wraps in two's
+  complement past ±2³¹, as a drive's counter does.
 - RPDOn of axis n (step command, command sequence): ``+N``/``-N`` starts a burst,
   0 stops; the sequence is echoed in TPDOn's command acknowledge, with status
   bit 3 set when the firmware refused the command.  A too-short RPDO raises EMCY
@@ -48,11 +49,14 @@ What this module adds to ``LocalNode``:
   count as host activity; once one has arrived, none for the set time latches
   the firmware's ``host_watchdog`` fault on every moving axis (grounded, EMCY
   0x8130).  Monitoring restarts with the next heartbeat.
+- A sampling cycle (TPDOs, EMCY, heartbeat consumer) that fails is logged and
+  grounds the node's axes; the node goes on (:meth:`CanopenNode._run`).
 """
 
 from __future__ import annotations
 
 import functools
+import logging
 import re
 import struct
 import sys
@@ -76,6 +80,8 @@ from firmware_sim.faults import Fault, FirmwareError, LimitError
 from firmware_sim.firmware import Firmware
 from firmware_sim.sdo_server import SdoServer
 from firmware_sim.slcan import SlcanPty
+
+log = logging.getLogger(__name__)
 
 NMT_OPERATIONAL = 5
 NMT_PRE_OPERATIONAL = 127
@@ -388,40 +394,65 @@ class CanopenNode:
 
     def _run(self) -> None:
         """Sample the axes every ``poll_s`` (every :data:`IDLE_POLL_S` while no PDOs
-        flow): EMCY on fault changes, each axis' TPDO when due."""
+        flow): EMCY on fault changes, each axis' TPDO when due.
+
+        A sampling cycle that fails is logged (the first of a run of failures, with its
+        traceback) and the loop goes on.  Such a cycle sent no TPDO or EMCY and may not
+        have run the heartbeat consumer, so no one supervises the motion: as a drive's
+        firmware does when its supervision task faults, the node grounds its axes (the
+        safe state; the host sees ``gnd`` and must select a stepping mode again).
+        """
+        failures = 0
         while not self._stopping.is_set():
             pdos_flow = self.nmt_state == NMT_OPERATIONAL and any(p.tpdo_type >= 254 for p in self.ports)
             self._wake.wait(self.poll_s if pdos_flow else max(self.poll_s, IDLE_POLL_S))
             self._wake.clear()
-            with self.firmware.lock:  # one instant, as a drive samples: an RPDO handled between
-                # the statuses and the packing would pair its acknowledge with the status before it
+            try:
+                self._sample()
+            except Exception:  # the thread's one boundary: any failure, not only foreseen ones
+                if not failures:
+                    log.exception("CANopen node %d: sampling failed; its axes are grounded", self.node_id)
+                failures += 1
+                for port in self.ports:
+                    port.axis.ground()
+            else:
+                if failures:
+                    log.warning(
+                        "CANopen node %d: sampling works again after %d failures", self.node_id, failures
+                    )
+                failures = 0
+
+    def _sample(self) -> None:
+        """One sampling cycle: the heartbeat consumer, EMCY on fault changes, due TPDOs."""
+        with self.firmware.lock:  # one instant, as a drive samples: an RPDO handled between
+            # the statuses and the packing would pair its acknowledge with the status before it
+            statuses = self._statuses()
+            seen = self._consumer_seen
+            if seen is not None and time.monotonic() - seen > self._consumer_timeout_s:
+                self._consumer_seen = None  # one event per silence
+                for port in self.ports:
+                    if statuses[port.number].moving:
+                        port.axis.inject_fault(Fault.HOST_WATCHDOG)
                 statuses = self._statuses()
-                seen = self._consumer_seen
-                if seen is not None and time.monotonic() - seen > self._consumer_timeout_s:
-                    self._consumer_seen = None  # one event per silence
-                    for port in self.ports:
-                        if statuses[port.number].moving:
-                            port.axis.inject_fault(Fault.HOST_WATCHDOG)
-                    statuses = self._statuses()
-                register = self._register(statuses)
-                packed = {port.number: port.pack_tpdo(statuses[port.number], register) for port in self.ports}
-            state = self.nmt_state
-            reports = state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL)
-            for port in self.ports:
-                status = statuses[port.number]
-                if reports and status.fault_word != port.fault_reported:
-                    self._report_faults(port, status.fault_word, register)
-                if state != NMT_OPERATIONAL or port.tpdo_type < 254:
-                    port.last_data = None
-                    continue
-                now = time.monotonic()
-                with self._tpdo_lock:
-                    data = packed[port.number]
-                    changed = data != port.last_data and now - port.last_sent >= port.inhibit_s
-                    timer_due = port.event_timer_s > 0 and now - port.last_sent >= port.event_timer_s
-                    if changed or timer_due:
-                        self.network.send_message(port.tpdo_cob_id, data)
-                        port.last_data, port.last_sent = data, now
+            register = self._register(statuses)
+            packed = {port.number: port.pack_tpdo(statuses[port.number], register) for port in self.ports}
+        state = self.nmt_state
+        reports = state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL)
+        for port in self.ports:
+            status = statuses[port.number]
+            if reports and status.fault_word != port.fault_reported:
+                self._report_faults(port, status.fault_word, register)
+            if state != NMT_OPERATIONAL or port.tpdo_type < 254:
+                port.last_data = None
+                continue
+            now = time.monotonic()
+            with self._tpdo_lock:
+                data = packed[port.number]
+                changed = data != port.last_data and now - port.last_sent >= port.inhibit_s
+                timer_due = port.event_timer_s > 0 and now - port.last_sent >= port.event_timer_s
+                if changed or timer_due:
+                    self.network.send_message(port.tpdo_cob_id, data)
+                    port.last_data, port.last_sent = data, now
 
 
 def serve_slcan_pty(

@@ -45,6 +45,8 @@ MAX_LOGIN_INTERVAL_S = 1.0
 FORGET_FAILURES_S = 60.0
 """A source with no try for this long starts afresh."""
 INTEGER = re.compile(r"[+-]?[0-9]{1,12}")
+NUMBER = re.compile(r"[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)?")
+"""A decimal number in ASCII (C's ``strtod`` syntax without hex, inf, nan)."""
 
 TrueStepSource = Callable[[Axis], "TrueStep | None"]
 """The plant's true step for an axis' current settings, or None (no plant there)."""
@@ -141,8 +143,9 @@ class ConsoleSession:
     password: required before any command (``None`` = no login, as on the
         ANC300's USB port).
     true_step: answers the ``simstep`` extension verb (the world's true step).
-    wait_timeout_s: longest ``stepw``/``capw`` wait before ERROR (continuous
-        motion never ends by itself).
+    wait_timeout_s: longest ``stepw``/``capw`` wait before ERROR (during
+        continuous motion they answer ERROR at once: that never ends by itself,
+        and a wait would hold a serial console, its only session, until then).
     dialect: ``anc300`` answers only a real ANC300's verbs (every extension gets
         its error reply, ``Unknown command``) and, like the unit, runs whole hertz
         (``setf`` rounds to the nearest); ``extended`` adds the extensions
@@ -456,13 +459,11 @@ def _arity(args: list[str], n: int) -> None:
 
 
 def _number(text: str, name: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ConsoleError(f"Invalid number for {name}") from None
-    if not math.isfinite(value):
+    """An ASCII decimal number (:data:`NUMBER`; not ``1_0``, non-ASCII digits, inf, nan);
+    ``-0`` is 0."""
+    if NUMBER.fullmatch(text) is None or not math.isfinite(value := float(text)):
         raise ConsoleError(f"Invalid number for {name}")
-    return value
+    return value + 0.0  # -0.0 + 0.0 == +0.0
 
 
 def _integer(text: str, name: str) -> int:
