@@ -23,7 +23,7 @@ from feeder.daemon.jobs import (
     StepMode,
 )
 from feeder.daemon.line_navigator import COARSE, FINE
-from feeder.daemon.policy import Policy
+from feeder.daemon.policy import Policy, counter_difference
 from feeder.daemon.sensor_latency import MAX_SETTLE_S
 from feeder.drivers.amplifier import DriveSettings
 
@@ -246,6 +246,25 @@ def test_stop_mid_burst_counts_the_steps_actually_played() -> None:
         rig.tick()
     result = rig.finished().result
     assert result.steps == 12 and result.steps_estimated and result.bursts == 1
+
+
+def test_a_stop_across_the_counters_wrap_counts_the_steps_played() -> None:
+    """A drive's I32 counter wraps (CANopen 0x2012): 10 of 20 steps played from 2³¹ − 5 read
+    −2³¹ + 4, a difference of ~4.3e9 that was taken as the whole burst."""
+    rig = Rig()
+    _job, step = to_first_burst(rig, 900e-6)
+    start = 2**31 - 5
+    rig.complete(step, counter=start)
+    rig.tick()
+    rig.policy.request_stop()
+    stop = next(o for o in rig.tick() if isinstance(o, Command))
+    rig.complete(stop, counter=-(2**31) + 4)
+    for _ in range(6):
+        rig.tick()
+    assert rig.finished().result.steps == 9
+    assert counter_difference(-(2**31) + 4, start) == 9
+    assert counter_difference(start, -(2**31) + 4) == -9
+    assert counter_difference(1000, 1012) == -12
 
 
 def test_hold_times_out_when_the_part_never_settles() -> None:

@@ -70,6 +70,12 @@ from feeder.daemon.step_estimator import FORWARD, StepEstimate
 STATES = ("idle", "moving", "settling", "holding", "fault")
 
 
+def counter_difference(after: int, before: int) -> int:
+    """Steps between two readings of a drive's step counter, which wraps as an I32 (CANopen's
+    0x2012: 2³¹ − 1 + 1 step is −2³¹); exact while fewer than 2³¹ steps lie between them."""
+    return (after - before + (1 << 31)) % (1 << 32) - (1 << 31)
+
+
 @dataclass
 class _Burst:
     """The burst in flight."""
@@ -263,7 +269,7 @@ class Policy:
             if burst is not None and self.job is not None:
                 played = burst.burst.steps
                 if done.counter is not None and burst.counter_before is not None:
-                    played = min(played, abs(done.counter - burst.counter_before))
+                    played = min(played, abs(counter_difference(done.counter, burst.counter_before)))
                 self.job.steps -= burst.burst.steps - played
                 self.job.steps_estimated = self.job.steps_estimated or done.estimated
                 self._burst = None
