@@ -26,8 +26,10 @@ from feeder.errors import FeederError
 
 log = logging.getLogger(__name__)
 
-CLEARABLE_FAULTS = frozenset({"watchdog"})
-"""Latched amplifier faults a new move may clear (transient: the firmware's tick was late)."""
+CLEARABLE_FAULTS = frozenset({"watchdog", "host_watchdog"})
+"""Latched amplifier faults a new move may clear: transient, their cause is gone when a move
+comes (the firmware's tick was late; the node missed a host's heartbeat, e.g. a daemon that
+died mid-move: the host sending this move beats)."""
 
 
 class AmplifierExecutor:
@@ -134,7 +136,7 @@ class AmplifierExecutor:
 
     @staticmethod
     def _enable(amp: Amplifier) -> None:
-        """Leave ground.  A latched watchdog fault (a late firmware tick) is cleared, as the
+        """Leave ground.  A latched watchdog fault (:data:`CLEARABLE_FAULTS`) is cleared, as the
         new command is the user's; any other fault is reported."""
         status = amp.status()
         if status.fault_word:
@@ -143,6 +145,7 @@ class AmplifierExecutor:
             if clear is None or others or not status.faults:
                 names = ", ".join(status.faults) or hex(status.fault_word)
                 raise AmplifierError(f"amplifier fault latched: {names}")
+            log.warning("clearing the amplifier's latched %s for a new move", ", ".join(status.faults))
             clear()
         amp.enable()
 
