@@ -281,7 +281,7 @@ def test_a_latched_watchdog_fault_is_cleared_by_a_new_move_others_are_reported(w
         moved = run_job(loop, Job("move", target_m=30e-6))
         amp.grounded, amp.faults = True, ("host_watchdog",)  # the node missed the host's heartbeat
         run_job(loop, Job("move", target_m=0.0))  # Axis in wrong mode: the next move checks
-        after_silence = run_job(loop, Job("move", target_m=0.0))
+        after_silence = run_job(loop, Job("move", target_m=15e-6))
         amp.grounded, amp.faults = True, ("overtemp",)  # grounded itself between moves
         first = run_job(loop, Job("move", target_m=0.0))
         second = run_job(loop, Job("move", target_m=0.0))
