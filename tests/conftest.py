@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from hypothesis import settings
+
+from firmware_sim.clock import RealTimeClock
+from firmware_sim.firmware import Firmware
 
 # CI runs the property tests on a fixed sequence of examples (a red run is then reproducible);
 # `--hypothesis-profile=explore` draws new ones.
@@ -36,3 +41,16 @@ def shared_dir() -> Path:
     if not SHARED.is_dir():
         pytest.skip(f"{SHARED} not found (CI clones the repo with shared/ beside it)")
     return SHARED
+
+
+@pytest.fixture
+def ticking() -> Iterator[Firmware]:
+    """A firmware whose tick runs on the real-time clock in a thread of its own."""
+    fw = Firmware()
+    stop = threading.Event()
+    thread = threading.Thread(target=fw.run, args=(RealTimeClock(), stop), daemon=True)
+    thread.start()
+    yield fw
+    fw.shutdown()  # wakes any stepw a failing test left waiting
+    stop.set()
+    thread.join(timeout=5)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import re
 import socket
-import threading
 import time
 from collections.abc import Iterator
 
@@ -15,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from feeder.plant.stack import StackParameters
-from firmware_sim.clock import RealTimeClock, VirtualClock
+from firmware_sim.clock import VirtualClock
 from firmware_sim.console import AXIS_VERBS, ConsoleSession
 from firmware_sim.firmware import Firmware, FirmwareConfig
 from firmware_sim.transports import MAX_CONSOLE_CLIENTS, MAX_PENDING_LOGINS, TcpConsoleServer
@@ -35,17 +34,6 @@ def session() -> ConsoleSession:
     s = ConsoleSession(Firmware(), wait_timeout_s=0.5)
     s.feed(b"echo off\r\n")
     return s
-
-
-@pytest.fixture
-def ticking() -> Iterator[Firmware]:
-    fw = Firmware()
-    stop = threading.Event()
-    thread = threading.Thread(target=fw.run, args=(RealTimeClock(), stop), daemon=True)
-    thread.start()
-    yield fw
-    stop.set()
-    thread.join(timeout=5)
 
 
 def test_getters_answer_name_value_unit_in_plain_fixed_point(session: ConsoleSession) -> None:

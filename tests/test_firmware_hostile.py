@@ -17,7 +17,6 @@ from test_can_node import Rig, make_rig, wait_emcy
 from feeder.protocol.eds import MODES
 from firmware_sim.axis import AxisStatus
 from firmware_sim.canopen_axis import int32
-from firmware_sim.clock import RealTimeClock
 from firmware_sim.console import ConsoleSession
 from firmware_sim.faults import Fault
 from firmware_sim.firmware import Firmware
@@ -26,18 +25,6 @@ from firmware_sim.transports import PtyConsole
 pytestmark = pytest.mark.timeout(60)
 WAIT_S = 3.0
 """The sessions' stepw timeout here: a wait that should end at once fails the test well before it."""
-
-
-@pytest.fixture
-def ticking() -> Iterator[Firmware]:
-    fw = Firmware()
-    stop = threading.Event()
-    thread = threading.Thread(target=fw.run, args=(RealTimeClock(), stop), daemon=True)
-    thread.start()
-    yield fw
-    fw.shutdown()  # wakes any stepw a failing test left waiting
-    stop.set()
-    thread.join(timeout=5)
 
 
 def session(fw: Firmware, dialect: str = "anc300") -> ConsoleSession:
