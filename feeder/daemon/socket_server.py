@@ -3,19 +3,33 @@
 Owner-only (0600) in an owner-only directory (0700); a socket path or directory that another
 user owns is refused, and so is a peer whose uid is not ours (SO_PEERCRED).  One JSON object
 per line, at most :data:`~feeder.daemon.client.MAX_LINE_BYTES`; a longer line is answered with
-an error and the connection closed; a line that is not JSON gets an error reply.  Up to
-:data:`MAX_CLIENTS` clients at once, each on its own thread.
+an error and the connection closed; a line that is not JSON gets an error reply.
+
+Up to :data:`MAX_CLIENTS` clients are served in full at once, each on its own thread.  No client
+can hold the socket against ``stop``:
+
+- a request line must be complete within :data:`IDLE_TIMEOUT_S` of its first byte (a slow-loris
+  guard), and a reply taken within it; a request being answered (a move waiting for its result)
+  has no time limit;
+- a client silent between requests keeps its slot while there is room; when every slot is taken,
+  the one silent longest, if silent for :data:`IDLE_TIMEOUT_S` or more, is closed for a newcomer;
+- beyond :data:`MAX_CLIENTS`, up to :data:`MAX_DOORWAY` more connections are read: ``stop`` and
+  ``status`` (:data:`ALWAYS_SERVED`) are answered on them, anything else gets the one-line
+  refusal and the connection is closed; each request line must arrive within
+  :data:`DOORWAY_TIMEOUT_S`.  Such a connection is served in full once a slot frees.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import socket
 import stat
 import struct
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -23,7 +37,20 @@ from typing import Any
 from feeder.daemon.client import MAX_LINE_BYTES, check_owned_by_me
 from feeder.errors import InputError
 
+log = logging.getLogger(__name__)
+
 MAX_CLIENTS = 32
+"""Clients served in full at once."""
+MAX_DOORWAY = 32
+"""Connections beyond :data:`MAX_CLIENTS` that are still read, for ``stop`` and ``status``."""
+ALWAYS_SERVED = frozenset({"stop", "status"})
+"""Commands answered whatever the number of clients (quick: they never wait for a move)."""
+IDLE_TIMEOUT_S = 10.0
+"""How long a begun request line may take to complete, and a reply to be taken; a client silent
+this long gives up its slot to a newcomer when every slot is taken."""
+DOORWAY_TIMEOUT_S = 2.0
+"""How long a connection beyond :data:`MAX_CLIENTS` has for each request line (a client sends its
+request as it connects; a waiting move's heartbeat every 0.25 s)."""
 LISTEN_BACKLOG = 128
 """Connections the kernel holds before accept: bursts of short-lived clients must not find
 the socket full (a client's non-blocking connect then fails at once)."""
@@ -87,6 +114,21 @@ def peer_uid(conn: socket.socket) -> int:
     return int(struct.unpack("3i", creds)[1])
 
 
+class _Client:
+    """One connection and what the server knows of it (``full``, ``silent_since`` and
+    ``evicted`` change under the server's lock)."""
+
+    def __init__(self, conn: socket.socket) -> None:
+        self.conn = conn
+        self.full = False
+        """Served in full (one of the :data:`MAX_CLIENTS`), else only :data:`ALWAYS_SERVED`."""
+        self.silent_since: float | None = time.monotonic()
+        """Since when it has sent nothing while no request of its is being answered; None otherwise."""
+        self.evicted = False
+        """Closed to give its slot to a newcomer."""
+        self.buffer = bytearray()
+
+
 class SocketServer:
     """Serves ``handle(request) -> reply`` on a Unix socket (:func:`bind_socket`) until
     :meth:`close`; once ``closing`` is set, clients get no further replies."""
@@ -102,7 +144,8 @@ class SocketServer:
         self._socket = bind_socket(socket_path)
         self._closing = closing or threading.Event()
         self._lock = threading.Lock()
-        self._clients = 0
+        self._full: set[_Client] = set()
+        self._doorway: set[_Client] = set()
         threading.Thread(target=self._accept, name="accept", daemon=True).start()
 
     def close(self) -> None:
@@ -112,67 +155,184 @@ class SocketServer:
         with contextlib.suppress(FileNotFoundError):
             self.socket_path.unlink()
 
+    @staticmethod
+    def _refusal() -> dict[str, Any]:
+        return {"ok": False, "error": f"too many clients (max {MAX_CLIENTS})"}
+
     def _accept(self) -> None:
         while not self._closing.is_set():
             try:
                 conn, _ = self._socket.accept()
             except OSError:
                 return
+            client = _Client(conn)
             with self._lock:
-                full = self._clients >= MAX_CLIENTS
-                if not full:
-                    self._clients += 1
-            if full:
-                self._send(conn, {"ok": False, "error": f"too many clients (max {MAX_CLIENTS})"})
+                admitted = self._take_slot(client)
+                if not admitted and len(self._doorway) < MAX_DOORWAY:
+                    self._doorway.add(client)
+                    admitted = True
+            if not admitted:
+                self._send(conn, self._refusal())
+                self._discard_unread(conn)
                 conn.close()
                 continue
-            threading.Thread(target=self._serve_client, args=(conn,), name="client", daemon=True).start()
+            threading.Thread(target=self._serve_client, args=(client,), name="client", daemon=True).start()
+
+    def _take_slot(self, client: _Client, reclaim: bool = True) -> bool:
+        """Under the lock: serve ``client`` in full if a slot is free (or, with ``reclaim``, can
+        be freed: :meth:`_reclaim_slot`)."""
+        if client.full:
+            return True
+        if len(self._full) >= MAX_CLIENTS and not (reclaim and self._reclaim_slot()):
+            return False
+        self._doorway.discard(client)
+        self._full.add(client)
+        client.full = True
+        return True
+
+    def _reclaim_slot(self) -> bool:
+        """Under the lock: close the client silent longest, if it has been silent for
+        :data:`IDLE_TIMEOUT_S`, and free its slot."""
+        now = time.monotonic()
+        silent = [
+            c for c in self._full if c.silent_since is not None and now - c.silent_since >= IDLE_TIMEOUT_S
+        ]
+        if not silent:
+            return False
+        victim = min(silent, key=lambda c: c.silent_since or now)
+        victim.evicted = True
+        self._full.discard(victim)
+        with contextlib.suppress(OSError):
+            victim.conn.shutdown(socket.SHUT_RDWR)  # its thread's recv returns at once, and it ends
+        log.info(
+            "closed a client silent for %.1f s to make room for a new one", now - (victim.silent_since or now)
+        )
+        return True
 
     @staticmethod
-    def _send(conn: socket.socket, obj: dict[str, Any]) -> None:
-        with contextlib.suppress(OSError, ValueError):
+    def _send(conn: socket.socket, obj: dict[str, Any]) -> bool:
+        """Send one reply line; False when the client did not take it within :data:`IDLE_TIMEOUT_S`
+        or is gone."""
+        try:
+            conn.settimeout(IDLE_TIMEOUT_S)
             conn.sendall(json.dumps(obj, allow_nan=False, default=str).encode() + b"\n")
+        except (OSError, ValueError):
+            return False
+        return True
 
-    def _serve_client(self, conn: socket.socket) -> None:
+    def _read_line(self, client: _Client) -> bytes | None:
+        """The client's next request line (with its newline), or None when the connection is to
+        close: end of stream, evicted, a line too long or not completed in time (the last two are
+        answered first)."""
+        buffer = client.buffer
+        begun = time.monotonic() if buffer else None  # a line sent ahead counts from now
+        while True:
+            end = buffer.find(b"\n")
+            if 0 <= end < MAX_LINE_BYTES:
+                line = bytes(buffer[: end + 1])
+                del buffer[: end + 1]
+                return line
+            if end >= 0 or len(buffer) >= MAX_LINE_BYTES:
+                self._send(
+                    client.conn,
+                    {
+                        "ok": False,
+                        "error": f"request longer than {MAX_LINE_BYTES} bytes; closing the connection",
+                    },
+                )
+                return None
+            now = time.monotonic()
+            with self._lock:
+                if client.evicted:
+                    return None
+                if buffer:
+                    client.silent_since = None
+                elif client.silent_since is None:
+                    client.silent_since = now
+                full, silent_since = client.full, client.silent_since
+            limit_s = IDLE_TIMEOUT_S if full else DOORWAY_TIMEOUT_S
+            if begun is not None:
+                deadline: float | None = begun + limit_s
+            elif full or silent_since is None:
+                deadline = None  # silent between requests: kept while there is room
+            else:
+                deadline = silent_since + limit_s
+            try:
+                if deadline is not None and deadline <= now:
+                    raise TimeoutError
+                client.conn.settimeout(None if deadline is None else deadline - now)
+                chunk = client.conn.recv(65536)
+            except TimeoutError:
+                if begun is None:  # a connection beyond the cap that asked nothing
+                    self._send(client.conn, self._refusal())
+                else:
+                    self._send(
+                        client.conn,
+                        {
+                            "ok": False,
+                            "error": f"request line incomplete after {limit_s:g} s; closing the connection",
+                        },
+                    )
+                return None
+            with self._lock:
+                if client.evicted or not chunk:
+                    return None  # evicted, or the client closed (perhaps mid-line)
+                client.silent_since = None
+            if begun is None:
+                begun = time.monotonic()
+            buffer += chunk
+
+    def _serve_client(self, client: _Client) -> None:
+        conn = client.conn
         try:
             if peer_uid(conn) != os.getuid():
                 self._send(conn, {"ok": False, "error": "permission denied: not the owner"})
                 return
-            reader = conn.makefile("rb")
             while not self._closing.is_set():
-                line = reader.readline(MAX_LINE_BYTES + 1)
-                if not line:
-                    return
-                if len(line) > MAX_LINE_BYTES or not line.endswith(b"\n"):
-                    if len(line) <= MAX_LINE_BYTES:
-                        return  # disconnected mid-line
-                    self._send(
-                        conn,
-                        {
-                            "ok": False,
-                            "error": f"request longer than {MAX_LINE_BYTES} bytes; closing the connection",
-                        },
-                    )
+                line = self._read_line(client)
+                if line is None:
                     return
                 if not line.strip():
                     continue
+                reply: dict[str, Any] | None = None
                 try:
                     request = json.loads(line)
                 except (ValueError, RecursionError) as err:
                     # not JSON, not UTF-8, an integer past Python's digit limit, or nested
                     # deeper than the parser's recursion allows
-                    self._send(
-                        conn,
-                        {"ok": False, "error": f"malformed request: {type(err).__name__}: {str(err)[:200]}"},
-                    )
-                    continue
-                self._send(conn, self._safe_handle(request))
+                    request = None
+                    reply = {
+                        "ok": False,
+                        "error": f"malformed request: {type(err).__name__}: {str(err)[:200]}",
+                    }
+                cmd = request.get("cmd") if isinstance(request, dict) else None
+                always = isinstance(cmd, str) and cmd in ALWAYS_SERVED
+                with self._lock:
+                    full = self._take_slot(client, reclaim=not always)
+                if not (full or always):
+                    self._send(conn, self._refusal())
+                    return
+                if not self._send(conn, reply if reply is not None else self._safe_handle(request)):
+                    return
         except OSError:
             pass
         finally:
+            self._discard_unread(conn)
             conn.close()
             with self._lock:
-                self._clients -= 1
+                self._full.discard(client)
+                self._doorway.discard(client)
+
+    @staticmethod
+    def _discard_unread(conn: socket.socket) -> None:
+        """Read what the client sent beyond its last line (the rest of an over-long one): closing
+        a Unix socket with unread data resets the peer's connection before it reads our last
+        reply.  A few reads at most, none waiting."""
+        with contextlib.suppress(OSError):  # BlockingIOError: nothing more
+            conn.setblocking(False)
+            for _ in range(16):
+                if not conn.recv(MAX_LINE_BYTES):
+                    return
 
     def _safe_handle(self, request: Any) -> dict[str, Any]:
         try:

@@ -16,7 +16,9 @@ CLI and scripts share one vocabulary:
   :data:`LIVE_PERIOD_S` and the newest camera frame (binary JPEG) when there is a camera |
 
 Who may call it: :mod:`feeder.web.security`.  Bad requests get ``{"ok": false, "error": ...}``
-with a 4xx code; a refusal by the daemon is 409.
+with a 4xx code; a refusal by the daemon is 409; more than
+:data:`~feeder.web.lanes.MAX_WAITING_MOVES` moves waiting at once, 503.  Where each call into the
+daemon runs (never where a waiting move can keep a stop out): :mod:`feeder.web.lanes`.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
 from feeder.daemon.config import HttpConfig
 from feeder.daemon.quiet_window import QuietWindow
 from feeder.web.camera import CameraFeed
+from feeder.web.lanes import MoveLane, UrgentLane
 from feeder.web.requests import ApiError, checked, error_response, jog_request, json_body
 from feeder.web.security import ApiGuard, RateLimit, own_origins, websocket_admitted
 
@@ -52,6 +55,8 @@ LIVE_PERIOD_S = 1 / 30
 """Status pushes to each live client: 30 per second."""
 STATUS_MAX_AGE_S = 0.025
 """A status snapshot is shared by the requests within this time of it."""
+MAX_LIMIT_DIGITS = 9
+"""``/api/history?limit=``: longer is refused (400) before the daemon sees it."""
 STATIC = ("console.html", "console.js")
 """The page's files, package data of :mod:`feeder.web.static`."""
 
@@ -71,8 +76,9 @@ class LiveFeed:
     ``status`` request reaches the daemon per :data:`STATUS_MAX_AGE_S` however many pages
     and scripts ask (a burst of requests costs the daemon one)."""
 
-    def __init__(self, daemon: Handler) -> None:
+    def __init__(self, daemon: Handler, lane: UrgentLane) -> None:
         self.daemon = daemon
+        self._lane = lane
         self._lock = asyncio.Lock()
         self._status: dict[str, Any] = {}
         self._message = ""
@@ -82,7 +88,7 @@ class LiveFeed:
         async with self._lock:
             if time.monotonic() - self._taken_s >= STATUS_MAX_AGE_S:
                 wall = time.time()
-                self._status = await run_in_threadpool(self.daemon.handle, {"cmd": "status"})
+                self._status = await self._lane.run(self.daemon.handle, {"cmd": "status"})
                 self._taken_s = time.monotonic()
                 self._message = json.dumps(
                     {"type": "status", "time_s": wall, "status": self._status}, allow_nan=False, default=str
@@ -104,11 +110,17 @@ def console_app(
     """The console's ASGI application for a server bound at ``settings.host:port``."""
     origins = own_origins(settings.host, port, settings.origins)
     moves = RateLimit(settings.moves_per_s, settings.move_burst)
-    live = LiveFeed(daemon)
+    urgent = UrgentLane()  # stop and status
+    waiting = MoveLane()  # moves, jogs, calibrations
+    live = LiveFeed(daemon, urgent)
     pages = {name: resources.files("feeder.web.static").joinpath(name).read_bytes() for name in STATIC}
 
     async def ask(request: dict[str, Any]) -> dict[str, Any]:
+        """A request that neither waits for a move nor must pass one (history)."""
         return await run_in_threadpool(daemon.handle, request)
+
+    async def ask_move(request: dict[str, Any]) -> dict[str, Any]:
+        return await waiting.run(daemon.handle, request)
 
     def reply(answer: dict[str, Any]) -> JSONResponse:
         """200 for an answer (a move that ran, even when it did not end done), 409 for a refusal."""
@@ -129,7 +141,7 @@ def console_app(
             try:
                 return await handler(request)
             except ApiError as err:
-                headers = {"Retry-After": "1"} if err.status == 429 else None
+                headers = {"Retry-After": "1"} if err.status in (429, 503) else None
                 return error_response(err.status, err.message, headers)
 
         return guarded
@@ -154,23 +166,25 @@ def console_app(
 
     async def history(request: Request) -> Response:
         text = request.query_params.get("limit", "100")
-        if not text.isdigit():
+        # ASCII digits only (str.isdigit takes "²", which int() refuses), and few of them (int()
+        # refuses more than 4300); the daemon checks the range
+        if not (text.isascii() and text.isdigit() and len(text) <= MAX_LIMIT_DIGITS):
             raise ApiError(400, f"limit must be a positive integer, got {text[:20]!r}")
         return reply(await ask({"cmd": "history", "limit": int(text)}))
 
     async def move(request: Request) -> Response:
         body = checked("move", await json_body(request))
         rate_limited()
-        return reply(await ask({**body, "cmd": "move"}))
+        return reply(await ask_move({**body, "cmd": "move"}))
 
     async def calibrate(request: Request) -> Response:
         body = checked("calibrate", await json_body(request))
         rate_limited()
-        return reply(await ask({**body, "cmd": "calibrate"}))
+        return reply(await ask_move({**body, "cmd": "calibrate"}))
 
     async def stop(request: Request) -> Response:
         checked("stop", await json_body(request))
-        return reply(await ask({"cmd": "stop"}))
+        return reply(await urgent.run(daemon.handle, {"cmd": "stop"}))
 
     async def jog(request: Request) -> Response:
         body = checked("jog", await json_body(request))
@@ -179,7 +193,7 @@ def console_app(
         rate_limited()
         current = await live.status()
         request_ = jog_request(current, body["axis"], body["steps"], body.get("part", 1))
-        answer = await ask(request_)
+        answer = await ask_move(request_)
         return reply({**answer, "jog": {k: v for k, v in request_.items() if k != "cmd"}})
 
     async def live_socket(ws: WebSocket) -> None:
@@ -236,8 +250,10 @@ def console_app(
         Route("/api/calibrate", endpoint(calibrate), methods=["POST"]),
         WebSocketRoute("/api/live", live_socket),
     ]
-    return Starlette(
+    app = Starlette(
         routes=routes,
         middleware=[Middleware(ApiGuard, token=token, origins=origins)],
         exception_handlers={HTTPException: not_found, Exception: internal},
     )
+    app.state.close = urgent.close  # the server's stop ends the stop-and-status threads
+    return app

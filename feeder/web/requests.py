@@ -57,6 +57,21 @@ FIELDS = {
 }
 
 
+def _finite(value: float) -> bool:
+    """Whether a JSON number is a finite float (an integer beyond a float's range is not)."""
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an integer of more than 308 digits
+        return False
+
+
+def _brief(value: Any) -> str:
+    """The JSON of a refused value, cut short (a 4000-digit integer is no error message)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value).bit_length() > 128:
+        return f"an integer of {abs(value).bit_length()} bits"
+    return json.dumps(value)[:40]
+
+
 def checked(cmd: str, body: dict[str, Any]) -> dict[str, Any]:
     """``body`` with its field types checked (the daemon checks ranges and combinations)."""
     for key, value in body.items():
@@ -64,9 +79,9 @@ def checked(cmd: str, body: dict[str, Any]) -> dict[str, Any]:
             known = ", ".join(sorted(FIELDS[cmd])) or "none"
             raise ApiError(400, f"unknown field {key!r} for {cmd}; known: {known}")
         if key in NUMBERS and (
-            isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
+            isinstance(value, bool) or not isinstance(value, (int, float)) or not _finite(value)
         ):
-            raise ApiError(400, f"{key} must be a finite number, got {json.dumps(value)[:40]}")
+            raise ApiError(400, f"{key} must be a finite number, got {_brief(value)}")
         if key in FLAGS and not isinstance(value, bool):
             raise ApiError(400, f"{key} must be true or false")
         if key in ("part", "steps") and (isinstance(value, bool) or not isinstance(value, int)):
@@ -83,7 +98,7 @@ def jog_request(status: dict[str, Any], axis: str, steps: int, part: int) -> dic
     ``by_m``, with the coarse step learned in that direction.
     """
     if not 0 < abs(steps) <= MAX_JOG_STEPS:
-        raise ApiError(400, f"steps must be a non-zero integer within ±{MAX_JOG_STEPS}, got {steps}")
+        raise ApiError(400, f"steps must be a non-zero integer within ±{MAX_JOG_STEPS}, got {_brief(steps)}")
     parts = [p for p in status.get("parts") or () if p.get("pose") is not None]
     if len(status.get("axes") or ()) <= 1:  # one axis: today's feeder
         if axis != "x":

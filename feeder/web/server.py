@@ -44,6 +44,7 @@ class ConsoleServer:
         self.token = token
         self.camera = camera
         app = console_app(daemon, token, settings, self.port, self.camera)
+        self._close_app = app.state.close
         config = uvicorn.Config(
             app,
             log_level="warning",
@@ -82,6 +83,7 @@ class ConsoleServer:
         self._server.should_exit = True
         self._thread.join(timeout=5.0)
         self._socket.close()
+        self._close_app()
         if self.camera is not None:
             self.camera.close()
 
