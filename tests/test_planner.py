@@ -39,8 +39,9 @@ def test_plan_reaches_the_distance_within_limits(forward_plan: Plan) -> None:
     assert lo < p.predicted_step_m < hi
     c = contact(PART)
     assert p.breakaway_accel_m_s2 == pytest.approx(c.breakaway_accel_m_s2)
-    # an independent run of the planned waveform on the plant gives the predicted step
-    # (the first step, from rest, differs by the stack's ringing: < 1e-3)
+    # the plan's waveform, as written, run again on the plant (the planner's own model: this
+    # checks the plan keeps what it predicted, not the model) gives the predicted step (the
+    # first step, from rest, differs by the stack's ringing: < 1e-3)
     run = run_waveform(Friction(c.breakaway_accel_m_s2), p.waveform(), 4)
     np.testing.assert_allclose(run.steps_m[1:], p.predicted_step_m, rtol=1e-6)
     assert run.steps_m[0] == pytest.approx(p.predicted_step_m, rel=1e-3)
