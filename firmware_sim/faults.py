@@ -4,7 +4,9 @@ Refused values raise :class:`LimitError`, other refusals :class:`FirmwareError`;
 their ``str()`` is the console's error line.
 
 Safety state machine per axis: a latched ``fault_word`` (see :class:`Fault`);
-any fault grounds the axis and stops it; stepping modes are refused until
+any fault grounds the axis and stops it.  A stepping ``setm`` re-arms an axis whose
+only faults are the watchdogs (:data:`REARMABLE_FAULTS`: the stall is over once the host
+commands again); with any other fault stepping modes are refused until
 :meth:`firmware_sim.axis.Axis.clear_faults`.  Faults: ``WATCHDOG`` (the tick loop
 stalled longer than ``watchdog_s``), ``HOST_WATCHDOG`` (no host command for
 ``host_watchdog_s`` while an axis moves; off by default), ``OVERTEMP``

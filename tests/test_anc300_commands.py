@@ -1,0 +1,119 @@
+"""What the ANC300 driver sends: the amplitude's resolution, and no ``stepw`` it cannot finish.
+
+Over a pty to firmware_sim's ANC300-dialect console, which keeps every line it was sent
+(docs/anc300-protocol.md: ``setv AXIS V`` takes the amplitude; ``stepw`` holds the serial
+console, its only session, until the burst is over).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+
+from feeder.drivers.amplifier import DriveSettings
+from feeder.drivers.anc300 import BURST_END_MARGIN_S, Anc300Amplifier, Anc300Link
+from firmware_sim.clock import RealTimeClock
+from firmware_sim.console import ConsoleSession
+from firmware_sim.firmware import Firmware, FirmwareConfig
+from firmware_sim.transports import PtyConsole
+
+pytestmark = pytest.mark.timeout(60)
+
+
+class RecordingSession(ConsoleSession):
+    """An ANC300-dialect console that keeps every command line it was sent."""
+
+    def __init__(self, firmware: Firmware, lines: list[str], **options: Any) -> None:
+        super().__init__(firmware, dialect="anc300", **options)
+        self.lines = lines
+        self._partial = b""
+
+    def feed(self, data: bytes) -> bytes:
+        *complete, self._partial = (self._partial + data).split(b"\n")
+        self.lines += [line.decode().strip() for line in complete]
+        return super().feed(data)
+
+
+@dataclass
+class Unit:
+    firmware: Firmware
+    link: Anc300Link
+    lines: list[str] = field(default_factory=list)
+
+
+def open_unit(firmware: Firmware) -> Iterator[Unit]:
+    lines: list[str] = []
+    # a stepw the test did not expect gives up after 0.5 s instead of holding the pty
+    pty = PtyConsole(lambda _source: RecordingSession(firmware, lines, wait_timeout_s=0.5))
+    link = Anc300Link(pty.path, timeout_s=1.0)
+    try:
+        yield Unit(firmware, link, lines)
+    finally:
+        firmware.shutdown()
+        link.close()
+        pty.close()
+
+
+@pytest.fixture
+def unit() -> Iterator[Unit]:
+    """A console on a firmware whose tick does not run: a burst never ends."""
+    yield from open_unit(Firmware())
+
+
+@pytest.fixture
+def ticking_unit() -> Iterator[Unit]:
+    """A console on a firmware ticking in real time (its watchdog relaxed to 5 s: a loaded
+    machine's stall must not ground the burst under test)."""
+    firmware = Firmware(FirmwareConfig(watchdog_s=5.0))
+    stop = threading.Event()
+    thread = threading.Thread(target=firmware.run, args=(RealTimeClock(), stop), daemon=True)
+    thread.start()
+    try:
+        yield from open_unit(firmware)
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+
+
+def test_the_amplitude_reaches_the_unit_with_microvolt_resolution(unit: Unit) -> None:
+    amp = Anc300Amplifier(unit.link, axis=1)
+    amp.apply(DriveSettings(frequency_hz=100.0, amplitude_v=37.123456))
+    assert "setv 1 37.123456" in unit.lines
+    assert unit.firmware.axis(1).status().amplitude_v == pytest.approx(37.123456, abs=1e-9)
+    assert amp.status().amplitude_v == pytest.approx(37.123456, abs=1e-9)  # getv: six decimals
+    amp.apply(DriveSettings(frequency_hz=100.0, amplitude_v=0.000004))
+    assert "setv 1 0.000004" in unit.lines
+    assert unit.firmware.axis(1).status().amplitude_v == pytest.approx(4e-6, abs=1e-12)
+
+
+def test_wait_shorter_than_the_burst_returns_false_after_the_timeout_without_stepw(unit: Unit) -> None:
+    """The burst needs 0.15 s more (by the driver's clock), the caller waits 0.1 s: a ``stepw``
+    then could not be answered in time (it would time out and drop the link), so none is sent."""
+    now = [0.0]
+    amp = Anc300Amplifier(unit.link, axis=1, clock=lambda: now[0])
+    amp.apply(DriveSettings(frequency_hz=100.0, amplitude_v=20.0))
+    amp.enable()
+    amp.step(50)  # 0.5 s at the unit's 100 Hz
+    now[0] = 0.5 + BURST_END_MARGIN_S - 0.15
+    assert amp.wait(0.1) is False
+    assert not any(line.startswith("stepw") for line in unit.lines), unit.lines
+    steps, estimated = amp.steps_played()
+    assert estimated and 0 < steps < 50  # still running by the clock
+    assert amp.status().moving
+    amp.ground()
+
+
+def test_wait_longer_than_the_burst_confirms_its_end_with_stepw(ticking_unit: Unit) -> None:
+    amp = Anc300Amplifier(ticking_unit.link, axis=1)
+    amp.apply(DriveSettings(frequency_hz=100.0, amplitude_v=20.0))
+    amp.enable()
+    amp.step(3)  # 30 ms
+    assert amp.wait(5.0) is True
+    assert "stepw 1" in ticking_unit.lines
+    assert amp.steps_played() == (3, False)
+    assert ticking_unit.firmware.axis(1).status().step_counter == 3
+    amp.ground()
