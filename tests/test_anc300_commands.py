@@ -10,32 +10,17 @@ from __future__ import annotations
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
 
 import pytest
+from test_anc300_real_unit import RecordingSession
 
 from feeder.drivers.amplifier import DriveSettings
 from feeder.drivers.anc300 import BURST_END_MARGIN_S, Anc300Amplifier, Anc300Link
 from firmware_sim.clock import RealTimeClock
-from firmware_sim.console import ConsoleSession
 from firmware_sim.firmware import Firmware, FirmwareConfig
 from firmware_sim.transports import PtyConsole
 
 pytestmark = pytest.mark.timeout(60)
-
-
-class RecordingSession(ConsoleSession):
-    """An ANC300-dialect console that keeps every command line it was sent."""
-
-    def __init__(self, firmware: Firmware, lines: list[str], **options: Any) -> None:
-        super().__init__(firmware, dialect="anc300", **options)
-        self.lines = lines
-        self._partial = b""
-
-    def feed(self, data: bytes) -> bytes:
-        *complete, self._partial = (self._partial + data).split(b"\n")
-        self.lines += [line.decode().strip() for line in complete]
-        return super().feed(data)
 
 
 @dataclass

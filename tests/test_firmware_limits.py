@@ -8,6 +8,7 @@ most 2³¹ − 1 steps).
 from __future__ import annotations
 
 import pytest
+from test_firmware import LateClock
 
 from firmware_sim.clock import VirtualClock
 from firmware_sim.console import ConsoleSession
@@ -15,23 +16,6 @@ from firmware_sim.faults import Fault, FirmwareError, LimitError
 from firmware_sim.firmware import Firmware, FirmwareConfig
 
 I32_MAX = 2**31 - 1
-
-
-class OneLateTick(VirtualClock):
-    """Virtual time, except that tick number ``late_tick`` (1-based) wakes ``late_s`` after its
-    deadline (a stalled tick thread); ``realtime`` so the loop skips the deadlines it slept
-    through, as on the real clock."""
-
-    realtime = True
-
-    def __init__(self, late_tick: int, late_s: float) -> None:
-        super().__init__()
-        self.late_tick, self.late_s, self.calls = late_tick, late_s, 0
-
-    def sleep_until(self, deadline_s: float) -> float:
-        self.calls += 1
-        extra = self.late_s if self.calls == self.late_tick else 0.0
-        return super().sleep_until(deadline_s + extra)
 
 
 def running_axis(fw: Firmware, number: int = 1) -> None:
@@ -59,7 +43,7 @@ def test_a_tick_later_than_watchdog_s_grounds_every_axis_even_below_twice_it() -
     """watchdog_s = 50 ms; one tick wakes 80 ms late (more than the limit, less than twice it)."""
     fw = Firmware(FirmwareConfig(watchdog_s=0.05))
     running_axis(fw)
-    fw.run(OneLateTick(3, 0.08), max_ticks=6)
+    fw.run(LateClock(3, 0.08), max_ticks=6)
     assert fw.tick_summary()["jitter_max_s"] == pytest.approx(0.08)
     for n in fw.axis_numbers:
         status = fw.axis(n).status()
@@ -69,7 +53,7 @@ def test_a_tick_later_than_watchdog_s_grounds_every_axis_even_below_twice_it() -
 def test_a_tick_late_by_less_than_watchdog_s_latches_nothing() -> None:
     fw = Firmware(FirmwareConfig(watchdog_s=0.05))
     running_axis(fw)
-    fw.run(OneLateTick(3, 0.04), max_ticks=6)
+    fw.run(LateClock(3, 0.04), max_ticks=6)
     status = fw.axis(1).status()
     assert status.fault_word == 0 and status.mode == "stp" and status.moving
 
@@ -114,7 +98,7 @@ def test_selecting_a_stepping_mode_rearms_an_axis_grounded_by_the_tick_watchdog(
     """set_mode: "Selecting a stepping mode re-arms an axis grounded by a watchdog" (a host
     speaking only a real ANC300's verbs has no ``clrf``)."""
     fw = Firmware(FirmwareConfig(watchdog_s=0.05))
-    clock = OneLateTick(3, 0.2)
+    clock = LateClock(3, 0.2)
     running_axis(fw)
     fw.run(clock, max_ticks=5)
     axis = fw.axis(1)
