@@ -72,7 +72,7 @@ class MoveLane:
         loop = asyncio.get_running_loop()
         future: asyncio.Future[dict[str, Any]] = loop.create_future()
 
-        def settle(reply: dict[str, Any] | None, error: BaseException | None) -> None:
+        def settle(reply: dict[str, Any] | None, error: Exception | None) -> None:
             if future.done():  # the request was cancelled meanwhile
                 return
             if error is not None:
@@ -83,10 +83,12 @@ class MoveLane:
 
         def work() -> None:
             reply: dict[str, Any] | None = None
-            error: BaseException | None = None
+            error: Exception | None = None
             try:
                 reply = call(request)
-            except BaseException as err:  # handed over, not handled: raised in the request awaiting it
+            except Exception as err:
+                # the move thread's one boundary: whatever the daemon's handler raises is handed
+                # to the request awaiting it and raised there (a 500 with the console's message)
                 error = err
             finally:
                 with self._lock:
