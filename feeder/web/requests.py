@@ -4,13 +4,13 @@ into a move; a refusal is ``{"ok": false, "error": ...}`` with a 4xx code."""
 from __future__ import annotations
 
 import json
-import math
 from typing import Any
 
 from starlette.requests import Request
 from starlette.responses import JSONResponse
 
 from feeder.daemon.client import MAX_LINE_BYTES
+from feeder.daemon.request_fields import RequestFieldError, finite
 from feeder.errors import FeederError
 
 MAX_JOG_STEPS = 10_000
@@ -57,14 +57,6 @@ FIELDS = {
 }
 
 
-def _finite(value: float) -> bool:
-    """Whether a JSON number is a finite float (an integer beyond a float's range is not)."""
-    try:
-        return math.isfinite(value)
-    except OverflowError:  # an integer of more than 308 digits
-        return False
-
-
 def _brief(value: Any) -> str:
     """The JSON of a refused value, cut short (a 4000-digit integer is no error message)."""
     if isinstance(value, int) and not isinstance(value, bool) and abs(value).bit_length() > 128:
@@ -78,10 +70,13 @@ def checked(cmd: str, body: dict[str, Any]) -> dict[str, Any]:
         if key not in FIELDS[cmd]:
             known = ", ".join(sorted(FIELDS[cmd])) or "none"
             raise ApiError(400, f"unknown field {key!r} for {cmd}; known: {known}")
-        if key in NUMBERS and (
-            isinstance(value, bool) or not isinstance(value, (int, float)) or not _finite(value)
-        ):
-            raise ApiError(400, f"{key} must be a finite number, got {_brief(value)}")
+        if key in NUMBERS:
+            try:  # the daemon's own check (an integer beyond a float's range fails); null is none
+                number = finite(body, key)
+            except RequestFieldError:
+                number = None
+            if number is None:
+                raise ApiError(400, f"{key} must be a finite number, got {_brief(value)}")
         if key in FLAGS and not isinstance(value, bool):
             raise ApiError(400, f"{key} must be true or false")
         if key in ("part", "steps") and (isinstance(value, bool) or not isinstance(value, int)):
