@@ -184,6 +184,10 @@ def test_a_silent_slot_goes_to_a_newcomer_after_the_idle_timeout(
 ) -> None:
     monkeypatch.setattr(socket_server, "IDLE_TIMEOUT_S", 0.3)
     held = served.fill(socket_server.MAX_CLIENTS)
+    # held[0] silent longest beyond doubt: the others ask again a while later (each server thread
+    # starts its silence when it is back to reading, in an order a loaded machine may shuffle)
+    time.sleep(0.2)
+    assert all(line.ask({"cmd": "status"}) is not None for line in held[1:])
     time.sleep(0.4)
     newcomer = served.connect()
     newcomer.send({"cmd": "move", "target_m": 1e-4})
