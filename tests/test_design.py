@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -111,6 +112,19 @@ def test_amplifier_from_names_and_files(tmp_path):
         load_amplifier(bad)
     with pytest.raises(InputError, match="--amplifier"):
         resolve_amplifier("anc301")
+
+
+def test_an_unknown_amplifier_model_is_no_base_for_missing_limits(tmp_path):
+    typo = tmp_path / "typo.toml"
+    typo.write_text('[amplifier]\nmodel = "anc301"\ncurrent_limit_a = 0.3\n')
+    with pytest.raises(InputError, match=r"typo.toml: \[amplifier\].model.*'anc301'.*v_max_v"):
+        load_amplifier(typo)
+    # a design file written for an amplifier given as a file names that file and lists every limit
+    limits = AmplifierLimits(v_max_v=120.0, current_limit_a=0.2)
+    whole = tmp_path / "whole.toml"
+    whole.write_text("[amplifier]\nmodel = \"my-amp.toml\"\n"
+                     + "".join(f"{k} = {float(v)!r}\n" for k, v in asdict(limits).items()))  # fmt: skip
+    assert load_amplifier(whole) == limits
 
 
 def test_design_cli_rejects_a_bad_amplifier_before_writing(tmp_path, capsys):

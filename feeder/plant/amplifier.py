@@ -221,6 +221,13 @@ def limits_from_table(table: Mapping[str, Any], where: str) -> AmplifierLimits:
     if model is not None and not isinstance(model, str):
         raise InputError(f"{where}model", f"must be a string, got {model!r}")
     name = AMPLIFIER_ALIASES.get(model, model) if model else None
+    missing = [key for key in LIMIT_FIELDS if key not in table]
+    if name and name not in AMPLIFIER_MODELS and missing:
+        # a design file names its amplifier by model or by the file it came from and lists
+        # every limit; an unknown base (a typo) must not silently fill the rest with defaults
+        known = ", ".join([*AMPLIFIER_MODELS, *AMPLIFIER_ALIASES])
+        raise InputError(f"{where}model", f"{model[:80]!r} is not a known amplifier ({known}) to take "
+                         f"{', '.join(missing)} from; name one or give every limit")  # fmt: skip
     base = AMPLIFIER_MODELS.get(name, AmplifierLimits()) if name else AmplifierLimits()
     values: dict[str, float] = {}
     for key, value in table.items():
