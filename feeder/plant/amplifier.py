@@ -226,7 +226,7 @@ def limits_from_table(table: Mapping[str, Any], where: str) -> AmplifierLimits:
         # a design file names its amplifier by model or by the file it came from and lists
         # every limit; an unknown base (a typo) must not silently fill the rest with defaults
         known = ", ".join([*AMPLIFIER_MODELS, *AMPLIFIER_ALIASES])
-        raise InputError(f"{where}model", f"{model[:80]!r} is not a known amplifier ({known}) to take "
+        raise InputError(f"{where}model", f"{str(model)[:80]!r} is not a known amplifier ({known}) to take "
                          f"{', '.join(missing)} from; name one or give every limit")  # fmt: skip
     base = AMPLIFIER_MODELS.get(name, AmplifierLimits()) if name else AmplifierLimits()
     values: dict[str, float] = {}
