@@ -54,15 +54,13 @@ from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.planar import PlanarPart, Pose
 from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M, PlanarPlant
 from feeder.plant.plant import DEFAULT_SAMPLE_RATE_HZ
-from feeder.plant.plate_motion import AXES
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import Friction, kinetic_ratio_band
+from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
 from feeder.waveform import FLYBACK_SHAPES, Waveform
 
 log = logging.getLogger(__name__)
 
-AXIS_CHANNELS = {"x": 1, "y": 2, "theta": 3}
-"""Amplifier channel per axis (ANC300 axes 1–3, DESIGN §9)."""
 PLANAR_CANDIDATES = 5
 """θ: candidates from the 1-D ranking that run on the planar plant."""
 PLANAR_PERIODS = 3
@@ -164,12 +162,12 @@ class AxisDesign:
 
     def axis_table(self) -> dict[str, Any]:
         """The ``[axis]`` table of the design file (what the pose-control daemon reads)."""
-        return {"name": self.axis, "channel": AXIS_CHANNELS[self.axis], "pose": list(self.pose),
+        return {"name": self.axis, "channel": DEFAULT_AXIS_MAP[self.axis], "pose": list(self.pose),
                 "radius_m": self.radius_m, "lever_arm_m": self.lever_arm_m,
                 "part_shape": self.part_shape, "model": self.model}  # fmt: skip
 
     def to_json(self) -> dict[str, Any]:
-        out = {**self.design.to_json(), "axis": self.axis, "channel": AXIS_CHANNELS[self.axis],
+        out = {**self.design.to_json(), "axis": self.axis, "channel": DEFAULT_AXIS_MAP[self.axis],
                "model": self.model, "pose": list(self.pose), "radius_m": self.radius_m}  # fmt: skip
         if self.axis == "theta":
             out.update({"predicted_turn_rad": self.turn_rad,

@@ -21,7 +21,6 @@ from feeder.pose import Pose
 from feeder.pose_response import ResponseModel, physical_period_rad
 from feeder.vision.model import angle_difference
 
-AXES = ("x", "y", "theta")
 DEFAULT_TOLERANCE_M = 1e-6
 DEFAULT_TOLERANCE_RAD = math.radians(0.1)
 STATION_BAND_M = 40e-6

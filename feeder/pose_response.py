@@ -31,7 +31,8 @@ import numpy as np
 
 from feeder.errors import InputError
 from feeder.plant.planar import PlanarPart, simulate
-from feeder.plant.plate_motion import AXES, PlanarMotion, sawtooth
+from feeder.plant.plate_motion import PlanarMotion, sawtooth
+from feeder.plate_axes import AXES
 
 log = logging.getLogger(__name__)
 

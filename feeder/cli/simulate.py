@@ -55,9 +55,10 @@ from feeder.plant.plant import (
     MAX_PERIODS,
     run_waveform,
 )
-from feeder.plant.plate_motion import AXES, sawtooth
+from feeder.plant.plate_motion import sawtooth
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, StickSlip
+from feeder.plate_axes import AXES
 from feeder.waveform import DIRECTIONS, Waveform, read_waveform_tables
 
 

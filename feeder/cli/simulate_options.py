@@ -11,7 +11,7 @@ from typing import Any
 from feeder.cli.arguments import pose
 from feeder.errors import InputError
 from feeder.parts import Part, Support
-from feeder.plant.plate_motion import AXES
+from feeder.plate_axes import AXES
 from feeder.waveform import read_waveform_tables
 
 # Plate-scale ranges of the options (stated in --help).  A stack strokes ~14 µm at 200 V

@@ -29,9 +29,9 @@ from feeder.errors import InputError
 from feeder.files import save_figure, write_text
 from feeder.plant.amplifier import AmplifierLimits, OutputStage, limits_from_table
 from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
-from feeder.plant.plate_motion import AXES
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
+from feeder.plate_axes import AXES
 from feeder.waveform import (
     DEFAULT_DAC_BITS,
     DEFAULT_DAC_POINTS,

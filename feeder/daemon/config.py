@@ -20,13 +20,9 @@ from feeder.daemon.control_loop import LoopSettings
 from feeder.errors import InputError
 from feeder.parts import Part, Support
 from feeder.plant.amplifier import AMPLIFIER_MODELS, AmplifierLimits
+from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
 
 TRANSPORTS = ("serial", "can")
-AXES = ("x", "y", "theta")
-"""The plate's axes: translations x and y, rotation θ about the centre O."""
-DEFAULT_AXIS_MAP = {"x": 1, "y": 2, "theta": 3}
-"""ANC300 axis numbers (serial) or CANopen amplifier axes (CAN: node node_id + n − 1 with the
-one-axis EDS, axis n of node node_id with the three-axis EDS) of the plate's axes."""
 TRAVEL_KEYS = frozenset({"min_position_m", "max_position_m", "min_y_m", "max_y_m"})
 DEFAULT_MODELS = {"serial": "anc300", "can": "firmware_sim"}
 """The amplifier model a transport gets when the configuration names none."""

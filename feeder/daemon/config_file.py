@@ -72,8 +72,6 @@ from pathlib import Path
 from typing import Any
 
 from feeder.daemon.config import (
-    AXES,
-    DEFAULT_AXIS_MAP,
     DEFAULT_HTTP_LISTEN,
     DEFAULT_MODELS,
     DEFAULT_PART,
@@ -90,6 +88,7 @@ from feeder.errors import InputError
 from feeder.files import read_toml
 from feeder.parts import Part, Support
 from feeder.plant.amplifier import AmplifierLimits, amplifier_model, within_rating
+from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
 from feeder.pose import parse_poses
 
 
@@ -219,7 +218,7 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
         raise InputError(where, f"plate.axes must be a list of distinct axes among {', '.join(AXES)}")
     if axes[0] != "x":
         raise InputError(where, "plate.axes must start with x (the axis one-axis moves address)")
-    axis_map = table.get("axis_map", DEFAULT_AXIS_MAP)
+    axis_map = table.get("axis_map", dict(DEFAULT_AXIS_MAP))
     if not isinstance(axis_map, dict):
         raise InputError(where, "plate.axis_map must be a table, e.g. { x = 1, y = 2, theta = 3 }")
     check_keys(axis_map, set(AXES), where, "plate.axis_map.")

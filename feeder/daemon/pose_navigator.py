@@ -17,6 +17,7 @@ from typing import Any
 
 from feeder.daemon.jobs import VISIBLE_BANDS, Burst, Job, LoopSettings, Reading
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
+from feeder.plate_axes import AXES
 from feeder.pose import Pose, pose_error
 from feeder.pose_planner import AxisBurst, Finish, PosePlanner
 
@@ -31,7 +32,7 @@ class PoseNavigator:
     symmetry_rad: the part's angular symmetry (π rectangle, π/2 square, 0 disc).
     """
 
-    axes: tuple[str, ...] = ("x", "y", "theta")
+    axes: tuple[str, ...] = AXES
 
     def __init__(self, planner: PosePlanner, settings: LoopSettings, symmetry_rad: float) -> None:
         self.planner = planner

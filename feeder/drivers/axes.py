@@ -32,22 +32,20 @@ from feeder.drivers.amplifier import Amplifier, AmplifierError
 from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
 from feeder.drivers.canopen import open_node_axes
 from feeder.errors import InputError
+from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
 from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
 
 log = logging.getLogger(__name__)
 
-DEFAULT_AXIS_MAP: Mapping[str, int] = {"x": 1, "y": 2, "theta": 3}
-"""Plate axis → amplifier axis (ANC300 axes 1–3; CAN: node base + n − 1, or axis n of one node)."""
-PLATE_AXES = tuple(DEFAULT_AXIS_MAP)
 MAX_AXIS = 7
 """An ANC300 rack has 7 slots; firmware_sim has as many."""
 
 
 def check_axis_map(axis_map: Mapping[str, int], field: str = "axis_map") -> dict[str, int]:
-    """``axis_map`` checked: plate axes of :data:`PLATE_AXES`, distinct numbers in 1..7."""
-    unknown = sorted(set(axis_map) - set(PLATE_AXES))
+    """``axis_map`` checked: plate axes of :data:`AXES`, distinct numbers in 1..7."""
+    unknown = sorted(set(axis_map) - set(AXES))
     if unknown:
-        raise InputError(field, f"unknown plate axis {unknown[0]!r} (expected {', '.join(PLATE_AXES)})")
+        raise InputError(field, f"unknown plate axis {unknown[0]!r} (expected {', '.join(AXES)})")
     numbers = list(axis_map.values())
     for name, number in axis_map.items():
         if isinstance(number, bool) or not isinstance(number, int) or not 1 <= number <= MAX_AXIS:

@@ -21,8 +21,6 @@ import numpy as np
 
 from feeder.errors import InputError
 
-AXES = ("x", "y", "theta")
-
 
 @dataclass(frozen=True)
 class Segment:

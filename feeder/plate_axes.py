@@ -1,0 +1,16 @@
+"""The plate's axes and their default amplifier wiring (DESIGN §9).
+
+Data only: the plant, the planners, the drivers and the daemon all name the axes from here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from types import MappingProxyType
+
+AXES: tuple[str, ...] = ("x", "y", "theta")
+"""x and y translations of the plate, θ its rotation about the centre O."""
+DEFAULT_AXIS_MAP: Mapping[str, int] = MappingProxyType({"x": 1, "y": 2, "theta": 3})
+"""Plate axis → amplifier axis: ANC300 axes 1–3, or CANopen amplifier axes (node node_id + n − 1
+with the one-axis EDS, axis n of node node_id with the three-axis EDS); ``[plate] axis_map``
+overrides it."""
