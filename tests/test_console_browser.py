@@ -99,6 +99,7 @@ def wait_idle_with(page: Any, status: str, timeout_s: float = 30.0) -> None:
 
 def test_the_page_shows_the_part_and_a_click_and_drag_moves_it(page: Any, daemon: DaemonProcess) -> None:
     assert "#token" not in page.url  # read once, then kept out of the address
+    assert page.is_visible("#target-y") and page.is_hidden("#calibrate")  # the plane: no line calibration
     x0, y0, psi0 = part_pose(daemon)
     shown = shown_pose(page)
     assert shown[:2] == pytest.approx((x0, y0), abs=2e-6)

@@ -20,6 +20,7 @@ from feeder.cli.control import plane_status_lines
 from feeder.cli.demo_plane import config_for, move_to, true_poses, wait_for_pose
 from feeder.daemon.client import Client
 from feeder.daemon.runner import RunningDaemon, start_daemon
+from feeder.daemon.service import PLANE_CALIBRATE
 from feeder.daemon.store import Store
 from feeder.parts import Part
 from feeder.pose import Pose, pose_error
@@ -160,6 +161,9 @@ def test_the_embedded_default_is_the_plane_and_line_is_the_one_axis_world(tmp_pa
                 "travel y [-2500.000 µm, 2500.000 µm]"  # fmt: skip
             assert [line.split(":")[0] for line in text[2:]] == ["axis x", "axis y", "axis theta"]
             client.request("stop")
+            refused = client.request("calibrate")  # a line job: the plane learns from its moves
+            assert refused == {"ok": False, "error": PLANE_CALIBRATE}
+            assert client.request("status")["state"] in ("idle", "moving")  # still serving
     finally:
         assert daemon.stop() == 0
     assert list(status["axes"]) == ["x", "y", "theta"]

@@ -53,6 +53,11 @@ from feeder.vision.calibration import CameraCalibration
 
 log = logging.getLogger(__name__)
 
+PLANE_CALIBRATE = (
+    "calibrate is the one-axis daemon's job (--line): on the plane every burst of a move "
+    "teaches the pose model its x, y and θ steps"
+)
+
 POSE_KEYS = ("x_m", "y_m", "angle_rad")
 """A pose move's target, any subset (m, m, rad; plate frame)."""
 BACKOFF_FIRST_S = 0.2
@@ -398,6 +403,8 @@ class Daemon:
         return self._run_job(self._new_job("move", target, by, part=part), request)
 
     def _cmd_calibrate(self, request: dict[str, Any]) -> dict[str, Any]:
+        if self.setup.pose_navigator is not None:
+            return {"ok": False, "error": PLANE_CALIBRATE}
         try:
             steps = integer(request, "steps", CALIBRATION_STEPS, 2, 10_000)
         except RequestFieldError as err:

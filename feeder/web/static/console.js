@@ -320,6 +320,7 @@ function onStatus() {
   const part = parts().find((p) => p.id === selectedPart()) || parts()[0];
   $("position").textContent = part ? `part ${part.id}: x ${um(part.pose[0])}` + (hasPoses() ? `, y ${um(part.pose[1])}, ${deg(part.pose[2])}` : "") : "position unknown";
   for (const el of document.querySelectorAll(".pose-only")) el.hidden = !hasPoses();
+  for (const el of document.querySelectorAll(".line-only")) el.hidden = hasPoses();  // calibrate: a line job
   updatePartChoice();
   updateAxes(part);
   updateCalibration();
