@@ -52,6 +52,8 @@ class ScriptedDaemon:
             return {"ok": True, "result": {"status": "stopped" if self.stopped.is_set() else "done"}}
         if cmd == "big":
             return {"ok": True, "pad": "x" * 4_000_000}
+        if cmd == "bug":  # a handler's programming error
+            return {"ok": True, "missing": {}["key"]}
         return {"ok": False, "error": f"unknown cmd {cmd!r}"}
 
 
@@ -276,3 +278,14 @@ def test_an_unhashable_command_over_the_cap_is_refused_not_a_crash(served: Serve
     assert late.ask({"cmd": ["stop"]}) == {"ok": False, "error": REFUSAL}
     assert late.read() is None
     assert served.connect().ask({"cmd": "stop"}) == {"ok": True, "stopped": True, "dequeued": 0}
+
+
+def test_a_handler_that_fails_gets_its_client_an_error_reply_and_the_connection_lives_on(
+    served: Served, caplog: pytest.LogCaptureFixture
+) -> None:
+    line = served.connect()
+    with caplog.at_level("ERROR", logger=socket_server.__name__):
+        reply = line.ask({"cmd": "bug"})
+    assert reply == {"ok": False, "error": "internal error (KeyError: 'key'): see the daemon's log"}
+    assert "Traceback" in caplog.text or any(r.exc_info for r in caplog.records)
+    assert line.ask({"cmd": "status"}) == {"ok": True, "state": "moving", "waiting": 0}

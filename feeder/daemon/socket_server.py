@@ -342,3 +342,9 @@ class SocketServer:
         except (ValueError, TypeError, OverflowError, RecursionError) as err:
             # a value no handler expected (NaN in a reply, an integer too large for a float)
             return {"ok": False, "error": f"cannot answer: {type(err).__name__}: {str(err)[:200]}"}
+        except Exception as err:  # the one boundary of a client's request
+            # a handler's bug: the client gets a reply (as HTTP's 500), the traceback goes to the
+            # log, and the connection, the other clients and the device stay as they were
+            log.exception("request %.200r failed", request)
+            return {"ok": False, "error": f"internal error ({type(err).__name__}: {str(err)[:200]}): "
+                    "see the daemon's log"}  # fmt: skip
