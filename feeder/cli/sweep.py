@@ -20,7 +20,9 @@ from feeder.errors import InputError
 
 def register(sub: Any) -> None:
     p = sub.add_parser("sweep", help="parameter sweep on Dask (local cluster or a scheduler), to Parquet")
-    p.add_argument("spec", type=Path, help="sweep spec (TOML; see docs in feeder/sweep.py, waveforms/)")
+    p.add_argument(
+        "spec", type=Path, help="sweep spec (TOML; format: feeder/sweep_spec.py; examples: waveforms/)"
+    )
     p.add_argument("--out", type=Path, required=True, help="results (Parquet); part files go beside it")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, help="local Dask cluster of N processes (default: cores)")
