@@ -211,12 +211,16 @@ def test_sensor_lost_stops_and_reports(world: FakeWorld) -> None:
         sensor.lost = True
         assert job.done.wait(10)
         refused = loop.submit(Job("move", target_m=0.0))
+        while "ground" not in amp.calls and time.monotonic() < deadline:
+            time.sleep(0.01)
+        calls = list(amp.calls)  # before the shutdown, which grounds too
     finally:
         loop.shutdown()
     assert job.result is not None and job.result.status == "fault"
     assert "sensor lost" in job.result.reason
     assert faults and faults[0][0] == "sensor"
-    assert "stop" in amp.calls and not world.moving(time.monotonic())
+    assert "stop" in calls and not world.moving(time.monotonic())
+    assert "ground" in calls[calls.index("stop") :]  # then grounded: the loop is blind
     assert refused is not None and "sensor" in refused
 
 

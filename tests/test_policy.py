@@ -332,12 +332,24 @@ def test_sensor_loss_stops_the_output_and_faults() -> None:
     to_first_burst(rig)
     rig.policy.on_sensor_lost("camera gone")
     rig.tick(sample=False)
-    assert [o.kind for o in rig.outputs if isinstance(o, Command)][-1] == "stop"
+    # blind: the burst stops, then every axis goes to ground (the next move enables again)
+    assert [o.kind for o in rig.outputs if isinstance(o, Command)][-2:] == ["stop", "ground"]
     assert rig.policy.state == "fault" and rig.policy.position_m is None
     assert rig.finished().result.status == "fault"
     assert "sensor lost" in rig.finished().result.reason
     rig.policy.sensor_restored()
     assert rig.policy.state == "idle" and rig.policy.position_m is None
+
+
+def test_an_idle_sensor_loss_grounds_and_a_refused_ground_is_a_lost_link() -> None:
+    rig = Rig()
+    rig.policy.on_sensor_lost("camera gone")
+    rig.tick(sample=False)
+    commands = [o for o in rig.outputs if isinstance(o, Command)]
+    assert [c.kind for c in commands] == ["ground"]  # no job: nothing to stop, still grounded
+    rig.complete(commands[0], error="Axis in fault state")
+    rig.tick(sample=False)
+    assert rig.policy.fault is not None and "refused ground" in rig.policy.fault
 
 
 def test_part_seen_outside_limits_mid_burst_stops_and_ends_as_limit() -> None:

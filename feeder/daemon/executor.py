@@ -121,6 +121,9 @@ class AmplifierExecutor:
                 for each in (amp, *(a for a in amplifiers.values() if a is not amp)):
                     each.stop()
                 counter, estimated = amp.steps_played()
+            elif command.kind == "ground":
+                for each in amplifiers.values():
+                    each.ground()
             else:
                 raise ValueError(f"unknown command {command.kind!r}")
             return Completion(command, self._clock(), counter=counter, estimated=estimated)

@@ -97,11 +97,11 @@ class Command:
     axis: str = "x"
 
 
-COMMANDS = ("enable", "apply", "step", "confirm_end", "stop")
+COMMANDS = ("enable", "apply", "step", "confirm_end", "stop", "ground")
 """enable: leave ground on every axis (clearing a latched transient fault); apply: load a
 mode's waveform on ``axis``; step: start a burst of ``steps`` (signed) on ``axis``;
 confirm_end: check the burst on ``axis`` is over (``stepw``); stop: stop every axis now
-(the counter reported is ``axis``')."""
+(the counter reported is ``axis``'); ground: every axis to ground (the next job enables)."""
 
 
 @dataclass(frozen=True)

@@ -224,6 +224,8 @@ class Policy:
         if self.job is not None:
             self._emit_stop()
             self._finish(self.job, "fault", f"sensor lost: {message}", None)
+        self._out.append(Command("ground"))  # blind: every axis to ground, after the stop
+        self._enabled = False
         self.state = "fault"
 
     def on_completion(self, done: Completion) -> None:
@@ -235,8 +237,8 @@ class Policy:
         if done.error is not None:
             if done.link_lost:
                 self._link_lost(done.error)
-            elif kind == "stop":  # the output may still play: a link that cannot stop is lost
-                self._link_lost(f"the amplifier refused stop: {done.error}")
+            elif kind in ("stop", "ground"):  # the output may still play: such a link is lost
+                self._link_lost(f"the amplifier refused {kind}: {done.error}")
             else:
                 self._enabled = False  # the next job checks the output's state again
                 self._applied = {}
