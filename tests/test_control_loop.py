@@ -453,3 +453,17 @@ def test_the_reconnect_and_the_simulator_it_restarts_run_at_ordinary_priority(wo
     finally:
         loop.shutdown()
     assert seen == {"handler": os.SCHED_OTHER, "child": os.SCHED_OTHER}
+
+
+def test_held_parts_are_released_only_between_moves(world: FakeWorld) -> None:
+    loop, _, _ = make_loop(world)
+    try:
+        assert loop.release() == [] and loop.holds() == []  # one axis: nothing held
+        job = Job("move", target_m=900e-6)
+        assert loop.submit(job) is None
+        assert loop.release() == "a move is running: release held parts once it has ended (or stop it)"
+        loop.request_stop()
+        assert job.done.wait(10)
+        assert loop.release() == []
+    finally:
+        loop.shutdown()

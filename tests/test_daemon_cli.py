@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import signal
@@ -16,6 +17,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from test_client import ScriptedServer
@@ -326,3 +328,31 @@ def test_the_lazy_parser_is_the_full_parser() -> None:
         lazy = build_parser([name])
         (lazy_sub,) = [a for a in lazy._actions if a.dest == "command"]
         assert lazy_sub.choices[name].format_help() == parser.format_help(), name
+
+
+def test_pose_moves_no_wait_one_turn_and_release(short_dir: Path, capsys) -> None:
+    """A pose move may return once accepted; an angle beyond one turn is bad input (exit 2, nothing
+    sent); `release` names what it let go."""
+    path = short_dir / "s.sock"
+    asked: list[dict[str, Any]] = []
+
+    def answer(request: dict[str, Any], conn: Any) -> dict[str, Any]:
+        asked.append(request)
+        if request["cmd"] == "release":
+            return {"ok": True, "released": [] if request.get("part") == 3 else [1, 2]}
+        return {"ok": True, "accepted": True, "queue_position": 0}
+
+    server = ScriptedServer(path, answer)
+    try:
+        assert main(["move", "--x", "1mm", "--angle", "30deg", "--no-wait", "--socket", str(path)]) == 0
+        assert asked[-1]["wait"] is False and asked[-1]["angle_rad"] == pytest.approx(math.radians(30))
+        sent = len(asked)
+        assert main(["move", "--angle", "400deg", "--socket", str(path)]) == 2
+        assert "--angle: must lie within ±360° (one turn), got 400°" in capsys.readouterr().err
+        assert len(asked) == sent  # refused before anything reached the daemon
+        assert main(["release", "--socket", str(path)]) == 0
+        assert capsys.readouterr().out == "released part 1, 2\n" and "part" not in asked[-1]
+        assert main(["release", "--part", "3", "--socket", str(path), "--json"]) == 0
+        assert json.loads(capsys.readouterr().out) == {"released": []} and asked[-1]["part"] == 3
+    finally:
+        server.close()

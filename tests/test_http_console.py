@@ -40,6 +40,7 @@ ENDPOINTS = [
     ("POST", "/api/jog"),
     ("POST", "/api/stop"),
     ("POST", "/api/calibrate"),
+    ("POST", "/api/release"),
     ("GET", "/api/live"),
     ("GET", "/api/unknown"),
     ("GET", "/favicon.ico"),
@@ -162,6 +163,9 @@ def test_a_cross_origin_post_gets_403_a_script_and_the_page_pass(console: Consol
         ("POST", "/api/jog", b'{"axis": "x", "steps": 0}', 400, "non-zero"),
         ("POST", "/api/jog", b'{"axis": "y", "steps": 3}', 409, "one axis"),
         ("POST", "/api/stop", b'{"now": true}', 400, "unknown field 'now'"),
+        ("POST", "/api/move", b'{"x_m": 1e-4, "part": 0}', 400, "part must be a part id ≥ 1, got 0"),
+        ("POST", "/api/release", b'{"part": "all"}', 400, "part must be an integer"),
+        ("POST", "/api/release", b'{"parts": [1]}', 400, "unknown field 'parts' for release"),
         ("GET", "/api/history?limit=abc", None, 400, "limit must be"),
         ("GET", "/api/history?limit=0", None, 409, "limit must be an integer in [1, 100000]"),
         ("GET", "/api/move", None, 405, "Method Not Allowed"),
@@ -199,6 +203,12 @@ def test_rate_limit_refills_at_its_rate() -> None:
     assert [limit.take() for _ in range(3)] == [0.0, 0.0, pytest.approx(0.5)]
     now[0] = 0.5
     assert limit.take() == 0.0 and limit.take() == pytest.approx(0.5)
+
+
+def test_one_axis_holds_no_part_and_release_lets_none_go(console: Console) -> None:
+    assert console.call("GET", "/api/status")[1]["held"] == []
+    assert console.call("POST", "/api/release", {})[:2] == (200, {"ok": True, "released": []})
+    assert console.call("POST", "/api/release", {"part": 2})[:2] == (200, {"ok": True, "released": []})
 
 
 def test_a_jog_moves_by_learned_steps(console: Console) -> None:

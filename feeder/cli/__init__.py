@@ -43,6 +43,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "stop": ("control", "stop the running move (and drop queued ones)"),
     "calibrate": ("control", "learn the step sizes: bursts forward and back, both waveforms"),
     "history": ("control", "recorded moves, oldest first"),
+    "release": ("control", "let held parts go: later moves of other parts no longer keep them (plane)"),
     "shutdown": ("control", "stop the daemon (it grounds the output first)"),
     "waveform": ("waveform", "show a waveform file or export its tables"),
     "simulate": ("simulate", "simulate a part stepping on the plate"),

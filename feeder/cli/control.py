@@ -101,6 +101,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _common(history)
     history.set_defaults(handler=run_history)
 
+    release = subparsers.add_parser(
+        "release", help="let held parts go: later moves of other parts no longer keep them (plane)"
+    )
+    release.add_argument("--part", type=int, help="this part only (default: every held part)")
+    _common(release)
+    release.set_defaults(handler=run_release)
+
     shutdown = subparsers.add_parser("shutdown", help="stop the daemon (it grounds the output first)")
     _common(shutdown)
     shutdown.set_defaults(handler=run_shutdown)
@@ -113,7 +120,7 @@ def _client(args: argparse.Namespace) -> Client:
 def _pose(pose: tuple[float, float, float | None] | None) -> str:
     if pose is None:
         return "?"
-    angle = "any angle" if pose[2] is None else f"{math.degrees(pose[2]):.3f}°"
+    angle = "any angle" if pose[2] is None or math.isnan(pose[2]) else f"{math.degrees(pose[2]):.3f}°"
     return f"({pose[0] * 1e6:.2f}, {pose[1] * 1e6:.2f}) µm, {angle}"
 
 
@@ -152,6 +159,14 @@ def _deg(value: float | None) -> str:
     return "?" if value is None else f"{math.degrees(value):.4f}°"
 
 
+def _angle_error(result: MoveResult) -> str:
+    """The angle's error, or why there is none (any angle, or no reached pose)."""
+    if result.error_rad is not None:
+        return f"{math.degrees(result.error_rad):.3f}°"
+    target = result.target_pose
+    return "any angle" if target is not None and math.isnan(target[2]) else "?"
+
+
 def _um(value: float | None) -> str:
     return "?" if value is None else f"{value * 1e6:.3f} µm"
 
@@ -160,8 +175,8 @@ def _print_result(result: MoveResult) -> None:
     if result.target_pose is not None:
         print(
             f"{result.kind} of part {result.part} {result.status}: {result.reason}; at {_pose(result.pose)}"
-            f" for target {_pose(result.target_pose)} (error {_um(result.error_m)},"
-            f" {math.degrees(result.error_rad or 0.0):.3f}°), {result.steps} steps in {result.bursts} bursts,"
+            f" for target {_pose(result.target_pose)} (error {_um(result.error_m)}, {_angle_error(result)}),"
+            f" {result.steps} steps in {result.bursts} bursts,"
             f" {result.duration_s:.2f} s"
         )
         return
@@ -205,9 +220,12 @@ def run_move(args: argparse.Namespace) -> int:
     if pose:
         if args.target_m is not None or args.by_m is not None:
             raise InputError("--x/--y/--angle", "give a pose or TARGET_M/--by, not both")
-        if args.no_wait:
-            raise InputError("--no-wait", "a pose move waits for its end")
-        return _job(args, "move", lambda c, wait: c.move_to_pose(**pose, part=args.part, queue=args.queue))
+        if args.angle_rad is not None and abs(args.angle_rad) > 2 * math.pi:
+            degrees = math.degrees(args.angle_rad)
+            raise InputError("--angle", f"must lie within ±360° (one turn), got {degrees:g}°")
+        return _job(
+            args, "move", lambda c, wait: c.move_to_pose(**pose, part=args.part, queue=args.queue, wait=wait)
+        )
     if (args.target_m is None) == (args.by_m is None):
         raise InputError("TARGET_M", "give TARGET_M, --by DELTA_M, or a pose (--x, --y, --angle)")
     if args.by_m is not None:
@@ -228,6 +246,18 @@ def run_stop(args: argparse.Namespace) -> int:
         print_json({"stopped": stopped.stopped, "dequeued": stopped.dequeued})
     else:
         print("stopped the running move" if stopped.stopped else "nothing was moving")
+    return 0
+
+
+def run_release(args: argparse.Namespace) -> int:
+    if args.part is not None and args.part < 1:
+        raise InputError("--part", f"must be a part id ≥ 1, got {args.part}")
+    with _client(args) as client:
+        released = client.release(args.part)
+    if args.json:
+        print_json({"released": released})
+    else:
+        print(f"released part {', '.join(map(str, released))}" if released else "no part was held")
     return 0
 
 

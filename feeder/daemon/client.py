@@ -1,7 +1,7 @@
 """Client of the daemon's Unix socket: one JSON object per line each way.
 
 Requests are ``{"cmd": "move" | "stop" | "status" | "calibrate" | "history" |
-"shutdown", ...}``; replies are ``{"ok": true, ...}`` or ``{"ok": false,
+"release" | "shutdown", ...}``; replies are ``{"ok": true, ...}`` or ``{"ok": false,
 "error": "..."}``.  The client refuses a socket that another user owns, so a
 planted socket cannot impersonate the daemon.
 
@@ -9,7 +9,7 @@ planted socket cannot impersonate the daemon.
 
 - typed calls for scripts: :meth:`~Client.move_to`, :meth:`~Client.move_by`,
   :meth:`~Client.calibrate`, :meth:`~Client.stop`, :meth:`~Client.status`,
-  :meth:`~Client.history`, :meth:`~Client.shutdown`.  They return dataclasses
+  :meth:`~Client.history`, :meth:`~Client.release`, :meth:`~Client.shutdown`.  They return dataclasses
   (:mod:`feeder.daemon.replies`: SI units, the protocol's key names) and raise
   the :class:`~feeder.errors.DaemonError` family: :class:`~feeder.errors.DaemonRefused`,
   :class:`~feeder.errors.MoveFailed` (:class:`~feeder.errors.MoveFaulted`),
@@ -235,6 +235,15 @@ class Client:
         reply = self._call("history", timeout_s, limit=limit)
         return _parse("history", lambda r: [MoveRecord.from_dict(m) for m in r["moves"]], reply)
 
+    def release(self, part: int | None = None, *, timeout_s: float | None = None) -> list[int]:
+        """Let held parts go (``part``, or every part): later moves of other parts no longer keep
+        them at their targets.  The ids released; :class:`DaemonRefused` while a
+        move runs."""
+        if part is not None and (isinstance(part, bool) or not isinstance(part, int) or part < 1):
+            raise InputError("part", f"must be a part id ≥ 1, got {part!r}")
+        reply = self._call("release", timeout_s, **({} if part is None else {"part": part}))
+        return _parse("release", lambda r: [int(p) for p in r["released"]], reply)
+
     def stop(self, *, timeout_s: float | None = None) -> StopResult:
         """Stop the running move and drop queued ones (the move's own call then raises
         :class:`~feeder.errors.MoveFailed` with status ``stopped``)."""
@@ -316,6 +325,45 @@ class Client:
         :meth:`move_to`."""
         return self._job("move", {"by_m": _metres("delta_m", delta_m)}, queue, wait, timeout_s)
 
+    @overload
+    def move_to_pose(
+        self,
+        x_m: float | None = ...,
+        y_m: float | None = ...,
+        angle_rad: float | None = ...,
+        *,
+        part: int = ...,
+        queue: bool = ...,
+        wait: Literal[True] = ...,
+        timeout_s: float | None = ...,
+    ) -> MoveResult: ...
+
+    @overload
+    def move_to_pose(
+        self,
+        x_m: float | None = ...,
+        y_m: float | None = ...,
+        angle_rad: float | None = ...,
+        *,
+        part: int = ...,
+        queue: bool = ...,
+        wait: Literal[False],
+        timeout_s: float | None = ...,
+    ) -> Accepted: ...
+
+    @overload
+    def move_to_pose(
+        self,
+        x_m: float | None = ...,
+        y_m: float | None = ...,
+        angle_rad: float | None = ...,
+        *,
+        part: int = ...,
+        queue: bool = ...,
+        wait: bool = ...,
+        timeout_s: float | None = ...,
+    ) -> MoveResult | Accepted: ...
+
     def move_to_pose(
         self,
         x_m: float | None = None,
@@ -324,11 +372,12 @@ class Client:
         *,
         part: int = 1,
         queue: bool = False,
+        wait: bool = True,
         timeout_s: float | None = None,
-    ) -> MoveResult:
+    ) -> MoveResult | Accepted:
         """Bring ``part`` to a pose in the plate frame: any of ``x_m``, ``y_m`` (m, centre) and
         ``angle_rad`` (its first dimension's direction from +x towards +y); what is not given
-        keeps its value.  Waits for the end, as :meth:`move_to` does."""
+        keeps its value.  Waits for the end, or returns once accepted, as :meth:`move_to`."""
         target = {
             key: _finite(key, value, unit)
             for key, value, unit in (
@@ -342,9 +391,7 @@ class Client:
             raise InputError("pose", "give at least one of x_m, y_m and angle_rad")
         if isinstance(part, bool) or not isinstance(part, int) or part < 1:
             raise InputError("part", f"must be a part id (an integer >= 1), got {part!r}")
-        result = self._job("move", {**target, "part": part}, queue, True, timeout_s)
-        assert isinstance(result, MoveResult)
-        return result
+        return self._job("move", {**target, "part": part}, queue, wait, timeout_s)
 
     @overload
     def calibrate(

@@ -384,6 +384,18 @@ class ControlLoop:
         with self._lock:
             return self.policy.estimates()
 
+    def release(self, part: int | None = None) -> list[int] | str:
+        """Let held parts go (the navigator's :meth:`release`): the ids released, or why not."""
+        with self._lock:
+            if self.policy.job is not None:
+                return "a move is running: release held parts once it has ended (or stop it)"
+            return self.policy.navigator.release(part)
+
+    def holds(self) -> list[dict[str, Any]]:
+        """The parts later moves keep at their targets, with those targets."""
+        with self._lock:
+            return self.policy.navigator.holds()
+
     def estimates_json(self) -> dict[str, Any]:
         """Learned step and burst offset per ``mode/direction`` (m), for replies."""
         with self._lock:

@@ -7,6 +7,7 @@ and the loop that does the I/O.  Lengths in m, angles in rad, times in s.
 from __future__ import annotations
 
 import collections
+import math
 import threading  # a Job's done event only: the policy never waits on it
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -178,6 +179,16 @@ class JobResult:
             return None
         return pose_error(self.reached_pose, self.target_pose, self.symmetry_rad)[1]
 
+    def reached_on_branch(self) -> Pose:
+        """The reached pose, its angle on the target's branch: a part of symmetry s looks the same
+        turned by s, so the camera's angle is taken within ±s/2 of the target's (as is ``error_rad``)."""
+        assert self.reached_pose is not None
+        x, y, psi = self.reached_pose
+        if self.target_pose is None or self.angle_free or self.symmetry_rad <= 0:
+            return self.reached_pose
+        target = self.target_pose[2]
+        return (x, y, target + math.remainder(psi - target, self.symmetry_rad))
+
     def as_dict(self, with_trace: bool = False) -> dict[str, Any]:
         out: dict[str, Any] = {
             "kind": self.kind,
@@ -194,11 +205,12 @@ class JobResult:
             "estimates": self.estimates,
         }
         if self.target_pose is not None:
+            x, y, psi = self.target_pose
             out.update(
                 part=self.part,
-                target_pose=list(self.target_pose),
+                target_pose=[x, y, None if self.angle_free else psi],  # None: any angle
                 start_pose=None if self.start_pose is None else list(self.start_pose),
-                pose=None if self.reached_pose is None else list(self.reached_pose),
+                pose=None if self.reached_pose is None else list(self.reached_on_branch()),
                 error_rad=self.error_rad,
                 angle_free=self.angle_free,
                 bursts_per_axis=self.bursts_per_axis,
@@ -238,6 +250,7 @@ class Job:
         self.part = part
         self.target_pose: Pose | None = None  # resolved when the loop accepts it
         self.angle_free = False  # the target's angle is any angle (beside a held part)
+        self.angle_asked = False  # the request gave an angle (a hold keeps it)
         self.planned = collections.deque(bursts)
         self.on_start = on_start
         self.on_done = on_done

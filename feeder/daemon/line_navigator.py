@@ -169,6 +169,13 @@ class LineNavigator:
     def reached(self, job: Job, reading: Reading) -> None:
         """Nothing to remember: the next move starts from wherever the part is."""
 
+    def release(self, part: int | None = None) -> list[int]:
+        """One axis holds no part."""
+        return []
+
+    def holds(self) -> list[dict[str, Any]]:
+        return []
+
     # -- what it learned ---------------------------------------------------------------
 
     def estimates(self) -> dict[str, StepEstimate]:

@@ -6,7 +6,11 @@ pure: poses in, an axis burst out) to the policy's navigator interface
 ``x_m``, ``y_m``, ``angle_rad``) keep the part's current value for the rest;
 a one-axis move (``target_m``/``by_m``) is a move of part 1's x.  Parts
 brought to a target stay *held* there: a later move of another part keeps
-them at their targets, or is refused when the planner cannot do both.
+them at their targets, or is refused when the planner cannot do both.  A hold
+keeps what the move asked for: the position, and the angle only when one was
+given (else NaN, any angle); :meth:`release` lets parts go (``feeder release``),
+and a move of a held part replaces its hold once done.  Holds live in memory: a
+restarted daemon holds nothing.
 """
 
 from __future__ import annotations
@@ -71,9 +75,15 @@ class PoseNavigator:
         job.angle_free = "angle_rad" not in spec and any(p != job.part for p in self.held)
         refused = self.planner.check(self._targets(job, target), list(reading))
         if refused is not None:
+            held = sorted(p for p in self.held if p != job.part)
+            if held:
+                names = ", ".join(str(p) for p in held)
+                return f"{refused} (held: part {names}; `feeder release` lets held parts go)"
             return refused
+        self.held.pop(job.part, None)  # re-placed: held again where this move ends done
         job.target_pose = target
         job.target_m = target[0]
+        job.angle_asked = "angle_rad" in spec
         return None
 
     def _targets(self, job: Job, target: Pose) -> dict[int, Pose]:
@@ -127,9 +137,25 @@ class PoseNavigator:
         return Burst(nxt.mode, FORWARD if nxt.direction > 0 else BACKWARD, nxt.steps, nxt.axis)
 
     def reached(self, job: Job, reading: Reading) -> None:
-        """The job is done at ``reading``: its part is held at its target from now on."""
+        """The job is done at ``reading``: its part is held at its target from now on (its
+        angle only when the move asked for one)."""
         assert job.target_pose is not None
-        self.held[job.part] = reading[job.part - 1] if job.angle_free else job.target_pose
+        x, y, psi = job.target_pose
+        self.held[job.part] = (x, y, psi if job.angle_asked else math.nan)
+
+    def release(self, part: int | None = None) -> list[int]:
+        """Let ``part`` (None: every part) go: later moves no longer keep it; the ids released."""
+        released = sorted(self.held) if part is None else [part] if part in self.held else []
+        for p in released:
+            del self.held[p]
+        return released
+
+    def holds(self) -> list[dict[str, Any]]:
+        """Each held part and its held pose [x_m, y_m, angle_rad or None: any angle]."""
+        return [
+            {"part": p, "pose": [x, y, None if math.isnan(psi) else psi]}
+            for p, (x, y, psi) in sorted(self.held.items())
+        ]
 
     # -- what it learned ---------------------------------------------------------------
 

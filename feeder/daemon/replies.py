@@ -9,6 +9,7 @@ raises ``KeyError``, ``TypeError`` or ``ValueError`` (the client reports it as
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -236,7 +237,8 @@ class MoveRecord:
 
 
 def _pose(value: Any) -> Pose | None:
+    """A reply's [x, y, angle] (angle None: any angle, as NaN)."""
     if value is None:
         return None
-    x, y, psi = (float(v) for v in value)
-    return (x, y, psi)
+    x, y, psi = value
+    return (float(x), float(y), math.nan if psi is None else float(psi))

@@ -344,6 +344,7 @@ class Daemon:
                 "status": self._cmd_status,
                 "calibrate": self._cmd_calibrate,
                 "history": self._cmd_history,
+                "release": self._cmd_release,
                 "shutdown": self._cmd_shutdown,
             }.get(cmd)
             if isinstance(cmd, str)
@@ -352,7 +353,8 @@ class Daemon:
         if handler is None:
             return {
                 "ok": False,
-                "error": f"unknown cmd {cmd!r}; known: move, stop, status, calibrate, history, shutdown",
+                "error": f"unknown cmd {cmd!r}; known: move, stop, status, calibrate, history, release, "
+                "shutdown",
             }
         return handler(request)
 
@@ -446,6 +448,17 @@ class Daemon:
         stopped = self.loop.request_stop()
         return {"ok": True, "stopped": stopped, "dequeued": len(queued)}
 
+    def _cmd_release(self, request: dict[str, Any]) -> dict[str, Any]:
+        """Let held parts go: ``part`` N, or every part when absent (the plane; one axis holds none)."""
+        try:
+            part = None if request.get("part") is None else integer(request, "part", 1, 1)
+        except RequestFieldError as err:
+            return {"ok": False, "error": str(err)}
+        released = self.loop.release(part)
+        if isinstance(released, str):
+            return {"ok": False, "error": released}
+        return {"ok": True, "released": released}
+
     def _cmd_history(self, request: dict[str, Any]) -> dict[str, Any]:
         try:
             limit = integer(request, "limit", 100, 1, 100_000)
@@ -483,6 +496,7 @@ class Daemon:
             "last_known_position_m": None if last_known is None else last_known.position_m,
             "target_m": None if job is None else job.target_m,
             **pose_target(job),
+            "held": loop.holds(),
             "fault": loop.fault or (None if loop.sensor_lost is None else f"sensor lost: {loop.sensor_lost}"),
             "reconnecting": reconnecting,
             "faults": faults,

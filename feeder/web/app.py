@@ -12,6 +12,7 @@ CLI and scripts share one vocabulary:
 | ``POST /api/jog`` | ``{"axis", "steps"}``: a relative move by ``steps`` learned steps of one axis |
 | ``POST /api/stop`` | ``{"cmd": "stop"}`` |
 | ``POST /api/calibrate`` | ``{"cmd": "calibrate", ...body}`` |
+| ``POST /api/release`` | ``{"cmd": "release", ...body}`` (``part``; none: every held part) |
 | ``WS /api/live`` | pushes the status (JSON text, ``time_s`` = wall clock of the snapshot) at
   :data:`LIVE_PERIOD_S` and the newest camera frame (binary JPEG) when there is a camera |
 
@@ -182,6 +183,10 @@ def console_app(
         rate_limited()
         return reply(await ask_move({**body, "cmd": "calibrate"}))
 
+    async def release(request: Request) -> Response:
+        body = checked("release", await json_body(request))
+        return reply(await ask({**body, "cmd": "release"}))
+
     async def stop(request: Request) -> Response:
         checked("stop", await json_body(request))
         return reply(await urgent.run(daemon.handle, {"cmd": "stop"}))
@@ -248,6 +253,7 @@ def console_app(
         Route("/api/jog", endpoint(jog), methods=["POST"]),
         Route("/api/stop", endpoint(stop), methods=["POST"]),
         Route("/api/calibrate", endpoint(calibrate), methods=["POST"]),
+        Route("/api/release", endpoint(release), methods=["POST"]),
         WebSocketRoute("/api/live", live_socket),
     ]
     app = Starlette(

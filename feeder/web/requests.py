@@ -53,6 +53,7 @@ FIELDS = {
     "move": NUMBERS | FLAGS | {"part"},
     "calibrate": FLAGS | {"steps"},
     "stop": frozenset(),
+    "release": frozenset({"part"}),
     "jog": frozenset({"axis", "steps", "part"}),
 }
 
@@ -81,6 +82,8 @@ def checked(cmd: str, body: dict[str, Any]) -> dict[str, Any]:
             raise ApiError(400, f"{key} must be true or false")
         if key in ("part", "steps") and (isinstance(value, bool) or not isinstance(value, int)):
             raise ApiError(400, f"{key} must be an integer")
+        if key == "part" and value < 1:
+            raise ApiError(400, f"part must be a part id ≥ 1, got {_brief(value)}")
     return body
 
 

@@ -1,0 +1,87 @@
+"""Held parts on the plane (feeder/daemon/pose_navigator.py): a hold keeps what its move asked for,
+`release` lets parts go, refusals caused by holds say how; a move's result reports "any angle" as
+such and the reached angle on the target's branch (feeder/daemon/jobs.py, feeder/cli/control.py)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from test_pose_policy import Plane
+
+from feeder.cli.control import _print_result
+from feeder.daemon.jobs import Job, JobResult
+from feeder.daemon.pose_navigator import PoseNavigator
+from feeder.daemon.replies import MoveResult
+
+
+def navigator_of(plane: Plane) -> PoseNavigator:
+    navigator = plane.policy.navigator
+    assert isinstance(navigator, PoseNavigator)
+    return navigator
+
+
+def test_a_hold_keeps_the_angle_only_when_the_move_asked_for_one() -> None:
+    plane = Plane()
+    assert plane.run(Job("move", pose_target={"x_m": 300e-6})).result.status == "done"
+    x, y, psi = navigator_of(plane).held[1]
+    assert (x, y) == (300e-6, 0.0) and math.isnan(psi)  # no angle asked: any angle is held
+    assert navigator_of(plane).holds() == [{"part": 1, "pose": [300e-6, 0.0, None]}]
+    assert plane.run(Job("move", pose_target={"angle_rad": 0.2})).result.status == "done"
+    assert navigator_of(plane).held[1] == (300e-6, 0.0, 0.2)  # re-placed, with the angle asked
+
+
+def test_a_refusal_caused_by_a_hold_names_it_and_release_lets_it_go() -> None:
+    plane = Plane()
+    assert plane.run(Job("move", pose_target={"x_m": 300e-6})).result.status == "done"
+    refused = plane.policy.submit(Job("move", pose_target={"x_m": 0.0}, part=2), plane.now)
+    assert refused is not None
+    assert refused.endswith("(held: part 1; `feeder release` lets held parts go)")
+    navigator = navigator_of(plane)
+    assert navigator.release(2) == [] and navigator.held.keys() == {1}  # part 2 was not held
+    assert navigator.release() == [1] and navigator.holds() == []
+    done = plane.run(Job("move", pose_target={"x_m": 0.0}, part=2))
+    assert done.result.status == "done"
+    assert navigator.holds() == [{"part": 2, "pose": [0.0, 200e-6, None]}]
+
+
+def test_a_move_of_a_held_part_that_does_not_end_done_leaves_it_unheld() -> None:
+    plane = Plane()
+    assert plane.run(Job("move", pose_target={"x_m": 300e-6})).result.status == "done"
+    job = Job("move", pose_target={"x_m": 900e-6})
+    plane.sample()
+    assert plane.policy.submit(job, plane.now) is None
+    assert 1 not in navigator_of(plane).held  # its old target no longer holds it
+    plane.policy.request_stop("operator")
+
+
+def result(**changes: object) -> JobResult:
+    base: dict[str, object] = dict(
+        kind="move", status="done", reason="every part within tolerance", target_m=1e-3, start_m=0.0,
+        reached_m=1e-3, steps=10, bursts=2, duration_s=1.0, estimates={}, part=2,
+        target_pose=(1e-3, 0.5e-3, 0.3), start_pose=(0.0, 0.0, 0.0), reached_pose=(1e-3, 0.5e-3, 0.3),
+        symmetry_rad=math.pi / 2,
+    )  # fmt: skip
+    base.update(changes)
+    return JobResult(**base)  # type: ignore[arg-type]
+
+
+def test_any_angle_is_reported_as_none_not_as_an_invented_angle(capsys: pytest.CaptureFixture[str]) -> None:
+    free = result(angle_free=True)
+    out = free.as_dict()
+    assert out["target_pose"] == [1e-3, 0.5e-3, None] and out["error_rad"] is None
+    _print_result(MoveResult.from_dict(out))
+    line = capsys.readouterr().out
+    assert "for target (1000.00, 500.00) µm, any angle (error 0.000 µm, any angle)" in line
+    faulted = result(status="fault", reached_pose=None).as_dict()
+    _print_result(MoveResult.from_dict(faulted))
+    assert "(error ?, ?)" in capsys.readouterr().out  # no reached pose: no error, not 0°
+
+
+@pytest.mark.parametrize("seen", [0.3 + math.pi / 2, 0.3 - 3 * math.pi / 2, 0.3 + math.pi + 1e-4])
+def test_the_reached_angle_is_reported_on_the_targets_branch(seen: float) -> None:
+    """A square looks the same turned by 90°: 110° seen for a 20° target is 20°."""
+    out = result(reached_pose=(1e-3, 0.5e-3, seen)).as_dict()
+    assert out["pose"][2] == pytest.approx(0.3 + math.remainder(seen - 0.3, math.pi / 2), abs=1e-12)
+    assert abs(out["pose"][2] - 0.3) <= math.pi / 4
+    assert out["error_rad"] == pytest.approx(abs(out["pose"][2] - 0.3), abs=1e-12)
