@@ -5,14 +5,17 @@ such and the reached angle on the target's branch (feeder/daemon/jobs.py, feeder
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 from test_pose_policy import Plane
 
 from feeder.cli.control import _print_result
 from feeder.daemon.jobs import Job, JobResult
+from feeder.daemon.move_records import MoveRecords
 from feeder.daemon.pose_navigator import PoseNavigator
 from feeder.daemon.replies import MoveResult
+from feeder.daemon.store import Store
 
 
 def navigator_of(plane: Plane) -> PoseNavigator:
@@ -85,3 +88,20 @@ def test_the_reached_angle_is_reported_on_the_targets_branch(seen: float) -> Non
     assert out["pose"][2] == pytest.approx(0.3 + math.remainder(seen - 0.3, math.pi / 2), abs=1e-12)
     assert abs(out["pose"][2] - 0.3) <= math.pi / 4
     assert out["error_rad"] == pytest.approx(abs(out["pose"][2] - 0.3), abs=1e-12)
+
+
+def test_a_pose_move_is_logged_with_its_part_target_and_reached_pose(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    class Loop:
+        def estimates_json(self) -> dict[str, object]:
+            return {}
+
+    records = MoveRecords(Store(tmp_path / "s.sqlite"), "key", pose_control=True)
+    job = Job("move", pose_target={"x_m": 1e-3}, part=2)
+    with caplog.at_level("INFO", logger="feeder.daemon.move_records"):
+        records.finish(job, result(angle_free=True), Loop())  # type: ignore[arg-type]
+    assert caplog.messages[-1] == (
+        "move of part 2 done: every part within tolerance (target (0.001, 0.0005) m, any angle, "
+        "reached (0.001, 0.0005) m, 0.3 rad, error 0 m / ? rad, 10 steps in 2 bursts)"
+    )

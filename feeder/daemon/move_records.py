@@ -91,16 +91,19 @@ class MoveRecords:
 
     def finish(self, job: Job, result: JobResult, loop: ControlLoop) -> None:
         """The learned steps, and the move's end (status, reason, where it ended)."""
-        log.info(
-            "%s %s: %s (target %s m, reached %s m, %d steps in %d bursts)",
-            job.kind,
-            result.status,
-            result.reason,
-            result.target_m,
-            result.reached_m,
-            result.steps,
-            result.bursts,
-        )
+        if result.target_pose is not None:
+            out = result.as_dict()
+            log.info(
+                "%s of part %d %s: %s (target %s, reached %s, error %s m / %s rad, %d steps in %d bursts)",
+                job.kind, result.part, result.status, result.reason, _pose(out["target_pose"]),
+                _pose(out["pose"]), _g(result.error_m), _g(result.error_rad), result.steps, result.bursts,
+            )  # fmt: skip
+        else:
+            log.info(
+                "%s %s: %s (target %s m, reached %s m, %d steps in %d bursts)",
+                job.kind, result.status, result.reason, result.target_m, result.reached_m, result.steps,
+                result.bursts,
+            )  # fmt: skip
         self.save_estimates(loop)
         if job.record_id is not None:
             est = result.estimates
@@ -119,3 +122,15 @@ class MoveRecords:
                 error_m=result.error_m,
                 error_rad=result.error_rad,
             )
+
+
+def _g(value: float | None) -> str:
+    return "?" if value is None else f"{value:.6g}"
+
+
+def _pose(pose: list[float | None] | None) -> str:
+    """[x_m, y_m, angle_rad] for the log: "(x, y) m, angle rad" (angle None: any angle)."""
+    if pose is None:
+        return "?"
+    x, y, psi = pose
+    return f"({_g(x)}, {_g(y)}) m, " + ("any angle" if psi is None else f"{_g(psi)} rad")

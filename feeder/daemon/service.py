@@ -367,7 +367,7 @@ class Daemon:
                     self._queue.append(job)
                     position = len(self._queue)
                 elif self._queue:
-                    reason = 'moves are queued; add "queue": true to join the queue'
+                    reason = 'moves are queued: join the queue (feeder move --queue; "queue": true)'
             if position == 0 and reason is None:
                 reason = self._submit(job)
         if reason is not None:
