@@ -94,6 +94,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 LOG_LEVELS = ("debug", "info", "warning", "error")
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+QUIET_LIBRARIES = ("canopen", "can")
+"""Libraries whose INFO is chatter (canopen logs every SDO and PDO set-up: ~80 lines at a CAN
+start): they log warnings and worse unless ``--log-level debug``."""
 
 
 def setup_logging(level: str, log_file: Path) -> None:
@@ -105,6 +108,8 @@ def setup_logging(level: str, log_file: Path) -> None:
     ]
     log_file.chmod(0o600)
     logging.basicConfig(level=level.upper(), format=LOG_FORMAT, handlers=handlers, force=True)
+    for name in QUIET_LIBRARIES:
+        logging.getLogger(name).setLevel(logging.DEBUG if level == "debug" else logging.WARNING)
 
 
 def run(args: argparse.Namespace) -> int:
