@@ -7,7 +7,9 @@ stuck (:mod:`feeder.pose_response`).  One part: turn first (at a *station*
 outside the dead zone, moving there if needed), then translate to the target
 (the turn's orbit is corrected by the translations; translations never turn).
 Every burst aims short with a pessimistic (mean + 2σ) step, like the 1-D
-policy, and is cut where its pessimistic path would leave the travel.
+policy, and is cut where its pessimistic path would leave the travel; a θ
+burst also where it would bring two parts' footprints within
+:data:`CLEARANCE_M` (x and y bursts move every part alike).
 Two parts: see :mod:`feeder.pose_pair`.
 """
 
@@ -16,6 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from feeder.footprint import gap_m
 from feeder.plant.planar import PlanarPart
 from feeder.pose import Pose
 from feeder.pose_response import ResponseModel, physical_period_rad
@@ -27,6 +30,14 @@ STATION_BAND_M = 40e-6
 """A part within this of its turning station's radius turns there."""
 STATION_DIRECTIONS = 36
 MAX_BURST_STEPS = 2000
+CLEARANCE_M = 40e-6
+"""θ bursts and targets keep every two parts' footprints at least this far apart (m), or as far
+as they are when already closer: the camera must see them apart.  Its blob search works on the
+image shrunk 2–4× and its edge fits sample profiles reaching 10 px beyond each side
+(:mod:`feeder.vision.locate`, :mod:`feeder.vision.edges`): 27 µm at the cameras' 2.7 µm/px, or a
+neighbour merges the blobs ("overlapped or touching parts") or bends the fitted edge.  The rest
+(13 µm) covers what the pessimistic prediction (mean + 2σ per step) misses and the last step
+before the cut (a coarse θ step moves a 300 µm part's corner by a few µm)."""
 
 
 @dataclass(frozen=True)
@@ -114,6 +125,9 @@ class PosePlanner:
                 )
         if len(targets) > 2:
             return "at most two parts can be placed together"
+        crowded = self._crowded_target(targets, poses)
+        if crowded is not None:
+            return crowded
         if len(targets) == 2:
             from feeder.pose_pair import pair_refusal
 
@@ -125,6 +139,26 @@ class PosePlanner:
             and self.station_radius_m is None
         ):
             return "no θ mode turns the part anywhere within the travel"
+        return None
+
+    def _crowded_target(self, targets: dict[int, Pose], poses: list[Pose]) -> str | None:
+        """Why a target's footprint comes within :data:`CLEARANCE_M` of another part (its target
+        if it has one, else where it lies now), or None; parts already closer may stay as close."""
+        patch = self.part.patch
+        for pid, target in targets.items():
+            for other in range(1, len(poses) + 1):
+                if other == pid:
+                    continue
+                there = targets.get(other, poses[other - 1])
+                gap = gap_m(patch, target, there)
+                if gap < min(CLEARANCE_M, gap_m(patch, poses[pid - 1], poses[other - 1])):
+                    near = "overlaps" if gap == 0 else f"comes within {gap:.3g} m of"
+                    where = "its target" if other in targets else "where it lies now"
+                    return (
+                        f"the target of part {pid} at ({target[0]:.4g}, {target[1]:.4g}) m {near} part "
+                        f"{other} ({where}): parts keep {CLEARANCE_M:.3g} m apart for the camera to see "
+                        "them apart"
+                    )
         return None
 
     def next_burst(self, poses: list[Pose], targets: dict[int, Pose]) -> AxisBurst | Finish:
@@ -267,10 +301,12 @@ class PosePlanner:
 
     def theta_burst(
         self, poses: list[Pose], i: int, amount: float, anchored: tuple[int, ...] = (), quantity: str = "turn"
-    ) -> AxisBurst | None:
+    ) -> AxisBurst | Finish | None:
         """A θ burst that turns (or orbits, ``quantity`` "orbit") part ``i`` by up to ``amount`` rad.
 
-        None: no mode moves it by a useful amount here, or not even one step fits the travel.
+        None: no mode moves it by a useful amount here, or not even one step fits the travel;
+        Finish ("unreachable"): every useful mode's first step would bring two parts within
+        :data:`CLEARANCE_M` (the reason names them).
         """
         direction = 1 if amount > 0 else -1
         need = abs(amount)
@@ -291,16 +327,30 @@ class PosePlanner:
         # relative to each other, to half the tolerance) a fiftieth
         useful = 0.25 * self.tolerance_rad if quantity == "turn" else 0.02 * self.tolerance_m / max(r, 1e-9)
         fine_step = per_step(fine)[0]
+        blocked: tuple[int, int] | None = None
         for mode in modes:
             step, std = per_step(mode)
             if (mode != fine and step <= fine_step) or step < useful:
                 continue
             scale = 1 + 2 * std / step
             steps = self._theta_count(pose, direction, mode, need, scale, mode != fine, quantity)
-            steps = self._theta_within(poses, direction, mode, steps, scale, anchored)
+            steps, crowded = self._theta_within(poses, direction, mode, steps, scale, anchored)
             if steps >= 1:
                 return AxisBurst("theta", direction, steps, mode)
-        return None
+            blocked = blocked or crowded
+        if blocked is None:
+            return None
+        a, b = (k + 1 for k in blocked)
+        verb = "turning" if quantity == "turn" else "orbiting"
+        if i + 1 in (a, b):
+            near = f"it within {CLEARANCE_M:.3g} m of part {a + b - i - 1}"
+        else:
+            near = f"parts {a} and {b} within {CLEARANCE_M:.3g} m of each other"
+        return Finish(
+            "unreachable",
+            f"{verb} part {i + 1} further would bring {near}: parts keep that far apart for the camera "
+            "to see them apart",
+        )
 
     def _theta_count(
         self,
@@ -337,23 +387,46 @@ class PosePlanner:
         steps: int,
         scale: float,
         anchored: tuple[int, ...],
-    ) -> int:
-        """``steps`` cut where some part's pessimistic orbit leaves the travel or an anchored part moves."""
+    ) -> tuple[int, tuple[int, int] | None]:
+        """``steps`` cut where some part's pessimistic orbit leaves the travel, an anchored part
+        moves, or two parts' footprints come within :data:`CLEARANCE_M` (closer than they are,
+        when they already are); with the two parts (indices) whose clearance cut it, if any."""
         if steps < 1:
-            return steps
+            return steps, None
+        floors = self._gap_floors(poses)
         states = list(poses)
         for n in range(1, steps + 1):
             for k, p in enumerate(states):
                 nxt = self.model.predict("theta", direction, mode, 1, p, scale)
                 if not self.travel.contains(nxt[0], nxt[1]):
-                    return n - 1
+                    return n - 1, None
                 if k in anchored and (
                     math.hypot(nxt[0] - poses[k][0], nxt[1] - poses[k][1]) > 0.2 * self.tolerance_m
                     or abs(nxt[2] - poses[k][2]) > 0.2 * self.tolerance_rad
                 ):
-                    return n - 1
+                    return n - 1, None
                 states[k] = nxt
-        return steps
+            for (k, j), floor in floors.items():
+                if self._gap_below(states[k], states[j], floor):
+                    return n - 1, (k, j)
+        return steps, None
+
+    def _gap_floors(self, poses: list[Pose]) -> dict[tuple[int, int], float]:
+        """Per pair of parts (indices), the gap (m) a θ burst must keep: :data:`CLEARANCE_M`, or
+        the gap they have now when less (they may move apart)."""
+        return {
+            (k, j): CLEARANCE_M if not self._gap_below(a, b, CLEARANCE_M) else gap_m(self.part.patch, a, b)
+            for k, a in enumerate(poses)
+            for j, b in enumerate(poses)
+            if k < j
+        }
+
+    def _gap_below(self, a: Pose, b: Pose, floor: float) -> bool:
+        """The footprints at ``a`` and ``b`` lie less than ``floor`` (m) apart (circumscribed
+        circles first: parts far apart cost one hypot)."""
+        if math.hypot(b[0] - a[0], b[1] - a[1]) - 2 * self.part.patch.radius_m >= floor:
+            return False
+        return gap_m(self.part.patch, a, b) < floor
 
     def turn_rate(self, pose: Pose, mode: str) -> float:
         """|turn| per step of ``mode`` at ``pose`` (the larger of the two directions)."""

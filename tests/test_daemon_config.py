@@ -134,6 +134,10 @@ def test_simulator_gets_our_part_and_amplifier_rating(tmp_path: Path) -> None:
     [
         ("[control]\nrate_hz = 0\n", "rate_hz"),
         ("[amplifier]\nbaudrate = 12\n", "amplifier.baudrate = 12 is outside"),
+        (  # the plane's camera sees ±2.76 mm: a part at x = −4 mm was lost
+            '[plate]\naxes = ["x", "y", "theta"]\n[control]\nmin_position_m = -4e-3\n',
+            "control.min_position_m = -0.004 reaches beyond the camera's view",
+        ),
     ],
 )
 def test_feeder_daemon_with_a_bad_config_exits_2_in_one_line(tmp_path: Path, body: str, words: str) -> None:

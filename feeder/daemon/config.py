@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import ipaddress
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -121,6 +122,12 @@ class PlateConfig:
         return len(self.axes) > 1
 
 
+VIEW_MARGIN_PX = 10
+"""A part's outline stays this many pixels inside the image: the blob search refuses a blob that
+touches the border of the image it shrinks up to 4× (:mod:`feeder.vision.locate`), and the edge
+fits sample profiles reaching 10 px beyond each side (:mod:`feeder.vision.edges`)."""
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     """The microscope camera the daemon locates parts with (a plate driven in the plane).
@@ -145,6 +152,17 @@ class CameraConfig:
     width_px: int = 2048
     height_px: int = 2048
     fps: float = 15.0
+
+    def travel_m(self, part: Part) -> tuple[float, float]:
+        """Half-widths (x, y; m) of the region about O where ``part``'s centre keeps the whole
+        part, at any angle, in view: the image (O at its centre, axes along the image's, as
+        configured) less the part's half-diagonal and :data:`VIEW_MARGIN_PX` pixels.  Negative:
+        the image is too small for the part."""
+        margin_m = 0.5 * math.hypot(part.length_m, part.width_m) + VIEW_MARGIN_PX * self.pixel_size_m
+        return (
+            0.5 * self.width_px * self.pixel_size_m - margin_m,
+            0.5 * self.height_px * self.pixel_size_m - margin_m,
+        )
 
 
 @dataclass(frozen=True)
@@ -189,7 +207,8 @@ class DaemonConfig:
 
 
 PLANE_TRAVEL_M = 2.5e-3
-"""The embedded plane's travel in x and y, ± (m): its camera (2048 px at 2.7 µm/px) sees it all."""
+"""The embedded plane's travel in x and y, ± (m): its camera (2048 px at 2.7 µm/px) sees a
+300 µm part anywhere in it (:meth:`CameraConfig.travel_m`: ±2.53 mm)."""
 PLANE_START_POSE = (0.8e-3, 0.4e-3, 0.2)
 """Where the embedded plane's part lies when the simulator starts (m, m, rad)."""
 PLANE_SETTLE_S = 0.1

@@ -44,8 +44,8 @@ tau_pa = 22.18e9              # optional; default: the contact model's τ
 [control]
 rate_hz = 100.0
 tolerance_m = 1e-6
-min_position_m = -5e-3
-max_position_m = 5e-3
+min_position_m = -5e-3        # travel in x (and min_y_m, max_y_m in y); a plane located by the
+max_position_m = 5e-3         # camera: default what it sees of the whole part, beyond it refused
 settle_s = 0.05
 average_samples = 3
 
@@ -353,10 +353,6 @@ def load_config(path: Path | None) -> DaemonConfig:
                     control, f.name, where, default, positive=f.name not in TRAVEL_KEYS, section="control."
                 )
     loop = dataclasses.replace(defaults, **loop_fields)
-    if not loop.min_position_m < loop.max_position_m:
-        raise InputError(where, "control.min_position_m must be below control.max_position_m")
-    if not loop.min_y_m < loop.max_y_m:
-        raise InputError(where, "control.min_y_m must be below control.max_y_m")
     plate = _plate(_table(doc, "plate", where), where)
     camera_t = _table(doc, "camera", where)
     cam = CameraConfig()
@@ -370,6 +366,12 @@ def load_config(path: Path | None) -> DaemonConfig:
         height_px=_integer(camera_t, "height_px", where, cam.height_px, "camera."),
         fps=_number(camera_t, "fps", where, cam.fps, positive=True, section="camera."),
     )
+    if plate.planar and sensor_address is None:  # the daemon locates the parts in the camera's frames
+        loop = _camera_travel(loop, control, camera, part, where)
+    if not loop.min_position_m < loop.max_position_m:
+        raise InputError(where, "control.min_position_m must be below control.max_position_m")
+    if not loop.min_y_m < loop.max_y_m:
+        raise InputError(where, "control.min_y_m must be below control.max_y_m")
 
     state = _table(doc, "state", where)
     base = DaemonConfig()
@@ -389,6 +391,35 @@ def load_config(path: Path | None) -> DaemonConfig:
         state_dir=_path(_string(state, "dir", where, None), path.parent.absolute()) or base.state_dir,
         socket_path=_path(_string(state, "socket", where, None), path.parent.absolute()) or base.socket_path,
         http=http,
+    )
+
+
+def _camera_travel(
+    loop: LoopSettings, control: dict[str, Any], camera: CameraConfig, part: Part, where: str
+) -> LoopSettings:
+    """The travel of a plane located by the camera: what the camera sees of a whole part
+    (:meth:`CameraConfig.travel_m`) where ``[control]`` sets none; a configured limit beyond it
+    is refused, naming the key and the field's limits."""
+    half_x, half_y = camera.travel_m(part)
+    view = (
+        f"the camera ({camera.width_px}×{camera.height_px} px at {camera.pixel_size_m:g} m/px) sees the "
+        f"whole {part.label} part with its centre within x [{-half_x:.4g}, {half_x:.4g}] m, "
+        f"y [{-half_y:.4g}, {half_y:.4g}] m"
+    )
+    if half_x <= 0 or half_y <= 0:
+        raise InputError(where, f"camera: the image is too small for the part: {view}")
+    limits = {"min_position_m": -half_x, "max_position_m": half_x, "min_y_m": -half_y, "max_y_m": half_y}
+    for key, limit in limits.items():
+        value = getattr(loop, key)
+        if key in control and abs(value) > abs(limit):
+            raise InputError(where, f"control.{key} = {value:g} reaches beyond the camera's view: {view}")
+    travel = {key: getattr(loop, key) if key in control else limit for key, limit in limits.items()}
+    return dataclasses.replace(
+        loop,
+        min_position_m=travel["min_position_m"],
+        max_position_m=travel["max_position_m"],
+        min_y_m=travel["min_y_m"],
+        max_y_m=travel["max_y_m"],
     )
 
 

@@ -1,0 +1,82 @@
+"""A plane located by the camera moves parts only where the camera sees them (the configuration's travel)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from feeder.daemon.config import PLANE_TRAVEL_M, VIEW_MARGIN_PX, CameraConfig, DaemonConfig, embedded_plane
+from feeder.daemon.config_file import load_config
+from feeder.errors import InputError
+from feeder.parts import Part
+
+PLANE = '[plate]\naxes = ["x", "y", "theta"]\nparts = "0,0,0;0.36e-3,0,0"\n'
+"""The review's configuration: the plane with two parts and the default camera (2048 px at 2.7 µm)."""
+
+
+def travel(config: DaemonConfig) -> tuple[float, float, float, float]:
+    loop = config.loop
+    return loop.min_position_m, loop.max_position_m, loop.min_y_m, loop.max_y_m
+
+
+def load(tmp_path: Path, text: str) -> DaemonConfig:
+    path = tmp_path / "plane.toml"
+    path.write_text(text)
+    return load_config(path)
+
+
+def test_a_planes_default_travel_is_what_the_camera_sees_of_the_whole_part(tmp_path: Path) -> None:
+    """2048 px at 2.7 µm see ±2.765 mm; a 300 µm square's centre may go to within its
+    half-diagonal (212 µm) and 10 px (27 µm) of the image's edge: ±2.526 mm, not the loop's
+    ±5 mm in x and ±10 mm in y (the review's move to x = −4 mm lost the part)."""
+    half = 1024 * 2.7e-6 - 0.5 * math.hypot(300e-6, 300e-6) - VIEW_MARGIN_PX * 2.7e-6
+    assert travel(load(tmp_path, PLANE)) == pytest.approx((-half, half, -half, half), abs=1e-12)
+    assert half == pytest.approx(2.5257e-3, abs=1e-7) and -half > -4e-3
+    wide = load(
+        tmp_path,
+        PLANE
+        + '[part]\nsize = "500x300x50"\n[camera]\nwidth_px = 1024\nheight_px = 600\npixel_size_m = 5e-6\n',
+    )
+    margin = 0.5 * math.hypot(500e-6, 300e-6) + VIEW_MARGIN_PX * 5e-6
+    x, y = 512 * 5e-6 - margin, 300 * 5e-6 - margin
+    assert travel(wide) == pytest.approx((-x, x, -y, y), abs=1e-12)
+    narrowed = load(tmp_path, PLANE + "[control]\nmin_position_m = -1e-3\nmax_y_m = 2.5e-3\n")
+    assert travel(narrowed) == pytest.approx((-1e-3, half, -half, 2.5e-3), abs=1e-12)  # within: kept
+    # a position stream measures the part itself: no camera, the loop's travel
+    streamed = load(tmp_path, PLANE + '[sensor]\naddress = "socket://127.0.0.1:7240"\n')
+    assert travel(streamed) == travel(DaemonConfig())
+
+
+@pytest.mark.parametrize(
+    ("control", "key"),
+    [
+        ("min_position_m = -4e-3", "control.min_position_m = -0.004"),  # the review's move
+        ("max_position_m = 2.6e-3", "control.max_position_m = 0.0026"),
+        ("min_y_m = -5e-3\nmax_y_m = 5e-3", "control.min_y_m = -0.005"),
+        ("max_y_m = 2.6e-3", "control.max_y_m = 0.0026"),
+    ],
+)
+def test_a_configured_travel_beyond_the_view_is_refused_naming_the_key(
+    tmp_path: Path, control: str, key: str
+) -> None:
+    with pytest.raises(InputError) as err:
+        load(tmp_path, f"{PLANE}[control]\n{control}\n")
+    text = str(err.value)
+    assert key in text and "reaches beyond the camera's view" in text and "\n" not in text
+    assert "x [-0.002526, 0.002526] m, y [-0.002526, 0.002526] m" in text  # the field's limits
+
+
+def test_a_camera_too_small_for_the_part_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="the image is too small for the part"):
+        load(tmp_path, PLANE + "[camera]\nwidth_px = 64\nheight_px = 64\n")
+
+
+def test_the_embedded_plane_keeps_its_travel(tmp_path: Path) -> None:
+    """``feeder daemon`` (and ``--plane``, the demo): ±2.5 mm, within what its camera sees."""
+    embedded = (-PLANE_TRAVEL_M, PLANE_TRAVEL_M, -PLANE_TRAVEL_M, PLANE_TRAVEL_M)
+    assert travel(embedded_plane(DaemonConfig())) == embedded == (-2.5e-3, 2.5e-3, -2.5e-3, 2.5e-3)
+    assert travel(embedded_plane(load(tmp_path, PLANE))) == embedded
+    assert min(CameraConfig().travel_m(Part.parse("300x300x50"))) > PLANE_TRAVEL_M
+    assert travel(load_config(None)) == (-5e-3, 5e-3, -10e-3, 10e-3)  # one axis, no camera: unchanged
