@@ -112,8 +112,11 @@ def test_a_turned_mirrored_camera_is_located_with_the_stored_calibration() -> No
     --save-state` measures that, and the daemon locates (and moves) parts with it."""
     base = Path(tempfile.mkdtemp(prefix="fcal"))
     config = config_for(PART, "can", base)
+    # turned 0.4 rad the camera sees the ±2.5 mm square's corners off the image: ±1.8 mm it sees whole
+    travel = {"min_position_m": -1.8e-3, "max_position_m": 1.8e-3, "min_y_m": -1.8e-3, "max_y_m": 1.8e-3}
     config = dataclasses.replace(
         config,
+        loop=dataclasses.replace(config.loop, **travel),
         plate=dataclasses.replace(config.plate, parts=((0.8e-3, 0.3e-3, 0.2),)),
         simulator_args=(*config.simulator_args, "--camera-rotation-rad", "0.4", "--camera-mirrored"),
     )

@@ -9,8 +9,11 @@ import pytest
 
 from feeder.daemon.config import PLANE_TRAVEL_M, VIEW_MARGIN_PX, CameraConfig, DaemonConfig, embedded_plane
 from feeder.daemon.config_file import load_config
+from feeder.daemon.jobs import LoopSettings
+from feeder.daemon.links import DriverLinks
 from feeder.errors import InputError
 from feeder.parts import Part
+from feeder.vision.calibration import CameraCalibration
 
 PLANE = '[plate]\naxes = ["x", "y", "theta"]\nparts = "0,0,0;0.36e-3,0,0"\n'
 """The review's configuration: the plane with two parts and the default camera (2048 px at 2.7 µm)."""
@@ -80,3 +83,50 @@ def test_the_embedded_plane_keeps_its_travel(tmp_path: Path) -> None:
     assert travel(embedded_plane(load(tmp_path, PLANE))) == embedded
     assert min(CameraConfig().travel_m(Part.parse("300x300x50"))) > PLANE_TRAVEL_M
     assert travel(load_config(None)) == (-5e-3, 5e-3, -10e-3, 10e-3)  # one axis, no camera: unchanged
+
+
+CAMERA = CameraConfig()
+
+
+def centred(pixel_size_m: float = CAMERA.pixel_size_m, **turned: float | bool) -> CameraCalibration:
+    """A calibration with O at the image's centre, as the configuration gives (turned: a stored one)."""
+    return CameraCalibration(
+        pixel_size_m, origin_x_px=(CAMERA.width_px - 1) / 2, origin_y_px=(CAMERA.height_px - 1) / 2, **turned
+    )  # type: ignore[arg-type]
+
+
+def square_travel(half_m: float) -> LoopSettings:
+    return LoopSettings(min_position_m=-half_m, max_position_m=half_m, min_y_m=-half_m, max_y_m=half_m)
+
+
+def test_the_default_travel_lies_just_within_the_configured_cameras_view() -> None:
+    part = Part.parse("300x300x50")
+    half_x, _ = CAMERA.travel_m(part)
+    assert CAMERA.travel_outside(centred(), part, square_travel(half_x)) is None  # the edge itself
+    assert CAMERA.travel_outside(centred(), part, square_travel(PLANE_TRAVEL_M)) is None
+    beyond = CAMERA.travel_outside(centred(), part, square_travel(half_x + 1e-6))
+    assert beyond is not None and "the travel scaled by 1.000 about O fits" in beyond
+
+
+def test_a_stored_calibration_turned_or_finer_sees_less_of_the_travel() -> None:
+    """A camera turned 0.4 rad sees the ±2.5 mm square's corners off the image; the reply says by
+    how much to shrink it, and that much fits (exactly: the edge is a corner's)."""
+    part = Part.parse("300x300x50")
+    turned = centred(rotation_rad=0.4, mirrored=True)
+    reason = CAMERA.travel_outside(turned, part, square_travel(2.5e-3))
+    assert reason is not None
+    assert "turned 22.9°, mirrored" in reason and "2048×2048 px image" in reason
+    fits = float(reason.split("scaled by ")[1].split()[0])
+    reach_m = 0.5 * math.hypot(300e-6, 300e-6) + VIEW_MARGIN_PX * 2.7e-6
+    expected = (1024 * 2.7e-6 - reach_m) / (2.5e-3 * (math.cos(0.4) + math.sin(0.4)))  # a corner's reach
+    assert fits == pytest.approx(expected, abs=1e-3)
+    assert CAMERA.travel_outside(turned, part, square_travel(2.5e-3 * (expected - 1e-6))) is None
+    assert CAMERA.travel_outside(turned, part, square_travel(2.5e-3 * (expected + 1e-3))) is not None
+    assert CAMERA.travel_outside(centred(2.0e-6), part, square_travel(2.5e-3)) is not None  # finer: smaller
+
+
+def test_a_planes_camera_refuses_a_travel_it_cannot_see_before_it_is_opened(tmp_path: Path) -> None:
+    config = embedded_plane(DaemonConfig(state_dir=tmp_path / "state"))
+    links = DriverLinks(config, "unused", "http://127.0.0.1:9/unused.mjpg")
+    with pytest.raises(InputError, match=r"^travel: the travel x \[-0.0025, 0.0025\] m.*turned 22.9°"):
+        links.open_sensor(centred(rotation_rad=0.4))

@@ -14,7 +14,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from feeder.daemon.client import default_socket_path
 from feeder.daemon.control_loop import LoopSettings
@@ -22,6 +22,9 @@ from feeder.errors import InputError
 from feeder.parts import Part, Support
 from feeder.plant.amplifier import AMPLIFIER_MODELS, AmplifierLimits
 from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
+
+if TYPE_CHECKING:
+    from feeder.vision.calibration import CameraCalibration
 
 TRANSPORTS = ("serial", "can")
 TRAVEL_KEYS = frozenset({"min_position_m", "max_position_m", "min_y_m", "max_y_m"})
@@ -162,6 +165,41 @@ class CameraConfig:
         return (
             0.5 * self.width_px * self.pixel_size_m - margin_m,
             0.5 * self.height_px * self.pixel_size_m - margin_m,
+        )
+
+    def travel_outside(self, calibration: CameraCalibration, part: Part, loop: LoopSettings) -> str | None:
+        """Why ``loop``'s travel reaches beyond what the camera sees of a whole part when it
+        locates with ``calibration`` (a stored one may be turned, mirrored, off centre, finer), or
+        None: every travel corner's image keeps the part's half-diagonal and
+        :data:`VIEW_MARGIN_PX` inside the image (the calibration is a similarity: the travel's
+        rectangle maps to a parallelogram, whose corners decide)."""
+        reach_px = 0.5 * math.hypot(part.length_m, part.width_m) / calibration.pixel_size_m + VIEW_MARGIN_PX
+        bounds = [(reach_px - 0.5, size - 0.5 - reach_px) for size in (self.width_px, self.height_px)]
+        o = calibration.to_image(0.0, 0.0)
+        fits, worst = 1.0, None
+        for x in (loop.min_position_m, loop.max_position_m):
+            for y in (loop.min_y_m, loop.max_y_m):
+                corner = calibration.to_image(x, y)
+                for k in (0, 1):
+                    lo, hi = bounds[k]
+                    if not lo - 1e-6 <= corner[k] <= hi + 1e-6:
+                        worst = worst or (x, y, corner)
+                        edge = hi if corner[k] > hi else lo
+                        fits = min(fits, max(0.0, (edge - o[k]) / (corner[k] - o[k])))
+        if worst is None:
+            return None
+        x, y, (u, v) = worst
+        turn = math.degrees(calibration.rotation_rad)
+        seen = (
+            f"{calibration.pixel_size_m * 1e6:.4g} µm/px, turned {turn:.1f}°"
+            f"{', mirrored' if calibration.mirrored else ''}, O at ({o[0]:.0f}, {o[1]:.0f}) px"
+        )
+        return (
+            f"the travel x [{loop.min_position_m:.4g}, {loop.max_position_m:.4g}] m, y [{loop.min_y_m:.4g}, "
+            f"{loop.max_y_m:.4g}] m reaches beyond what the camera sees of a whole {part.label} part "
+            f"({seen}): its corner ({x:.4g}, {y:.4g}) m is at ({u:.0f}, {v:.0f}) px in the "
+            f"{self.width_px}×{self.height_px} px image; the travel scaled by {fits:.3f} about O fits "
+            "([control] min_position_m, max_position_m, min_y_m, max_y_m)"
         )
 
 

@@ -128,6 +128,10 @@ class DriverLinks:
 
         part = self.config.part
         calibration = calibration or configured
+        if self.config.plate.planar:  # the parts stay where the camera sees them whole
+            outside = self.config.camera.travel_outside(calibration, part, self.config.loop)
+            if outside is not None:
+                raise InputError("travel", outside)
         return CameraPoseSensor(
             open_camera(
                 self.sensor_address, size_px=(self.config.camera.width_px, self.config.camera.height_px)
