@@ -130,3 +130,17 @@ def test_a_planes_camera_refuses_a_travel_it_cannot_see_before_it_is_opened(tmp_
     links = DriverLinks(config, "unused", "http://127.0.0.1:9/unused.mjpg")
     with pytest.raises(InputError, match=r"^travel: the travel x \[-0.0025, 0.0025\] m.*turned 22.9°"):
         links.open_sensor(centred(rotation_rad=0.4))
+
+
+def test_one_axis_located_by_a_camera_keeps_x_within_its_view(tmp_path: Path) -> None:
+    """Part 1's x along the axis, read by a camera: x's travel is the camera's (it was the loop's
+    ±5 mm against a ±2.76 mm view); y is wherever the part lies, so its limits stay."""
+    camera = '[camera]\naddress = "http://127.0.0.1:9/video.mjpg"\n'
+    config = load(tmp_path, camera)
+    half, _ = CAMERA.travel_m(config.part)
+    assert travel(config) == pytest.approx((-half, half, LoopSettings().min_y_m, LoopSettings().max_y_m))
+    with pytest.raises(InputError, match=r"control.max_position_m = 0.004 reaches beyond the camera's view"):
+        load(tmp_path, camera + "[control]\nmax_position_m = 4e-3\n")
+    assert (
+        travel(load(tmp_path, "[control]\nmax_position_m = 4e-3\n"))[1] == 4e-3
+    )  # a position stream: as set

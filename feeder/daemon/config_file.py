@@ -366,8 +366,8 @@ def load_config(path: Path | None) -> DaemonConfig:
         height_px=_integer(camera_t, "height_px", where, cam.height_px, "camera."),
         fps=_number(camera_t, "fps", where, cam.fps, positive=True, section="camera."),
     )
-    if plate.planar and sensor_address is None:  # the daemon locates the parts in the camera's frames
-        loop = _camera_travel(loop, control, camera, part, where)
+    if sensor_address is None and (plate.planar or camera.address is not None):  # the camera locates
+        loop = _camera_travel(loop, control, camera, part, where, in_y=plate.planar)
     if not loop.min_position_m < loop.max_position_m:
         raise InputError(where, "control.min_position_m must be below control.max_position_m")
     if not loop.min_y_m < loop.max_y_m:
@@ -395,11 +395,12 @@ def load_config(path: Path | None) -> DaemonConfig:
 
 
 def _camera_travel(
-    loop: LoopSettings, control: dict[str, Any], camera: CameraConfig, part: Part, where: str
+    loop: LoopSettings, control: dict[str, Any], camera: CameraConfig, part: Part, where: str, in_y: bool
 ) -> LoopSettings:
-    """The travel of a plane located by the camera: what the camera sees of a whole part
+    """The travel of parts located by the camera: what the camera sees of a whole part
     (:meth:`CameraConfig.travel_m`) where ``[control]`` sets none; a configured limit beyond it
-    is refused, naming the key and the field's limits."""
+    is refused, naming the key and the field's limits.  One axis (not ``in_y``): x only, the
+    part's y being wherever it lies."""
     half_x, half_y = camera.travel_m(part)
     view = (
         f"the camera ({camera.width_px}×{camera.height_px} px at {camera.pixel_size_m:g} m/px) sees the "
@@ -408,19 +409,17 @@ def _camera_travel(
     )
     if half_x <= 0 or half_y <= 0:
         raise InputError(where, f"camera: the image is too small for the part: {view}")
-    limits = {"min_position_m": -half_x, "max_position_m": half_x, "min_y_m": -half_y, "max_y_m": half_y}
+    limits = {"min_position_m": -half_x, "max_position_m": half_x}
+    if in_y:
+        limits.update(min_y_m=-half_y, max_y_m=half_y)
     for key, limit in limits.items():
         value = getattr(loop, key)
         if key in control and abs(value) > abs(limit):
             raise InputError(where, f"control.{key} = {value:g} reaches beyond the camera's view: {view}")
-    travel = {key: getattr(loop, key) if key in control else limit for key, limit in limits.items()}
-    return dataclasses.replace(
-        loop,
-        min_position_m=travel["min_position_m"],
-        max_position_m=travel["max_position_m"],
-        min_y_m=travel["min_y_m"],
-        max_y_m=travel["max_y_m"],
-    )
+    for key, limit in limits.items():
+        if key not in control:
+            loop = dataclasses.replace(loop, **{key: limit})  # type: ignore[arg-type]
+    return loop
 
 
 def _http_config(table: dict[str, Any], where: str) -> HttpConfig:
