@@ -18,6 +18,7 @@ from feeder.daemon.jobs import (
     Job,
     LoopSettings,
     Output,
+    Progress,
     SavePosition,
     Started,
     StepMode,
@@ -325,6 +326,14 @@ def test_an_amplifier_that_refuses_stop_is_a_lost_link() -> None:
     faults = [o for o in rig.outputs if isinstance(o, Fault)]
     assert [f.link for f in faults] == ["amplifier"]
     assert rig.policy.submit(Job("move", target_m=0.0), rig.now) is not None
+
+
+def test_each_commanded_burst_is_recorded_as_progress_after_its_step() -> None:
+    rig = Rig()
+    job, step = to_first_burst(rig)
+    after_step = rig.outputs[rig.outputs.index(step) + 1]
+    assert after_step == Progress(job) and (job.steps, job.bursts) == (step.steps, 1)
+    assert sum(isinstance(o, Progress) for o in rig.outputs) == 1
 
 
 def test_sensor_loss_stops_the_output_and_faults() -> None:

@@ -65,9 +65,13 @@ def test_running_moves_become_interrupted(tmp_path: Path) -> None:
         step_backward_m=None,
     )
     second = store.begin_move(2e-3, 1e-3)
+    store.progress_move(second, steps=120, bursts=3)  # the bursts commanded before the kill
+    store.progress_move(first, steps=999, bursts=9)  # a finished move's record stays as it ended
     assert store.interrupt_running_moves() == [second]
-    statuses = [m["status"] for m in store.moves()]
-    assert statuses == ["done", "interrupted"]
+    moves = store.moves()
+    ended = [(m["status"], m["steps"], m["bursts"]) for m in moves]
+    assert ended == [("done", 1, 1), ("interrupted", 120, 3)]
+    assert moves[1]["reason"].endswith("steps: as commanded")
     assert store.interrupt_running_moves() == []
 
 

@@ -44,6 +44,7 @@ from feeder.daemon.jobs import (
     JobResult,
     LoopSettings,
     Output,
+    Progress,
     Reading,
     SavePosition,
     Started,
@@ -481,6 +482,9 @@ class ControlLoop:
                     out.job.result = out.result  # record follows when it can
                     out.job.done.set()
                 self.writer.put(functools.partial(self._record_end, out.job, out.result))
+            elif isinstance(out, Progress):
+                if out.job.on_progress is not None:
+                    self.writer.put(out.job.on_progress)
             elif isinstance(out, SavePosition):
                 if self.on_position is not None:
                     self.writer.put(functools.partial(self.on_position, out.position_m, out.poses))

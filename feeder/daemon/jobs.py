@@ -242,6 +242,7 @@ class Job:
         part: int = 1,
         on_start: Callable[[], None] | None = None,
         on_done: Callable[[JobResult], None] | None = None,
+        on_progress: Callable[[], None] | None = None,
     ) -> None:
         self.kind = kind
         self.target_m = target_m
@@ -254,6 +255,7 @@ class Job:
         self.planned = collections.deque(bursts)
         self.on_start = on_start
         self.on_done = on_done
+        self.on_progress = on_progress
         self.record_id: int | None = None
         self.recorded = False
         self.done = threading.Event()
@@ -309,6 +311,14 @@ class Started:
 
 
 @dataclass(frozen=True)
+class Progress:
+    """Event: a burst was commanded; record the steps and bursts so far (``job.on_progress``), so
+    that a move a killed daemon leaves behind shows what it had commanded."""
+
+    job: Job
+
+
+@dataclass(frozen=True)
 class Finished:
     """Event: the job is over; record the result and release the caller."""
 
@@ -352,4 +362,4 @@ class Decision:
     answer: Burst | tuple[str, str]
 
 
-Output = Command | Started | Finished | SavePosition | Fault | Decide
+Output = Command | Started | Progress | Finished | SavePosition | Fault | Decide

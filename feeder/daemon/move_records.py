@@ -89,6 +89,11 @@ class MoveRecords:
                 start_pose=start,
             )
 
+    def progress(self, job: Job) -> None:
+        """The steps and bursts commanded so far (a move a killed daemon leaves shows them)."""
+        if job.record_id is not None:
+            self.store.progress_move(job.record_id, steps=job.steps, bursts=job.bursts)
+
     def finish(self, job: Job, result: JobResult, loop: ControlLoop) -> None:
         """The learned steps, and the move's end (status, reason, where it ended)."""
         if result.target_pose is not None:

@@ -57,6 +57,7 @@ from feeder.daemon.jobs import (
     JobResult,
     LoopSettings,
     Output,
+    Progress,
     Reading,
     SavePosition,
     Started,
@@ -510,6 +511,7 @@ class Policy:
         # in order, and the step is what the policy waits for)
         signed = nxt.steps if nxt.direction == FORWARD else -nxt.steps
         self._send(Command("step", steps=signed, axis=nxt.axis))
+        self._out.append(Progress(job))
 
     def _planned(self, job: Job) -> Burst | tuple[str, str] | None:
         """A calibration's next burst, (status, reason) when the job is over, or None: the

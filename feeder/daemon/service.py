@@ -215,6 +215,7 @@ class Daemon:
         job = Job(kind, target_m=target_m, by_m=by_m, bursts=bursts, pose_target=pose_target, part=part)
         job.on_start = lambda: self.records.begin(job, self.loop)
         job.on_done = lambda result: self.records.finish(job, result, self.loop)
+        job.on_progress = lambda: self.records.progress(job)
         return job
 
     def _refuse_queued(self, job: Job, reason: str) -> None:

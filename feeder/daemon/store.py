@@ -335,6 +335,11 @@ class Store:
             ),
         )
 
+    def progress_move(self, move_id: int, *, steps: int, bursts: int) -> None:
+        """A running move's steps and bursts commanded so far."""
+        self._write("UPDATE moves SET steps = ?, bursts = ? WHERE id = ? AND status = 'running'",
+                    (steps, bursts, move_id))  # fmt: skip
+
     def interrupt_running_moves(self) -> list[int]:
         """Mark moves left ``running`` by a killed daemon as ``interrupted``; their ids."""
         with self._lock:
@@ -345,7 +350,8 @@ class Store:
             ]
             self._conn.execute(
                 "UPDATE moves SET status = 'interrupted',"
-                " reason = 'daemon stopped during the move (crash or kill)' WHERE status = 'running'"
+                " reason = 'daemon stopped during the move (crash or kill); steps: as commanded'"
+                " WHERE status = 'running'"
             )
             self._conn.execute("COMMIT")
         return ids
