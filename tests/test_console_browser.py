@@ -146,6 +146,11 @@ def test_the_page_shows_the_part_and_a_click_and_drag_moves_it(page: Any, daemon
     shown = shown_pose(page)  # the new pose appears
     assert shown[:2] == pytest.approx((x, y), abs=2e-6)
     assert shown[2] == pytest.approx(psi, abs=math.radians(0.05))  # a frame's noise: ~0.01°
+    # the part is held at its target now; the Release button lets it go
+    page.wait_for_function("document.getElementById('part').options[0].text === '1 (held)'")
+    page.click("#release")
+    page.wait_for_function("document.getElementById('part').options[0].text === '1'")
+    assert daemon.request("status")["held"] == [] and page.text_content("#message") == "released part 1"
     record = daemon.request("history")["moves"][-1]  # this move's
     page.wait_for_function(f"(window.consoleStats.history || []).some((p) => p[0] === {record['id']})")
     plotted = dict(page.evaluate("window.consoleStats.history"))  # its error: the distance, µm

@@ -295,6 +295,11 @@ async function stop() {
 $("stop").addEventListener("click", stop);
 document.addEventListener("keydown", (event) => { if (event.key === "Escape") stop(); });
 
+$("release").addEventListener("click", async () => {
+  const answer = await api("POST", "/api/release", { part: Number($("part").value) });
+  if (answer && answer.ok) say(answer.released.length ? `released part ${answer.released.join(", ")}` : "that part was not held");
+});
+
 $("calibrate").addEventListener("click", async () => {
   const answer = await api("POST", "/api/calibrate", { steps: Number($("cal-steps").value), wait: false });
   if (answer && answer.ok) say("calibrating");
@@ -338,10 +343,14 @@ function onStatus() {
 }
 
 function updatePartChoice() {
-  const ids = parts().map((p) => String(p.id));
+  // a held part (a move brought it to its target; later moves keep it there) says so
+  const held = new Set((status.held || []).map((h) => h.part));
+  const labels = parts().map((p) => [String(p.id), held.has(p.id) ? `${p.id} (held)` : String(p.id)]);
   const select = $("part");
-  if ([...select.options].map((o) => o.value).join() === ids.join()) return;
-  select.replaceChildren(...ids.map((id) => new Option(id, id)));
+  if ([...select.options].map((o) => o.value + "=" + o.text).join() === labels.map((l) => l.join("=")).join()) return;
+  const chosen = select.value;
+  select.replaceChildren(...labels.map(([id, label]) => new Option(label, id)));
+  if (labels.some(([id]) => id === chosen)) select.value = chosen;
 }
 
 function updateAxes(part) {
