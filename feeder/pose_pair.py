@@ -2,7 +2,9 @@
 
 Translations move both parts equally, so only θ changes where part B sits
 relative to part A (d = c_B − c_A).  With A *anchored* at a point a inside the
-coarse θ mode's dead zone (it neither moves nor turns), a θ burst orbits B
+dead zone of θ's orbit modes (it neither moves nor turns; the anchoring family
+:data:`~feeder.pose_response.ANCHOR_MODES` when the drive has it, while θ's
+coarse and fine turn single parts), a θ burst orbits B
 about O: d' = R(φ)(a + d) − a.  So d reaches d_t when |a + d| + δ = |a + d_t|
 (δ: B's radial drift over the orbit, from the model) and φ is the angle from
 a + d to a + d_t.  The plan: (1) translate so that A sits at that anchor,
@@ -26,16 +28,18 @@ if TYPE_CHECKING:
     from feeder.pose_planner import AxisBurst, Finish, PosePlanner
 
 ANCHOR_SLACK = 0.2
-"""An anchored part moves by less than this fraction of the tolerance during a θ burst (both θ
-modes; :meth:`PosePlanner.theta_burst` cuts a burst there) ..."""
+"""An anchored part moves by less than this fraction of the tolerance during a θ burst (every orbit
+mode; :meth:`PosePlanner.theta_burst` cuts a burst there) ..."""
 ANCHOR_STEPS = 10
 """... of at least this many steps, each as large as twice the seed (the prior's pessimistic step)."""
 
 
 def anchor_radius_m(planner: PosePlanner) -> float:
-    """Largest grid radius up to which no θ mode moves or turns a part (its dead zone), m."""
+    """Largest grid radius up to which no θ orbit mode
+    (:meth:`~feeder.pose_response.ResponseModel.orbit_modes`) moves or turns a part (their dead
+    zone), m; θ's turning modes do not count."""
     model = planner.model
-    modes = model.modes("theta")
+    modes = model.orbit_modes()
     if not modes:
         return 0.0
     best = 0.0
@@ -97,7 +101,7 @@ def _orbit_plan(
     ta, tb = targets[ia + 1], targets[ib + 1]
     d = (b[0] - a[0], b[1] - a[1])
     d_t = (tb[0] - ta[0], tb[1] - ta[1])
-    coarse = planner.model.modes("theta")[0]
+    coarse = planner.model.orbit_modes()[0]
     drift = 0.0
     anchor = _anchor(d, d_t, drift)
     for _ in range(3):  # the drift depends on the orbit, which depends on the anchor
@@ -138,7 +142,7 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
         return f"the targets of parts {ia + 1} and {ib + 1} overlap (centres closer than {2 * size:.3g} m)"
     if math.hypot(*_relative_error(poses, targets)) <= planner.tolerance_m:
         return None  # as far apart as their targets (within the tolerance): translations will do
-    if not planner.model.modes("theta"):
+    if not planner.model.orbit_modes():
         return "no θ mode: translations move both parts alike"
     r_anchor = anchor_radius_m(planner)
     if r_anchor == 0:

@@ -6,6 +6,8 @@ turns and orbits the parts outside the dead zone and leaves those inside it
 stuck (:mod:`feeder.pose_response`).  One part: turn first (at a *station*
 outside the dead zone, moving there if needed), then translate to the target
 (the turn's orbit is corrected by the translations; translations never turn).
+A turn steps θ's coarse and fine modes; a pair's orbit its anchoring ones when the
+model has them (:meth:`~feeder.pose_response.ResponseModel.orbit_modes`).
 Every burst aims short with a pessimistic (mean + 2σ) step, like the 1-D
 policy, and is cut where its pessimistic path would leave the travel; a θ
 burst also where it would bring two parts' footprints within
@@ -42,7 +44,8 @@ before the cut (a coarse θ step moves a 300 µm part's corner by a few µm)."""
 
 @dataclass(frozen=True)
 class AxisBurst:
-    """``steps`` steps of ``axis`` in ``direction`` (+1/−1) with the waveform ``mode`` (coarse|fine)."""
+    """``steps`` steps of ``axis`` in ``direction`` (+1/−1) with the waveform ``mode`` (coarse|fine;
+    θ also anchor|anchor-fine, :data:`~feeder.pose_response.ANCHOR_MODES`)."""
 
     axis: str
     direction: int
@@ -302,7 +305,9 @@ class PosePlanner:
     def theta_burst(
         self, poses: list[Pose], i: int, amount: float, anchored: tuple[int, ...] = (), quantity: str = "turn"
     ) -> AxisBurst | Finish | None:
-        """A θ burst that turns (or orbits, ``quantity`` "orbit") part ``i`` by up to ``amount`` rad.
+        """A θ burst that turns (or orbits, ``quantity`` "orbit") part ``i`` by up to ``amount`` rad:
+        a turn with θ's turning modes, an orbit with those that hold parts near O
+        (:meth:`~feeder.pose_response.ResponseModel.orbit_modes`).
 
         None: no mode moves it by a useful amount here, or not even one step fits the travel;
         Finish ("unreachable"): every useful mode's first step would bring two parts within
@@ -312,7 +317,7 @@ class PosePlanner:
         need = abs(amount)
         if quantity == "turn" and self.symmetry_rad > 0:  # unambiguous to measure modulo the symmetry
             need = min(need, 0.3 * self.symmetry_rad)
-        modes = self.model.modes("theta")
+        modes = self.model.modes("theta") if quantity == "turn" else self.model.orbit_modes()
         fine = modes[-1]
         pose = poses[i]
         r = math.hypot(pose[0], pose[1])

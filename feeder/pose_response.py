@@ -37,6 +37,12 @@ from feeder.plate_axes import AXES
 log = logging.getLogger(__name__)
 
 MODES = ("coarse", "fine")
+"""Every axis' waveforms, coarse first; θ's turn a single part (and carry the others along)."""
+ANCHOR_MODES = ("anchor", "anchor-fine")
+"""θ's anchoring waveforms, coarse first (several parts on a CANopen drive,
+:func:`feeder.daemon.plane.anchor_modes`): parts near O stay put while the others orbit, so the
+pair strategy (:mod:`feeder.pose_pair`) orbits with these alone; θ's coarse and fine still turn
+single parts.  A model without them orbits with coarse and fine too (:meth:`ResponseModel.orbit_modes`)."""
 SEED_STD = 0.3
 """Prior relative uncertainty of every seed (1σ): the plant model within 30 %."""
 BIN_CORRELATION_M = 0.5e-3
@@ -70,8 +76,9 @@ class AxisMode:
     def __post_init__(self) -> None:
         if self.axis not in AXES:
             raise InputError("axis", f"expected one of {', '.join(AXES)}, got {self.axis!r}")
-        if self.mode not in MODES:
-            raise InputError("mode", f"expected one of {', '.join(MODES)}, got {self.mode!r}")
+        names = MODES + ANCHOR_MODES if self.axis == "theta" else MODES
+        if self.mode not in names:
+            raise InputError("mode", f"expected one of {', '.join(names)}, got {self.mode!r}")
         if not (math.isfinite(self.stroke) and self.stroke > 0):
             raise InputError("stroke", f"must be a positive number, got {self.stroke!r}")
 
@@ -270,9 +277,15 @@ class ResponseModel:
         return min(rates), max(rates)
 
     def modes(self, axis: str) -> list[str]:
-        """The modes this model knows for ``axis``, coarse first."""
+        """The modes this model knows for ``axis`` among :data:`MODES`, coarse first (θ: those
+        that turn a part; :meth:`orbit_modes`: those that orbit one while another stays)."""
         have = self.turn if axis == "theta" else {m for (a, m) in self.translation if a == axis}
         return [m for m in MODES if m in have]
+
+    def orbit_modes(self) -> list[str]:
+        """θ's modes the pair strategy holds a part near O with while the other orbits, coarse
+        first: :data:`ANCHOR_MODES` when the model has them, else θ's coarse and fine."""
+        return [m for m in ANCHOR_MODES if m in self.turn] or self.modes("theta")
 
     def step_m(self, axis: str, direction: int, mode: str) -> tuple[float, float]:
         """(step, std) of one x or y step, m, along ``direction``."""

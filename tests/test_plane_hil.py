@@ -107,6 +107,35 @@ def test_two_parts_each_reach_their_own_target_or_the_pair_is_refused_with_the_r
         shutil.rmtree(base, ignore_errors=True)
 
 
+def test_a_part_among_others_on_a_canopen_drive_turns_by_twenty_degrees() -> None:
+    """Several parts on CANopen: besides the anchoring waveforms (pairs orbit with them, above)
+    θ has the 1 kHz ones, which turn a single part, the other carried along (refused until
+    2026-11-27: "no θ mode turns the part anywhere within the travel")."""
+    base = Path(tempfile.mkdtemp(prefix="fplane3"))
+    config = config_for(PART, "can", base)
+    config = dataclasses.replace(
+        config,
+        plate=dataclasses.replace(config.plate, parts=((-0.9e-3, 0.1e-3, 0.1), (0.9e-3, -0.1e-3, 0.3))),
+    )
+    running = start_daemon(config)
+    try:
+        with Client(config.socket_path, timeout_s=120.0) as client:
+            status = wait_for_pose(client)
+            x, y, psi = status["parts"][1]["pose"]
+            target = (x, y, psi + math.radians(20))
+            result = client.move_to_pose(*target, part=2, timeout_s=120.0)
+            after = client.request("status")
+            truth = true_poses(after)
+    finally:
+        running.stop()
+        shutil.rmtree(base, ignore_errors=True)
+    assert list(status["axes"]["theta"]["modes"]) == ["coarse", "fine", "anchor", "anchor-fine"]
+    assert result.status == "done", result.raw
+    assert after["axes"]["theta"]["applied"] in ("coarse", "fine")
+    true_m, true_rad = pose_error(truth[1], target, SQUARE)
+    assert true_m <= status["tolerance_m"] + CAMERA_M and true_rad <= status["tolerance_rad"] + CAMERA_RAD
+
+
 def test_a_turned_mirrored_camera_is_located_with_the_stored_calibration() -> None:
     """A real microscope's image is turned and often mirrored: `feeder vision calibrate
     --save-state` measures that, and the daemon locates (and moves) parts with it."""

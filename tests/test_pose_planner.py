@@ -13,8 +13,9 @@ from feeder.plant.planar import PlanarPart, PlanarStickSlip
 from feeder.plant.plate_motion import Segment
 from feeder.plant.stick_slip import Friction
 from feeder.pose import pose_error
+from feeder.pose_pair import anchor_radius_m
 from feeder.pose_planner import AxisBurst, Finish, PosePlanner, Travel
-from feeder.pose_response import AxisMode, GainFilter, ResponseModel, TurnTable, seed_response
+from feeder.pose_response import ANCHOR_MODES, AxisMode, GainFilter, ResponseModel, TurnTable, seed_response
 
 F_HZ, FLYBACK_S = 100.0, 3.5e-4
 MODES = (
@@ -25,6 +26,15 @@ MODES = (
     AxisMode("theta", "coarse", 14e-3, F_HZ, FLYBACK_S),
     AxisMode("theta", "fine", 7e-3, F_HZ, FLYBACK_S),
 )
+TURNING = (  # the daemon's θ at 1 kHz (ideal_modes): a part turns anywhere, O included
+    AxisMode("theta", "coarse", 9.6e-3, 1000.0, 2.0e-4),
+    AxisMode("theta", "fine", 1.25e-3, 1000.0, 3.15e-5),
+)
+BOTH = (  # several parts on a CANopen drive: MODES' θ anchors (dead zone ~0.5 mm), TURNING turns
+    *(m for m in MODES if m.axis != "theta"),
+    *TURNING,
+    *(AxisMode("theta", a, m.stroke, F_HZ, FLYBACK_S) for a, m in zip(ANCHOR_MODES, MODES[4:], strict=True)),
+)
 PART = PlanarPart.from_part(Part.parse("500x300x50"), Friction(105.25, 0.8))
 RADII = (0.0, 0.5e-3, 1.0e-3, 1.25e-3, 1.5e-3, 1.75e-3, 2.0e-3, 2.5e-3, 3.0e-3)
 TRAVEL = Travel((-1.8e-3, 1.8e-3), (-1.8e-3, 1.8e-3))
@@ -34,13 +44,20 @@ TOL_M, TOL_RAD = 1e-6, math.radians(0.1)
 class World:
     """The plant: bursts of ideal sawtooth periods, entered and left by gentle ramps (no corner)."""
 
-    def __init__(self, poses: list[tuple[float, float, float]], part: PlanarPart = PART) -> None:
+    def __init__(
+        self,
+        poses: list[tuple[float, float, float]],
+        part: PlanarPart = PART,
+        modes: tuple[AxisMode, ...] = MODES,
+    ) -> None:
         parts = [PlanarPart(part.patch, part.mass_kg, part.inertia_kg_m2, part.friction, p) for p in poses]
         self.solver = PlanarStickSlip(parts)
+        self.modes = modes
         self.steps = 0
+        self.bursts: list[AxisBurst] = []
 
     def burst(self, b: AxisBurst) -> None:
-        mode = next(m for m in MODES if m.axis == b.axis and m.mode == b.mode)
+        mode = next(m for m in self.modes if m.axis == b.axis and m.mode == b.mode)
         motion = mode.motion(b.direction, b.steps)
         v = motion.initial_velocity
         ramp = 2e-3
@@ -52,6 +69,7 @@ class World:
         )
         self.solver.advance(segments, len(segments))
         self.steps += b.steps
+        self.bursts.append(b)
 
     def poses(self) -> list[tuple[float, float, float]]:
         return [(float(p[0]), float(p[1]), float(p[2])) for p in self.solver.poses()]
@@ -198,6 +216,41 @@ def test_a_pair_off_by_less_than_the_tolerance_is_done_or_translated_not_refused
     too_far = [(1.2e-6, 0.0, 0.0), (1.5e-3 + 2.7e-6, 0.0, 0.0)]  # 1.5 µm relative: still refused
     refused = planner.check(targets, too_far)
     assert refused is not None and "stays held" in refused
+
+
+def test_with_both_theta_families_a_part_turns_among_others_and_a_pair_orbits_anchored(
+    model_seed: ResponseModel,
+) -> None:
+    """Several parts on a CANopen drive: θ's coarse and fine turn one part (the other carried
+    along, kept apart), the anchoring family alone orbits a pair, whose dead zone the turning
+    modes (which turn parts at O) do not shrink."""
+    planner = PosePlanner(seed_response(PART, BOTH, RADII), TRAVEL, PART, TOL_M, TOL_RAD)
+    assert planner.model.modes("theta") == ["coarse", "fine"]
+    assert planner.model.orbit_modes() == list(ANCHOR_MODES)
+    anchored_only = PosePlanner(fresh(), TRAVEL, PART, TOL_M, TOL_RAD)  # MODES' θ: the old planning
+    assert anchor_radius_m(planner) == anchor_radius_m(anchored_only) > 0.4e-3
+    assert planner.station_radius_m == 0.0  # the 1 kHz modes turn a part in place
+
+    world = World([(0.3e-3, -0.2e-3, 0.1), (-0.9e-3, 0.9e-3, 0.0)], modes=BOTH)
+    target = (0.3e-3, -0.2e-3, 0.1 + math.radians(35))
+    assert planner.check({1: target}, world.poses()) is None
+    verdict = run(planner, world, {1: target})
+    assert verdict.status == "done", verdict
+    error_m, error_rad = pose_error(world.poses()[0], target, math.pi)
+    assert error_m <= TOL_M and error_rad <= TOL_RAD
+    turns = [b for b in world.bursts if b.axis == "theta"]
+    assert turns and {b.mode for b in turns} <= {"coarse", "fine"}
+
+    world = World([(0.0, 0.0, 0.0), (1.5e-3, 0.0, 0.0)], modes=BOTH)
+    targets = {1: (0.2e-3, -0.3e-3, 0.0), 2: (0.4e-3, 1.5e-3, math.nan)}
+    assert planner.check(targets, world.poses()) is None
+    verdict = run(planner, world, targets)
+    assert verdict.status == "done", verdict
+    for pid, goal in targets.items():
+        pose = world.poses()[pid - 1]
+        assert math.hypot(pose[0] - goal[0], pose[1] - goal[1]) <= TOL_M
+    orbits = [b for b in world.bursts if b.axis == "theta"]
+    assert orbits and {b.mode for b in orbits} <= set(ANCHOR_MODES)
 
 
 def test_learned_gains_survive_a_restart_and_mismatched_ones_are_left_at_the_seed() -> None:

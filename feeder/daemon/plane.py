@@ -2,7 +2,8 @@
 
 The three stacks are alike: x and y step with the one-axis planner's coarse
 and fine waveforms (:mod:`feeder.daemon.step_modes`), θ with the planner's at
-:data:`THETA_FREQUENCY_HZ`.  What a step does differs: x and y translate every
+:data:`THETA_FREQUENCY_HZ` (and, with several parts on a CANopen drive, anchoring ones besides:
+:func:`plan_theta_modes`).  What a step does differs: x and y translate every
 part by the same step, θ turns the plate about O (the stack's stroke over the
 lever arm) and moves each part according to where it sits.  The pose planner (:mod:`feeder.pose_planner`)
 is seeded with one period of the planar plant per axis and waveform
@@ -28,7 +29,7 @@ from feeder.plant.planar import PlanarPart
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import Friction
 from feeder.pose_planner import PosePlanner, Travel
-from feeder.pose_response import AxisMode, seed_response
+from feeder.pose_response import ANCHOR_MODES, MODES, AxisMode, seed_response
 from feeder.surface.parameters import SurfaceParameters
 
 log = logging.getLogger(__name__)
@@ -45,8 +46,8 @@ THETA_FREQUENCY_HZ = 1000.0
 translations' fastest waveform, so a turn takes fewer steps; each step of a turning part is
 also what costs a simulated plant most."""
 ANCHOR_THETA_FREQUENCY_HZ = 100.0
-"""With several parts on a drive that plays a designed flyback (CANopen), θ steps at 100 Hz with
-a smooth one (:func:`anchor_modes`): parts near O stay held while the others orbit."""
+"""With several parts on a drive that plays a designed flyback (CANopen), θ also has waveforms at
+100 Hz with a smooth one (:func:`anchor_modes`): parts near O stay held while the others orbit."""
 ANCHOR_BREAK_RADIUS_M = 1.2e-3
 """... designed so that the ideal plate breaks parts loose only beyond this radius from O; the
 stack's ringing (ζ = 0.1) adds to the flyback's acceleration, and on the simulated plant parts
@@ -65,31 +66,36 @@ def anchor_modes(
     lever_arm_m: float,
     stack: StackParameters | None = None,
 ) -> dict[str, StepMode]:
-    """θ's waveforms with a dead zone: each with a half-cosine flyback (:func:`anchor_flyback_s`
-    at :data:`ANCHOR_BREAK_RADIUS_M`)."""
+    """θ's waveforms with a dead zone, named :data:`~feeder.pose_response.ANCHOR_MODES` (coarse
+    first): each of ``theta_modes`` (coarse, fine) with a half-cosine flyback
+    (:func:`anchor_flyback_s` at :data:`ANCHOR_BREAK_RADIUS_M`)."""
     gain = (stack or StackParameters()).gain_m_per_v
     out = {}
-    for name, mode in theta_modes.items():
+    for name, anchor in zip(MODES, ANCHOR_MODES, strict=True):
+        mode = theta_modes[name]
         s = mode.settings
         flyback_s = anchor_flyback_s(
             s.amplitude_v * gain / lever_arm_m, static_accel_m_s2, ANCHOR_BREAK_RADIUS_M
         )
         smooth = dataclasses.replace(s, flyback_shape="half-cosine", flyback_s=flyback_s)
-        out[name] = dataclasses.replace(mode, settings=smooth)
+        out[anchor] = dataclasses.replace(mode, name=anchor, settings=smooth)
     return out
 
 
 def plan_theta_modes(
     config: DaemonConfig, surface: SurfaceParameters, static_accel_m_s2: float
 ) -> dict[str, StepMode]:
-    """θ's coarse and fine waveforms: the one-axis planner's at :data:`THETA_FREQUENCY_HZ` (they
-    turn a part anywhere, O included), or with several parts on a CANopen drive (which plays
-    the flyback as designed) :func:`anchor_modes`.  An ANC300 plays 256-point 8-bit tables:
-    their flyback's corners break parts loose even at 0.5 mm from O (they turn 0.01–0.03 mrad
-    per step there), so no part could be held while another orbits."""
-    anchored = len(config.plate.parts) > 1 and config.amplifier.transport == "can"
-    modes = plan_step_modes(config, surface, ANCHOR_THETA_FREQUENCY_HZ if anchored else THETA_FREQUENCY_HZ)
-    return anchor_modes(modes, static_accel_m_s2, config.plate.lever_arm_m) if anchored else modes
+    """θ's waveforms: coarse and fine, the one-axis planner's at :data:`THETA_FREQUENCY_HZ` (they
+    turn a part anywhere, O included); with several parts on a CANopen drive (which plays the
+    flyback as designed) also :func:`anchor_modes` at :data:`ANCHOR_THETA_FREQUENCY_HZ`, which
+    the pair strategy orbits with while coarse and fine turn single parts.  An ANC300 plays
+    256-point 8-bit tables: their flyback's corners break parts loose even at 0.5 mm from O
+    (they turn 0.01–0.03 mrad per step there), so no part could be held while another orbits."""
+    modes = plan_step_modes(config, surface, THETA_FREQUENCY_HZ)
+    if len(config.plate.parts) > 1 and config.amplifier.transport == "can":
+        slow = plan_step_modes(config, surface, ANCHOR_THETA_FREQUENCY_HZ)
+        modes |= anchor_modes(slow, static_accel_m_s2, config.plate.lever_arm_m)
+    return modes
 
 
 def theta_key(theta_modes: dict[str, StepMode]) -> str:
@@ -105,7 +111,7 @@ def axis_modes(
     modes: dict[str, StepMode], theta_modes: dict[str, StepMode], axes: tuple[str, ...]
 ) -> dict[str, dict[str, StepMode]]:
     """The waveforms of every axis: x and y the one-axis planner's, θ its own (``theta_modes``,
-    planned at :data:`THETA_FREQUENCY_HZ`)."""
+    :func:`plan_theta_modes`)."""
     return {axis: dict(theta_modes if axis == "theta" else modes) for axis in axes}
 
 
