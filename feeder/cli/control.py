@@ -128,12 +128,15 @@ def plane_status_lines(reply: dict[str, Any]) -> list[str]:
     """``feeder status`` of a plate driven in x, y and θ: every part's pose (and target), the
     tolerances, the travel and each axis' learned coarse step both ways."""
     lines = []
+    held = {h.get("part"): h.get("pose") for h in reply.get("held") or ()}
     for part in reply.get("parts") or ():
         pose = part.get("pose")
         target = reply.get("target_pose") if reply.get("target_part") == part.get("id") else None
+        hold = held.get(part.get("id"))
         lines.append(
             f"part {part.get('id')}: {_pose(None if pose is None else tuple(pose))}"
             + (f", moving to {_pose(tuple(target))}" if target is not None else "")
+            + (f", held at {_pose(tuple(hold))}" if hold is not None else "")
         )
     travel = reply.get("travel_m") or {}
     tolerance_rad = reply.get("tolerance_rad")
