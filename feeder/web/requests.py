@@ -84,6 +84,11 @@ def checked(cmd: str, body: dict[str, Any]) -> dict[str, Any]:
             raise ApiError(400, f"{key} must be an integer")
         if key == "part" and value < 1:
             raise ApiError(400, f"part must be a part id ≥ 1, got {_brief(value)}")
+    given = [
+        group for group in (("target_m",), ("by_m",), ("x_m", "y_m", "angle_rad")) if set(group) & set(body)
+    ]
+    if cmd == "move" and len(given) > 1:
+        raise ApiError(400, "give exactly one of target_m and by_m, or a pose (x_m, y_m, angle_rad)")
     return body
 
 
