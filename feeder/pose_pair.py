@@ -10,8 +10,9 @@ about O: d' = R(φ)(a + d) − a.  So d reaches d_t when |a + d| + δ = |a + d_t
 a + d to a + d_t.  The plan: (1) translate so that A sits at that anchor,
 (2) orbit B (coarse, aiming short, then fine), (3) translate both so that each
 is within tolerance of its target.  Limits (refused by :func:`pair_refusal`):
-the anchor must lie within the dead zone (the distance between the parts can
-change by at most about twice its radius), B must orbit outside it, and the
+the anchor must lie within the dead zone (radius r_a: the distance between the
+parts can change by at most 2·r_a·|d_t − d|/(|d| + |d_t|), so only as the line
+joining them turns), B must orbit where a step moves it, and the
 parts' angles are not controlled: B's turn is tied to its orbit, so the pair
 strategy leaves B's angle free (a NaN target angle; any angle for a disc) and A's
 as it is.
@@ -20,12 +21,9 @@ as it is.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 from feeder.pose import Pose
-
-if TYPE_CHECKING:
-    from feeder.pose_planner import AxisBurst, Finish, PosePlanner
+from feeder.pose_planner import USEFUL_ORBIT, AxisBurst, Finish, PosePlanner
 
 ANCHOR_SLACK = 0.2
 """An anchored part moves by less than this fraction of the tolerance during a θ burst (every orbit
@@ -94,31 +92,35 @@ def _anchor(d: tuple[float, float], d_t: tuple[float, float], drift_m: float) ->
 
 def _orbit_plan(
     planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose]
-) -> tuple[tuple[float, float], float, str]:
-    """(anchor for A, orbit angle B needs about O, mode) with B's predicted radial drift folded in."""
+) -> tuple[tuple[float, float], float, float]:
+    """(anchor for A, orbit angle B needs about O, B's predicted radial drift over it (m)), the
+    anchor nearest O."""
     ia, ib = _order(targets)
     a, b = poses[ia], poses[ib]
     ta, tb = targets[ia + 1], targets[ib + 1]
     d = (b[0] - a[0], b[1] - a[1])
     d_t = (tb[0] - ta[0], tb[1] - ta[1])
-    coarse = planner.model.orbit_modes()[0]
+
+    def orbit(at: tuple[float, float]) -> float:  # B's orbit (rad) with A held at ``at``
+        return _angle((at[0] + d[0], at[1] + d[1]), (at[0] + d_t[0], at[1] + d_t[1]))
+
     drift = 0.0
     anchor = _anchor(d, d_t, drift)
     for _ in range(3):  # the drift depends on the orbit, which depends on the anchor
-        start = (anchor[0] + d[0], anchor[1] + d[1])
-        end = (anchor[0] + d_t[0], anchor[1] + d_t[1])
-        phi = math.remainder(math.atan2(end[1], end[0]) - math.atan2(start[1], start[0]), 2 * math.pi)
-        drift = _drift(planner, (start[0], start[1], b[2]), phi, coarse)
+        drift = _drift(planner, (anchor[0] + d[0], anchor[1] + d[1], b[2]), orbit(anchor))
         anchor = _anchor(d, d_t, drift)
-    start = (anchor[0] + d[0], anchor[1] + d[1])
-    end = (anchor[0] + d_t[0], anchor[1] + d_t[1])
-    phi = math.remainder(math.atan2(end[1], end[0]) - math.atan2(start[1], start[0]), 2 * math.pi)
-    return anchor, phi, coarse
+    return anchor, orbit(anchor), drift
 
 
-def _drift(planner: PosePlanner, pose: Pose, phi: float, mode: str) -> float:
-    """Radial drift (m) of a part orbiting by ``phi`` about O with ``mode``: drift per step × steps."""
-    s = planner.model.turn_step(1 if phi > 0 else -1, mode, *pose)
+def _angle(start: tuple[float, float], end: tuple[float, float]) -> float:
+    """Angle (rad, within ±π) from ``start`` to ``end`` about O."""
+    return math.remainder(math.atan2(end[1], end[0]) - math.atan2(start[1], start[0]), 2 * math.pi)
+
+
+def _drift(planner: PosePlanner, pose: Pose, phi: float) -> float:
+    """Radial drift (m) of a part orbiting by ``phi`` about O with the coarse orbit mode: drift
+    per step × steps."""
+    s = planner.model.turn_step(1 if phi > 0 else -1, planner.model.orbit_modes()[0], *pose)
     return 0.0 if s.orbit_rad == 0 else abs(phi / s.orbit_rad) * s.radial_m
 
 
@@ -140,7 +142,8 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
     size = planner.part.patch.radius_m
     if math.hypot(tb[0] - ta[0], tb[1] - ta[1]) < 2 * size:
         return f"the targets of parts {ia + 1} and {ib + 1} overlap (centres closer than {2 * size:.3g} m)"
-    if math.hypot(*_relative_error(poses, targets)) <= planner.tolerance_m:
+    rel = _relative_error(poses, targets)
+    if math.hypot(*rel) <= planner.tolerance_m:
         return None  # as far apart as their targets (within the tolerance): translations will do
     if not planner.model.orbit_modes():
         return "no θ mode: translations move both parts alike"
@@ -150,21 +153,33 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
             "no θ waveform holds a part near O (the dead zone that keeps one part in place while "
             "the other orbits): θ steps move both parts (docs/pose-control.md, two parts)"
         )
-    anchor, _, coarse = _orbit_plan(planner, poses, targets)
+    anchor, phi, _ = _orbit_plan(planner, poses, targets)
     reach = math.hypot(*anchor)
     if reach > r_anchor:
+        d = math.hypot(tb[0] - ta[0] + rel[0], tb[1] - ta[1] + rel[1])
+        d_t = math.hypot(tb[0] - ta[0], tb[1] - ta[1])
+        limit = 2 * r_anchor * math.hypot(*rel) / (d + d_t)  # the bisector of −d, −d_t within r_anchor of O
         return (
             f"part {ib + 1} must orbit O while part {ia + 1} stays held at {reach:.3g} m from O, "
             f"but only parts within {r_anchor:.3g} m of O stay held: the distance between the parts "
-            "cannot change that much"
+            f"cannot change that much (from {d:.3g} m to {d_t:.3g} m; by at most "
+            f"2·{r_anchor:.3g}·|d_t − d|/(|d| + |d_t|) = {limit:.3g} m here: the line joining them "
+            "must turn for it to change)"
         )
+    # B's orbit from where A at the anchor puts it: some orbit mode must move it by a step
+    # theta_burst will use (USEFUL_ORBIT of the tolerance), fine steps included
     a, b = poses[ia], poses[ib]
-    radius = math.hypot(anchor[0] + b[0] - a[0], anchor[1] + b[1] - a[1])
-    orbit = max(abs(planner.model.turn_step(d, coarse, radius, 0.0, 0.0).orbit_rad) for d in (1, -1))
-    if orbit * radius < planner.tolerance_m:
+    start = (anchor[0] + b[0] - a[0], anchor[1] + b[1] - a[1], b[2])
+    radius = math.hypot(start[0], start[1])
+    direction = 1 if phi > 0 else -1
+    modes = planner.model.orbit_modes()
+    step = max(abs(planner.model.turn_step(direction, m, *start).orbit_rad) for m in modes)
+    useful = USEFUL_ORBIT * planner.tolerance_m
+    if step * radius < useful:
         return (
-            f"part {ib + 1} would orbit O at {radius:.3g} m, inside the dead zone where θ steps do "
-            "not move it: the parts are too close together"
+            f"part {ib + 1} would orbit O at {radius:.3g} m, in the dead zone: θ's orbit steps move it "
+            f"by {step * radius:.3g} m at most, less than the {useful:.3g} m a step must move it by: the "
+            "parts are too close together"
         )
     return None
 
@@ -173,8 +188,6 @@ def next_pair_burst(
     planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose]
 ) -> AxisBurst | Finish | None:
     """Anchor A, orbit B until d = d_t (within the tolerance), then translate both (None: both within it)."""
-    from feeder.pose_planner import AxisBurst, Finish
-
     ia, ib = _order(targets)
     a, b = poses[ia], poses[ib]
     ta, tb = targets[ia + 1], targets[ib + 1]
@@ -220,18 +233,20 @@ def _orbit_burst(
     planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose], rel: tuple[float, float]
 ) -> AxisBurst | Finish:
     """The burst that brings d towards d_t: A to its anchor, or B's orbit about O (or why not)."""
-    from feeder.pose_planner import Finish
-
     ia, ib = _order(targets)
     a, b = poses[ia], poses[ib]
     ta, tb = targets[ia + 1], targets[ib + 1]
     tol = planner.tolerance_m
-    # where A is will do if B's orbit from there ends within the tolerance (the anchor the
-    # plan picks is ill-conditioned once d ≈ d_t: noise would send A back and forth)
+    # where A is will do if B's orbit from there ends within half the tolerance of d_t's radius
+    # and at least halves |d − d_t| (the anchor the plan picks is ill-conditioned once d ≈ d_t:
+    # noise would send A back and forth; a radial miss of 0.4 tolerances with d 0.5 off had a
+    # fine orbit step flip d around d_t for ever).  The predicted drift is left out: the coarse
+    # mode's, it spoils the fine end of an orbit (tests/test_pose_planner.py's pairs)
     end = (a[0] + tb[0] - ta[0], a[1] + tb[1] - ta[1])
+    phi = _angle((b[0], b[1]), end)
     r_anchor = anchor_radius_m(planner)
-    if math.hypot(a[0], a[1]) <= r_anchor and abs(math.hypot(b[0], b[1]) - math.hypot(*end)) <= 0.5 * tol:
-        phi = math.remainder(math.atan2(end[1], end[0]) - math.atan2(b[1], b[0]), 2 * math.pi)
+    miss = math.hypot(*end) - math.hypot(b[0], b[1])  # how far B's radius is off the end's
+    if math.hypot(a[0], a[1]) <= r_anchor and abs(miss) <= min(0.5 * tol, 0.5 * math.hypot(*rel)):
         burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
         if burst is not None:
             return burst

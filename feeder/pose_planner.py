@@ -31,6 +31,9 @@ DEFAULT_TOLERANCE_RAD = math.radians(0.1)
 STATION_BAND_M = 40e-6
 """A part within this of its turning station's radius turns there."""
 STATION_DIRECTIONS = 36
+USEFUL_ORBIT = 0.02
+"""An orbit step (two parts placed relative to each other, to half the tolerance) is worth a θ
+burst when it moves the part by at least this fraction of ``tolerance_m``."""
 MAX_BURST_STEPS = 2000
 CLEARANCE_M = 40e-6
 """θ bursts and targets keep every two parts' footprints at least this far apart (m), or as far
@@ -83,6 +86,8 @@ class _Job:
     targets: dict[int, Pose]
     bursts: int = 0
     notes: list[str] = field(default_factory=list)
+    direction: int = 0
+    """The last burst's direction (+1/−1; 0 before the first)."""
 
 
 class PosePlanner:
@@ -184,6 +189,7 @@ class PosePlanner:
             return Finish("done", "every part within tolerance")
         if isinstance(nxt, AxisBurst):
             self._job.bursts += 1
+            self._job.direction = nxt.direction
         return nxt
 
     def burst_effect(self, burst: AxisBurst, poses: list[Pose]) -> list[tuple[float, float]]:
@@ -253,10 +259,17 @@ class PosePlanner:
     def translate_burst(
         self, poses: list[Pose], i: int, goal: tuple[float, float], exact: bool
     ) -> AxisBurst | Finish:
-        """x or y burst bringing part ``i`` towards ``goal``; ``exact``: aim short, end with fine steps."""
+        """x or y burst bringing part ``i`` towards ``goal``; ``exact``: aim short, end with fine steps.
+
+        The axis that goes on in the last burst's direction first, else the larger error: the
+        daemon counts every change of direction (whatever the axis) as a reversal and ends a move
+        after 4 per axis as "oscillating" (a pair's way out to its anchor and back, x and y
+        alternating in opposite directions, once took 13).
+        """
         pose = poses[i]
         errors = {"x": goal[0] - pose[0], "y": goal[1] - pose[1]}
-        for axis in sorted(errors, key=lambda a: -abs(errors[a])):
+        last = self._job.direction if self._job is not None else 0
+        for axis in sorted(errors, key=lambda a: (errors[a] * last < 0, -abs(errors[a]))):
             error = errors[axis]
             if error == 0:
                 continue
@@ -328,9 +341,11 @@ class PosePlanner:
                 return abs(s.turn_rad), s.turn_std_rad
             return abs(s.orbit_rad), s.orbit_std_rad
 
-        # a turn: a quarter of the tolerance per step at least; an orbit (two parts placed
-        # relative to each other, to half the tolerance) a fiftieth
-        useful = 0.25 * self.tolerance_rad if quantity == "turn" else 0.02 * self.tolerance_m / max(r, 1e-9)
+        # a turn: a quarter of the tolerance per step at least; an orbit USEFUL_ORBIT of it
+        if quantity == "turn":
+            useful = 0.25 * self.tolerance_rad
+        else:
+            useful = USEFUL_ORBIT * self.tolerance_m / max(r, 1e-9)
         fine_step = per_step(fine)[0]
         blocked: tuple[int, int] | None = None
         for mode in modes:

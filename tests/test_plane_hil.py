@@ -107,6 +107,37 @@ def test_two_parts_each_reach_their_own_target_or_the_pair_is_refused_with_the_r
         shutil.rmtree(base, ignore_errors=True)
 
 
+def test_a_pair_orbited_half_a_radian_about_the_held_part_ends_done() -> None:
+    """Part 1 held at (−0.9, 0.1) mm, part 2 1.8 mm away orbited 0.5 rad about it: ended
+    "oscillating" (13 direction reversals, both 6–36 µm off) until the planner kept one axis
+    going in the last burst's direction (docs/pose-control.md, two parts)."""
+    base = Path(tempfile.mkdtemp(prefix="fplane4"))
+    config = config_for(PART, "can", base)
+    config = dataclasses.replace(
+        config,
+        plate=dataclasses.replace(config.plate, parts=((-0.9e-3, 0.1e-3, 0.1), (0.9e-3, -0.1e-3, 0.3))),
+    )
+    running = start_daemon(config)
+    try:
+        with Client(config.socket_path, timeout_s=240.0) as client:
+            status = wait_for_pose(client)
+            first = client.move_to_pose(-0.9e-3, 0.1e-3, part=1, timeout_s=240.0)
+            assert first.status == "done", first.raw
+            a, b = (p["pose"] for p in client.request("status")["parts"])
+            c, s = math.cos(0.5), math.sin(0.5)
+            dx, dy = b[0] - a[0], b[1] - a[1]
+            target = (-0.9e-3 + c * dx - s * dy, 0.1e-3 + s * dx + c * dy)
+            reply = client.request("move", part=2, x_m=target[0], y_m=target[1], timeout_s=240.0)
+            truth = true_poses(client.request("status"))
+    finally:
+        running.stop()
+        shutil.rmtree(base, ignore_errors=True)
+    assert reply["ok"] and reply["result"]["status"] == "done", reply
+    truth_tol_m = status["tolerance_m"] + CAMERA_M
+    assert pose_error(truth[1], (*target, 0.0), 0.0)[0] <= truth_tol_m
+    assert pose_error(truth[0], (-0.9e-3, 0.1e-3, 0.1), SQUARE)[0] <= truth_tol_m
+
+
 def test_a_part_among_others_on_a_canopen_drive_turns_by_twenty_degrees() -> None:
     """Several parts on CANopen: besides the anchoring waveforms (pairs orbit with them, above)
     θ has the 1 kHz ones, which turn a single part, the other carried along (refused until

@@ -224,3 +224,29 @@ def test_a_one_axis_move_on_the_plane_is_a_move_of_part_ones_x() -> None:
     done = plane.run(Job("move", target_m=150e-6))
     assert done.result.status == "done" and done.result.target_pose == (150e-6, 0.0, 0.0)
     assert abs(plane.poses[0][0] - 150e-6) <= SETTINGS.tolerance_m
+
+
+class ScriptedPlanner(StepPlanner):
+    """Bursts from a script, then done (a planner's decisions, whatever the poses)."""
+
+    def __init__(self, script: list[tuple[str, int]]) -> None:
+        super().__init__()
+        self.script = list(script)
+
+    def next_burst(self, poses: list[Pose], targets: dict[int, Pose]) -> AxisBurst | Finish:
+        if not self.script:
+            return Finish("done", "every part within tolerance")
+        axis, direction = self.script.pop(0)
+        return AxisBurst(axis, direction, 1, FINE)
+
+
+def test_reversals_are_counted_per_axis() -> None:
+    """x+ then y− is no reversal (a pair's way to its anchor alternates them); x+ then x− is."""
+    limit = SETTINGS.max_reversals * 3  # three axes
+    crossing = [("x", 1), ("y", -1)] * (limit + 4)  # 2·limit + 7 sign changes across axes, none per axis
+    assert Plane(planner=ScriptedPlanner(crossing)).run(
+        Job("move", pose_target={"x_m": 0.0})
+    ).result.status == ("done")
+    back_and_forth = [("x", 1), ("x", -1)] * (limit + 1)
+    result = Plane(planner=ScriptedPlanner(back_and_forth)).run(Job("move", pose_target={"x_m": 0.0})).result
+    assert result.status == "oscillating" and result.reason.startswith(f"{limit + 1} direction reversals")

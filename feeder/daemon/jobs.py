@@ -269,7 +269,7 @@ class Job:
         self.reversals = 0
         self.refined = False
         self.switched = False
-        self.last_direction: str | None = None
+        self.last_directions: dict[str, str] = {}  # axis → direction of its last burst in this job
         self.trace: list[tuple[float, float]] = []
         self.pose_trace: list[tuple[float, Pose]] = []
         self.start_pose: Pose | None = None

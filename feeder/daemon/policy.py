@@ -488,7 +488,8 @@ class Policy:
             if job.target_m is None and job.target_pose is None:
                 job.planned.popleft()
         job.switched = False
-        if job.last_direction is not None and nxt.direction != job.last_direction:
+        previous = job.last_directions.get(nxt.axis)  # a reversal is per axis: x+ then y− is none
+        if previous is not None and nxt.direction != previous:
             job.reversals += 1
             if job.reversals > s.max_reversals * len(self.navigator.axes):
                 self._finish(
@@ -505,7 +506,7 @@ class Policy:
         job.steps += nxt.steps
         job.bursts += 1
         job.bursts_per_axis[nxt.axis] = job.bursts_per_axis.get(nxt.axis, 0) + 1
-        job.last_direction = nxt.direction
+        job.last_directions[nxt.axis] = nxt.direction
         self.state = "moving"
         # (after an unmeasured switch the apply is still in flight: the executor runs both
         # in order, and the step is what the policy waits for)
