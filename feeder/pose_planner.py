@@ -382,14 +382,21 @@ class PosePlanner:
         short: bool,
         quantity: str = "turn",
     ) -> int:
-        """Steps that turn (orbit) by ``need``: the pessimistic count less one (short), or the nearest."""
+        """Steps that turn (orbit) by ``need``: the pessimistic count less one (short), or the nearest.
+        An orbit also turns the part: it stops before the pessimistic turn passes 0.3 × the part's
+        symmetry, so the burst's turn stays unambiguous to learn from (the camera sees the angle
+        modulo the symmetry)."""
         x, y, psi = pose
-        done, previous = 0.0, 0.0
+        done, previous, turned = 0.0, 0.0, 0.0
         for n in range(1, MAX_BURST_STEPS + 1):
             s = self.model.turn_step(direction, mode, x, y, psi)
             step = abs(s.turn_rad if quantity == "turn" else s.orbit_rad)
             if step < 1e-9:
                 return 0
+            if quantity == "orbit" and self.symmetry_rad > 0:
+                turned += abs(s.turn_rad) * scale
+                if turned > 0.3 * self.symmetry_rad:
+                    return n - 1
             done += step * (scale if short else 1.0)
             x, y, psi = self.model.predict("theta", direction, mode, 1, (x, y, psi))
             if short and done > need:

@@ -177,3 +177,22 @@ def test_a_pair_is_refused_as_too_close_only_where_no_orbit_step_moves_the_part(
         {1: (0.0, 0.0, math.nan), 2: orbited(a, near.plate.parts[1], 1.0)}, list(near.plate.parts)
     )
     assert refused is not None and "in the dead zone" in refused and "at most" in refused, refused
+
+
+def test_an_orbit_burst_turns_the_orbited_part_by_less_than_its_symmetry_can_tell(tmp_path: Path) -> None:
+    """A square seen modulo 90°: a burst that turned it beyond 45° would be learned the wrong way
+    round (seen: an orbit of 0.8 rad turned part 2 past π/4 in one burst); an orbit burst stops
+    before its pessimistic turn passes 0.3 × the symmetry."""
+    config = world("can", PARTS, tmp_path)
+    nav = planner(config, plan_theta_modes(config, DEFAULT_SURFACE, static_accel(config)))
+    held = [(0.0, 0.0, 0.1), (1.8e-3, 0.4e-3, 0.3)]
+    burst = nav.theta_burst(held, 1, 0.8, anchored=(0,), quantity="orbit")
+    assert isinstance(burst, AxisBurst) and burst.mode in ANCHOR_MODES
+    pose, turned = held[1], 0.0
+    for _ in range(burst.steps):
+        step = nav.model.turn_step(burst.direction, burst.mode, *pose)
+        turned += abs(step.turn_rad)
+        pose = nav.model.predict("theta", burst.direction, burst.mode, 1, pose)
+    assert turned <= 0.3 * nav.symmetry_rad
+    longer = nav.model.predict("theta", burst.direction, burst.mode, 3 * burst.steps, held[1])
+    assert abs(longer[2] - held[1][2]) > 0.3 * nav.symmetry_rad  # the orbit asked for turns it further
