@@ -19,6 +19,7 @@ import pytest
 from feeder.cli.control import plane_status_lines
 from feeder.cli.demo_plane import config_for, move_to, true_poses, wait_for_pose
 from feeder.daemon.client import Client
+from feeder.daemon.config import DaemonConfig
 from feeder.daemon.runner import RunningDaemon, start_daemon
 from feeder.daemon.service import PLANE_CALIBRATE
 from feeder.daemon.store import Store
@@ -107,16 +108,19 @@ def test_two_parts_each_reach_their_own_target_or_the_pair_is_refused_with_the_r
         shutil.rmtree(base, ignore_errors=True)
 
 
+def two_parts_on_canopen() -> tuple[Path, DaemonConfig]:
+    """The CANopen planar world with two parts 1.8 mm apart, in a fresh directory (removed by the test)."""
+    base = Path(tempfile.mkdtemp(prefix="fpair"))
+    config = config_for(PART, "can", base)
+    parts = ((-0.9e-3, 0.1e-3, 0.1), (0.9e-3, -0.1e-3, 0.3))
+    return base, dataclasses.replace(config, plate=dataclasses.replace(config.plate, parts=parts))
+
+
 def test_a_pair_orbited_half_a_radian_about_the_held_part_ends_done() -> None:
     """Part 1 held at (−0.9, 0.1) mm, part 2 1.8 mm away orbited 0.5 rad about it: ended
     "oscillating" (13 direction reversals, both 6–36 µm off) until the planner kept one axis
     going in the last burst's direction (docs/pose-control.md, two parts)."""
-    base = Path(tempfile.mkdtemp(prefix="fplane4"))
-    config = config_for(PART, "can", base)
-    config = dataclasses.replace(
-        config,
-        plate=dataclasses.replace(config.plate, parts=((-0.9e-3, 0.1e-3, 0.1), (0.9e-3, -0.1e-3, 0.3))),
-    )
+    base, config = two_parts_on_canopen()
     running = start_daemon(config)
     try:
         with Client(config.socket_path, timeout_s=240.0) as client:
@@ -142,12 +146,7 @@ def test_a_part_among_others_on_a_canopen_drive_turns_by_twenty_degrees() -> Non
     """Several parts on CANopen: besides the anchoring waveforms (pairs orbit with them, above)
     θ has the 1 kHz ones, which turn a single part, the other carried along (refused until
     2026-11-27: "no θ mode turns the part anywhere within the travel")."""
-    base = Path(tempfile.mkdtemp(prefix="fplane3"))
-    config = config_for(PART, "can", base)
-    config = dataclasses.replace(
-        config,
-        plate=dataclasses.replace(config.plate, parts=((-0.9e-3, 0.1e-3, 0.1), (0.9e-3, -0.1e-3, 0.3))),
-    )
+    base, config = two_parts_on_canopen()
     running = start_daemon(config)
     try:
         with Client(config.socket_path, timeout_s=120.0) as client:
@@ -173,10 +172,12 @@ def test_a_turned_mirrored_camera_is_located_with_the_stored_calibration() -> No
     base = Path(tempfile.mkdtemp(prefix="fcal"))
     config = config_for(PART, "can", base)
     # turned 0.4 rad the camera sees the ±2.5 mm square's corners off the image: ±1.8 mm it sees whole
-    travel = {"min_position_m": -1.8e-3, "max_position_m": 1.8e-3, "min_y_m": -1.8e-3, "max_y_m": 1.8e-3}
+    half = 1.8e-3
     config = dataclasses.replace(
         config,
-        loop=dataclasses.replace(config.loop, **travel),
+        loop=dataclasses.replace(
+            config.loop, min_position_m=-half, max_position_m=half, min_y_m=-half, max_y_m=half
+        ),
         plate=dataclasses.replace(config.plate, parts=((0.8e-3, 0.3e-3, 0.2),)),
         simulator_args=(*config.simulator_args, "--camera-rotation-rad", "0.4", "--camera-mirrored"),
     )
