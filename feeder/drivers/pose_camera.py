@@ -177,10 +177,10 @@ class CameraPoseSensor(PositionSensor):
     def _locate(self, frame: Frame) -> tuple[tuple[Detection, ...], bool] | None:
         """The parts by id (regions, else the whole frame), and whether the whole frame was searched."""
         if self._last:
-            found = [self._in_region(frame.image, last) for last in self._last]
-            if all(d is not None for d in found):
+            found = [d for last in self._last if (d := self._in_region(frame.image, last)) is not None]
+            if len(found) == len(self._last) and _moved_alike(self._last, found):
                 self.region_searches += 1
-                self._last = [d for d in found if d is not None]
+                self._last = found
                 return tuple(self._last), False
         self.full_frame_searches += 1
         result = locate(frame.image, self.template, self.polarity)
@@ -198,6 +198,10 @@ class CameraPoseSensor(PositionSensor):
             return None
         old = np.array([[d.x_px, d.y_px] for d in self._last])
         new = np.array([[d.x_px, d.y_px] for d in parts])
+        if len(parts) == len(self._last):
+            # the plate carries every part alike: match the arrangements, not the places (a burst
+            # that moves the parts further than they lie apart swapped their ids in 1-D ties)
+            old, new = old - old.mean(axis=0), new - new.mean(axis=0)
         rows, cols = linear_sum_assignment(np.linalg.norm(old[:, None, :] - new[None, :, :], axis=2))
         self._last = [parts[c] for _, c in sorted(zip(rows, cols, strict=True))]
         return tuple(self._last), True
@@ -228,3 +232,16 @@ class CameraPoseSensor(PositionSensor):
             self._psi[part_id] = psi
             poses.append((x_m, y_m, psi))
         return PositionSample(frame.time_s, poses[0][0], frame.sequence, tuple(poses))
+
+
+def _moved_alike(last: list[Detection], found: list[Detection]) -> bool:
+    """Every part moved alike since the last frame, within half the least distance between two
+    of them (px): else a region may hold its neighbour (a burst moved the parts further than
+    they lie apart) and the whole frame must decide which is which."""
+    if len(last) < 2:
+        return True
+    moves = np.array([[f.x_px - p.x_px, f.y_px - p.y_px] for p, f in zip(last, found, strict=True)])
+    places = np.array([[p.x_px, p.y_px] for p in last])
+    apart = min(float(np.linalg.norm(a - b)) for i, a in enumerate(places) for b in places[i + 1 :])
+    spread = max(float(np.linalg.norm(a - b)) for i, a in enumerate(moves) for b in moves[i + 1 :])
+    return spread < 0.5 * apart
