@@ -150,21 +150,21 @@ class PosePlanner:
         return None
 
     def _crowded_target(self, targets: dict[int, Pose], poses: list[Pose]) -> str | None:
-        """Why a target's footprint comes within :data:`CLEARANCE_M` of another part (its target
-        if it has one, else where it lies now), or None; parts already closer may stay as close."""
+        """Why a target's footprint comes within :data:`CLEARANCE_M` of another target, or None;
+        parts already closer may stay as close.  A part without a target is no obstacle here:
+        x/y bursts carry it along (it will not be where it lies now), and θ bursts are cut before
+        it comes that close (:meth:`_theta_within`)."""
         patch = self.part.patch
         for pid, target in targets.items():
-            for other in range(1, len(poses) + 1):
+            for other, there in targets.items():
                 if other == pid:
                     continue
-                there = targets.get(other, poses[other - 1])
                 gap = gap_m(patch, target, there)
                 if gap < min(CLEARANCE_M, gap_m(patch, poses[pid - 1], poses[other - 1])):
                     near = "overlaps" if gap == 0 else f"comes within {gap:.3g} m of"
-                    where = "its target" if other in targets else "where it lies now"
                     return (
                         f"the target of part {pid} at ({target[0]:.4g}, {target[1]:.4g}) m {near} part "
-                        f"{other} ({where}): parts keep {CLEARANCE_M:.3g} m apart for the camera to see "
+                        f"{other}'s target: parts keep {CLEARANCE_M:.3g} m apart for the camera to see "
                         "them apart"
                     )
         return None

@@ -395,3 +395,24 @@ def test_a_broken_stored_calibration_is_refused_naming_its_field(short_dir: Path
     store_calibration(short_dir, pixel_size_m=1e-6, mirrored="yes")
     with pytest.raises(InputError, match=r"calibration\.mirrored: not a valid value: 'yes'"):
         Daemon(links, make_setup(short_dir))
+
+
+def test_a_stored_calibration_the_travel_does_not_fit_is_named_as_the_cause(short_dir: Path) -> None:
+    """The camera refuses a travel it does not see whole (DriverLinks.open_sensor); with a stored
+    calibration the start says where that came from and what to do."""
+
+    class Unseeing(FakeLinks):
+        def open_sensor(self, calibration: CameraCalibration | None = None) -> FakeSensor:
+            if calibration is not None:
+                raise InputError("travel", "the travel reaches beyond what the camera sees")
+            return super().open_sensor(calibration)
+
+    store_calibration(short_dir, pixel_size_m=1e-6)
+    links = Unseeing(FakeWorld(TRUE, seed=3))
+    links.configured = CONFIGURED
+    with pytest.raises(InputError) as refused:
+        Daemon(links, make_setup(short_dir))
+    assert str(refused.value) == (
+        "the stored camera calibration: travel: the travel reaches beyond what the camera sees (stored by "
+        "`feeder vision calibrate --save-state`: calibrate again, or narrow the travel in [control])"
+    )

@@ -209,7 +209,8 @@ def test_rate_limit_refills_at_its_rate() -> None:
 def test_one_axis_holds_no_part_and_release_lets_none_go(console: Console) -> None:
     assert console.call("GET", "/api/status")[1]["held"] == []
     assert console.call("POST", "/api/release", {})[:2] == (200, {"ok": True, "released": []})
-    assert console.call("POST", "/api/release", {"part": 2})[:2] == (200, {"ok": True, "released": []})
+    code, reply, _ = console.call("POST", "/api/release", {"part": 2})
+    assert code == 409 and reply["error"] == "part 2 is not on the plate (the camera sees 1 part(s))"
 
 
 def test_a_jog_moves_by_learned_steps(console: Console) -> None:

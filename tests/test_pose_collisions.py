@@ -69,10 +69,9 @@ def step_all(model: ResponseModel, burst: AxisBurst, poses: list[Pose], scale: f
 def test_a_theta_burst_stops_before_the_parts_touch_and_the_move_ends_naming_the_other_part() -> None:
     """The review: two 300 µm squares 0.36 mm apart (centre to centre), part 1 at O asked to turn
     40°.  Turned all the way (as the bursts were before the cut), part 2 touches part 1.  The
-    target itself is refused (turned 40° in place, part 1 would overlap part 2 as it lies); the
-    bursts towards it, asked for nonetheless, each keep the footprints CLEARANCE_M apart by the
-    planner's own pessimistic prediction (and by the mean, which plays the plate here), and the
-    move ends naming part 2."""
+    bursts towards it each keep the footprints CLEARANCE_M apart by the planner's own
+    pessimistic prediction (and by the mean, which plays the plate here), and the move ends
+    naming part 2 (part 2 has no target, so `check` lets the move start)."""
     model = turning_model()
     planner = PosePlanner(model, TRAVEL, SQUARE)
     poses: list[Pose] = [(0.0, 0.0, 0.0), (0.36e-3, 0.0, 0.0)]
@@ -94,8 +93,7 @@ def test_a_theta_burst_stops_before_the_parts_touch_and_the_move_ends_naming_the
     assert isinstance(nxt, Finish) and nxt.status == "unreachable"
     assert "turning part 1" in nxt.reason and "part 2" in nxt.reason and "\n" not in nxt.reason
     assert poses[0][2] > math.radians(3)  # it did turn some
-    refused = planner.check({1: target}, [(0.0, 0.0, 0.0), (0.36e-3, 0.0, 0.0)])
-    assert refused is not None and "part 1" in refused and "overlaps part 2" in refused
+    assert planner.check({1: target}, [(0.0, 0.0, 0.0), (0.36e-3, 0.0, 0.0)]) is None
 
 
 def _outline(patch: Patch, pose: Pose, spacing: float) -> np.ndarray:
@@ -185,22 +183,23 @@ def test_parts_closer_than_the_clearance_may_move_apart_but_not_closer() -> None
     assert isinstance(planner.theta_burst(far, 1, -0.3, quantity="orbit"), AxisBurst)
 
 
-def test_check_refuses_a_target_within_the_clearance_of_another_part_naming_both() -> None:
+def test_check_refuses_a_target_within_the_clearance_of_another_target_naming_both() -> None:
+    """Another part's target (a held part's; any angle: its circumscribed circle) is an obstacle;
+    a part without one is not: x/y bursts carry it along, so a target where it lies now is an
+    ordinary translation (it was refused)."""
     planner = PosePlanner(turning_model(), TRAVEL, SQUARE)
-    poses: list[Pose] = [(-1e-3, 0.0, 0.0), (0.36e-3, 0.0, 0.0)]
-    assert planner.check({1: (0.0, 0.0, 0.0)}, poses) is None  # beside part 2, 60 µm apart
+    poses: list[Pose] = [(-1e-3, 0.0, 0.0), (0.45e-3, 0.0, 0.0)]
+    assert planner.check({1: (0.45e-3, 0.0, 0.0)}, poses) is None  # part 2 moves along: no obstacle
+    held = (0.45e-3, 0.0, math.nan)  # 212 µm round, as any angle may put its corners
+    assert planner._crowded_target({1: (0.0, 0.0, 0.0), 2: held}, poses) is None  # 88 µm apart
     for target, words in (
-        ((0.05e-3, 0.0, 0.0), "comes within 1e-05 m of part 2 (where it lies now)"),
-        ((0.0, 0.0, 0.5), "comes within"),  # turned 29°: its corner reaches 6.5 µm from part 2
-        ((0.2e-3, 0.0, 0.0), "overlaps part 2"),
+        ((0.05e-3, 0.0, 0.0), "comes within 3.79e-05 m of part 2's target"),
+        ((0.0, 0.0, 0.8), "comes within"),  # turned 46°: a corner 26 µm from part 2's circle
+        ((0.2e-3, 0.0, 0.0), "overlaps part 2's target"),
     ):
-        reason = planner.check({1: target}, poses)
+        reason = planner.check({1: target, 2: held}, poses)
         assert reason is not None and words in reason and "part 1" in reason and "\n" not in reason
-        assert planner.next_burst(poses, {1: target}) == Finish("unreachable", reason)
-    apart: list[Pose] = [(-1e-3, 0.0, 0.0), (1e-3, 0.0, 0.0)]
-    held = planner.check({1: (0.0, 0.0, 0.0), 2: (0.33e-3, 0.0, math.nan)}, apart)  # any angle: a disc
-    assert held is not None and "part 2 (its target)" in held
     close: list[Pose] = [(0.0, 0.0, 0.0), (0.32e-3, 0.0, 0.0)]  # 20 µm apart already
-    assert planner.check({1: (-1e-6, 0.0, 0.0)}, close) is None  # moving apart
-    refused = planner.check({1: (1e-6, 0.0, 0.0)}, close)  # closer still
-    assert refused is not None and "comes within 1.9e-05 m of part 2" in refused
+    assert planner._crowded_target({1: (-1e-6, 0.0, 0.0), 2: close[1]}, close) is None  # moving apart
+    refused = planner.check({1: (1e-6, 0.0, 0.0), 2: close[1]}, close)  # closer still
+    assert refused is not None and "comes within 1.9e-05 m of part 2's target" in refused

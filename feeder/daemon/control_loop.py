@@ -390,6 +390,9 @@ class ControlLoop:
         with self._lock:
             if self.policy.job is not None:
                 return "a move is running: release held parts once it has ended (or stop it)"
+            seen = len(self.policy.reading or ())
+            if part is not None and seen and part > seen:
+                return f"part {part} is not on the plate (the camera sees {seen} part(s))"
             return self.policy.navigator.release(part)
 
     def holds(self) -> list[dict[str, Any]]:

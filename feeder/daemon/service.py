@@ -38,7 +38,7 @@ from feeder.daemon.control_loop import (
     StepMode,
 )
 from feeder.daemon.executor import per_axis
-from feeder.daemon.located_calibration import LocatedCalibration
+from feeder.daemon.located_calibration import STORED, LocatedCalibration
 from feeder.daemon.move_records import MoveRecords
 from feeder.daemon.quiet_window import QuietWindow
 from feeder.daemon.request_fields import RequestFieldError, finite, integer
@@ -142,7 +142,16 @@ class Daemon:
             undo.callback(_close, amplifiers)
             for amplifier in amplifiers.values():
                 amplifier.ground()
-            sensor = links.open_sensor(self.camera_calibration.calibration)
+            try:
+                sensor = links.open_sensor(self.camera_calibration.calibration)
+            except InputError as err:
+                if self.camera_calibration.calibration is None:
+                    raise
+                raise InputError(  # the cause is in the state, not in the configuration
+                    STORED,
+                    f"{err} (stored by `feeder vision calibrate --save-state`: calibrate again, "
+                    "or narrow the travel in [control])",
+                ) from None
             navigator = None
             if setup.pose_navigator is not None:
                 navigator = setup.pose_navigator(self.records.restored_pose_response())
@@ -219,6 +228,7 @@ class Daemon:
         return job
 
     def _refuse_queued(self, job: Job, reason: str) -> None:
+        log.warning("a queued %s was refused when its turn came: %s", job.kind, reason)
         job.result = JobResult(job.kind, "refused", reason, job.target_m, None, None, 0, 0, 0.0, {})
         job.done.set()
 

@@ -430,9 +430,9 @@ const ADVICE = [
   [/unwritable|disk/i, "The state database cannot be written (disk full or read-only?). Free space; moves are refused until then."],
 ];
 const RESULT_ADVICE = {
-  stalled: "The part did not move: check it lies on the plate and nothing blocks it; then calibrate.",
+  stalled: "The part did not move: check it lies on the plate and nothing blocks it; then move again (one axis: calibrate).",
   limit: "The target is beyond the travel: choose one inside the dashed box.",
-  oscillating: "The part overshoots back and forth: calibrate, or ask for a larger tolerance.",
+  oscillating: "The part overshoots back and forth: move again (the steps learned so far help; one axis: calibrate), or ask for a larger tolerance.",
   unreachable: "The daemon cannot reach it within its bursts: calibrate, or choose a target the part can reach.",
   fault: "A link was lost during the move; see Faults.",
   stopped: "Stopped on request.",
