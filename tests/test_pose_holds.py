@@ -105,3 +105,28 @@ def test_a_pose_move_is_logged_with_its_part_target_and_reached_pose(
         "move of part 2 done: every part within tolerance (target (0.001, 0.0005) m, any angle, "
         "reached (0.001, 0.0005) m, 0.3 rad, error 0 m / ? rad, 10 steps in 2 bursts)"
     )
+
+
+def test_the_history_keeps_any_angle_as_null_and_the_reached_angle_on_the_targets_branch(
+    tmp_path: Path,
+) -> None:
+    class Loop:
+        reading = ((0.0, 0.0, 0.0), (1e-3, 0.5e-3, 0.2))
+        position_m = 0.0
+
+        def estimates_json(self) -> dict[str, object]:
+            return {}
+
+    store = Store(tmp_path / "s.sqlite")
+    records = MoveRecords(store, "key", pose_control=True)
+    free = Job("move", pose_target={"x_m": 1e-3}, part=2)
+    free.target_pose, free.target_m, free.angle_free = (1e-3, 0.5e-3, 0.2), 1e-3, True  # as prepare sets
+    records.begin(free, Loop())  # type: ignore[arg-type]
+    records.finish(free, result(angle_free=True), Loop())  # type: ignore[arg-type]
+    turned = Job("move", pose_target={"angle_rad": 0.3}, part=2)
+    turned.target_pose, turned.target_m = (1e-3, 0.5e-3, 0.3), 1e-3
+    records.begin(turned, Loop())  # type: ignore[arg-type]
+    records.finish(turned, result(reached_pose=(1e-3, 0.5e-3, 0.3 + math.pi / 2)), Loop())  # type: ignore[arg-type]
+    first, second = store.moves()
+    assert first["target_pose"] == [1e-3, 0.5e-3, None]  # was the start angle, as if asked for
+    assert second["reached_pose"][2] == pytest.approx(0.3, abs=1e-12)  # a square turned 90° is the same

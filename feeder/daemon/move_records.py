@@ -4,6 +4,7 @@ the learned pose response) under the calibration key, and every move from start 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from typing import Any
 
@@ -12,6 +13,7 @@ from feeder.daemon.jobs import Job, JobResult
 from feeder.daemon.line_navigator import COARSE, FINE
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.daemon.store import Calibration, Store
+from feeder.pose import Pose
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +87,7 @@ class MoveRecords:
                 job.target_m,
                 loop.position_m if start is None else start[0],
                 part=job.part if job.target_pose is not None else None,
-                target_pose=job.target_pose,
+                target_pose=_asked(job),
                 start_pose=start,
             )
 
@@ -123,7 +125,11 @@ class MoveRecords:
                 step_forward_m=forward,
                 step_backward_m=backward,
                 steps_estimated=result.steps_estimated,
-                reached_pose=result.reached_pose if result.target_pose is not None else None,
+                reached_pose=(
+                    result.reached_on_branch()
+                    if result.target_pose is not None and result.reached_pose is not None
+                    else None
+                ),
                 error_m=result.error_m,
                 error_rad=result.error_rad,
             )
@@ -139,3 +145,11 @@ def _pose(pose: list[float | None] | None) -> str:
         return "?"
     x, y, psi = pose
     return f"({_g(x)}, {_g(y)}) m, " + ("any angle" if psi is None else f"{_g(psi)} rad")
+
+
+def _asked(job: Job) -> Pose | None:
+    """The target the move was given: its angle NaN (stored as null) when any angle will do."""
+    if job.target_pose is None or not job.angle_free:
+        return job.target_pose
+    x, y, _ = job.target_pose
+    return (x, y, math.nan)

@@ -9,6 +9,7 @@ socket threads can share a :class:`Store`.
 from __future__ import annotations
 
 import json
+import math
 import sqlite3
 import threading
 import time
@@ -408,7 +409,10 @@ class Store:
 
 
 def _pose_json(pose: Pose | None) -> str | None:
-    return None if pose is None else json.dumps(list(pose), allow_nan=False)
+    """[x, y, angle] as JSON; a NaN angle (any angle) as null."""
+    if pose is None:
+        return None
+    return json.dumps([None if math.isnan(v) else v for v in pose], allow_nan=False)
 
 
 def _move_row(row: tuple[Any, ...]) -> dict[str, Any]:
