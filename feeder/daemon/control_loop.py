@@ -51,7 +51,7 @@ from feeder.daemon.jobs import (
     StepMode,
 )
 from feeder.daemon.line_navigator import COARSE, FINE
-from feeder.daemon.navigator import Navigator
+from feeder.daemon.navigator import Navigator, not_on_plate
 from feeder.daemon.policy import Policy
 from feeder.daemon.quiet_window import QuietWindow, guard_for
 from feeder.daemon.step_estimator import StepEstimate
@@ -390,9 +390,10 @@ class ControlLoop:
         with self._lock:
             if self.policy.job is not None:
                 return "a move is running: release held parts once it has ended (or stop it)"
-            seen = len(self.policy.reading or ())
-            if part is not None and seen and part > seen:
-                return f"part {part} is not on the plate (the camera sees {seen} part(s))"
+            reading = self.policy.reading
+            missing = None if part is None or not reading else not_on_plate(part, reading)
+            if missing is not None:
+                return missing
             return self.policy.navigator.release(part)
 
     def holds(self) -> list[dict[str, Any]]:

@@ -42,6 +42,13 @@ class Navigator(Protocol):
     def estimates_json(self) -> dict[str, Any]: ...
 
 
+def not_on_plate(part: int, reading: Reading) -> str | None:
+    """Why ``part`` cannot be addressed (the camera sees fewer parts), or None."""
+    if 1 <= part <= len(reading):
+        return None
+    return f"part {part} is not on the plate (the camera sees {len(reading)} part(s))"
+
+
 def part_pose(job: Job, reading: Reading) -> Pose:
     """The job's part in ``reading`` (the last one seen if the camera sees fewer parts)."""
     return reading[min(job.part, len(reading)) - 1]

@@ -20,6 +20,7 @@ import math
 from typing import Any
 
 from feeder.daemon.jobs import VISIBLE_BANDS, Burst, Job, LoopSettings, Reading
+from feeder.daemon.navigator import not_on_plate
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.plate_axes import AXES
 from feeder.pose import Pose, pose_error
@@ -49,8 +50,9 @@ class PoseNavigator:
     def prepare(self, job: Job, reading: Reading | None) -> str | None:
         if reading is None:
             return "position uncertain: no camera reading yet"
-        if not 1 <= job.part <= len(reading):
-            return f"part {job.part} is not on the plate (the camera sees {len(reading)} part(s))"
+        missing = not_on_plate(job.part, reading)
+        if missing is not None:
+            return missing
         spec = dict(job.pose_target or {})
         if job.by_m is not None:
             spec["x_m"] = reading[job.part - 1][0] + job.by_m
