@@ -9,10 +9,13 @@ about O: d' = R(φ)(a + d) − a.  So d reaches d_t when |a + d| + δ = |a + d_t
 (δ: B's radial drift over the orbit, from the model) and φ is the angle from
 a + d to a + d_t.  The plan: (1) translate so that A sits at that anchor,
 (2) orbit B (coarse, aiming short, then fine), (3) translate both so that each
-is within tolerance of its target.  Limits (refused by :func:`pair_refusal`):
-the anchor must lie within the dead zone (radius r_a: the distance between the
-parts can change by at most 2·r_a·|d_t − d|/(|d| + |d_t|), so only as the line
-joining them turns), B must orbit where a step moves it, and the
+is within tolerance of its target.  One orbit changes the distance between the
+parts by at most 2·r_a·|d_t − d|/(|d| + |d_t|) (r_a: the dead zone's radius),
+only as the line joining them turns; when the anchor lies beyond the dead zone,
+a *length leg* first makes |d| = |d_t| (A held :data:`LEG_REACH`·r_a from O,
+the line turned), and the plan turns it back.  Limits (refused by
+:func:`pair_refusal`): the distance can change by at most ~2·LEG_REACH·r_a,
+B must orbit where a step moves it, and the
 parts' angles are not controlled: B's turn is tied to its orbit, so the pair
 strategy leaves B's angle free (a NaN target angle; any angle for a disc) and A's
 as it is.
@@ -30,6 +33,10 @@ ANCHOR_SLACK = 0.2
 mode; :meth:`PosePlanner.theta_burst` cuts a burst there) ..."""
 ANCHOR_STEPS = 10
 """... of at least this many steps, each as large as twice the seed (the prior's pessimistic step)."""
+LEG_REACH = 0.5
+"""A length leg holds A this fraction of the dead zone's radius from O (drift aside), leaving the
+rest as margin for B's radial drift: the distance between the parts changes by up to
+2 × LEG_REACH × r_a in one leg."""
 
 
 def anchor_radius_m(planner: PosePlanner) -> float:
@@ -91,25 +98,71 @@ def _anchor(d: tuple[float, float], d_t: tuple[float, float], drift_m: float) ->
 
 
 def _orbit_plan(
+    planner: PosePlanner, d: tuple[float, float], d_t: tuple[float, float], psi: float
+) -> tuple[tuple[float, float], float]:
+    """(anchor for A, orbit angle B needs about O) to bring d to d_t, with B's predicted radial
+    drift over the orbit (B at angle ``psi``): the anchor nearest O."""
+
+    def orbit(at: tuple[float, float]) -> float:  # B's orbit (rad) with A held at ``at``
+        return _angle((at[0] + d[0], at[1] + d[1]), (at[0] + d_t[0], at[1] + d_t[1]))
+
+    anchor = _anchor(d, d_t, 0.0)
+    for _ in range(3):  # the drift depends on the orbit, which depends on the anchor
+        drift = _drift(planner, (anchor[0] + d[0], anchor[1] + d[1], psi), orbit(anchor))
+        anchor = _anchor(d, d_t, drift)
+    return anchor, orbit(anchor)
+
+
+def _length_leg(d: tuple[float, float], d_t: tuple[float, float], reach: float) -> tuple[float, float] | None:
+    """The offset d_m as long as d_t whose plan from d puts the anchor ``reach`` from O (drift
+    aside): d turned towards d_t's side by the least angle that does (|d_m − d| =
+    ||d_t|² − |d|²| / (2·reach)); None when no angle does (||d_t| − |d|| > 2·reach)."""
+    n, n_t = math.hypot(*d), math.hypot(*d_t)
+    span = abs(n_t * n_t - n * n) / (2 * reach)
+    cos_gamma = (n_t * n_t + n * n - span * span) / (2 * n_t * n)
+    if cos_gamma < -1:
+        return None
+    gamma = math.copysign(math.acos(min(cos_gamma, 1.0)), _angle(d, d_t))
+    c, s = math.cos(gamma), math.sin(gamma)
+    return n_t / n * (c * d[0] - s * d[1]), n_t / n * (s * d[0] + c * d[1])
+
+
+def _pair_plan(
     planner: PosePlanner, poses: list[Pose], targets: dict[int, Pose]
-) -> tuple[tuple[float, float], float, float]:
-    """(anchor for A, orbit angle B needs about O, B's predicted radial drift over it (m)), the
-    anchor nearest O."""
+) -> tuple[tuple[float, float], float, bool] | None:
+    """(anchor for A, B's orbit about O, whether it is a length leg): the plan that brings d to
+    d_t, or, when its anchor lies beyond the dead zone (|d| must change along the line joining
+    the parts), the length leg that makes |d| = |d_t| with A :data:`LEG_REACH` of the dead
+    zone from O (the line joining them turns; the plan then turns it back from an anchor near
+    O).  None: neither anchor lies within the dead zone."""
     ia, ib = _order(targets)
     a, b = poses[ia], poses[ib]
     ta, tb = targets[ia + 1], targets[ib + 1]
     d = (b[0] - a[0], b[1] - a[1])
     d_t = (tb[0] - ta[0], tb[1] - ta[1])
+    r_anchor = anchor_radius_m(planner)
+    anchor, phi = _orbit_plan(planner, d, d_t, b[2])
+    if math.hypot(*anchor) <= r_anchor:
+        return anchor, phi, False
+    d_m = _length_leg(d, d_t, LEG_REACH * r_anchor)
+    if d_m is None:
+        return None
+    anchor, phi = _orbit_plan(planner, d, d_m, b[2])
+    return (anchor, phi, True) if math.hypot(*anchor) <= r_anchor else None
 
-    def orbit(at: tuple[float, float]) -> float:  # B's orbit (rad) with A held at ``at``
-        return _angle((at[0] + d[0], at[1] + d[1]), (at[0] + d_t[0], at[1] + d_t[1]))
 
-    drift = 0.0
-    anchor = _anchor(d, d_t, drift)
-    for _ in range(3):  # the drift depends on the orbit, which depends on the anchor
-        drift = _drift(planner, (anchor[0] + d[0], anchor[1] + d[1], b[2]), orbit(anchor))
-        anchor = _anchor(d, d_t, drift)
-    return anchor, orbit(anchor), drift
+def _length_orbit(a: Pose, b: Pose, length: float) -> float | None:
+    """The least orbit (rad) of B about O after which it lies ``length`` from A held where it
+    is, or None (none does, or A is at O)."""
+    r_a, r_b = math.hypot(a[0], a[1]), math.hypot(b[0], b[1])
+    if r_a == 0 or r_b == 0:
+        return None
+    cos_chi = (r_b * r_b + r_a * r_a - length * length) / (2 * r_b * r_a)  # angle at O between A and B'
+    if abs(cos_chi) > 1:
+        return None
+    chi = math.acos(cos_chi)
+    start = math.atan2(a[1], a[0]) - math.atan2(b[1], b[0])
+    return min((math.remainder(start + s * chi, 2 * math.pi) for s in (1, -1)), key=abs)
 
 
 def _angle(start: tuple[float, float], end: tuple[float, float]) -> float:
@@ -153,19 +206,18 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
             "no θ waveform holds a part near O (the dead zone that keeps one part in place while "
             "the other orbits): θ steps move both parts (docs/pose-control.md, two parts)"
         )
-    anchor, phi, _ = _orbit_plan(planner, poses, targets)
-    reach = math.hypot(*anchor)
-    if reach > r_anchor:
+    plan = _pair_plan(planner, poses, targets)
+    if plan is None:
         d = math.hypot(tb[0] - ta[0] + rel[0], tb[1] - ta[1] + rel[1])
         d_t = math.hypot(tb[0] - ta[0], tb[1] - ta[1])
-        limit = 2 * r_anchor * math.hypot(*rel) / (d + d_t)  # the bisector of −d, −d_t within r_anchor of O
+        reach = LEG_REACH * r_anchor
         return (
-            f"part {ib + 1} must orbit O while part {ia + 1} stays held at {reach:.3g} m from O, "
-            f"but only parts within {r_anchor:.3g} m of O stay held: the distance between the parts "
-            f"cannot change that much (from {d:.3g} m to {d_t:.3g} m; by at most "
-            f"2·{r_anchor:.3g}·|d_t − d|/(|d| + |d_t|) = {limit:.3g} m here: the line joining them "
-            "must turn for it to change)"
+            f"part {ib + 1} must orbit O while part {ia + 1} stays held, but only parts within "
+            f"{r_anchor:.3g} m of O stay held: the distance between the parts cannot change that much "
+            f"(from {d:.3g} m to {d_t:.3g} m; one orbit changes it by at most ~2·{reach:.3g} = "
+            f"{2 * reach:.3g} m, with part {ia + 1} held {reach:.3g} m from O)"
         )
+    anchor, phi, _ = plan
     # B's orbit from where A at the anchor puts it: some orbit mode must move it by a step
     # theta_burst will use (USEFUL_ORBIT of the tolerance), fine steps included
     a, b = poses[ia], poses[ib]
@@ -250,13 +302,22 @@ def _orbit_burst(
         burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
         if burst is not None:
             return burst
-    anchor, phi, _ = _orbit_plan(planner, poses, targets)
-    if math.hypot(*anchor) > r_anchor:
+    plan = _pair_plan(planner, poses, targets)
+    if plan is None or (plan[2] and math.hypot(*rel) <= tol):  # within it: translating may do
         return Finish(
             "unreachable",
             f"parts {ia + 1} and {ib + 1} are off by {math.hypot(*rel):.3g} m "
             "relative to each other, and no anchor within the dead zone corrects that",
         )
+    anchor, phi, leg = plan
+    if leg and math.hypot(a[0], a[1]) <= r_anchor:
+        # a length leg from where A is, unless it asks for a longer orbit than the plan's
+        # (the plan's anchor moves with d as B orbits: A would chase it)
+        here = _length_orbit(a, b, math.hypot(tb[0] - ta[0], tb[1] - ta[1]))
+        if here is not None and abs(here) <= 2 * abs(phi):
+            burst = planner.theta_burst(poses, ib, here, anchored=(ia,), quantity="orbit")
+            if burst is not None:
+                return burst
     if math.hypot(anchor[0] - a[0], anchor[1] - a[1]) > 0.5 * tol:
         move = planner.translate_burst(poses, ia, anchor, exact=True)
         if not isinstance(move, Finish):  # else A is as close to the anchor as fine steps get it
