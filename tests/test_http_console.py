@@ -152,6 +152,7 @@ def test_a_cross_origin_post_gets_403_a_script_and_the_page_pass(console: Consol
         ("POST", "/api/move", b"[1, 2]", 400, "JSON object"),
         ("POST", "/api/move", b'{"target_m": NaN}', 400, "target_m must be a finite number"),
         ("POST", "/api/move", b'{"target_m": true}', 400, "target_m must be a finite number"),
+        ("POST", "/api/move", b'{"angle_rad": 400}', 400, "must lie within ±2π (one turn), got 400"),
         ("POST", "/api/move", b'{"target_m": 1e-4, "speed": 3}', 400, "unknown field 'speed'"),
         ("POST", "/api/move", b'{"target_m": 1e-4, "wait": "no"}', 400, "wait must be true or false"),
         ("POST", "/api/move", b"{" + b'"a":' * 0 + b'"target_m": ' + b"[" * 100_000, 413, "longer than"),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from feeder.daemon.request_fields import RequestFieldError, brief, finite, integer
+from feeder.daemon.request_fields import FieldRangeError, RequestFieldError, brief, finite, integer
 from feeder.errors import FeederError
 
 
@@ -34,6 +34,17 @@ def test_finite_refuses_and_names_the_field(value: object, shown: str) -> None:
         finite({"angle_rad": value}, "angle_rad")
     assert str(err.value) == f"angle_rad must be a finite number of radians, got {shown}"
     assert isinstance(err.value, FeederError)
+
+
+@pytest.mark.parametrize("angle", [7.0, -6.3, 400, 1e18])
+def test_an_angle_beyond_one_turn_is_a_range_error_naming_the_field(angle: float) -> None:
+    """A pose's angle beyond ±2π is bad input wherever it arrives (socket and HTTP: the HTTP
+    console answered 409, from the daemon's refusal, until 2026-11-27; the CLI exits 2)."""
+    assert finite({"angle_rad": 6.28}, "angle_rad") == 6.28
+    assert finite({"x_m": angle}, "x_m") == angle  # only the angle is bounded here
+    with pytest.raises(FieldRangeError) as err:
+        finite({"angle_rad": angle}, "angle_rad")
+    assert str(err.value).startswith(f"angle_rad must lie within ±2π (one turn), got {angle:.6g}")
 
 
 def test_integer_bounds_and_default() -> None:

@@ -17,6 +17,10 @@ class RequestFieldError(FeederError):
     """A request field is missing its type or range; ``str(err)`` names it."""
 
 
+class FieldRangeError(RequestFieldError):
+    """A request field is a number of the right type, outside its range."""
+
+
 def brief(value: Any) -> str:
     """``repr`` of a request value, cut short (a 4000-digit integer is no error message)."""
     try:
@@ -26,8 +30,14 @@ def brief(value: Any) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
+ONE_TURN_RAD = 2 * math.pi
+"""A pose's ``angle_rad`` lies within ± this (1e18 rad had the plate turn for 40 s; 400 is
+degrees meant as radians)."""
+
+
 def finite(request: dict[str, Any], key: str) -> float | None:
-    """``request[key]`` as a finite number (m, or rad for a ``_rad`` key); None when absent."""
+    """``request[key]`` as a finite number (m, or rad for a ``_rad`` key; ``angle_rad`` within
+    ±:data:`ONE_TURN_RAD`); None when absent."""
     value = request.get(key)
     if value is None:
         return None
@@ -38,6 +48,10 @@ def finite(request: dict[str, Any], key: str) -> float | None:
     if not isinstance(value, (int, float)) or not math.isfinite(number):
         unit = "radians" if key.endswith("_rad") else "metres"
         raise RequestFieldError(f"{key} must be a finite number of {unit}, got {brief(value)}")
+    if key == "angle_rad" and abs(number) > ONE_TURN_RAD:
+        raise FieldRangeError(
+            f"angle_rad must lie within ±2π (one turn), got {number:.6g} (radians, not degrees?)"
+        )
     return number
 
 

@@ -10,7 +10,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse
 
 from feeder.daemon.client import MAX_LINE_BYTES
-from feeder.daemon.request_fields import RequestFieldError, finite
+from feeder.daemon.request_fields import FieldRangeError, RequestFieldError, finite
 from feeder.errors import FeederError
 
 MAX_JOG_STEPS = 10_000
@@ -74,6 +74,8 @@ def checked(cmd: str, body: dict[str, Any]) -> dict[str, Any]:
         if key in NUMBERS:
             try:  # the daemon's own check (an integer beyond a float's range fails); null is none
                 number = finite(body, key)
+            except FieldRangeError as err:
+                raise ApiError(400, str(err)) from None
             except RequestFieldError:
                 number = None
             if number is None:
