@@ -249,10 +249,11 @@ def next_pair_burst(
         return None
     if math.hypot(*rel) > 0.5 * tol:  # each part then ends within half of it, plus a fine step's rounding
         orbit = _orbit_burst(planner, poses, targets, rel)
-        if isinstance(orbit, AxisBurst) or math.hypot(*rel) > tol:
+        if isinstance(orbit, AxisBurst) or math.hypot(*rel) > 2 * tol:
             return orbit
-        # off by less than the tolerance and no orbit corrects it (d ≈ d_t: the anchor runs
-        # off): translating both may still put each within it
+        # off by less than twice the tolerance and no orbit corrects it (d ≈ d_t: the anchor
+        # runs off; or B cannot orbit there): translating both, each half of it off, may still
+        # put each within it (a pair 0.9 mm apart ended 260 µm off both targets, at the anchor)
     # both move alike now: the fine-step offset (up to 3 per axis) that leaves the larger error smallest
     goal = (ta[0] + 0.5 * rel[0], ta[1] + 0.5 * rel[1])
     if math.hypot(goal[0] - a[0], goal[1] - a[1]) > 3 * tol:
@@ -318,11 +319,20 @@ def _orbit_burst(
             burst = planner.theta_burst(poses, ib, here, anchored=(ia,), quantity="orbit")
             if burst is not None:
                 return burst
-    if math.hypot(anchor[0] - a[0], anchor[1] - a[1]) > 0.5 * tol:
+    stuck = Finish(
+        "unreachable",
+        f"part {ib + 1} cannot orbit by {phi:.3g} rad with part {ia + 1} held at the anchor: no orbit "
+        "step fits that there, or the orbit leaves the travel",
+    )
+    shift = (anchor[0] - a[0], anchor[1] - a[1])
+    if math.hypot(*shift) > 0.5 * tol:
+        # B's orbit from where it will be is checked before A goes there (both carried along):
+        # a pair 0.9 mm apart went to the anchor, found B in the dead zone and ended 260 µm off
+        there = [(p[0] + shift[0], p[1] + shift[1], p[2]) for p in poses]
+        if planner.theta_burst(there, ib, phi, anchored=(ia,), quantity="orbit") is None:
+            return stuck
         move = planner.translate_burst(poses, ia, anchor, exact=True)
         if not isinstance(move, Finish):  # else A is as close to the anchor as fine steps get it
             return move
     burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
-    if burst is not None:
-        return burst
-    return Finish("unreachable", f"part {ib + 1} cannot orbit by {phi:.3g} rad within the travel")
+    return stuck if burst is None else burst

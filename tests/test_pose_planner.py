@@ -216,6 +216,27 @@ def test_a_pair_off_by_less_than_the_tolerance_is_done_or_translated_not_refused
     assert world.steps <= 3  # a fine step or so in x, no orbit
 
 
+def test_a_pair_whose_orbit_cannot_run_is_translated_when_that_will_do(model_seed: ResponseModel) -> None:
+    """Parts 0.9 mm apart, off each other by 1.2–1.9 µm: B cannot orbit there (the test modes'
+    dead zone), so translating both is all there is; a relative error under twice the tolerance
+    may leave each within it.  The planner went to the anchor first, found B's orbit impossible
+    and ended "unreachable" 260 µm off both targets."""
+    targets = {1: (0.0, 0.0, 0.0), 2: (0.9e-3, 0.0, math.nan)}
+    for rel, placed in ((1.2e-6, True), (1.5e-6, True), (1.9e-6, False)):
+        planner = PosePlanner(fresh(), TRAVEL, PART, TOL_M, TOL_RAD)
+        world = World([(40e-6, 30e-6, 0.0), (0.9e-3 + 40e-6 + 0.6 * rel, 30e-6 + 0.8 * rel, 0.0)])
+        verdict = run(planner, world, targets)
+        errors = [
+            math.hypot(p[0] - t[0], p[1] - t[1]) for p, t in zip(world.poses(), targets.values(), strict=True)
+        ]
+        assert not [b for b in world.bursts if b.axis == "theta"] and world.steps < 40
+        if placed:
+            assert verdict.status == "done" and max(errors) <= TOL_M, (verdict, errors)
+        else:  # each half of it off, plus a fine step: said so, next to the targets
+            assert verdict.status == "unreachable" and "fine steps cannot" in verdict.reason
+            assert max(errors) <= 2 * TOL_M
+
+
 @pytest.mark.parametrize("radial_m", [1.5e-6, -2.02e-6, 40e-6, 0.3e-3])
 def test_a_pair_off_along_the_line_joining_them_is_placed_by_a_length_leg(
     model_seed: ResponseModel, radial_m: float
