@@ -150,14 +150,21 @@ def implausible(sample: PositionSample) -> str | None:
 
 
 class SensorFeed:
-    """Reads the sensor in its own thread so a slow frame never stalls the tick."""
+    """Reads the sensor in its own thread so a slow frame never stalls the tick; ``first``: a
+    reading already taken from it (arriving now)."""
 
-    def __init__(self, sensor: PositionSensor, timeout_s: float, clock: Callable[[], float]) -> None:
+    def __init__(
+        self,
+        sensor: PositionSensor,
+        timeout_s: float,
+        clock: Callable[[], float],
+        first: PositionSample | None = None,
+    ) -> None:
         self.sensor = sensor
         self.timeout_s = timeout_s
         self._clock = clock
         self._lock = threading.Lock()
-        self._pending: list[tuple[float, PositionSample]] = []
+        self._pending: list[tuple[float, PositionSample]] = [] if first is None else [(clock(), first)]
         self.lost: str | None = None
         self._closing = False
         self._thread = threading.Thread(target=self._run, name="sensor-feed", daemon=True)
@@ -373,10 +380,11 @@ class ControlLoop:
         with self._lock:
             self.policy.link_restored()
 
-    def replace_sensor(self, sensor: PositionSensor) -> None:
-        """After a reconnect: read the new sensor; the position is uncertain until it reports."""
+    def replace_sensor(self, sensor: PositionSensor, first: PositionSample | None = None) -> None:
+        """After a reconnect: read the new sensor (``first``: the reading that showed it works);
+        the position is uncertain until it reports."""
         self._feed.close()
-        feed = SensorFeed(sensor, self._sensor_timeout_s, self._clock)
+        feed = SensorFeed(sensor, self._sensor_timeout_s, self._clock, first)
         with self._lock:
             self._feed = feed
             self.policy.sensor_restored()
@@ -462,8 +470,8 @@ class ControlLoop:
 
     def tick(self, now: float) -> None:
         """One period: move samples and completions into the policy, its outputs out."""
-        feed = self._feed
-        with self._lock:
+        with self._lock:  # the feed with the lock: a replaced one's loss is not the new one's
+            feed = self._feed
             for arrival, sample in feed.take():
                 self.policy.on_sample(sample.position_m, arrival, sample.poses)
             if feed.lost is not None:

@@ -7,7 +7,8 @@ Faults: a lost amplifier link ends the move (``fault``), the output is grounded
 where the link still allows it, and a background thread reconnects with
 exponential backoff; the new link is grounded and the daemon waits for the next
 command (no move resumes by itself).  A lost sensor stops the move and is
-reconnected the same way.  Moves are recorded as ``running`` before the first
+reconnected the same way; it is back only once it delivers a reading
+(:mod:`~feeder.daemon.reconnect`).  Moves are recorded as ``running`` before the first
 step; a daemon killed mid-move finds them on restart and marks them
 ``interrupted``, and reports the position as ``uncertain`` until the sensor
 confirms it.
@@ -41,13 +42,14 @@ from feeder.daemon.executor import per_axis
 from feeder.daemon.located_calibration import STORED, LocatedCalibration
 from feeder.daemon.move_records import MoveRecords
 from feeder.daemon.quiet_window import QuietWindow
+from feeder.daemon.reconnect import Outage, first_reading
 from feeder.daemon.request_fields import RequestFieldError, finite, integer
 from feeder.daemon.socket_server import SocketServer
 from feeder.daemon.status_report import plane_status, pose_target, waveforms_status
 from feeder.daemon.step_estimator import FORWARD
 from feeder.daemon.store import Store
 from feeder.drivers.amplifier import Amplifier
-from feeder.drivers.sensor import PositionSensor
+from feeder.drivers.sensor import PositionSensor, SensorLost
 from feeder.errors import FeederError, InputError
 from feeder.vision.calibration import CameraCalibration
 
@@ -60,8 +62,6 @@ PLANE_CALIBRATE = (
 
 POSE_KEYS = ("x_m", "y_m", "angle_rad")
 """A pose move's target, any subset (m, m, rad; plate frame)."""
-BACKOFF_FIRST_S = 0.2
-BACKOFF_MAX_S = 5.0
 
 
 class Links(Protocol):
@@ -296,11 +296,10 @@ class Daemon:
         thread.start()
 
     def _reconnect(self, kind: str, record: dict[str, Any]) -> None:
-        """Re-open the lost link with exponential backoff; progress goes into ``record``."""
-        delay = BACKOFF_FIRST_S
-        attempts = 0
-        while not self._stopping.wait(delay):
-            attempts += 1
+        """Re-open the lost link with exponential backoff (:class:`.Outage`); progress goes into
+        ``record``."""
+        outage = Outage(kind, time.monotonic())
+        while not self._stopping.wait(outage.delay_s):
             try:
                 if kind == "amplifier":
                     amps = per_axis(self.links.open_amplifier())
@@ -312,28 +311,40 @@ class Daemon:
                     self.loop.replace_amplifier(amps)
                     self._amplifier_generation = getattr(self.links, "respawns", 0)
                 else:
-                    stored, calibration = self.camera_calibration.read()
-                    self.loop.replace_sensor(self.links.open_sensor(calibration))
-                    self.camera_calibration.use(stored, calibration)
+                    self._reopen_sensor()
             except Exception as err:
                 # this reconnect thread's one boundary: whatever stops a link from opening
-                # (drivers, python-can, the launcher) is logged and retried with backoff; the
-                # thread must outlive it
-                log.info("%s reconnect attempt %d failed: %s", kind, attempts, err)
+                # (drivers, python-can, the launcher) is logged now and then and retried with
+                # backoff; the thread must outlive it
+                line = outage.failed(str(err), time.monotonic())
+                if line is not None:
+                    log.log(logging.INFO if outage.attempts == 1 else logging.WARNING, "%s", line)
                 with self._lock:
-                    record["reconnect_attempts"] = attempts
+                    record["reconnect_attempts"] = outage.attempts
                     record["last_error"] = f"{type(err).__name__}: {err}"
-                delay = min(2 * delay, BACKOFF_MAX_S)
                 continue
+            line = outage.restored(time.monotonic())
             with self._lock:
-                record["reconnected_after_attempts"] = attempts
-            log.info("%s link restored after %d attempts", kind, attempts)
+                record["reconnected_after_attempts"] = outage.attempts
+            log.info("%s", line)
             break
         with self._lock:
             self._reconnecting.discard(kind)
         if getattr(self.links, "respawns", 0) != self._amplifier_generation:
             # the simulator behind the amplifier link was restarted: that link is stale
             self.loop.amplifier_lost("firmware_sim was restarted; reopening its new console")
+
+    def _reopen_sensor(self) -> None:
+        """Open the sensor again; it is the loop's (the fault over) only once it has delivered a
+        first reading: a link that opens but sends nothing raises :class:`SensorLost`."""
+        stored, calibration = self.camera_calibration.read()
+        sensor = self.links.open_sensor(calibration)
+        first = first_reading(sensor, self.setup.sensor_timeout_s)
+        if self._stopping.is_set():  # shut down meanwhile: the loop reads no more
+            sensor.close()
+            raise SensorLost("daemon shutting down")
+        self.loop.replace_sensor(sensor, first)
+        self.camera_calibration.use(stored, calibration)
 
     # -- requests ------------------------------------------------------------
     @property
