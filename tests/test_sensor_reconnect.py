@@ -84,7 +84,12 @@ def test_a_camera_that_stays_down_keeps_the_daemon_in_fault(
             restored_while_down = restored_lines(caplog)
             refused = client.request("move", target_m=50e-6)
             links.camera_up = True  # the camera is back: the next attempt gets a frame
-            wait_for(lambda: client.request("status")["state"] == "idle")
+            # idle once the sensor is handed over; confirmed once the loop has taken its reading
+            wait_for(
+                lambda: (
+                    (s := client.request("status"))["state"] == "idle" and s["position_state"] == "confirmed"
+                )
+            )
             back = client.request("status")
             calls_before_move = len(links.amplifiers[0].calls)
             moved = client.request("move", target_m=60e-6)

@@ -45,7 +45,7 @@ from feeder.daemon.quiet_window import QuietWindow
 from feeder.daemon.reconnect import Outage, first_reading
 from feeder.daemon.request_fields import RequestFieldError, finite, integer
 from feeder.daemon.socket_server import SocketServer
-from feeder.daemon.status_report import plane_status, pose_target, waveforms_status
+from feeder.daemon.status_report import loop_status, waveforms_status
 from feeder.daemon.step_estimator import FORWARD
 from feeder.daemon.store import Store
 from feeder.drivers.amplifier import Amplifier
@@ -496,45 +496,23 @@ class Daemon:
         return {"ok": True, **self.status()}
 
     def status(self) -> dict[str, Any]:
+        """The ``status`` reply: the loop's (:func:`.loop_status`), the faults and reconnects,
+        the queue, the store, the camera's calibration and the links."""
         loop = self.loop
-        job = loop.current_job()
-        if loop.fault is not None or loop.sensor_lost is not None:
-            state = "fault"
-        elif job is not None:
-            state = "moving" if job.kind == "move" else "calibrating"
-        else:
-            state = "idle"
         with self._lock:
             faults = [dict(f) for f in self._faults]
             queued = len(self._queue)
             reconnecting = sorted(self._reconnecting)
         last_known = self.store.position()
-        confirmed = loop.position_m is not None
         return {
-            "state": state,
-            "loop_state": loop.state,
-            "position_m": loop.position_m,
-            "position_state": "confirmed" if confirmed else "uncertain",
+            **loop_status(loop, self.setup.parts),
             "last_known_position_m": None if last_known is None else last_known.position_m,
-            "target_m": None if job is None else job.target_m,
-            **pose_target(job),
-            "held": loop.holds(),
-            "fault": loop.fault or (None if loop.sensor_lost is None else f"sensor lost: {loop.sensor_lost}"),
             "reconnecting": reconnecting,
             "faults": faults,
             "queued_moves": queued,
             "camera_calibration": self.camera_calibration.status(),
-            "store_unwritable": loop.writer.unwritable,
-            "pending_records": loop.writer.pending(),
             "interrupted_moves": self.interrupted_moves,
-            "tolerance_m": loop.settings.tolerance_m,
-            "travel_limits_m": [loop.settings.min_position_m, loop.settings.max_position_m],
-            "estimates": loop.estimates_json(),
-            **plane_status(loop, self.setup.parts),
             **waveforms_status(self.setup.modes),
-            "timing": loop.timing(),
-            "sensor_latency_s": loop.policy.latency_s,
-            "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
             **self.setup.info,
             **self._live_links(),
         }

@@ -1,6 +1,6 @@
-"""The parts of the daemon's ``status`` reply that come from the loop alone: every part's pose,
-the axes (waveforms, applied, learned steps), the plane's travel and tolerances, the running pose
-move's target, the step modes' predictions (plain functions of what they read)."""
+"""The parts of the daemon's ``status`` reply that come from the loop alone: its state and
+position, the running move, every part's pose, the axes (waveforms, applied, learned steps), the
+plane's travel and tolerances, the step modes' predictions (plain functions of what they read)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,37 @@ from collections.abc import Mapping
 from typing import Any
 
 from feeder.daemon.control_loop import ControlLoop, Job, StepMode
+
+
+def loop_status(loop: ControlLoop, parts_info: tuple[dict[str, Any], ...]) -> dict[str, Any]:
+    """The loop's part of ``status``: state (``fault`` while the amplifier or the sensor is
+    lost), position, the running move, holds, the store's writer, estimates, timing, the plane."""
+    job = loop.current_job()
+    if loop.fault is not None or loop.sensor_lost is not None:
+        state = "fault"
+    elif job is not None:
+        state = "moving" if job.kind == "move" else "calibrating"
+    else:
+        state = "idle"
+    return {
+        "state": state,
+        "loop_state": loop.state,
+        "position_m": loop.position_m,
+        "position_state": "uncertain" if loop.position_m is None else "confirmed",
+        "target_m": None if job is None else job.target_m,
+        **pose_target(job),
+        "held": loop.holds(),
+        "fault": loop.fault or (None if loop.sensor_lost is None else f"sensor lost: {loop.sensor_lost}"),
+        "store_unwritable": loop.writer.unwritable,
+        "pending_records": loop.writer.pending(),
+        "tolerance_m": loop.settings.tolerance_m,
+        "travel_limits_m": [loop.settings.min_position_m, loop.settings.max_position_m],
+        "estimates": loop.estimates_json(),
+        **plane_status(loop, parts_info),
+        "timing": loop.timing(),
+        "sensor_latency_s": loop.policy.latency_s,
+        "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
+    }
 
 
 def plane_status(loop: ControlLoop, parts_info: tuple[dict[str, Any], ...]) -> dict[str, Any]:
