@@ -9,7 +9,8 @@ outside the dead zone, moving there if needed), then translate to the target
 A turn steps θ's coarse and fine modes; a pair's orbit its anchoring ones when the
 model has them (:meth:`~feeder.pose_response.ResponseModel.orbit_modes`).
 Every burst aims short with a pessimistic (mean + 2σ) step, like the 1-D
-policy, and is cut where its pessimistic path would leave the travel; a θ
+policy, and is cut where its pessimistic path would take a part out of the
+travel, or one already outside it further out (:meth:`Travel.keeps`); a θ
 burst also where it would bring two parts' footprints within
 :data:`CLEARANCE_M` (x and y bursts move every part alike).
 Two parts: see :mod:`feeder.pose_pair`.
@@ -31,6 +32,9 @@ DEFAULT_TOLERANCE_RAD = math.radians(0.1)
 STATION_BAND_M = 40e-6
 """A part within this of its turning station's radius turns there."""
 STATION_DIRECTIONS = 36
+USEFUL_TURN = 0.25
+"""A θ mode turns a part (a turn burst steps it, the turning station is where its fine mode does)
+when one step turns the part by at least this fraction of ``tolerance_rad``."""
 USEFUL_ORBIT = 0.02
 """An orbit step (two parts placed relative to each other, to half the tolerance) is worth a θ
 burst when it moves the part by at least this fraction of ``tolerance_m``."""
@@ -76,6 +80,25 @@ class Travel:
             self.x_m[0] + margin_m <= x_m <= self.x_m[1] - margin_m
             and self.y_m[0] + margin_m <= y_m <= self.y_m[1] - margin_m
         )
+
+    def beyond(self, x_m: float, y_m: float) -> tuple[float, float]:
+        """How far (m) the point lies outside the travel in x and in y (0 within)."""
+        return (
+            max(self.x_m[0] - x_m, x_m - self.x_m[1], 0.0),
+            max(self.y_m[0] - y_m, y_m - self.y_m[1], 0.0),
+        )
+
+    def keeps(self, start: Pose, end: Pose, slack_m: float = 0.0) -> bool:
+        """A part going from ``start`` to ``end`` stays within the travel, or (having started
+        outside it) no further outside than it started, in x and in y; ``slack_m`` (m) more for an
+        axis it started outside in (a reading's noise)."""
+        was = self.beyond(start[0], start[1])
+        now = self.beyond(end[0], end[1])
+        return all(n <= (w + slack_m if w > 0 else 0.0) for n, w in zip(now, was, strict=True))
+
+    def describe(self) -> str:
+        """The travel as a refusal names it: "x (lo, hi) m, y (lo, hi) m"."""
+        return f"x {self.x_m} m, y {self.y_m} m"
 
     def json(self) -> dict[str, list[float]]:
         return {"x": list(self.x_m), "y": list(self.y_m)}
@@ -129,7 +152,7 @@ class PosePlanner:
             if not self.travel.contains(target[0], target[1]):
                 return (
                     f"target of part {pid} at ({target[0]:.4g}, {target[1]:.4g}) m lies outside the travel "
-                    f"x {self.travel.x_m} m, y {self.travel.y_m} m"
+                    f"{self.travel.describe()}"
                 )
         if len(targets) > 2:
             return "at most two parts can be placed together"
@@ -141,13 +164,36 @@ class PosePlanner:
 
             return pair_refusal(self, targets, poses)
         pid, target = next(iter(targets.items()))
-        if (
-            self.symmetry_rad > 0
-            and abs(self.angle_error(poses[pid - 1], target)) > self.tolerance_rad
-            and self.station_radius_m is None
-        ):
+        if abs(self.angle_error(poses[pid - 1], target)) <= self.tolerance_rad:
+            return self._carried_out(poses, pid - 1, target)
+        if self.station_radius_m is None:  # a turn is needed (a disc never needs one)
             return "no θ mode turns the part anywhere within the travel"
         return None
+
+    def _carried_out(self, poses: list[Pose], i: int, target: Pose) -> str | None:
+        """Why translating part ``i`` to ``target`` would carry another part out of the travel (one
+        already outside: further out), or None.  x and y bursts move every part alike, by the way
+        less the tolerance at least along each axis."""
+        pose = poses[i]
+        shift = [
+            math.copysign(max(abs(t - p) - self.tolerance_m, 0.0), t - p)
+            for t, p in zip(target[:2], pose[:2], strict=True)
+        ]
+        for k, q in enumerate(poses):
+            if k != i and not self.travel.keeps(q, (q[0] + shift[0], q[1] + shift[1], q[2])):
+                return self._carry_refusal(
+                    f"moving part {i + 1} to ({target[0]:.4g}, {target[1]:.4g}) m", k, q
+                )
+        return None
+
+    def _carry_refusal(self, moving: str, k: int, pose: Pose) -> str:
+        """Why ``moving`` ("moving part 1 further in +x") cannot be: it would carry part ``k``
+        (index), at ``pose``, out of the travel, or further out when it already lies outside."""
+        further = "further " if any(self.travel.beyond(pose[0], pose[1])) else ""
+        return (
+            f"{moving} would carry part {k + 1} at ({pose[0]:.4g}, {pose[1]:.4g}) m {further}out of the "
+            f"travel {self.travel.describe()}: the camera must keep seeing it"
+        )
 
     def _crowded_target(self, targets: dict[int, Pose], poses: list[Pose]) -> str | None:
         """Why a target's footprint comes within :data:`CLEARANCE_M` of another target, or None;
@@ -243,7 +289,7 @@ class PosePlanner:
         self.station_radius_m = self._station_radius()
         if self.station_radius_m is None:
             return Finish("unreachable", "no θ mode turns the part anywhere within the travel")
-        if self._turns_here(pose):
+        if self._turns_here(pose, 1 if turn > 0 else -1):
             burst = self.theta_burst(poses, i, turn, anchored)
             if burst is not None:
                 return burst
@@ -269,14 +315,19 @@ class PosePlanner:
         pose = poses[i]
         errors = {"x": goal[0] - pose[0], "y": goal[1] - pose[1]}
         last = self._job.direction if self._job is not None else 0
+        carried: tuple[str, int] | None = None  # the first burst another part's travel stopped
         for axis in sorted(errors, key=lambda a: (errors[a] * last < 0, -abs(errors[a]))):
             error = errors[axis]
             if error == 0:
                 continue
             direction = 1 if error > 0 else -1
-            burst = self._axis_burst(poses, axis, direction, abs(error), exact)
+            burst, stop = self._axis_burst(poses, axis, direction, abs(error), exact)
             if burst is not None:
                 return burst
+            if stop is not None and stop != i and carried is None:
+                carried = (f"moving part {i + 1} further in {'+' if direction > 0 else '−'}{axis}", stop)
+        if carried is not None:
+            return Finish("unreachable", self._carry_refusal(carried[0], carried[1], poses[carried[1]]))
         if not exact:  # the station is within a step of here: turn here after all
             return Finish("unreachable", "the turning station is closer than one step")
         return Finish(
@@ -288,7 +339,10 @@ class PosePlanner:
     # --- pieces ------------------------------------------------------------
     def _axis_burst(
         self, poses: list[Pose], axis: str, direction: int, distance: float, exact: bool
-    ) -> AxisBurst | None:
+    ) -> tuple[AxisBurst | None, int | None]:
+        """The burst along ``axis`` covering ``distance`` (m), or None; with the part (index) whose
+        travel left no step of the finest mode that had some to take, if one did."""
+        stop = None
         modes = self.model.modes(axis)
         fine = modes[-1]
         fine_step, _ = self.model.step_m(axis, direction, fine)
@@ -301,19 +355,27 @@ class PosePlanner:
                 steps = round(distance / max(step, 1e-12))
             else:
                 continue
-            steps = self._within_travel(poses, axis, direction, high, min(steps, MAX_BURST_STEPS))
+            cut, by = self._within_travel(poses, axis, direction, high, min(steps, MAX_BURST_STEPS))
+            if cut >= 1:
+                return AxisBurst(axis, direction, cut, mode), None
             if steps >= 1:
-                return AxisBurst(axis, direction, steps, mode)
-        return None
+                stop = by
+        return None, stop
 
-    def _within_travel(self, poses: list[Pose], axis: str, direction: int, high: float, steps: int) -> int:
-        """``steps`` cut so that every part's pessimistic end stays within the travel."""
+    def _within_travel(
+        self, poses: list[Pose], axis: str, direction: int, high: float, steps: int
+    ) -> tuple[int, int | None]:
+        """``steps`` cut so that every part's pessimistic end stays within the travel (one outside
+        it goes no further out: :meth:`Travel.keeps`), with the part (index) that cut it, if one did."""
         k = 0 if axis == "x" else 1
         lo, hi = self.travel.x_m if axis == "x" else self.travel.y_m
-        for p in poses:
+        by = None
+        for j, p in enumerate(poses):
             room = (hi - p[k]) if direction > 0 else (p[k] - lo)
-            steps = min(steps, math.floor(max(room, 0.0) / high))
-        return steps
+            fits = math.floor(max(room, 0.0) / high)
+            if fits < steps:
+                steps, by = fits, j
+        return steps, by
 
     def theta_burst(
         self, poses: list[Pose], i: int, amount: float, anchored: tuple[int, ...] = (), quantity: str = "turn"
@@ -341,27 +403,34 @@ class PosePlanner:
                 return abs(s.turn_rad), s.turn_std_rad
             return abs(s.orbit_rad), s.orbit_std_rad
 
-        # a turn: a quarter of the tolerance per step at least; an orbit USEFUL_ORBIT of it
+        # a turn: USEFUL_TURN of the tolerance per step at least; an orbit USEFUL_ORBIT of it
         if quantity == "turn":
-            useful = 0.25 * self.tolerance_rad
+            useful = USEFUL_TURN * self.tolerance_rad
         else:
             useful = USEFUL_ORBIT * self.tolerance_m / max(r, 1e-9)
         fine_step = per_step(fine)[0]
         blocked: tuple[int, int] | None = None
+        carried: int | None = None
         for mode in modes:
             step, std = per_step(mode)
             if (mode != fine and step <= fine_step) or step < useful:
                 continue
             scale = 1 + 2 * std / step
             steps = self._theta_count(pose, direction, mode, need, scale, mode != fine, quantity)
-            steps, crowded = self._theta_within(poses, direction, mode, steps, scale, anchored)
+            steps, crowded, left = self._theta_within(poses, direction, mode, steps, scale, anchored)
             if steps >= 1:
                 return AxisBurst("theta", direction, steps, mode)
             blocked = blocked or crowded
-        if blocked is None:
-            return None
-        a, b = (k + 1 for k in blocked)
+            if left is not None and left != i and carried is None:
+                carried = left
         verb = "turning" if quantity == "turn" else "orbiting"
+        if blocked is None:
+            if carried is None:
+                return None
+            return Finish(
+                "unreachable", self._carry_refusal(f"{verb} part {i + 1} further", carried, poses[carried])
+            )
+        a, b = (k + 1 for k in blocked)
         if i + 1 in (a, b):
             near = f"it within {CLEARANCE_M:.3g} m of part {a + b - i - 1}"
         else:
@@ -414,29 +483,30 @@ class PosePlanner:
         steps: int,
         scale: float,
         anchored: tuple[int, ...],
-    ) -> tuple[int, tuple[int, int] | None]:
-        """``steps`` cut where some part's pessimistic orbit leaves the travel, an anchored part
-        moves, or two parts' footprints come within :data:`CLEARANCE_M` (closer than they are,
-        when they already are); with the two parts (indices) whose clearance cut it, if any."""
+    ) -> tuple[int, tuple[int, int] | None, int | None]:
+        """``steps`` cut where some part's pessimistic orbit leaves the travel (one outside it: goes
+        further out, :meth:`Travel.keeps`), an anchored part moves, or two parts' footprints come
+        within :data:`CLEARANCE_M` (closer than they are, when they already are); with the two
+        parts (indices) whose clearance cut it, and the part whose travel cut it, if any."""
         if steps < 1:
-            return steps, None
+            return steps, None, None
         floors = self._gap_floors(poses)
         states = list(poses)
         for n in range(1, steps + 1):
             for k, p in enumerate(states):
                 nxt = self.model.predict("theta", direction, mode, 1, p, scale)
-                if not self.travel.contains(nxt[0], nxt[1]):
-                    return n - 1, None
+                if not self.travel.keeps(poses[k], nxt):
+                    return n - 1, None, k
                 if k in anchored and (
                     math.hypot(nxt[0] - poses[k][0], nxt[1] - poses[k][1]) > 0.2 * self.tolerance_m
                     or abs(nxt[2] - poses[k][2]) > 0.2 * self.tolerance_rad
                 ):
-                    return n - 1, None
+                    return n - 1, None, None
                 states[k] = nxt
             for (k, j), floor in floors.items():
                 if self._gap_below(states[k], states[j], floor):
-                    return n - 1, (k, j)
-        return steps, None
+                    return n - 1, (k, j), None
+        return steps, None, None
 
     def _gap_floors(self, poses: list[Pose]) -> dict[tuple[int, int], float]:
         """Per pair of parts (indices), the gap (m) a θ burst must keep: :data:`CLEARANCE_M`, or
@@ -455,18 +525,37 @@ class PosePlanner:
             return False
         return gap_m(self.part.patch, a, b) < floor
 
-    def turn_rate(self, pose: Pose, mode: str) -> float:
-        """|turn| per step of ``mode`` at ``pose`` (the larger of the two directions)."""
-        return max(abs(self.model.turn_step(d, mode, *pose).turn_rad) for d in (1, -1))
+    def turn_per_step(self, direction: int, pose: Pose) -> float | None:
+        """The turn (rad, signed) of one θ step in ``direction`` where this planner turns a part at
+        ``pose`` (what a jog of N steps turns by N of): here, by the mode that turns it most, when
+        that is :data:`USEFUL_TURN` tolerances or more; else the same at the turning station (of
+        the model as learned so far); None: no θ mode turns it anywhere.  (The daemon reported the
+        coarse mode's turn until 2026-11-27: 5e-15 rad at O, its dead zone, so a jog there asked
+        for the angle the part had and ended "done" with 0 steps, holding that angle.)"""
+        useful = USEFUL_TURN * self.tolerance_rad
+        turn = self._largest_turn(direction, pose)
+        station = None if abs(turn) >= useful else self._station_radius()
+        if station is not None:
+            turn = self._largest_turn(direction, (station, 0.0, pose[2]))
+        return turn if abs(turn) >= useful else None
 
-    def _turns_here(self, pose: Pose) -> bool:
-        """At (or beyond) the station radius the fine θ mode turns the part by 1/4 … 2 tolerances per step."""
+    def _largest_turn(self, direction: int, pose: Pose) -> float:
+        """The signed turn (rad) of one step of the θ mode that turns a part at ``pose`` most."""
+        turns = (self.model.turn_step(direction, m, *pose).turn_rad for m in self.model.modes("theta"))
+        return max(turns, key=abs, default=0.0)
+
+    def _turns_here(self, pose: Pose, direction: int) -> bool:
+        """At the station radius, or where the fine θ mode turns the part by :data:`USEFUL_TURN` … 2
+        tolerances per step in ``direction``: beyond the station, or within it where the learned
+        model says so for that direction (the station's radius is the one every orientation and
+        both directions turn at: a learned −θ step at O of 0.65 mrad with +θ's at 0.37 mrad moved
+        it 0.5 mm out, and turns at O went there and back until the move ended "oscillating")."""
         assert self.station_radius_m is not None
         r = math.hypot(pose[0], pose[1])
         if abs(r - self.station_radius_m) <= STATION_BAND_M:
             return True
-        fine = self.turn_rate(pose, self.model.modes("theta")[-1])
-        return r > self.station_radius_m and 0.25 * self.tolerance_rad <= fine <= 2 * self.tolerance_rad
+        fine = abs(self.model.turn_step(direction, self.model.modes("theta")[-1], *pose).turn_rad)
+        return USEFUL_TURN * self.tolerance_rad <= fine <= 2 * self.tolerance_rad
 
     def _station_radius(self) -> float | None:
         """Grid radius nearest O where the fine θ mode turns by ¼ … 1.8 tolerances for every
@@ -482,7 +571,7 @@ class PosePlanner:
         corner = max(math.hypot(x, y) for x in self.travel.x_m for y in self.travel.y_m)
         radii = [r for r in self.model.turn[fine].radii_m if 0 <= r < corner]
         ranges = {r: self.model.turn_range(fine, r) for r in radii}
-        usable = [r for r in radii if ranges[r][0] >= 0.25 * self.tolerance_rad]
+        usable = [r for r in radii if ranges[r][0] >= USEFUL_TURN * self.tolerance_rad]
         within = [r for r in usable if ranges[r][1] <= 1.8 * self.tolerance_rad]
         if within:
             return min(within)

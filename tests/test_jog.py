@@ -30,7 +30,10 @@ class Model:
 
 
 def plane_status() -> dict:
-    navigator = PoseNavigator(SimpleNamespace(model=Model()), LoopSettings(), math.pi / 2)  # type: ignore[arg-type]
+    planner = SimpleNamespace(
+        model=Model(), turn_per_step=lambda d, pose: Model().turn_step(d, "coarse", *pose).turn_rad
+    )
+    navigator = PoseNavigator(planner, LoopSettings(), math.pi / 2)  # type: ignore[arg-type]
     return {"axes": navigator.axis_steps(POSE), "parts": [{"id": 1, "pose": list(POSE)}]}
 
 

@@ -196,10 +196,11 @@ def test_targets_outside_the_travel_and_parts_leaving_it() -> None:
     plane.sample()
     refused = plane.policy.submit(Job("move", pose_target={"y_m": 2e-3}), plane.now)
     assert refused is not None and "outside the travel" in refused and "y [-0.001, 0.001] m" in refused
-    plane.poses[1] = (0.0, 1.5e-3, 0.0)  # another part pushed out of the travel
-    done = plane.run(Job("move", pose_target={"x_m": 120e-6}))
-    assert done.result.status == "limit" and "part 2" in done.result.reason
-    assert not [c for c in plane.commands if c.kind == "step"]  # nothing stepped
+    # another part outside the travel, carried further out (a move leaving it be goes on: test_pose_edges)
+    plane.poses[1] = (0.0, 1.5e-3, 0.0)
+    done = plane.run(Job("move", pose_target={"y_m": 100e-6}))
+    assert done.result.status == "limit" and done.result.reason.startswith("part 2 at (0, 0.0016) m")
+    assert "further out than at the move's start, (0, 0.0015) m" in done.result.reason
 
 
 @pytest.mark.parametrize("angle", [1e18, -7.0, 90.0])

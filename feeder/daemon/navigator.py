@@ -19,9 +19,15 @@ class Navigator(Protocol):
 
     axes: tuple[str, ...]
 
-    def prepare(self, job: Job, reading: Reading | None) -> str | None: ...
+    def prepare(self, job: Job, reading: Reading | None) -> str | None:
+        """Resolve ``job``'s target against ``reading`` (the parts where the move starts); the
+        reason it is refused, or None."""
+        ...
 
-    def outside(self, reading: Reading) -> str | None: ...
+    def outside(self, reading: Reading) -> str | None:
+        """Why ``reading`` shows a part where the running move (the one :meth:`prepare` last
+        accepted) must stop, out of the travel; None."""
+        ...
 
     def settled(self, recent: list[Reading]) -> bool: ...
 

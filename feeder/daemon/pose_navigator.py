@@ -10,7 +10,10 @@ them at their targets, or is refused when the planner cannot do both.  A hold
 keeps what the move asked for: the position, and the angle only when one was
 given (else NaN, any angle); :meth:`release` lets parts go (``feeder release``),
 and a move of a held part replaces its hold once done.  Holds live in memory: a
-restarted daemon holds nothing.
+restarted daemon holds nothing.  A part outside the travel (placed there by hand, or carried
+there) blocks no move: the move stops only when a part goes out of it, or one that was outside
+goes further out (:meth:`PoseNavigator.outside`); the planner cuts every burst before that
+(:meth:`~feeder.pose_planner.Travel.keeps`).
 """
 
 from __future__ import annotations
@@ -21,10 +24,11 @@ from typing import Any
 
 from feeder.daemon.jobs import VISIBLE_BANDS, Burst, Job, LoopSettings, Reading
 from feeder.daemon.navigator import not_on_plate
+from feeder.daemon.request_fields import beyond_one_turn
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.plate_axes import AXES
 from feeder.pose import Pose, pose_error
-from feeder.pose_planner import AxisBurst, Finish, PosePlanner
+from feeder.pose_planner import AxisBurst, Finish, PosePlanner, Travel
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +48,10 @@ class PoseNavigator:
         self.settings = settings
         self.symmetry_rad = symmetry_rad
         self.held: dict[int, Pose] = {}
+        self.travel = Travel(
+            (settings.min_position_m, settings.max_position_m), (settings.min_y_m, settings.max_y_m)
+        )
+        self._start: Reading = ()  # the parts where the running move started (every plane job is prepared)
 
     # -- the job's target --------------------------------------------------------------
 
@@ -60,13 +68,13 @@ class PoseNavigator:
             spec["x_m"] = job.target_m
         now = reading[job.part - 1]
         angle = spec.get("angle_rad", now[2])
-        if math.isfinite(angle) and abs(angle) > 2 * math.pi:  # 1e18 rad had the plate turn for 40 s
-            return f"angle_rad must lie within ±2π (one turn), got {angle:.6g} (radians, not degrees?)"
+        if math.isfinite(angle) and (wrong := beyond_one_turn(angle)) is not None:
+            return wrong  # a job from the policy's callers; a request's field was checked already
         target = (spec.get("x_m", now[0]), spec.get("y_m", now[1]), math.remainder(angle, 2 * math.pi))
         if not all(math.isfinite(v) for v in target):
             return "the target pose must be finite"
         s = self.settings
-        if not (s.min_position_m <= target[0] <= s.max_position_m and s.min_y_m <= target[1] <= s.max_y_m):
+        if not self.travel.contains(target[0], target[1]):
             return (
                 f"target ({target[0]:.6g}, {target[1]:.6g}) m is outside the travel "
                 f"x [{s.min_position_m:.6g}, {s.max_position_m:.6g}] m, "
@@ -86,6 +94,7 @@ class PoseNavigator:
         job.target_pose = target
         job.target_m = target[0]
         job.angle_asked = "angle_rad" in spec
+        self._start = reading
         return None
 
     def _targets(self, job: Job, target: Pose) -> dict[int, Pose]:
@@ -95,10 +104,20 @@ class PoseNavigator:
         return targets
 
     def outside(self, reading: Reading) -> str | None:
-        s = self.settings
-        for i, (x, y, _) in enumerate(reading, start=1):
-            if not (s.min_position_m <= x <= s.max_position_m and s.min_y_m <= y <= s.max_y_m):
-                return f"part {i} at ({x:.6g}, {y:.6g}) m is outside the travel limits"
+        """Why the running move must stop: a part left the travel, or one outside it where the move
+        started went further out than the settle band (the readings' noise); None.  A part
+        outside the travel at the start may stay there, as a move that brings it back or leaves
+        it be does (it blocked every move until 2026-11-27); one the start lacks must be within."""
+        for i, now in enumerate(reading):
+            start = self._start[i] if i < len(self._start) else None
+            if start is None and self.travel.contains(now[0], now[1]):
+                continue
+            if start is not None and self.travel.keeps(start, now, self.settings.settle_band_m):
+                continue
+            reason = f"part {i + 1} at ({now[0]:.6g}, {now[1]:.6g}) m is outside the travel limits"
+            if start is not None and any(self.travel.beyond(start[0], start[1])):
+                reason += f", further out than at the move's start, ({start[0]:.6g}, {start[1]:.6g}) m"
+            return reason
         return None
 
     def settled(self, recent: list[Reading]) -> bool:
@@ -162,9 +181,11 @@ class PoseNavigator:
     # -- what it learned ---------------------------------------------------------------
 
     def axis_steps(self, pose: Pose | None) -> dict[str, dict[str, float]]:
-        """Each axis' learned coarse step forward and back: x and y in m (``step_m``,
-        ``step_back_m``, sizes); θ: the turn (rad) of a part at ``pose`` by one +θ step
-        (``step_rad``) and by one −θ step, sign flipped (``step_back_rad``; None: not seen)."""
+        """Each axis' learned step forward and back (a jog of N steps moves by N of them): x and
+        y the coarse step in m (``step_m``, ``step_back_m``, sizes); θ the turn (rad) of a part at
+        ``pose`` by one +θ step (``step_rad``) and by one −θ step, sign flipped
+        (``step_back_rad``), where the planner turns it (left out: no θ mode turns it anywhere;
+        :meth:`~feeder.pose_planner.PosePlanner.turn_per_step`)."""
         model = self.planner.model
         out: dict[str, dict[str, float]] = {
             axis: {
@@ -174,11 +195,12 @@ class PoseNavigator:
             for axis in ("x", "y")
             if axis in self.axes
         }
-        if "theta" in self.axes and pose is not None and "coarse" in model.modes("theta"):
-            out["theta"] = {
-                "step_rad": model.turn_step(1, "coarse", *pose).turn_rad,
-                "step_back_rad": -model.turn_step(-1, "coarse", *pose).turn_rad,
-            }
+        if "theta" in self.axes and pose is not None:
+            out["theta"] = {}
+            for key, direction in (("step_rad", 1), ("step_back_rad", -1)):
+                turn = self.planner.turn_per_step(direction, pose)
+                if turn is not None:
+                    out["theta"][key] = direction * turn
         return out
 
     def estimates(self) -> dict[str, StepEstimate]:

@@ -48,11 +48,17 @@ def finite(request: dict[str, Any], key: str) -> float | None:
     if not isinstance(value, (int, float)) or not math.isfinite(number):
         unit = "radians" if key.endswith("_rad") else "metres"
         raise RequestFieldError(f"{key} must be a finite number of {unit}, got {brief(value)}")
-    if key == "angle_rad" and abs(number) > ONE_TURN_RAD:
-        raise FieldRangeError(
-            f"angle_rad must lie within ±2π (one turn), got {number:.6g} (radians, not degrees?)"
-        )
+    wrong = beyond_one_turn(number) if key == "angle_rad" else None
+    if wrong is not None:
+        raise FieldRangeError(wrong)
     return number
+
+
+def beyond_one_turn(angle_rad: float) -> str | None:
+    """Why ``angle_rad`` is no pose's angle (beyond ±:data:`ONE_TURN_RAD`), or None."""
+    if abs(angle_rad) > ONE_TURN_RAD:
+        return f"angle_rad must lie within ±2π (one turn), got {angle_rad:.6g} (radians, not degrees?)"
+    return None
 
 
 def integer(request: dict[str, Any], key: str, default: int, low: int, high: int | None = None) -> int:
