@@ -10,7 +10,7 @@ A turn steps θ's coarse and fine modes; a pair's orbit its anchoring ones when 
 model has them (:meth:`~feeder.pose_response.ResponseModel.orbit_modes`).
 Every burst aims short with a pessimistic (mean + 2σ) step, like the 1-D
 policy, and is cut where its pessimistic path would take a part out of the
-travel, or one already outside it further out (:meth:`Travel.keeps`); a θ
+travel, or one already outside it further out (:meth:`~feeder.travel.Travel.keeps`); a θ
 burst also where it would bring two parts' footprints within
 :data:`CLEARANCE_M` (x and y bursts move every part alike).
 Two parts: see :mod:`feeder.pose_pair`.
@@ -25,6 +25,7 @@ from feeder.footprint import gap_m
 from feeder.plant.planar import PlanarPart
 from feeder.pose import Pose
 from feeder.pose_response import ResponseModel, physical_period_rad
+from feeder.travel import Travel
 from feeder.vision.model import angle_difference
 
 DEFAULT_TOLERANCE_M = 1e-6
@@ -66,42 +67,6 @@ class Finish:
 
     status: str
     reason: str
-
-
-@dataclass(frozen=True)
-class Travel:
-    """Where a part's centre may go, plate frame: (lo, hi) in x and in y (m)."""
-
-    x_m: tuple[float, float]
-    y_m: tuple[float, float]
-
-    def contains(self, x_m: float, y_m: float, margin_m: float = 0.0) -> bool:
-        return (
-            self.x_m[0] + margin_m <= x_m <= self.x_m[1] - margin_m
-            and self.y_m[0] + margin_m <= y_m <= self.y_m[1] - margin_m
-        )
-
-    def beyond(self, x_m: float, y_m: float) -> tuple[float, float]:
-        """How far (m) the point lies outside the travel in x and in y (0 within)."""
-        return (
-            max(self.x_m[0] - x_m, x_m - self.x_m[1], 0.0),
-            max(self.y_m[0] - y_m, y_m - self.y_m[1], 0.0),
-        )
-
-    def keeps(self, start: Pose, end: Pose, slack_m: float = 0.0) -> bool:
-        """A part going from ``start`` to ``end`` stays within the travel, or (having started
-        outside it) no further outside than it started, in x and in y; ``slack_m`` (m) more for an
-        axis it started outside in (a reading's noise)."""
-        was = self.beyond(start[0], start[1])
-        now = self.beyond(end[0], end[1])
-        return all(n <= (w + slack_m if w > 0 else 0.0) for n, w in zip(now, was, strict=True))
-
-    def describe(self) -> str:
-        """The travel as a refusal names it: "x (lo, hi) m, y (lo, hi) m"."""
-        return f"x {self.x_m} m, y {self.y_m} m"
-
-    def json(self) -> dict[str, list[float]]:
-        return {"x": list(self.x_m), "y": list(self.y_m)}
 
 
 @dataclass

@@ -15,8 +15,9 @@ from feeder.plant.limit_surface import Patch
 from feeder.plant.planar import PlanarPart
 from feeder.plant.stick_slip import Friction
 from feeder.pose import Pose
-from feeder.pose_planner import CLEARANCE_M, AxisBurst, Finish, PosePlanner, Travel
+from feeder.pose_planner import CLEARANCE_M, AxisBurst, Finish, PosePlanner
 from feeder.pose_response import SEED_STD, ResponseModel, TurnTable
+from feeder.travel import Travel
 
 FRICTION = Friction(105.25, 0.8)
 SQUARE = PlanarPart.from_part(Part.parse("300x300x50"), FRICTION)

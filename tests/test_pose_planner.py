@@ -14,8 +14,9 @@ from feeder.plant.plate_motion import Segment
 from feeder.plant.stick_slip import Friction
 from feeder.pose import pose_error
 from feeder.pose_pair import _anchor, _length_leg, _length_orbit, anchor_radius_m
-from feeder.pose_planner import AxisBurst, Finish, PosePlanner, Travel
+from feeder.pose_planner import AxisBurst, Finish, PosePlanner
 from feeder.pose_response import ANCHOR_MODES, AxisMode, GainFilter, ResponseModel, TurnTable, seed_response
+from feeder.travel import Travel
 
 F_HZ, FLYBACK_S = 100.0, 3.5e-4
 MODES = (

@@ -28,9 +28,10 @@ from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.planar import PlanarPart
 from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import Friction
-from feeder.pose_planner import PosePlanner, Travel
+from feeder.pose_planner import PosePlanner
 from feeder.pose_response import ANCHOR_MODES, MODES, AxisMode, seed_response
 from feeder.surface.parameters import SurfaceParameters
+from feeder.travel import Travel
 
 log = logging.getLogger(__name__)
 

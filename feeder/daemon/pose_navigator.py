@@ -13,7 +13,7 @@ and a move of a held part replaces its hold once done.  Holds live in memory: a
 restarted daemon holds nothing.  A part outside the travel (placed there by hand, or carried
 there) blocks no move: the move stops only when a part goes out of it, or one that was outside
 goes further out (:meth:`PoseNavigator.outside`); the planner cuts every burst before that
-(:meth:`~feeder.pose_planner.Travel.keeps`).
+(:meth:`~feeder.travel.Travel.keeps`).
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ from feeder.daemon.request_fields import beyond_one_turn
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.plate_axes import AXES
 from feeder.pose import Pose, pose_error
-from feeder.pose_planner import AxisBurst, Finish, PosePlanner, Travel
+from feeder.pose_planner import AxisBurst, Finish, PosePlanner
+from feeder.travel import Travel
 
 log = logging.getLogger(__name__)
 
