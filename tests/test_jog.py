@@ -7,6 +7,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from feeder.daemon import status_report
 from feeder.daemon.jobs import LoopSettings
 from feeder.daemon.pose_navigator import PoseNavigator
 from feeder.web.requests import ApiError, jog_request
@@ -34,7 +35,8 @@ def plane_status() -> dict:
         model=Model(), turn_per_step=lambda d, pose: Model().turn_step(d, "coarse", *pose).turn_rad
     )
     navigator = PoseNavigator(planner, LoopSettings(), math.pi / 2)  # type: ignore[arg-type]
-    return {"axes": navigator.axis_steps(POSE), "parts": [{"id": 1, "pose": list(POSE)}]}
+    steps = navigator.axis_steps(POSE)
+    return {"axes": steps, "parts": [{"id": 1, "pose": list(POSE), **steps["theta"]}]}
 
 
 def test_the_status_reports_each_axis_step_in_both_directions() -> None:
@@ -60,6 +62,42 @@ def test_a_jog_moves_by_the_step_learned_in_its_direction(
 ) -> None:
     request = jog_request(plane_status(), axis, steps, part=1)
     assert request == {"cmd": "move", "part": 1, field: pytest.approx(expected, rel=1e-12), "wait": False}
+
+
+def test_a_turn_jog_moves_by_the_jogged_parts_own_step() -> None:
+    """θ's step depends on where the part is (none in the dead zone at O, larger far out):
+    part 2's jog moved by part 1's step until 2026-11-27."""
+    status = plane_status()
+    status["parts"].append({"id": 2, "pose": [0.0, 2e-3, 0.1], "step_rad": 5e-3, "step_back_rad": 4e-3})
+    assert jog_request(status, "theta", 2, part=2)["angle_rad"] == pytest.approx(0.1 + 2 * 5e-3)
+    assert jog_request(status, "theta", -2, part=2)["angle_rad"] == pytest.approx(0.1 - 2 * 4e-3)
+    assert jog_request(status, "theta", 2, part=1)["angle_rad"] == pytest.approx(POSE[2] + 2 * FORWARD_RAD)
+    status["parts"].append({"id": 3, "pose": [0.0, 0.0, 0.0]})  # no θ mode turns it anywhere
+    with pytest.raises(ApiError) as info:
+        jog_request(status, "theta", 1, part=3)
+    assert info.value.status == 409 and "no learned step of axis theta" in str(info.value)
+
+
+def test_the_status_gives_each_part_its_own_turn_step() -> None:
+    """status_report.plane_status asks the navigator for each part's θ step at its pose."""
+    turn_at = {(1e-3, 0.0): 2e-3, (3e-3, 0.0): 7e-3}
+    navigator = SimpleNamespace(
+        axis_steps=lambda pose: (
+            {}
+            if pose is None
+            else {"theta": {"step_rad": turn_at[pose[:2]], "step_back_rad": turn_at[pose[:2]] / 2}}
+        )
+    )
+    loop = SimpleNamespace(
+        reading=((1e-3, 0.0, 0.0), (3e-3, 0.0, 0.5)),
+        settings=LoopSettings(),
+        policy=SimpleNamespace(navigator=navigator, modes={}, applied=lambda axis: None),
+    )
+    parts = status_report.plane_status(loop, ({"shape": "rect"}, {"shape": "rect"}))["parts"]  # type: ignore[arg-type]
+    assert [(p["id"], p["step_rad"], p["step_back_rad"]) for p in parts] == [
+        (1, 2e-3, 1e-3),
+        (2, 7e-3, 3.5e-3),
+    ]
 
 
 def test_a_direction_without_a_learned_step_is_refused() -> None:

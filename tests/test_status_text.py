@@ -36,7 +36,7 @@ def test_the_plane_as_text() -> None:
         "travel y [-1000.000 µm, 1000.000 µm]",
         "axis x: coarse step +2.000 µm / −3.000 µm",
         "axis y: coarse step not learned yet",
-        "axis theta: coarse step +0.5000° / −0.2500° (part 1's turn where it is)",
+        "axis theta: turn per step +0.5000° / −0.2500° (part 1's, where it turns)",
     ]
 
 

@@ -147,14 +147,13 @@ def plane_status_lines(reply: dict[str, Any]) -> list[str]:
     )
     for axis, info in (reply.get("axes") or {}).items():
         if "step_m" in info:
-            steps = f"+{_um(info['step_m'])} / −{_um(info.get('step_back_m'))}"
+            steps = f"coarse step +{_um(info['step_m'])} / −{_um(info.get('step_back_m'))}"
         elif "step_rad" in info:
-            steps = (
-                f"+{_deg(info['step_rad'])} / −{_deg(info.get('step_back_rad'))} (part 1's turn where it is)"
-            )
+            back = _deg(info.get("step_back_rad"))
+            steps = f"turn per step +{_deg(info['step_rad'])} / −{back} (part 1's, where it turns)"
         else:
-            steps = "not learned yet"
-        lines.append(f"axis {axis}: coarse step {steps}")
+            steps = "coarse step not learned yet"
+        lines.append(f"axis {axis}: {steps}")
     return lines
 
 

@@ -47,11 +47,13 @@ def plane_status(loop: ControlLoop, parts_info: tuple[dict[str, Any], ...]) -> d
     ``parts_info``: each part's ``shape`` and ``size_m`` (empty: one part, nothing known)."""
     reading = loop.reading or ()
     s = loop.settings
+    steps_of = getattr(loop.policy.navigator, "axis_steps", None)
     parts = []
     for i, info in enumerate(parts_info or ({"id": 1},), start=1):
         pose = reading[i - 1] if i <= len(reading) else None
-        parts.append({**info, "id": i, "pose": None if pose is None else list(pose)})
-    steps_of = getattr(loop.policy.navigator, "axis_steps", None)
+        # θ's step depends on where the part is: each part's own (what its jog moves by)
+        turns = steps_of(pose).get("theta", {}) if callable(steps_of) and pose is not None else {}
+        parts.append({**info, "id": i, "pose": None if pose is None else list(pose), **turns})
     learned = steps_of(reading[0] if reading else None) if callable(steps_of) else {}
     return {
         "parts": parts,

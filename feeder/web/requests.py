@@ -99,8 +99,9 @@ def jog_request(status: dict[str, Any], axis: str, steps: int, part: int) -> dic
 
     On a plane (more than one axis in the status' ``axes``): the part's pose plus ``steps`` ×
     the axis' learned step in that direction (``axes[axis]["step_m"]`` forward,
-    ``["step_back_m"]`` back; ``["step_rad"]``, ``["step_back_rad"]`` for theta); on one axis:
-    ``by_m``, with the coarse step learned in that direction.
+    ``["step_back_m"]`` back; for theta the part's own ``step_rad`` and ``step_back_rad`` in
+    ``parts``: a turn depends on where the part is); on one axis: ``by_m``, with the coarse
+    step learned in that direction.
     """
     if not 0 < abs(steps) <= MAX_JOG_STEPS:
         raise ApiError(400, f"steps must be a non-zero integer within ±{MAX_JOG_STEPS}, got {_brief(steps)}")
@@ -116,15 +117,17 @@ def jog_request(status: dict[str, Any], axis: str, steps: int, part: int) -> dic
     axes = status.get("axes") or {}
     if axis not in axes:
         raise ApiError(400, f"axis must be one of {', '.join(axes)}, got {axis!r}")
-    pose = next((p["pose"] for p in parts if p.get("id") == part), None)
-    if pose is None:
+    entry = next((p for p in parts if p.get("id") == part), None)
+    if entry is None:
         raise ApiError(400, f"no part {part}; parts: {', '.join(str(p.get('id')) for p in parts)}")
+    pose = entry["pose"]
     key, index, field = {"x": ("step_m", 0, "x_m"), "y": ("step_m", 1, "y_m")}.get(
         axis, ("step_rad", 2, "angle_rad")
     )
     if steps < 0:
         key = key.replace("step_", "step_back_")
-    step = axes[axis].get(key) if isinstance(axes[axis], dict) else None
+    learned = entry if axis == "theta" else axes[axis]
+    step = learned.get(key) if isinstance(learned, dict) else None
     if not isinstance(step, (int, float)):
         raise ApiError(409, f"no learned step of axis {axis} to jog with")
     return {"cmd": "move", "part": part, field: pose[index] + steps * step, "wait": False}
