@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 from test_pose_planner import MODES, PART, RADII, TOL_M, TOL_RAD, TRAVEL, TURNING, World
@@ -167,19 +168,24 @@ def test_the_theta_step_a_jog_takes_at_o_turns_the_part(tmp_path: Path) -> None:
     assert steps["step_back_rad"] == -model.turn_step(-1, "fine", *here).turn_rad > 0
     far = (1.5e-3, 0.0, 0.3)
     assert navigator.axis_steps(far)["theta"]["step_rad"] == model.turn_step(1, "coarse", *far).turn_rad
-    request = jog_request({"axes": axes, "parts": [{"id": 1, "pose": list(here)}]}, "theta", 10, 1)
+    request = jog_request(jog_status(navigator, here), "theta", 10, 1)
     job = Job("move", pose_target={"angle_rad": request["angle_rad"]})
     assert navigator.prepare(job, (here,)) is None
     first = navigator.next_burst(job, (here,))
     assert not isinstance(first, tuple) and first.axis == "theta" and first.steps >= 1, first
 
 
+def jog_status(navigator: PoseNavigator, here: Pose) -> dict[str, Any]:
+    """What a jog reads of ``status`` for one part at ``here``, as status_report gives it: the axes'
+    steps, and θ's per part (where the planner turns it)."""
+    learned = navigator.axis_steps(here)
+    return {"axes": learned, "parts": [{"id": 1, "pose": list(here), **learned.get("theta", {})}]}
+
+
 def jog(navigator: PoseNavigator, world: World, steps: int) -> tuple[Job, tuple[str, str], int]:
     """A jog as the console asks for it (the part's pose + steps × the status' θ step), run in
     closed loop on ``world``: the job, its verdict and the steps it took."""
-    here = world.poses()[0]
-    status = {"axes": navigator.axis_steps(here), "parts": [{"id": 1, "pose": list(here)}]}
-    request = jog_request(status, "theta", steps, 1)
+    request = jog_request(jog_status(navigator, world.poses()[0]), "theta", steps, 1)
     job = Job("move", pose_target={"angle_rad": request["angle_rad"]})
     assert navigator.prepare(job, tuple(world.poses())) is None
     taken = 0
@@ -262,7 +268,6 @@ def test_no_theta_step_is_offered_where_no_mode_turns_the_part() -> None:
     navigator = jog_navigator(MODES[:4])  # x and y only
     steps = navigator.axis_steps((0.0, 0.0, 0.3))
     assert steps["theta"] == {} and steps["x"]["step_m"] > 0
-    status = {"axes": steps, "parts": [{"id": 1, "pose": [0.0, 0.0, 0.3]}]}
     with pytest.raises(ApiError) as info:
-        jog_request(status, "theta", 10, 1)
+        jog_request(jog_status(navigator, (0.0, 0.0, 0.3)), "theta", 10, 1)
     assert info.value.status == 409 and "axis theta" in str(info.value)

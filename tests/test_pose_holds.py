@@ -34,6 +34,20 @@ def test_a_hold_keeps_the_angle_only_when_the_move_asked_for_one() -> None:
     assert navigator_of(plane).held[1] == (300e-6, 0.0, 0.2)  # re-placed, with the angle asked
 
 
+def test_a_held_part_moved_in_angle_alone_keeps_its_held_x_and_y() -> None:
+    """A θ jog (or a move giving only the angle, or y) of a held part: what it does not give stays
+    at the hold, not at the reading within the tolerance of it (each jog moved the hold there,
+    and holds drifted jog by jog)."""
+    plane = Plane()
+    assert plane.run(Job("move", pose_target={"x_m": 300e-6})).result.status == "done"
+    x, y, psi = plane.poses[0]
+    plane.poses[0] = (x + 0.4e-6, y - 0.3e-6, psi)  # the camera sees it within the tolerance
+    assert plane.run(Job("move", pose_target={"angle_rad": 0.2})).result.status == "done"
+    assert navigator_of(plane).held[1] == (300e-6, 0.0, 0.2)
+    assert plane.run(Job("move", pose_target={"y_m": 10e-6})).result.status == "done"
+    assert navigator_of(plane).held[1][:2] == (300e-6, 10e-6)
+
+
 def test_a_refusal_caused_by_a_hold_names_it_and_release_lets_it_go() -> None:
     plane = Plane()
     assert plane.run(Job("move", pose_target={"x_m": 300e-6})).result.status == "done"

@@ -62,16 +62,20 @@ class PoseNavigator:
         missing = not_on_plate(job.part, reading)
         if missing is not None:
             return missing
+        now = reading[job.part - 1]
+        # what the move does not give stays: where the part is, or a held part's x and y where
+        # it is held (its reading lies within the tolerance of that: a θ jog, or a jog in y,
+        # took the reading's x and y for the new hold, and holds drifted jog by jog)
+        x, y = self.held.get(job.part, now)[:2]
         spec = dict(job.pose_target or {})
         if job.by_m is not None:
-            spec["x_m"] = reading[job.part - 1][0] + job.by_m
+            spec["x_m"] = x + job.by_m
         elif job.target_m is not None:
             spec["x_m"] = job.target_m
-        now = reading[job.part - 1]
         angle = spec.get("angle_rad", now[2])
         if math.isfinite(angle) and (wrong := beyond_one_turn(angle)) is not None:
             return wrong  # a job from the policy's callers; a request's field was checked already
-        target = (spec.get("x_m", now[0]), spec.get("y_m", now[1]), math.remainder(angle, 2 * math.pi))
+        target = (spec.get("x_m", x), spec.get("y_m", y), math.remainder(angle, 2 * math.pi))
         if not all(math.isfinite(v) for v in target):
             return "the target pose must be finite"
         s = self.settings
