@@ -107,3 +107,24 @@ def test_a_direction_without_a_learned_step_is_refused() -> None:
     with pytest.raises(ApiError) as info:
         jog_request(status, "x", -1, part=1)
     assert info.value.status == 409 and "no learned step of axis x" in str(info.value)
+
+
+def test_a_jog_within_the_tolerance_is_refused_saying_how_many_steps_would_move() -> None:
+    """The daemon finds a part already within the tolerance of such a target and takes no step:
+    a θ jog of one fine step at O ended "done" with nothing moved."""
+    status = {**plane_status(), "tolerance_m": 5e-6, "tolerance_rad": 2.5e-3}
+    for axis, steps, least in (("x", 2, 3), ("y", -1, 2), ("theta", 2, 3), ("theta", -1, 2)):
+        with pytest.raises(ApiError) as info:
+            jog_request(status, axis, steps, part=1)
+        assert info.value.status == 409, axis
+        assert "within the tolerance" in str(info.value) and f"jog at least {least} steps" in str(info.value)
+        moved = jog_request(status, axis, least if steps > 0 else -least, part=1)
+        assert moved["cmd"] == "move" and moved["part"] == 1
+    one_axis = {"axes": {"x": {}}, "estimates": {"coarse/forward": {"step_m": 2e-6}}, "tolerance_m": 5e-6}
+    with pytest.raises(ApiError) as info:
+        jog_request(one_axis, "x", 2, part=1)
+    assert str(info.value) == (
+        "2 step(s) of axis x move by 4 µm, within the tolerance (5 µm): nothing would move; "
+        "jog at least 3 steps"
+    )
+    assert jog_request(one_axis, "x", 3, part=1)["by_m"] == pytest.approx(6e-6)

@@ -4,6 +4,7 @@ into a move; a refusal is ``{"ok": false, "error": ...}`` with a 4xx code."""
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 from starlette.requests import Request
@@ -113,6 +114,7 @@ def jog_request(status: dict[str, Any], axis: str, steps: int, part: int) -> dic
         step = status.get("estimates", {}).get(name, {}).get("step_m")
         if not isinstance(step, (int, float)):
             raise ApiError(409, "no learned step to jog with")
+        _check_beyond_tolerance(status.get("tolerance_m"), axis, steps, step)
         return {"cmd": "move", "by_m": steps * step, "wait": False}
     axes = status.get("axes") or {}
     if axis not in axes:
@@ -130,4 +132,22 @@ def jog_request(status: dict[str, Any], axis: str, steps: int, part: int) -> dic
     step = learned.get(key) if isinstance(learned, dict) else None
     if not isinstance(step, (int, float)):
         raise ApiError(409, f"no learned step of axis {axis} to jog with")
+    _check_beyond_tolerance(
+        status.get("tolerance_rad" if axis == "theta" else "tolerance_m"), axis, steps, step
+    )
     return {"cmd": "move", "part": part, field: pose[index] + steps * step, "wait": False}
+
+
+def _check_beyond_tolerance(tolerance: Any, axis: str, steps: int, step: float) -> None:
+    """Refuse a jog that asks for no more than the tolerance (m, or rad for θ): the daemon would
+    find the part already there and take no step (a θ jog of 1 fine step at O, 0.05°, ended
+    "done" with nothing moved)."""
+    if not isinstance(tolerance, (int, float)) or abs(steps * step) > tolerance:
+        return
+
+    def shown(v: float) -> str:
+        return f"{math.degrees(v):.3g}°" if axis == "theta" else f"{v * 1e6:.3g} µm"
+
+    asked = f"{abs(steps)} step(s) of axis {axis} move by {shown(abs(steps * step))}"
+    least = f"; jog at least {math.floor(tolerance / abs(step)) + 1} steps" if step else ""
+    raise ApiError(409, f"{asked}, within the tolerance ({shown(tolerance)}): nothing would move{least}")

@@ -366,8 +366,9 @@ function updateAxes(part) {
       if (part && index !== undefined) position = show(part.pose[index]);
       const t = part && status.target_part === part.id ? status.target_pose : null;  // the running pose move's
       if (t && index !== undefined) goal = show(t[index]);
-      forward = a.step_m !== undefined ? um(a.step_m) : a.step_rad !== undefined ? deg(a.step_rad) : summary(a);
-      backward = a.step_back_m !== undefined ? um(a.step_back_m) : a.step_back_rad !== undefined ? deg(a.step_back_rad) : "–";
+      const own = axis === "theta" && part ? part : a;  // θ's step is the part's own (where it turns)
+      forward = a.step_m !== undefined ? um(a.step_m) : own.step_rad !== undefined ? deg(own.step_rad) : summary(a);
+      backward = a.step_back_m !== undefined ? um(a.step_back_m) : own.step_back_rad !== undefined ? deg(own.step_back_rad) : "–";
     } else {
       position = um(status.position_m);
       goal = um(status.target_m);
