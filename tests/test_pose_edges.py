@@ -125,17 +125,19 @@ def test_the_planner_brings_a_part_back_and_carries_no_part_further_out() -> Non
 
 
 @pytest.mark.parametrize(
-    ("other", "allowed"),
+    ("other", "allowed", "station"),
     [
-        ((0.0, 1.85e-3, 0.0), (1, -1)),  # beyond +y: an orbit either way takes it along the edge
-        ((-1.85e-3, 0.3e-3, 0.0), (-1,)),  # beyond −x: −θ orbits it inwards, +θ further out
-        ((1.85e-3, 1.85e-3, 0.0), ()),  # beyond a corner: either way further out of one side
+        ((0.0, 1.85e-3, 0.0), (1, -1), ()),  # beyond +y: an orbit either way takes it along the edge
+        ((-1.85e-3, 0.3e-3, 0.0), (-1,), ()),  # beyond −x: −θ orbits it inwards, +θ further out
+        ((1.85e-3, 1.85e-3, 0.0), (), (1, -1)),  # beyond a corner: either way further out of one side
     ],
 )
 def test_a_turn_goes_on_unless_it_carries_a_part_further_out_of_the_travel(
-    other: Pose, allowed: tuple[int, ...]
+    other: Pose, allowed: tuple[int, ...], station: tuple[int, ...]
 ) -> None:
-    """Part 1 turns at its station (1.5 mm); a θ burst orbits part 2 about O."""
+    """Part 1 turns at its station (1.5 mm); a θ burst orbits part 2 about O.  Where that turn
+    would carry part 2 further out, part 1 goes to another station whose turn keeps it (the
+    translation carries part 2 along, no further out), or the move ends naming part 2."""
     planner = planar()
     poses = [(1.5e-3, 0.0, 0.0), other]
     for direction in (1, -1):
@@ -143,6 +145,10 @@ def test_a_turn_goes_on_unless_it_carries_a_part_further_out_of_the_travel(
         if direction in allowed:
             assert isinstance(nxt, AxisBurst) and nxt.axis == "theta", nxt
             end = planner.model.predict("theta", nxt.direction, nxt.mode, nxt.steps, other)
+            assert planner.travel.keeps(other, end)
+        elif direction in station:
+            assert isinstance(nxt, AxisBurst) and nxt.axis in ("x", "y"), nxt
+            end = planner.model.predict(nxt.axis, nxt.direction, nxt.mode, nxt.steps, other)
             assert planner.travel.keeps(other, end)
         else:
             assert isinstance(nxt, Finish) and nxt.status == "unreachable"

@@ -12,7 +12,7 @@ from feeder.parts import Part
 from feeder.plant.planar import PlanarPart, PlanarStickSlip
 from feeder.plant.plate_motion import Segment
 from feeder.plant.stick_slip import Friction
-from feeder.pose import pose_error
+from feeder.pose import Pose, pose_error
 from feeder.pose_pair import _anchor, _length_leg, _length_orbit, anchor_radius_m
 from feeder.pose_planner import AxisBurst, Finish, PosePlanner
 from feeder.pose_response import ANCHOR_MODES, AxisMode, GainFilter, ResponseModel, TurnTable, seed_response
@@ -160,6 +160,35 @@ def test_bursts_never_leave_the_travel(model_seed: ResponseModel) -> None:
     # the other way: nothing fits beyond the edge, so the planner says so instead of stepping
     stuck = planner.next_burst([(1.8e-3, 0.0, 0.0)], {1: (1.8e-3 - 0.4e-6, 0.0, 0.0)})
     assert stuck == Finish("done", "every part within tolerance")
+
+
+@pytest.mark.parametrize(
+    ("part_1", "part_2", "turn"),
+    [  # old ends: "turning part 1 further would bring it within 4e-05 m of part 2" (0.6 mm apart),
+        ((0.11e-3, -1.176e-3, 0.216), (-0.470e-3, -1.015e-3, -0.321), -0.490),
+        # ... "turning part 1 further would carry part 2 ... out of the travel"
+        ((-0.736e-3, -0.357e-3, -0.055), (-1.270e-3, -0.942e-3, -0.495), -0.684),
+        # ... "moving part 1 further in +x would carry part 2 ... out of the travel" (to the station)
+        ((0.517e-3, -0.020e-3, -0.042), (1.030e-3, -0.124e-3, -0.135), -0.306),
+    ],
+)
+def test_a_turn_beside_another_part_picks_a_station_with_room_for_both(
+    model_seed: ResponseModel, part_1: Pose, part_2: Pose, turn: float
+) -> None:
+    """The turning station was the one nearest the way, whatever the other part: carried there
+    and turned along, it left the travel or came within the clearance of the turning part, and
+    the move ended "unreachable" (5 of 32 random turns beside a part 0.5–0.8 mm away; 31 of 101
+    before this, 3 now)."""
+    planner = PosePlanner(fresh(), TRAVEL, PART, TOL_M, TOL_RAD)
+    target = (part_1[0], part_1[1], part_1[2] + turn)
+    assert planner.check({1: target}, [part_1, part_2]) is None
+    world = World([part_1, part_2])
+    verdict = run(planner, world, {1: target})
+    assert verdict.status == "done", verdict
+    error_m, error_rad = pose_error(world.poses()[0], target, math.pi)
+    assert error_m <= TOL_M and error_rad <= TOL_RAD
+    other = world.poses()[1]
+    assert TRAVEL.contains(other[0], other[1])
 
 
 def test_learning_converges_when_the_step_is_30_percent_off(model_seed: ResponseModel) -> None:
