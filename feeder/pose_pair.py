@@ -249,13 +249,23 @@ def next_pair_burst(
         return None
     if math.hypot(*rel) > 0.5 * tol:  # each part then ends within half of it, plus a fine step's rounding
         orbit = _orbit_burst(planner, poses, targets, rel)
-        if isinstance(orbit, AxisBurst) or math.hypot(*rel) > 2 * tol:
+        if isinstance(orbit, AxisBurst):
+            return orbit
+        if math.hypot(*rel) > 2 * tol:
+            # no orbit corrects it (B's orbit failed where A went for it, or a leg turned the
+            # line): the move ends with why, both parts first put back about their targets
+            # (they ended 140–470 µm off, at the anchor, where the orbit had failed)
+            goal = (ta[0] - 0.5 * rel[0], ta[1] - 0.5 * rel[1])  # A and B each half of rel off
+            if math.hypot(goal[0] - a[0], goal[1] - a[1]) > tol:
+                back = planner.translate_burst(poses, ia, goal, exact=True)
+                if isinstance(back, AxisBurst):
+                    return back
             return orbit
         # off by less than twice the tolerance and no orbit corrects it (d ≈ d_t: the anchor
         # runs off; or B cannot orbit there): translating both, each half of it off, may still
         # put each within it (a pair 0.9 mm apart ended 260 µm off both targets, at the anchor)
     # both move alike now: the fine-step offset (up to 3 per axis) that leaves the larger error smallest
-    goal = (ta[0] + 0.5 * rel[0], ta[1] + 0.5 * rel[1])
+    goal = (ta[0] - 0.5 * rel[0], ta[1] - 0.5 * rel[1])  # A and B each half of rel off
     if math.hypot(goal[0] - a[0], goal[1] - a[1]) > 3 * tol:
         return planner.translate_burst(poses, ia, goal, exact=True)
     fine = planner.model.modes("x")[-1]
@@ -329,8 +339,9 @@ def _orbit_burst(
         # B's orbit from where it will be is checked before A goes there (both carried along):
         # a pair 0.9 mm apart went to the anchor, found B in the dead zone and ended 260 µm off
         there = [(p[0] + shift[0], p[1] + shift[1], p[2]) for p in poses]
-        if planner.theta_burst(there, ib, phi, anchored=(ia,), quantity="orbit") is None:
-            return stuck
+        ahead = planner.theta_burst(there, ib, phi, anchored=(ia,), quantity="orbit")
+        if not isinstance(ahead, AxisBurst):
+            return ahead or stuck
         move = planner.translate_burst(poses, ia, anchor, exact=True)
         if not isinstance(move, Finish):  # else A is as close to the anchor as fine steps get it
             return move

@@ -48,6 +48,18 @@ def test_a_held_part_moved_in_angle_alone_keeps_its_held_x_and_y() -> None:
     assert navigator_of(plane).held[1][:2] == (300e-6, 10e-6)
 
 
+def test_a_held_angle_stays_when_a_move_gives_only_x_or_y() -> None:
+    """An x jog of a part held at an angle dropped the angle from the hold (any angle after it),
+    so later moves let it drift.  (The second part of a held pair still moves with its angle
+    free: the pair strategy turns it as it orbits.)"""
+    plane = Plane()
+    assert plane.run(Job("move", pose_target={"x_m": 300e-6, "angle_rad": 0.2})).result.status == "done"
+    assert plane.run(Job("move", pose_target={"x_m": 310e-6})).result.status == "done"
+    assert navigator_of(plane).held[1] == (310e-6, 0.0, 0.2)
+    assert plane.run(Job("move", by_m=-10e-6)).result.status == "done"
+    assert navigator_of(plane).held[1] == (300e-6, 0.0, 0.2)
+
+
 def test_a_refusal_caused_by_a_hold_names_it_and_release_lets_it_go() -> None:
     plane = Plane()
     assert plane.run(Job("move", pose_target={"x_m": 300e-6})).result.status == "done"

@@ -63,15 +63,21 @@ class PoseNavigator:
         if missing is not None:
             return missing
         now = reading[job.part - 1]
-        # what the move does not give stays: where the part is, or a held part's x and y where
-        # it is held (its reading lies within the tolerance of that: a θ jog, or a jog in y,
-        # took the reading's x and y for the new hold, and holds drifted jog by jog)
-        x, y = self.held.get(job.part, now)[:2]
+        # what the move does not give stays: where the part is, or where a held part is held
+        # (its reading lies within the tolerance of that: a θ jog, or a jog in y, took the
+        # reading's x and y for the new hold, and holds drifted jog by jog), its angle too when
+        # the hold has one and the pair strategy keeps it (an x jog dropped it)
+        held = self.held.get(job.part)
+        x, y = (held or now)[:2]
+        others = [p for p in self.held if p != job.part]
+        kept = held[2] if held is not None and all(job.part < p for p in others) else math.nan
         spec = dict(job.pose_target or {})
         if job.by_m is not None:
             spec["x_m"] = x + job.by_m
         elif job.target_m is not None:
             spec["x_m"] = job.target_m
+        if not math.isnan(kept):
+            spec.setdefault("angle_rad", kept)
         angle = spec.get("angle_rad", now[2])
         if math.isfinite(angle) and (wrong := beyond_one_turn(angle)) is not None:
             return wrong  # a job from the policy's callers; a request's field was checked already
@@ -87,12 +93,11 @@ class PoseNavigator:
             )
         # beside a held part the angle, when not asked for, is left free (the pair strategy
         # turns the moved part as it orbits it about O)
-        job.angle_free = "angle_rad" not in spec and any(p != job.part for p in self.held)
+        job.angle_free = "angle_rad" not in spec and bool(others)
         refused = self.planner.check(self._targets(job, target), list(reading))
         if refused is not None:
-            held = sorted(p for p in self.held if p != job.part)
-            if held:
-                names = ", ".join(str(p) for p in held)
+            if others:
+                names = ", ".join(str(p) for p in sorted(others))
                 return f"{refused} (held: part {names}; `feeder release` lets held parts go)"
             return refused
         self.held.pop(job.part, None)  # re-placed: held again where this move ends done
