@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 from pathlib import Path
@@ -241,3 +242,34 @@ def test_genicam_colour_camera_gives_grey_frames() -> None:
     with open_camera(f"genicam:{producer}") as camera:
         frame = camera.read(timeout_s=20)
     assert frame.image.ndim == 2 and frame.image.dtype == np.uint8
+
+
+def test_a_stream_that_stays_down_is_logged_once_until_frames_flow(caplog: pytest.LogCaptureFixture) -> None:
+    """Each retry of an unreachable stream logged "cannot open" at INFO (45 lines in 21 s during a
+    camera outage); now the first, repeats at DEBUG, and again once frames have flowed."""
+    caplog.set_level(logging.DEBUG, logger="feeder.drivers.video_camera")
+    port = free_port()
+    camera = open_camera(f"http://127.0.0.1:{port}/video.mjpg")
+    try:
+        deadline = time.monotonic() + 10
+        while len(caplog.records) < 4 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        levels = [r.levelno for r in caplog.records if "cannot open" in r.getMessage()]
+        assert len(levels) >= 4 and levels[0] == logging.INFO
+        assert set(levels[1:]) == {logging.DEBUG}, levels
+        server = _server(port)
+        try:
+            camera.read(timeout_s=15)
+            server.close()
+            deadline = time.monotonic() + 10
+            while (
+                not any("stream lost" in r.getMessage() for r in caplog.records)
+                and time.monotonic() < deadline
+            ):
+                time.sleep(0.1)
+            lost = [r for r in caplog.records if "stream lost" in r.getMessage()]
+            assert lost and lost[0].levelno == logging.INFO  # a new outage is logged again
+        finally:
+            server.close()
+    finally:
+        camera.close()

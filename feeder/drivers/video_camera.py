@@ -84,6 +84,7 @@ class FrameSource(ABC):
         self._closed = threading.Event()
         self.error = ""
         self._lost: type[CameraLost] = CameraLost
+        self._logged = ""  # the failure last logged at INFO (repeats go to DEBUG)
         self._thread = threading.Thread(target=self._run, name=f"camera-{name}", daemon=True)
 
     def _start(self) -> None:
@@ -113,7 +114,7 @@ class FrameSource(ABC):
                 sequence, wrong_size = self._pass_frames(sequence)
                 self._release()
                 if sequence > first:
-                    backoff = 0.05
+                    backoff, self._logged = 0.05, ""
                 if wrong_size:
                     self._fail(wrong_size, CameraSizeError)
                 elif self.live:
@@ -151,10 +152,13 @@ class FrameSource(ABC):
         return sequence, ""
 
     def _fail(self, reason: str, lost: type[CameraLost] = CameraLost) -> None:
+        """Record why the source failed; logged once (INFO) until frames flow again, then at DEBUG
+        (a camera that stays down was retried, and logged, about twice a second)."""
         with self._cond:
             self.error = reason
             self._lost = lost
-        log.info("camera %s: %s", self.name, reason)
+        log.log(logging.DEBUG if reason == self._logged else logging.INFO, "camera %s: %s", self.name, reason)
+        self._logged = reason
 
     def read(self, timeout_s: float = 1.0) -> Frame:
         """The newest frame not yet returned; CameraLost if none comes within ``timeout_s``."""
