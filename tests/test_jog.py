@@ -128,3 +128,24 @@ def test_a_jog_within_the_tolerance_is_refused_saying_how_many_steps_would_move(
         "jog at least 3 steps"
     )
     assert jog_request(one_axis, "x", 3, part=1)["by_m"] == pytest.approx(6e-6)
+
+
+def test_a_turn_jog_of_half_the_symmetry_or_beyond_one_turn_is_bad_input() -> None:
+    """10000 θ steps of a square at O asked for +4.29 rad: accepted, the square turned −24.3°
+    (the same pose modulo 90°, the shorter way); a disc's jog beyond one turn got the daemon's
+    409.  Both are bad input (400), saying how many steps a jog may take."""
+    status = {**plane_status(), "symmetry_rad": math.pi / 2}
+    assert jog_request(status, "theta", 785, part=1)["angle_rad"] == pytest.approx(POSE[2] + 0.785)
+    with pytest.raises(ApiError) as info:
+        jog_request(status, "theta", 786, part=1)  # 45.03°
+    assert (
+        info.value.status == 400 and "every 90°" in str(info.value) and "at most 785 steps" in str(info.value)
+    )
+    with pytest.raises(ApiError) as info:
+        jog_request(status, "theta", -393, part=1)  # 2e-3 rad back each: 45.04°
+    assert info.value.status == 400 and "at most 392 steps" in str(info.value)
+    disc = {**plane_status(), "symmetry_rad": 0.0}
+    assert jog_request(disc, "theta", 6000, part=1)["angle_rad"] == pytest.approx(POSE[2] + 6.0)
+    with pytest.raises(ApiError) as info:
+        jog_request(disc, "theta", 7000, part=1)
+    assert info.value.status == 400 and "beyond one turn" in str(info.value)

@@ -66,6 +66,7 @@ def plane_status(loop: ControlLoop, parts_info: tuple[dict[str, Any], ...]) -> d
             for axis, modes in loop.policy.modes.items()
         },
         "tolerance_rad": s.tolerance_rad,
+        "symmetry_rad": getattr(loop.policy.navigator, "symmetry_rad", None),
         "travel_m": {"x": [s.min_position_m, s.max_position_m], "y": [s.min_y_m, s.max_y_m]},
     }
 
