@@ -11,7 +11,12 @@ REPLY = {
     "parts": [
         {"id": 1, "pose": [1e-3, -2e-3, math.radians(30)]},
         {"id": 2, "pose": None},
-        {"id": 3, "pose": [0.0, 1e-3, 0.0]},
+        {
+            "id": 3,
+            "pose": [0.0, 1e-3, 0.0],
+            "step_rad": math.radians(0.05),
+            "step_back_rad": math.radians(0.04),
+        },
     ],
     "held": [{"part": 3, "pose": [0.0, 1e-3, None]}],
     "target_part": 1,
@@ -31,7 +36,8 @@ def test_the_plane_as_text() -> None:
     assert plane_status_lines(REPLY) == [
         "part 1: (1000.00, -2000.00) µm, 30.000°, moving to (1500.00, -2000.00) µm, any angle",
         "part 2: ?",
-        "part 3: (0.00, 1000.00) µm, 0.000°, held at (0.00, 1000.00) µm, any angle",
+        "part 3: (0.00, 1000.00) µm, 0.000°, held at (0.00, 1000.00) µm, any angle, "
+        "θ step +0.0500° / −0.0400°",
         "tolerance: ±1.000 µm, ±0.100°; travel x [-2500.000 µm, 2500.000 µm]; "
         "travel y [-1000.000 µm, 1000.000 µm]",
         "axis x: coarse step +2.000 µm / −3.000 µm",

@@ -133,10 +133,16 @@ def plane_status_lines(reply: dict[str, Any]) -> list[str]:
         pose = part.get("pose")
         target = reply.get("target_pose") if reply.get("target_part") == part.get("id") else None
         hold = held.get(part.get("id"))
+        turns = (
+            f", θ step +{_deg(part['step_rad'])} / −{_deg(part.get('step_back_rad'))}"
+            if "step_rad" in part
+            else ""
+        )  # each part's own: a turn depends on where the part is (what its jog moves by)
         lines.append(
             f"part {part.get('id')}: {_pose(None if pose is None else tuple(pose))}"
             + (f", moving to {_pose(tuple(target))}" if target is not None else "")
             + (f", held at {_pose(tuple(hold))}" if hold is not None else "")
+            + turns
         )
     travel = reply.get("travel_m") or {}
     tolerance_rad = reply.get("tolerance_rad")
