@@ -244,18 +244,19 @@ def next_pair_burst(
     a, b = poses[ia], poses[ib]
     ta, tb = targets[ia + 1], targets[ib + 1]
     rel = _relative_error(poses, targets)
+    off = math.hypot(*rel)
     tol = planner.tolerance_m
     if max(math.hypot(a[0] - ta[0], a[1] - ta[1]), math.hypot(b[0] - tb[0], b[1] - tb[1])) <= tol:
         return None
-    if math.hypot(*rel) > 0.5 * tol:  # each part then ends within half of it, plus a fine step's rounding
+    goal = (ta[0] - 0.5 * rel[0], ta[1] - 0.5 * rel[1])  # A there: A and B each half of rel off
+    if off > 0.5 * tol:  # each part then ends within half of it, plus a fine step's rounding
         orbit = _orbit_burst(planner, poses, targets, rel)
         if isinstance(orbit, AxisBurst):
             return orbit
-        if math.hypot(*rel) > 2 * tol:
+        if off > 2 * tol:
             # no orbit corrects it (B's orbit failed where A went for it, or a leg turned the
             # line): the move ends with why, both parts first put back about their targets
             # (they ended 140–470 µm off, at the anchor, where the orbit had failed)
-            goal = (ta[0] - 0.5 * rel[0], ta[1] - 0.5 * rel[1])  # A and B each half of rel off
             if math.hypot(goal[0] - a[0], goal[1] - a[1]) > tol:
                 back = planner.translate_burst(poses, ia, goal, exact=True)
                 if isinstance(back, AxisBurst):
@@ -265,7 +266,6 @@ def next_pair_burst(
         # runs off; or B cannot orbit there): translating both, each half of it off, may still
         # put each within it (a pair 0.9 mm apart ended 260 µm off both targets, at the anchor)
     # both move alike now: the fine-step offset (up to 3 per axis) that leaves the larger error smallest
-    goal = (ta[0] - 0.5 * rel[0], ta[1] - 0.5 * rel[1])  # A and B each half of rel off
     if math.hypot(goal[0] - a[0], goal[1] - a[1]) > 3 * tol:
         return planner.translate_burst(poses, ia, goal, exact=True)
     fine = planner.model.modes("x")[-1]
@@ -285,7 +285,7 @@ def next_pair_burst(
     if best == (0, 0):
         return Finish(
             "unreachable",
-            f"parts {ia + 1} and {ib + 1} are {math.hypot(*rel):.3g} m off relative "
+            f"parts {ia + 1} and {ib + 1} are {off:.3g} m off relative "
             "to each other: fine steps cannot put both within the tolerance",
         )
     axis, n = ("x", best[0]) if best[0] else ("y", best[1])

@@ -49,12 +49,15 @@ def plane_status(loop: ControlLoop, parts_info: tuple[dict[str, Any], ...]) -> d
     s = loop.settings
     steps_of = getattr(loop.policy.navigator, "axis_steps", None)
     parts = []
+    learned: dict[str, dict[str, float]] = {}  # the axes' steps: part 1's (θ's where it turns)
     for i, info in enumerate(parts_info or ({"id": 1},), start=1):
         pose = reading[i - 1] if i <= len(reading) else None
+        steps = steps_of(pose) if callable(steps_of) and (pose is not None or i == 1) else {}
+        if i == 1:
+            learned = steps
         # θ's step depends on where the part is: each part's own (what its jog moves by)
-        turns = steps_of(pose).get("theta", {}) if callable(steps_of) and pose is not None else {}
+        turns = steps.get("theta", {}) if pose is not None else {}
         parts.append({**info, "id": i, "pose": None if pose is None else list(pose), **turns})
-    learned = steps_of(reading[0] if reading else None) if callable(steps_of) else {}
     return {
         "parts": parts,
         "axes": {

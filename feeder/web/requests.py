@@ -135,19 +135,19 @@ def jog_request(status: dict[str, Any], axis: str, steps: int, part: int) -> dic
     _check_beyond_tolerance(
         status.get("tolerance_rad" if axis == "theta" else "tolerance_m"), axis, steps, step
     )
+    value = pose[index] + steps * step
     if axis == "theta":
         _check_within_symmetry(status.get("symmetry_rad"), steps, step)
-    value = pose[index] + steps * step
-    wrong = beyond_one_turn(value) if axis == "theta" else None
-    if wrong is not None:
-        raise ApiError(400, f"{abs(steps)} steps of axis theta ask for an angle beyond one turn: {wrong}")
+        wrong = beyond_one_turn(value)
+        if wrong is not None:
+            raise ApiError(400, f"{abs(steps)} steps of axis theta ask for an angle beyond one turn: {wrong}")
     return {"cmd": "move", "part": part, field: value, "wait": False}
 
 
 def _check_within_symmetry(symmetry_rad: Any, steps: int, step: float) -> None:
     """Refuse a θ jog of half the part's symmetry or more (400): the camera sees the angle modulo
     it, so the daemon turns the shorter way (10000 steps at O asked for +4.29 rad and turned a
-    square by −24.3°); this also keeps the angle asked for within one turn."""
+    square by −24.3°)."""
     if isinstance(symmetry_rad, (int, float)) and symmetry_rad > 0 and abs(steps * step) >= symmetry_rad / 2:
         most = math.ceil(symmetry_rad / 2 / abs(step)) - 1
         raise ApiError(
