@@ -125,18 +125,68 @@ def test_a_move_goes_idle_moving_settling_and_back_to_idle_done() -> None:
     confirm = rig.run_until_command("confirm_end")
     rig.complete(confirm)
     assert rig.policy.state == "settling"
-    while rig.policy.job is not None:  # fine steps until within tolerance
-        out = rig.tick()
-        for o in out:
-            if isinstance(o, Command):
-                if o.kind == "step":
-                    rig.position_m += o.steps * (3.0e-6 if rig.policy._applied.get("x") == COARSE else 0.8e-6)
-                rig.complete(o, counter=0)
-        assert rig.now < 10
+    play_to_the_end(rig)  # fine steps until within tolerance
     result = rig.finished().result
     assert result.status == "done" and abs(result.error_m or 1) <= 1e-6
     assert rig.policy.state == "idle" and job.result is None  # the loop sets it, not the policy
     assert any(isinstance(o, SavePosition) for o in rig.outputs)
+
+
+def play_to_the_end(rig: Rig) -> None:
+    """Complete every command at once, each step moving the part by its mode's step, until the job ends."""
+    while rig.policy.job is not None:
+        for o in rig.tick():
+            if isinstance(o, Command):
+                if o.kind == "step":
+                    rig.position_m += o.steps * (3.0e-6 if rig.policy._applied.get("x") == COARSE else 0.8e-6)
+                rig.complete(o, counter=0)
+        assert rig.now < 60
+
+
+def test_the_output_is_grounded_once_idle_and_the_next_move_enables_and_measures_again() -> None:
+    """A real ANC300 keeps its axes driven until told otherwise and has no host watchdog: a
+    daemon that then dies leaves them driven.  ``idle_ground_s`` after a move the policy grounds
+    every axis; a move within that time keeps the output as it is."""
+    rig = Rig()
+    start_move(rig, 30e-6)
+    play_to_the_end(rig)
+    assert rig.finished().result.status == "done"
+    ended, kinds = rig.now, [c.kind for c in rig.commands()]
+    start_move(rig, 0.0)  # within idle_ground_s: no ground, no enable
+    play_to_the_end(rig)
+    assert (
+        "ground" not in [c.kind for c in rig.commands()]
+        and "enable" not in [c.kind for c in rig.commands()][len(kinds) :]
+    )
+    ended = rig.now
+    while rig.now < ended + SETTINGS.idle_ground_s - 2 * DT:
+        assert not rig.tick()
+    grounds = []
+    while rig.now < ended + SETTINGS.idle_ground_s + 1.0:
+        grounds += [o for o in rig.tick() if isinstance(o, Command)]
+    assert [c.kind for c in grounds] == ["ground"]  # once
+    assert rig.policy.state == "idle"
+    rig.complete(grounds[0])
+    n = len(rig.commands())
+    start_move(rig, 30e-6)
+    assert rig.policy.state == "moving"
+    rig.complete(rig.run_until_command("enable"))
+    assert rig.policy.state == "settling"  # leaving ground moved the plate's rest: measure again
+    play_to_the_end(rig)
+    assert rig.outputs[-1].result.status == "done"  # type: ignore[union-attr]
+    assert [c.kind for c in rig.commands()[n:]][:1] == ["enable"]
+
+
+def test_a_move_submitted_while_the_idle_ground_is_in_flight_waits_for_it() -> None:
+    rig = Rig()
+    start_move(rig, 30e-6)
+    play_to_the_end(rig)
+    ground = rig.run_until_command("ground", limit=round(SETTINGS.idle_ground_s / DT) + 10)
+    start_move(rig, 0.0)
+    for _ in range(10):  # the ground is not answered yet: nothing else is sent
+        assert not [o for o in rig.tick() if isinstance(o, Command)]
+    rig.complete(ground)
+    assert rig.run_until_command("enable").kind == "enable"
 
 
 def to_first_decision(rig: Rig, target_m: float) -> Job:

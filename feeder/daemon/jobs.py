@@ -67,6 +67,9 @@ class LoopSettings:
     forgetting: float = 0.98
     position_save_s: float = 0.25
     hold_timeout_s: float = 3.0
+    idle_ground_s: float = 2.0
+    """The output is grounded when no move followed the last one within this time: a real
+    ANC300 keeps its axes driven until told otherwise and has no host watchdog."""
 
     @property
     def settle_band_m(self) -> float:

@@ -11,7 +11,9 @@ and θ; the policy only measures, steps, stops and records.
 
 States (:data:`STATES`):
 
-- ``idle``: no job.
+- ``idle``: no job; ``idle_ground_s`` after the last move ended every axis is grounded
+  (a :class:`~feeder.daemon.jobs.Command` ``ground``): a real ANC300 keeps its axes
+  driven until told otherwise, whatever becomes of the host.
 - ``moving``: a job is preparing the output or a burst is playing.
 - ``settling``: the burst is over; wait ``settle_s`` (stack ringing, sensor
   latency) or, if longer, the sensor's latency as seen (:attr:`Policy.latency_s`),
@@ -140,6 +142,7 @@ class Policy:
         self._finish_as: tuple[str, str] | None = None  # (status, reason) once held
         self._hold_until = 0.0
         self._position_saved_s = -math.inf
+        self._idle_until = math.inf  # when the output is grounded if no job comes
         self._now = 0.0
         self._out: list[Output] = []
 
@@ -178,6 +181,7 @@ class Policy:
                 return refused
         job.started_s = self._now = now
         self.job = job
+        self._idle_until = math.inf
         self._stop_reason = None
         self._finish_as = None
         self._enter_settling(now, settle=False)
@@ -333,6 +337,8 @@ class Policy:
                     self._decided(job, self._decision)
                 elif self._deciding is None:
                     self._measure(job, now)
+        elif job is None and self._pending is None and now >= self._idle_until:
+            self._ground_idle()
         out, self._out = self._out, []
         return out
 
@@ -341,6 +347,14 @@ class Policy:
     def _send(self, command: Command) -> None:
         self._pending = command
         self._out.append(command)
+
+    def _ground_idle(self) -> None:
+        """No move followed the last one: every axis to ground (the next move enables again and
+        measures, the plate's rest having moved)."""
+        self._idle_until = math.inf
+        if self._enabled and self.fault is None and self.sensor_lost is None:
+            self._enabled = False
+            self._send(Command("ground"))
 
     def _stop_command(self) -> Command:
         return Command("stop", axis=self._burst.burst.axis if self._burst is not None else "x")
@@ -542,6 +556,7 @@ class Policy:
         self.last_result = result
         if self.fault is None and self.sensor_lost is None:
             self.state = "idle"
+            self._idle_until = now + self.settings.idle_ground_s if self._enabled else math.inf
         self._out.append(Finished(job, result))
 
     def estimates(self) -> dict[str, StepEstimate]:
