@@ -30,9 +30,9 @@ import pandas as pd
 from feeder.contact.breakaway import contact
 from feeder.errors import FeederError, InputError
 from feeder.parts import Part, Support
-from feeder.plant.ideal_plate import sawtooth_motion
 from feeder.plant.plant import run_waveform
-from feeder.plant.stick_slip import Friction, simulate_batch
+from feeder.plant.steady_state import ideal_steady_steps, steady_start
+from feeder.plant.stick_slip import Friction
 from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters, load_surface
 from feeder.sweep_spec import DEFAULTS, OUTPUTS, SweepSettings, SweepSpec, chunk_key
 from feeder.waveform import Waveform
@@ -119,8 +119,15 @@ def _plant_point(settings: SweepSettings, out: dict[str, Any]) -> None:
     friction = Friction(out["breakaway_accel_m_s2"], out["kinetic_ratio"])
     run = run_waveform(friction, _waveform(out), settings.periods, settings.amplifier, settings.stack,
                        scatter=out["scatter"], seed=out["seed"])  # fmt: skip
-    out["step_mean_m"] = float(np.mean(run.steps_m))
-    out["step_std_m"] = float(np.std(run.steps_m, ddof=1)) if run.steps_m.size > 1 else 0.0
+    steps = run.steps_m
+    if out["scatter"] > 0:  # steps scatter by design: every period counts, not judged
+        out["transient_periods"], out["steady"] = 0, None
+    else:
+        start, settled = steady_start(steps)
+        out["transient_periods"], out["steady"] = int(start[0]), bool(settled[0])
+        steps = steps[start[0] :]
+    out["step_mean_m"] = float(np.mean(steps))
+    out["step_std_m"] = float(np.std(steps, ddof=1)) if steps.size > 1 else 0.0
     out["slip_fraction"] = run.slip_fraction
 
 
@@ -141,16 +148,13 @@ def _ideal_points(settings: SweepSettings, rows: list[dict[str, Any]]) -> None:
             t_cl, fraction = settings.amplifier.current_limited_flyback(volts, freq, stack.capacitance_f)
             t_f = np.where(limited, t_cl, t_f)
             stroke = np.where(limited, stroke * fraction, stroke)
-        motion = sawtooth_motion(stroke, freq, t_f, shape, settings.periods)
         a_s = np.array([r["breakaway_accel_m_s2"] for r in group])
         ratio = np.array([r["kinetic_ratio"] for r in group])
-        rel, slip = simulate_batch(motion.accel_m_s2, motion.duration_s, motion.jump_m_s, a_s, ratio)
-        per = motion.intervals_per_period
-        steps = np.diff(np.concatenate([np.zeros((len(group), 1)), rel[:, per - 1 :: per]], axis=1), axis=1)
+        found = ideal_steady_steps(stroke, freq, t_f, shape, a_s, ratio, settings.periods)
         for k, r in enumerate(group):
-            r["step_mean_m"] = float(steps[k].mean())
-            r["step_std_m"] = float(steps[k].std(ddof=1)) if steps.shape[1] > 1 else 0.0
-            r["slip_fraction"] = float(slip[k] * freq[k] / settings.periods)
+            r["step_mean_m"], r["step_std_m"] = float(found.step_m[k]), float(found.std_m[k])
+            r["transient_periods"], r["steady"] = int(found.transient_periods[k]), bool(found.settled[k])
+            r["slip_fraction"] = float(found.slip_fraction[k])
 
 
 def _write_parquet(frame: pd.DataFrame, path: Path) -> None:

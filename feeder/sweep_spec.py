@@ -4,7 +4,8 @@ Spec (TOML)::
 
     [sweep]
     model = "plant"             # full plant (amplifier, stack, exact stick-slip) or "ideal" (ideal plate)
-    periods = 5                 # steps per point (plant: after a lead-in rise)
+    periods = 5                 # periods per point (plant: after a lead-in rise; ideal: at least 3,
+                                # doubled up to 512 until the step settles)
     amplifier = "firmware_sim"  # a model name (anc300, paper) or a TOML file of amplifier limits
     sample = "grid"             # every combination, or "random": `points` draws with `seed`
     chunk_size = 50             # points per task and per Parquet part file
@@ -32,8 +33,11 @@ budget (:data:`~feeder.errors.MEMORY_BUDGET_BYTES`); the number of points (a gri
 ``num`` and the product of its value counts, or a random sample's ``points``) is at
 most :data:`MAX_POINTS`.  Every point is one row of the
 result, with every input column and ``point`` (its index), ``breakaway_accel_m_s2``,
-``step_mean_m``, ``step_std_m``, ``speed_m_s``, ``slip_fraction`` and ``error``
-(empty, or why the point could not run, e.g. a flyback longer than the rise).
+``step_mean_m`` and ``step_std_m`` (over the steady periods:
+:func:`~feeder.plant.steady_state.steady_start`), ``transient_periods`` (the periods before
+them), ``steady`` (the step settled: the last two periods agree; null with scatter, whose
+steps vary by design), ``speed_m_s``, ``slip_fraction`` and ``error`` (empty, or why the
+point could not run, e.g. a flyback longer than the rise).
 """
 
 from __future__ import annotations
@@ -77,7 +81,8 @@ DEFAULTS: dict[str, Any] = {
 """The input columns and their values when a spec leaves them out."""
 _TEXT = ("flyback_shape", "part", "support", "surface")
 _INTEGER = ("seed",)
-OUTPUTS = ("breakaway_accel_m_s2", "step_mean_m", "step_std_m", "speed_m_s", "slip_fraction", "error")
+OUTPUTS = ("breakaway_accel_m_s2", "step_mean_m", "step_std_m", "transient_periods", "steady", "speed_m_s",
+           "slip_fraction", "error")  # fmt: skip
 _BYTES_PER_POINT = 2048  # a point's dict, its result row and Parquet round trip (measured ~1 KiB)
 MAX_POINTS = MEMORY_BUDGET_BYTES // _BYTES_PER_POINT
 """The most points a sweep may have (1 048 576: the memory budget at ~2 KiB a point)."""

@@ -57,6 +57,7 @@ from feeder.plant.plant import (
 )
 from feeder.plant.plate_motion import sawtooth
 from feeder.plant.stack import StackParameters
+from feeder.plant.steady_state import steady_start
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO, Friction, StickSlip
 from feeder.plate_axes import AXES
 from feeder.waveform import DIRECTIONS, Waveform, read_waveform_tables
@@ -233,9 +234,12 @@ def run(args: argparse.Namespace) -> int:
         poses = np.tile(np.asarray(args.pose, dtype=float), (steps.size, 1))
         poses[:, 0 if args.axis == "x" else 1] += np.cumsum(steps)
     out.update(extra)
-    steady = steps[1:] if steps.size > 1 else steps  # the first period starts from the initial state
+    transient, settled = _transient(args, steps, notes)
+    steady = steps[transient:]
     out.update(
         {
+            "transient_periods": transient,
+            "steady": settled,
             "step_mean_m": float(np.mean(steady)),
             "step_std_m": float(np.std(steady, ddof=1)) if steady.size > 1 else 0.0,
             "first_step_m": float(steps[0]),
@@ -267,7 +271,8 @@ def run(args: argparse.Namespace) -> int:
         )
         print(
             f"  step   {out['step_mean_m'] * 1e6:.4f} ± {out['step_std_m'] * 1e6:.4f} µm "
-            f"(steady state; first period {out['first_step_m'] * 1e6:.4f} µm) "
+            f"({_steady_label(out['transient_periods'], out['steady'])}; "
+            f"first period {out['first_step_m'] * 1e6:.4f} µm) "
             f"over {out['periods']} periods"
         )
         if "turn_mean_rad" in out:
@@ -287,6 +292,30 @@ def run(args: argparse.Namespace) -> int:
             if key in out:
                 print(f"wrote {out[key]}")
     return 0
+
+
+def _steady_label(transient: int, settled: bool | None) -> str:
+    if settled is False:
+        return "NOT settled: the last period"
+    return "steady state" + (f" from period {transient + 1}" if transient > 1 else "")
+
+
+def _transient(args: argparse.Namespace, steps: np.ndarray, notes: list[str]) -> tuple[int, bool | None]:
+    """(periods before the steady state, whether the run shows it): x and y without scatter by
+    :func:`~feeder.plant.steady_state.steady_start`, with a note when the steps still drift;
+    θ (the step changes with the pose) and scatter: the first period, not judged (None)."""
+    if args.axis == "theta" or args.scatter > 0 or steps.size < 2:
+        return min(1, steps.size - 1), None
+    start, settled = steady_start(steps)
+    if steps.size < 3:
+        notes.append(f"{steps.size} periods cannot show the steady state (that takes 3): run more --periods")
+    elif not settled[0]:
+        um = ", ".join(f"{1e6 * v:.4g}" for v in steps[-3:])
+        notes.append(
+            f"the step has not settled in {steps.size} periods (the last: {um} µm; the part slides "
+            f"through whole periods): step_mean_m is not the steady state; run more --periods"
+        )
+    return int(start[0]), bool(settled[0])
 
 
 def _sawtooth_parameters(args: argparse.Namespace, stroke: float | None) -> tuple[
