@@ -135,6 +135,9 @@ def test_cli_sphere(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     assert (tmp_path / "c.png").stat().st_size > 1000
     assert main([*base, "--load", "-1"]) == 2
     assert "--load" in capsys.readouterr().err
+    # a tensile load in exponent notation is a value (argparse took "-1e-10" for an option)
+    assert main([*base, "--model", "dmt", "--load", "-1e-10", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["contact_radius_m"] > 0
     with pytest.raises(SystemExit) as usage:  # the range is checked by the option's type
         main([*base, "--tabor", "-2"])
     assert usage.value.code == 2 and "--tabor" in capsys.readouterr().err

@@ -231,3 +231,16 @@ def test_a_closed_stdout_exits_quietly(json_flag: list[str]) -> None:
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141
     assert err == ""
+
+
+def test_the_papers_tau_on_another_surface_says_it_is_assumed(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """It read "fitted to the paper's forces" next to a 9.8 µN breakaway on an AFM scan's surface
+    (the paper measured 0.94 µN): τ was only fitted on the paper's own surface."""
+    same, other = tmp_path / "same.toml", tmp_path / "other.toml"
+    DEFAULT_SURFACE.write_toml(same)
+    replace(DEFAULT_SURFACE, summit_radius_m=4 * DEFAULT_SURFACE.summit_radius_m).write_toml(other)
+    assert run_json(capsys, "--part", "300x300x50", "--surface", str(same))["tau_source"].startswith("fitted")
+    source = run_json(capsys, "--part", "300x300x50", "--surface", str(other))["tau_source"]
+    assert "assumed for this surface" in source and "--tau" in source

@@ -74,6 +74,7 @@ model = "planar-plant"
 
 IDEAL = ["simulate", "--part", "300x300x50", "--ideal", "--stroke-m", "5e-6", "--frequency-hz", "100",
          "--periods", "3"]  # fmt: skip
+IDEAL_THETA = [*IDEAL[:4], *IDEAL[6:], "--axis", "theta"]  # --stroke-m is x's and y's
 
 
 @pytest.fixture
@@ -209,7 +210,7 @@ def test_text_output_tells_every_warning_and_the_files_it_wrote(tmp_path, capsys
     for warning in warnings:
         assert f"warning: {warning}" in out
     assert f"wrote {png}" in out and png.stat().st_size > 0
-    assert main([*IDEAL, "--flyback-s", "1e-4", "--axis", "theta", "--stroke-rad", "7e-3",
+    assert main([*IDEAL_THETA, "--flyback-s", "1e-4", "--stroke-rad", "7e-3",
                  "--periods", "2", "--map", str(tmp_path / "map.png"), "--map-points", "2"]) == 0  # fmt: skip
     assert f"wrote {tmp_path / 'map.png'}" in capsys.readouterr().out
 
@@ -245,7 +246,7 @@ def test_help_states_each_range(capsys):
     ("--map-points", "100"),
 ])  # fmt: skip
 def test_absurd_values_are_refused_naming_the_option(capsys, option, value):
-    argv = [*IDEAL, "--flyback-s", "1e-4", "--axis", "theta", "--stroke-rad", "7e-3", "--json"]
+    argv = [*IDEAL_THETA, "--flyback-s", "1e-4", "--stroke-rad", "7e-3", "--json"]
     argv = [a for i, a in enumerate(argv) if option not in (a, argv[i - 1])]
     err = refused(capsys, [*argv, f"{option}={value}"])
     assert option in err
@@ -257,7 +258,7 @@ def test_range_ends_and_units_are_accepted(capsys):
     assert big["stroke_m"] == 1e-3 and big["frequency_hz"] == 1e6
     same = run_json(capsys, *IDEAL, "--flyback-s", "1e-4")
     assert run_json(capsys, *IDEAL, "--flyback-s", "1e-4", "--stroke-m", "5um")["steps_m"] == same["steps_m"]
-    turn = run_json(capsys, *IDEAL, "--flyback-s", "3.5e-4", "--axis", "theta", "--stroke-rad", "0.1",
+    turn = run_json(capsys, *IDEAL_THETA, "--flyback-s", "3.5e-4", "--stroke-rad", "0.1",
                     "--pose=-0.1,0.1,-6.28")  # fmt: skip
     assert turn["stroke_rad"] == 0.1 and turn["pose_start"] == [-0.1, 0.1, -6.28]
     err = refused(capsys, [*IDEAL, "--flyback-s", "0.01"])  # not below the period
@@ -266,7 +267,7 @@ def test_range_ends_and_units_are_accepted(capsys):
 
 def test_a_pose_takes_units(capsys):
     """DESIGN §12: lengths and angles accept units, a pose's too."""
-    argv = [*IDEAL, "--flyback-s", "3.5e-4", "--axis", "theta", "--stroke-rad", "7e-3", "--periods", "2"]
+    argv = [*IDEAL_THETA, "--flyback-s", "3.5e-4", "--stroke-rad", "7e-3", "--periods", "2"]
     plain = run_json(capsys, *argv, "--pose", "1.5e-3,-2e-4,0.17453292519943295")
     units = run_json(capsys, *argv, "--pose", "1.5mm,-200um,10deg")
     assert units["pose_start"] == pytest.approx(plain["pose_start"], rel=1e-15)
@@ -287,3 +288,24 @@ def test_drive_options_nothing_would_read_are_refused(capsys, extra, option):
     argv = ["simulate", "--part", "300x300x50", "--waveform", str(PAPER), "--periods", "2", *extra]
     err = refused(capsys, argv)
     assert err.startswith(f"feeder simulate: error: {option}:")
+
+
+@pytest.mark.parametrize("extra, option, words", [
+    (["--axis", "theta", "--stroke-rad", "7e-3", "--stroke-m", "5e-6"], "--stroke-m", "--stroke-rad"),
+    (["--stroke-m", "5e-6", "--stroke-rad", "7e-3"], "--stroke-rad", "--stroke-m"),
+    (["--stroke-m", "5e-6", "--scatter", "0.05"], "--scatter", "plant"),
+])  # fmt: skip
+def test_an_ideal_plates_options_another_axis_or_the_plant_reads_are_refused(capsys, extra, option, words):
+    """They were silently ignored: θ ran on --stroke-rad with --stroke-m given, x on --stroke-m
+    with --stroke-rad given, and --scatter on the ideal plate printed ± 0."""
+    argv = ["simulate", "--part", "300x300x50", "--ideal", "--frequency-hz", "100", "--flyback-s", "3.5e-4",
+            "--periods", "2", *extra]  # fmt: skip
+    err = refused(capsys, argv)
+    assert err.startswith(f"feeder simulate: error: {option}:") and words in err
+
+
+def test_a_scatter_meant_as_percent_is_refused(capsys):
+    """--scatter 5 (meant as 5 %) drove a forward waveform's part backwards by 33 µm a period."""
+    argv = ["simulate", "--part", "300x300x50", "--waveform", str(PAPER), "--periods", "2", "--scatter", "5"]
+    err = refused(capsys, argv)
+    assert err.startswith("feeder simulate: error: --scatter:") and "0.05 is 5 %" in err

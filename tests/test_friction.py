@@ -129,6 +129,11 @@ def test_force_column_and_stiffness_override(tmp_path: Path) -> None:
     write_force_curve(deflection_file, x, deflection, {"cantilever": "NSC35"})
     assert read_force_curve(deflection_file).stiffness_n_per_m == 1.25
     assert read_force_curve(deflection_file, 2.5).force_n[0] == pytest.approx(2.5 * deflection[0], rel=1e-6)
+    # a stiffness other than the header's cantilever is used, and said (it was silent: 66 % off)
+    assert read_force_curve(deflection_file).warnings == ()
+    (warning,) = read_force_curve(deflection_file, 2.5).warnings
+    assert "2.5 N/m" in warning and "1.25 N/m (NSC35)" in warning
+    assert read_force_curve(deflection_file, 1.251).warnings == ()
 
 
 def _write(tmp_path: Path, name: str, text: str) -> Path:

@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 from collections.abc import Iterable, Sequence
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from feeder.cli.arguments import refuse_overwriting_inputs
 from feeder.cli.output import exit_on_closed_stdout
@@ -56,7 +57,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """An ArgumentParser whose usage errors are one line and exit code 2."""
+    """An ArgumentParser whose usage errors are one line and exit code 2, and whose option
+    values may start with a minus sign (``--pose -1e-3,0,0``, ``--load -1e-8``): argparse takes
+    ``-1e-8`` for an option unless it looks like a plain negative number, and no option of
+    ``feeder`` looks like a number, so any argument starting with ``-`` and a digit is a value."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message}\n")

@@ -319,13 +319,3 @@ def pose(text: str) -> tuple[float, float, float]:
         return length_m(fields[0]), length_m(fields[1]), angle_rad(fields[2])
     except argparse.ArgumentTypeError as err:
         raise argparse.ArgumentTypeError(f"X,Y,PSI {text!r}: {err}") from None
-
-
-def allow_negative_values(p: argparse.ArgumentParser) -> None:
-    """Let option values start with a minus sign (``--pose -1e-3,0,0``, ``--stroke-rad -0.01``).
-
-    argparse takes ``-1e-3,0,0`` for an option unless it looks like a plain
-    negative number; this parser has no options that look like numbers, so any
-    argument starting with ``-`` and a digit is a value.
-    """
-    p._negative_number_matcher = re.compile(r"^-\.?\d")

@@ -8,7 +8,6 @@ from typing import Any
 from feeder.cli.arguments import (
     add_part_arguments,
     add_tau_arguments,
-    allow_negative_values,
     int_in,
     materials_from,
     part_from,
@@ -25,7 +24,6 @@ from feeder.surface.parameters import SurfaceParameters
 
 def register(sub: Any) -> None:
     p = sub.add_parser("contact", help="real contact area and breakaway force of a part")
-    allow_negative_values(p)  # --tau -1e9 reaches its own check
     add_part_arguments(p, part_required=False)
     p.set_defaults(support=None)  # None: not given (--table refuses it); flat otherwise
     add_tau_arguments(p)

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.arguments import allow_negative_values, angle_rad, int_in, length_m, positive_float
+from feeder.cli.arguments import angle_rad, int_in, length_m, positive_float
 from feeder.cli.output import print_json
 from feeder.daemon.client import DEFAULT_TIMEOUT_S, Client, default_socket_path
 from feeder.daemon.replies import Accepted, MoveRecord, MoveResult
@@ -77,7 +77,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--queue", action="store_true", help="wait for a running move to finish instead of being refused"
     )
     move.add_argument("--no-wait", action="store_true", help="return once the move is accepted")
-    allow_negative_values(move)
     _common(move)
     move.set_defaults(handler=run_move)
 

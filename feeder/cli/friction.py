@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         "max_static_friction_N": summary.max_static_friction_n,
         "mean_sliding_force_N": summary.mean_sliding_force_n,
         "curves": [_curve_json(curve, peak) for curve, peak in analysed],
+        "warnings": [w for curve, _ in analysed for w in curve.warnings],
     }
     if args.plot is not None:
         _plot(analysed, args.plot)
@@ -92,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
         f"mean static friction of {summary.count} curve(s): "
         f"{summary.mean_static_friction_n * 1e6:.4g}{spread} µN"
     )
+    for warning in report["warnings"]:
+        print(f"warning: {warning}")
     if args.plot is not None:
         print(f"wrote {args.plot}")
     return 0

@@ -9,7 +9,6 @@ from typing import Any
 from feeder.cli.arguments import (
     add_part_arguments,
     add_tau_arguments,
-    allow_negative_values,
     float_in,
     length_in,
     output_path,
@@ -26,7 +25,6 @@ _DEFAULT_AMPLIFIER = AmplifierLimits()
 
 def register(sub: Any) -> None:
     p = sub.add_parser("plan", help="plan a move: waveform, steps, predicted step and band")
-    allow_negative_values(p)  # --distance-m -1e-4: a value, not an option
     add_part_arguments(p)
     p.add_argument(
         "--distance-m",

@@ -145,7 +145,7 @@ def prediction_warnings(args: argparse.Namespace, prediction: dict[str, Any], pa
 def refuse_ignored_drive_options(args: argparse.Namespace) -> None:
     """The ideal plate's drive options where nothing would read them: without --ideal the plant
     plays --waveform; with --ideal and --waveform, the file gives frequency and flyback (a
-    stroke may still be given)."""
+    stroke may still be given); each axis reads its own stroke; the ideal plate has no scatter."""
     options = {"--stroke-m": args.stroke_m, "--stroke-rad": args.stroke_rad,
                "--frequency-hz": args.frequency_hz, "--flyback-s": args.flyback_s}  # fmt: skip
     for flag in (flag for flag, value in options.items() if value is not None):
@@ -153,3 +153,11 @@ def refuse_ignored_drive_options(args: argparse.Namespace) -> None:
             raise InputError(flag, "only with --ideal: the plant plays --waveform's drive")
         if args.waveform is not None and flag in ("--frequency-hz", "--flyback-s"):
             raise InputError(flag, f"not with --waveform: {args.waveform} gives the frequency and flyback")
+        if flag == "--stroke-m" and args.axis == "theta":
+            raise InputError(flag, "for --axis x or y; θ's stroke is --stroke-rad")
+        if flag == "--stroke-rad" and args.axis != "theta":
+            raise InputError(flag, f"for --axis theta; axis {args.axis}'s stroke is --stroke-m")
+    if args.scatter > 0 and args.ideal:
+        raise InputError(
+            "--scatter", "only for the plant (--waveform without --ideal): the ideal plate has none"
+        )

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.arguments import allow_negative_values, float_in, input_path, output_path
+from feeder.cli.arguments import float_in, input_path, output_path
 from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure
@@ -38,7 +38,6 @@ NOTES = (
 
 def register(sub: Any) -> None:
     p = sub.add_parser("surface", help="summit statistics of AFM scans, GW surface TOML")
-    allow_negative_values(p)  # --pixel-size -2e-9 reaches its range check
     p.add_argument(
         "scans",
         nargs="+",

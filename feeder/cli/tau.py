@@ -8,7 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.arguments import add_part_arguments, allow_negative_values, part_from, positive_float
+from feeder.cli.arguments import add_part_arguments, part_from, positive_float
 from feeder.cli.friction import add_curve_options, analyse_files
 from feeder.cli.output import print_json
 from feeder.contact.breakaway import contact
@@ -34,7 +34,6 @@ FORCE_WEIGHT_RATIO_WARNING = 1e4
 
 def register(sub: Any) -> None:
     p = sub.add_parser("tau", help="shear strength τ = F/A_r from friction forces or force curves")
-    allow_negative_values(p)  # --force -1e-6 reaches its own check
     add_part_arguments(p)
     p.add_argument(
         "--force",

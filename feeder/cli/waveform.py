@@ -14,7 +14,6 @@ import numpy as np
 from feeder.cli.arguments import (
     add_part_arguments,
     add_tau_arguments,
-    allow_negative_values,
     input_path,
     int_in,
     length_m,
@@ -133,7 +132,6 @@ def register(sub: Any) -> None:
                              f"(default {DEFAULT_LEVER_ARM_M:g} m, as [plate] lever_arm_m)")  # fmt: skip
     design.add_argument("--out", type=output_path, required=True, help="design file (TOML) to write")
     design.add_argument("--json", action="store_true", help="print one JSON object")
-    allow_negative_values(design)
     design.set_defaults(handler=run_design)
 
 

@@ -11,7 +11,8 @@ because the flat support's nominal pressure is the same for every size (so is d,
 A_r(w)/A_r(0) is one number; it is computed for the 300×300×50 part).  τ(w)·A_r(w) on
 the flat support is then the measured breakaway force whatever w is; on the grooved
 support it scales with the model's grooved/flat ratio at w.  With a surface other than
-the embedded one, the paper's τ is taken as fitted with that surface at w = 0.
+the embedded one, the paper's τ is taken as fitted with that surface at w = 0, and
+``source`` says so: its breakaway force is then not the paper's measured one.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from feeder.contact.greenwood_williamson import GreenwoodWilliamson
 from feeder.errors import InputError
 from feeder.paper import TAU_MEAN_PA, TAU_SPREAD_PA
 from feeder.parts import FLAT, Part
-from feeder.surface.parameters import SurfaceParameters
+from feeder.surface.parameters import DEFAULT_SURFACE, SurfaceParameters
 
 REFERENCE_PART = Part.parse("300x300x50")
 FITTED_ADHESION_WORK_J_M2 = 0.016777
@@ -61,11 +62,15 @@ def fitted_tau(surface: SurfaceParameters) -> TauPair:
     """The paper's τ re-fitted with the surface's own w (module docstring)."""
     gain = area_gain(surface)
     w = surface.adhesion_work_j_m2
+    paper = replace(surface, adhesion_work_j_m2=0.0) == DEFAULT_SURFACE
     return TauPair(
         tau_pa=TAU_MEAN_PA / gain,
         tau_band_pa=TAU_SPREAD_PA / gain,
         adhesion_work_j_m2=w,
-        source=f"fitted to the paper's forces with w = {w:g} J/m²",
+        source=f"fitted to the paper's forces with w = {w:g} J/m²"
+        if paper
+        else f"the paper's τ assumed for this surface{f' (scaled for w = {w:g} J/m² on it)' if w else ''}: "
+        "the breakaway force is not the paper's measured one; give --tau from this surface's force curves",
     )
 
 

@@ -59,6 +59,7 @@ class ForceCurve:
     force_n: np.ndarray
     source: str
     stiffness_n_per_m: float | None = None
+    warnings: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -138,18 +139,25 @@ def read_force_curve(path: Path, stiffness_n_per_m: float | None = None) -> Forc
             values[k, j] = value
     if values.shape[0] < 50:
         raise InputError(str(path), f"only {values.shape[0]} samples; a force curve needs at least 50")
-    stiffness = stiffness_n_per_m
-    if stiffness is None:
-        try:
-            file_stiffness = float(metadata["stiffness_n_per_m"]) if "stiffness_n_per_m" in metadata else None
-        except ValueError:
-            raise InputError(str(path), "metadata stiffness_n_per_m is not a number") from None
-        stiffness = cantilever_stiffness(metadata.get("cantilever"), file_stiffness)
+    try:
+        file_stiffness = float(metadata["stiffness_n_per_m"]) if "stiffness_n_per_m" in metadata else None
+    except ValueError:
+        raise InputError(str(path), "metadata stiffness_n_per_m is not a number") from None
+    recorded = cantilever_stiffness(metadata.get("cantilever"), file_stiffness)
+    stiffness = recorded if stiffness_n_per_m is None else stiffness_n_per_m
+    warnings: tuple[str, ...] = ()
+    overridden = (
+        stiffness is not None and recorded is not None and not math.isclose(stiffness, recorded, rel_tol=0.01)
+    )
+    if y_name == DEFLECTION and overridden:
+        named = metadata.get("cantilever") or "stiffness_n_per_m"
+        warnings = (f"{path.name}: read with {stiffness:g} N/m, but its header records {recorded:g} N/m "
+                    f"({named}): the forces scale with it",)  # fmt: skip
     if y_name == FORCE:
         return ForceCurve(values[:, 0], values[:, 1], str(path), stiffness)
     if stiffness is None:
         raise InputError("--stiffness", f"{path.name} records deflection: give --cantilever or --stiffness")
-    return ForceCurve(values[:, 0], stiffness * values[:, 1], str(path), stiffness)
+    return ForceCurve(values[:, 0], stiffness * values[:, 1], str(path), stiffness, warnings)
 
 
 def write_force_curve(

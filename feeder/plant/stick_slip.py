@@ -119,17 +119,22 @@ def advance_interval(
     )
 
 
+MAX_SCATTER = 0.5
+"""The largest relative scatter of a_s (1σ): beyond it the clip at 5 % of nominal shapes the draws
+(a scatter of 5, meant as 5 %, drove a forward waveform's part backwards by 33 µm a period)."""
+
+
 class StickSlip:
     """Streaming exact stick-slip of one part, state kept across calls.
 
-    ``scatter`` > 0 redraws a_s at every re-stick as a_s·(1 + scatter·N(0, 1))
-    (clipped at 5 % of nominal) from a generator seeded with ``seed``: the
-    step-to-step spread of a real contact.  a_k follows as r·a_s.
+    ``scatter`` (0 … :data:`MAX_SCATTER`) > 0 redraws a_s at every re-stick as
+    a_s·(1 + scatter·N(0, 1)) (clipped at 5 % of nominal) from a generator seeded with
+    ``seed``: the step-to-step spread of a real contact.  a_k follows as r·a_s.
     """
 
     def __init__(self, friction: Friction, scatter: float = 0.0, seed: int | None = None) -> None:
-        if not (math.isfinite(scatter) and scatter >= 0):
-            raise InputError("scatter", f"must be a non-negative number, got {scatter!r}")
+        if not 0 <= scatter <= MAX_SCATTER:
+            raise InputError("scatter", f"must lie in [0, {MAX_SCATTER:g}] (0.05 is 5 %), got {scatter!r}")
         self.friction = friction
         self.scatter = scatter
         self._rng = np.random.default_rng(seed)
