@@ -29,7 +29,9 @@ if TYPE_CHECKING:
 TRANSPORTS = ("serial", "can")
 TRAVEL_KEYS = frozenset({"min_position_m", "max_position_m", "min_y_m", "max_y_m"})
 DEFAULT_MODELS = {"serial": "anc300", "can": "firmware_sim"}
-"""The amplifier model a transport gets when the configuration names none."""
+"""The amplifier model a transport gets when the configuration names none.  ``can``'s is the
+simulator's rating: a configuration naming a CAN drive (``[amplifier.can] channel``) must give
+``[amplifier] model`` or ``[amplifier.limits]`` (:func:`feeder.daemon.config_file.load_config`)."""
 DEFAULT_PART = "300x300x50"
 DEFAULT_HTTP_LISTEN = "127.0.0.1:8470"
 

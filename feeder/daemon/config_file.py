@@ -21,11 +21,12 @@ baudrate = 38400              # serial port rate, bit/s (the ANC300's; USB CDC-A
 v_max_v = 120.0
 current_limit_a = 0.55
 max_frequency_hz = 2000.0
-[amplifier.can]               # python-can keyword arguments + node id (+ eds, heartbeat_s, supervise_host)
-interface = "slcan"
+[amplifier.can]               # python-can keyword arguments + node id (+ eds, heartbeat_s, supervise_host,
+interface = "slcan"           # host_id); a CAN drive (can.channel) needs model or [amplifier.limits]
 channel = "/dev/ttyACM0"
-bitrate = 500000
+bitrate = 500000              # required by adapters that take the rate from the host (slcan, pcan, ...)
 node_id = 1
+host_id = 127                 # the node id the daemon beats as (supervise_host), 1–127
 eds = "feeder_amplifier.eds"  # the nodes' EDS: axes per node (feeder_amplifier_3axis.eds: 3), or a path
 
 [sensor]
@@ -113,8 +114,21 @@ SECTIONS: dict[str, frozenset[str]] = {
     "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps"}),
 }
 """The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
-``[amplifier.can]``: python-can keyword arguments plus ``node_id``, ``heartbeat_s``, ``eds`` and
-``supervise_host``)."""
+``[amplifier.can]``: python-can keyword arguments plus :data:`CAN_DRIVER_KEYS`)."""
+
+CAN_DRIVER_KEYS = frozenset({"node_id", "heartbeat_s", "eds", "supervise_host", "host_id"})
+"""``[amplifier.can]`` keys that are the CANopen driver's, not python-can's."""
+
+CAN_BITRATE_KEYS = ("bitrate", "btr", "timing")
+"""python-can's keywords that set an adapter's bit rate (``btr``: a register value; ``timing``)."""
+
+CAN_HOST_SETS_BITRATE = frozenset(
+    {"slcan", "pcan", "kvaser", "ixxat", "vector", "seeedstudio", "robotell", "canalystii", "gs_usb"}
+)
+"""python-can interfaces whose adapter takes its bit rate from the host when it opens: without
+one python-can sends none (slcan: no ``S`` command) or its own default, and the adapter joins the
+bus at whatever rate it last had, flooding a live bus with error frames.  ``socketcan`` (the rate
+is the kernel's, ``ip link set can0 type can bitrate ...``) and ``virtual`` need none."""
 
 RANGES: dict[str, tuple[float, float]] = {
     "rate_hz": (1.0, 1000.0),
@@ -132,10 +146,12 @@ RANGES: dict[str, tuple[float, float]] = {
     "forgetting": (0.5, 1.0),
     "position_save_s": (0.0, 3600.0),
     "hold_timeout_s": (0.0, 60.0),
+    "idle_ground_s": (0.0, 3600.0),
     "timeout_s": (1e-3, 60.0),
     "axis": (1, 7),
     "baudrate": (300, 4_000_000),
     "node_id": (1, 127),
+    "host_id": (1, 127),
     "heartbeat_s": (0.01, 10.0),
     "min_position_m": (-1.0, 1.0),
     "max_position_m": (-1.0, 1.0),
@@ -281,12 +297,14 @@ def load_config(path: Path | None) -> DaemonConfig:
         _integer(can, "node_id", where, 1, "amplifier.can.")
     if "heartbeat_s" in can:
         _number(can, "heartbeat_s", where, 0.25, positive=True, section="amplifier.can.")
+    if "host_id" in can:
+        _integer(can, "host_id", where, 127, "amplifier.can.")
     if "eds" in can:
         can["eds"] = _eds(can["eds"], where, path.parent)
     supervise = can.get("supervise_host", True)
     if not isinstance(supervise, bool):
         raise InputError(where, f"amplifier.can.supervise_host must be true or false, got {supervise!r}")
-    if set(can) - {"node_id", "heartbeat_s", "eds", "supervise_host"} and "channel" not in can:
+    if set(can) - CAN_DRIVER_KEYS and "channel" not in can:
         # python-can keywords without the adapter: a misspelt channel must never fall back
         # to the simulator
         near = difflib.get_close_matches("channel", [str(k) for k in can], n=1)
@@ -294,6 +312,22 @@ def load_config(path: Path | None) -> DaemonConfig:
             where,
             "amplifier.can names a bus but no channel"
             + (f" (is {near[0]!r} meant to be 'channel'?)" if near else ""),
+        )
+    interface = can.get("interface")
+    if (
+        "channel" in can
+        and interface in CAN_HOST_SETS_BITRATE
+        and not any(k in can for k in CAN_BITRATE_KEYS)
+    ):
+        raise InputError(
+            where,
+            f"amplifier.can.bitrate: a {interface} adapter takes the bus's bit rate from the host; "
+            "set bitrate (e.g. 500000), or btr or timing",
+        )
+    if transport == "can" and "channel" in can and "model" not in amp and not _table(amp, "limits", where):
+        # a CAN drive is hardware of unknown rating: only the simulator may default to its own
+        raise InputError(
+            where, "amplifier.model: a CAN drive needs its rating: model = ... or [amplifier.limits]"
         )
     model = str(_string(amp, "model", where, DEFAULT_MODELS[str(transport)]))
     try:
@@ -354,6 +388,8 @@ def load_config(path: Path | None) -> DaemonConfig:
                 )
     loop = dataclasses.replace(defaults, **loop_fields)
     plate = _plate(_table(doc, "plate", where), where)
+    if transport == "can" and can.get("supervise_host", True):
+        _check_host_id(can, plate, where)
     camera_t = _table(doc, "camera", where)
     cam = CameraConfig()
     camera = CameraConfig(
@@ -392,6 +428,26 @@ def load_config(path: Path | None) -> DaemonConfig:
         socket_path=_path(_string(state, "socket", where, None), path.parent.absolute()) or base.socket_path,
         http=http,
     )
+
+
+def _check_host_id(can: dict[str, Any], plate: PlateConfig, where: str) -> None:
+    """Refuse an ``amplifier.can.host_id`` (default 127) that is one of the amplifier's node ids:
+    the host's heartbeat would be that node's (COB-ID 0x700 + id)."""
+    host_id = int(can.get("host_id", 127))
+    node_id = int(can.get("node_id", 1))
+    last = node_id
+    if plate.planar:  # amplifier axis n: node node_id + (n - 1) div (axes per node)
+        per_node = 1
+        if "eds" in can:
+            from feeder.protocol.eds import axis_count, object_dictionary  # canopen only for CAN
+
+            per_node = axis_count(object_dictionary(1, str(can["eds"])))
+        last = node_id + (max(plate.axis_map[a] for a in plate.axes) - 1) // per_node
+    if node_id <= host_id <= last:
+        nodes = f"node {node_id}" if last == node_id else f"nodes {node_id}..{last}"
+        raise InputError(
+            where, f"amplifier.can.host_id = {host_id} is the amplifier's (it uses {nodes}): pick another id"
+        )
 
 
 def _camera_travel(

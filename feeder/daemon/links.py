@@ -32,7 +32,7 @@ SLCAN_BITRATE = 500_000
 CAN_HEARTBEAT_S = 0.25
 """Node heartbeat period the daemon asks for: a few lost periods mark the node dead, so a
 loaded host must not miss one (``[amplifier.can] heartbeat_s`` overrides it)."""
-CAN_KEYS = ("node_id", "heartbeat_s", "eds", "supervise_host")
+CAN_KEYS = ("node_id", "heartbeat_s", "eds", "supervise_host", "host_id")
 """``[amplifier.can]`` keys that are the driver's, not python-can's."""
 
 
@@ -84,6 +84,7 @@ class DriverLinks:
         axis_map = {a: plate.axis_map[a] for a in plate.axes}
         if isinstance(self.amplifier_address, dict):
             from feeder.drivers.canopen import CanopenAmplifier  # python-can only when used
+            from feeder.drivers.canopen_link import DEFAULT_HOST_ID
             from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
 
             node_id = int(self.amplifier_address.get("node_id", 1))
@@ -91,16 +92,18 @@ class DriverLinks:
             eds = str(self.amplifier_address.get("eds", EDS_FILE))
             # the node grounds its moving axes when this daemon's heartbeat stops (a crash mid-move)
             supervise = bool(self.amplifier_address.get("supervise_host", True))
+            host_id = int(self.amplifier_address.get("host_id", DEFAULT_HOST_ID))
             bus = {k: v for k, v in self.amplifier_address.items() if k not in CAN_KEYS}
             if plate.planar:
                 from feeder.drivers.axes import open_canopen_axes
 
                 return open_canopen_axes(bus, axis_map, node_id, eds, heartbeat_s=heartbeat,
-                                         timeout_s=amp.timeout_s, supervise_host=supervise)  # fmt: skip
+                                         timeout_s=amp.timeout_s, supervise_host=supervise,
+                                         host_id=host_id)  # fmt: skip
             od = object_dictionary(node_id, eds)  # one axis: amplifier.axis of a multi-axis node
             axis = amp.axis if axis_count(od) > 1 else 1
             return CanopenAmplifier(bus, node_id, od, heartbeat_s=heartbeat, timeout_s=amp.timeout_s,
-                                    supervise_host=supervise, axis=axis)  # fmt: skip
+                                    supervise_host=supervise, host_id=host_id, axis=axis)  # fmt: skip
         if plate.planar:
             from feeder.drivers.axes import open_anc300_axes
 

@@ -119,6 +119,13 @@ class Amplifier(ABC):
         status = self.status()
         return status.step_counter, status.counted_by == "estimated"
 
+    def alive(self) -> None:  # noqa: B027 (optional hook: most drives have no host watchdog)
+        """The caller's control loop is making progress; a drive with a host watchdog stops
+        hearing the host when these stop.
+
+        Call it often (every tick); it only sets a timestamp.  Default: does nothing.
+        """
+
     @abstractmethod
     def close(self) -> None:
         """Release the link (does not change the output)."""

@@ -10,6 +10,8 @@ node (start-up, SDO, heartbeat), shared by one :class:`CanopenAmplifier` per axi
 - steps by the axis' RPDO (signed count + command sequence), each confirmed by the
   node's echo of the sequence in the axis' TPDO (a refusal sets a status bit),
 - progress from the axis' TPDO (step counter, status word, error register),
+- faults as they latch from the node's EMCY: the axis' next step or continuous run
+  (or a wait in progress) raises :class:`AmplifierError` naming the code and its meaning,
 - node loss from the node's heartbeat: no heartbeat for
   :data:`~feeder.drivers.canopen_link.HEARTBEAT_LOSS_PERIODS`
   periods, or a heartbeat reporting anything but OPERATIONAL, marks the node lost;
@@ -46,7 +48,7 @@ from feeder.drivers.amplifier import (
     AmplifierStatus,
     DriveSettings,
 )
-from feeder.drivers.canopen_link import CanopenNodeLink
+from feeder.drivers.canopen_link import DEFAULT_HOST_ID, CanopenNodeLink, HostHeartbeat
 from feeder.errors import InputError
 from feeder.protocol import anc300
 from feeder.protocol.eds import MODES, bit_mask
@@ -91,7 +93,7 @@ class CanopenAmplifier(Amplifier):
         heartbeat_s: float = 0.25,
         timeout_s: float = 0.5,
         supervise_host: bool = False,
-        host_id: int = 127,
+        host_id: int = DEFAULT_HOST_ID,
         network: canopen.Network | None = None,
         axis: int = 1,
     ) -> None:
@@ -133,8 +135,19 @@ class CanopenAmplifier(Amplifier):
         return self.link.lost
 
     @property
-    def _host_heartbeat(self) -> canopen.network.PeriodicMessageTask | None:
+    def _host_heartbeat(self) -> HostHeartbeat | None:
         return self.link.host_heartbeat
+
+    @property
+    def emcy(self) -> str | None:
+        """The latest EMCY naming this axis, until the node's error reset (or :meth:`clear_faults`)."""
+        with self.link.changed:
+            return self._feedback.emcy
+
+    def alive(self) -> None:
+        """The caller's control loop is making progress: the link's host heartbeat goes on
+        (:class:`~feeder.drivers.canopen_link.HostHeartbeat`).  Cheap, any thread."""
+        self.link.alive()
 
     # -- SDO and RPDO -----------------------------------------------------------
 
@@ -147,10 +160,13 @@ class CanopenAmplifier(Amplifier):
         return self.link.sdo_read(self._names[name], self.who)
 
     def _command(self, count: int) -> None:
-        """Send ``count`` by the axis' RPDO and wait for the node's acknowledge in its TPDO."""
+        """Send ``count`` by the axis' RPDO and wait for the node's acknowledge in its TPDO.
+        A step (not a stop) first raises an EMCY of the axis not raised yet."""
         link, feedback = self.link, self._feedback
         with self._lock:
             link.check()
+            if count:
+                link.raise_emcy(self.axis)
             feedback.sequence = (feedback.sequence + 1) % 256
             sequence = feedback.sequence
             self._rpdo[self._names["Step command"]].raw = count
@@ -215,6 +231,7 @@ class CanopenAmplifier(Amplifier):
 
     def run_continuous(self, forward: bool) -> None:
         with self._lock:
+            self.link.raise_emcy(self.axis)
             self._sdo_write("Continuous", 1 if forward else -1)
             self._continuous = True
 
@@ -222,12 +239,18 @@ class CanopenAmplifier(Amplifier):
         self._command(0)
 
     def wait(self, timeout_s: float) -> bool:
+        """Until the axis' TPDO shows it not moving; an EMCY of the axis (arriving meanwhile, or
+        not raised yet) raises :class:`AmplifierError` at once."""
         link, feedback = self.link, self._feedback
         with link.changed:
             done = link.changed.wait_for(
-                lambda: not feedback.status_word & self._moving or link.lost is not None, timeout_s
+                lambda: (
+                    not feedback.status_word & self._moving or link.lost is not None or feedback.emcy_pending
+                ),
+                timeout_s,
             )
             link.check()
+            link.raise_emcy(self.axis)
             return done
 
     def ground(self) -> None:
@@ -239,9 +262,11 @@ class CanopenAmplifier(Amplifier):
             self._sdo_write("Mode", MODES.index("stp"))
 
     def clear_faults(self) -> None:
-        """Clear the axis' latched fault word (``Fault reset``); the output stays grounded."""
+        """Clear the axis' latched fault word (``Fault reset``) and the EMCY that reported it;
+        the output stays grounded."""
         with self._lock:
             self._sdo_write("Fault reset", 1)
+            self.link.forget_emcy(self.axis)
 
     def status(self) -> AmplifierStatus:
         with self._lock:

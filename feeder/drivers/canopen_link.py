@@ -4,14 +4,17 @@
 :class:`canopen.RemoteNode` with the node's EDS), shared by the drivers of its axes
 (:class:`feeder.drivers.canopen.CanopenAmplifier`): it starts the node, checks it
 is the product its EDS describes and maps its PDOs as the EDS does, serialises SDO
-transfers, receives every axis' TPDO and watches the node's heartbeat once for all
-axes.  Reference: docs/canopen.md.
+transfers, receives every axis' TPDO and EMCY and watches the node's heartbeat once for
+all axes.  With ``supervise_host`` it also beats as the host (:class:`HostHeartbeat`), from a
+thread of its own and only while the caller's control loop says it is alive.
+Reference: docs/canopen.md.
 """
 
 from __future__ import annotations
 
 import contextlib
 import functools
+import logging
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -24,10 +27,18 @@ from canopen.objectdictionary import ObjectDictionary
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost
+from feeder.errors import InputError
 from feeder.protocol.eds import axis_count, axis_object, object_dictionary
 
+log = logging.getLogger(__name__)
+
 HOST_SILENCE_PERIODS = 3
-"""The node's heartbeat consumer time, in the driver's heartbeat periods."""
+"""The node's heartbeat consumer time, in the driver's heartbeat periods.  Once the caller has
+called :meth:`CanopenNodeLink.alive`, the host beats only while its last call is younger than
+``HOST_SILENCE_PERIODS - 1`` periods, so a stalled control loop lets the consumer time expire."""
+
+DEFAULT_HOST_ID = 127
+"""The node id the host beats as (``[amplifier.can] host_id``)."""
 
 HEARTBEAT_LOSS_PERIODS = 2.5
 """Missing heartbeats for this many periods = node lost (so it is reported
@@ -37,6 +48,16 @@ CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
 PRODUCT_CODE = "Identity object.Product code"
 TPDO_OBJECTS = ("Step counter", "Status word", "Command acknowledge")
 """What the driver takes from each axis' TPDO (one-axis EDS names)."""
+EMCY_MEANINGS = {
+    0x0000: "error reset",
+    0x1000: "generic error",
+    0x4200: "over-temperature",
+    0x6010: "tick watchdog",
+    0x8130: "host watchdog",
+    0x8210: "PDO length error",
+}
+"""What the amplifier's EMCY codes mean (firmware_sim's ``EMCY_CODES``, docs/canopen.md); other
+codes are named by CiA 301's class (``canopen``'s :meth:`EmcyError.get_desc`)."""
 ABORT_MESSAGES = {
     0x05040001: "command not valid (no such transfer)",
     0x06010001: "object is write-only",
@@ -65,6 +86,63 @@ class _Feedback:
     ack: int = 0
     seen: bool = False
     sequence: int = 0
+    emcy: str | None = None
+    """The latest EMCY naming this axis (cleared by an error reset, code 0x0000)."""
+    emcy_pending: bool = False
+    """``emcy`` arrived and no call has raised it yet."""
+
+
+class HostHeartbeat:
+    """The host's heartbeat (NMT state OPERATIONAL as node ``host_id``, every ``period_s``),
+    sent from a thread of its own with :meth:`canopen.Network.send_message`.
+
+    Not python-can's ``send_periodic``: on SocketCAN that is the kernel's broadcast manager,
+    which goes on beating for a process that is stopped or deadlocked.  Once :meth:`alive` has
+    been called, a beat goes out only while the last call is younger than
+    ``HOST_SILENCE_PERIODS - 1`` periods; before the first call it beats unconditionally
+    (tools that run no control loop).
+    """
+
+    def __init__(self, network: canopen.Network, host_id: int, period_s: float) -> None:
+        self.network = network
+        self.cob_id = 0x700 + host_id
+        self.period_s = period_s
+        self.fresh_s = (HOST_SILENCE_PERIODS - 1) * period_s
+        """How long (s) one :meth:`alive` keeps the heartbeat going."""
+        self._alive_at: float | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._run, daemon=True, name=f"canopen-host-heartbeat-{host_id}"
+        )
+        self._thread.start()
+
+    def alive(self) -> None:
+        """The caller's loop made progress now (cheap, any thread: one timestamp)."""
+        self._alive_at = time.monotonic()
+
+    def beating(self, now: float) -> bool:
+        """Whether a beat due at ``now`` (``time.monotonic()``) goes out."""
+        alive_at = self._alive_at
+        return alive_at is None or now - alive_at < self.fresh_s
+
+    def _run(self) -> None:
+        due = time.monotonic()
+        while True:
+            now = time.monotonic()
+            if self.beating(now):
+                try:
+                    self.network.send_message(self.cob_id, b"\x05")  # 5: OPERATIONAL
+                except (can.CanError, OSError) as exc:  # the link's watchdog reports a dead bus
+                    log.debug("host heartbeat 0x%03X not sent: %s", self.cob_id, exc)
+            due = max(due + self.period_s, now)  # fixed rate; no burst after a late wake-up
+            if self._stop.wait(max(due - time.monotonic(), 0.0)):
+                return
+
+    def stop(self) -> None:
+        """Stop beating (at once; the thread ends within a moment)."""
+        self._stop.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout=1.0)
 
 
 class CanopenNodeLink:
@@ -81,13 +159,20 @@ class CanopenNodeLink:
     heartbeat_s: heartbeat period of the node (the driver sets object 0x1017).
     timeout_s: SDO response and RPDO acknowledge timeout.
     supervise_host: the driver beats too (as node ``host_id``, every
-        ``heartbeat_s``) and the node consumes it (0x1016): a host that dies
-        mid-move gets the node's moving axes grounded (``host_watchdog``) after
+        ``heartbeat_s``, :class:`HostHeartbeat`) and the node consumes it (0x1016): a
+        host that dies, or whose control loop stops calling :meth:`alive`, mid-move gets
+        the node's moving axes grounded (``host_watchdog``) after
         :data:`HOST_SILENCE_PERIODS` periods.  Off by default, like the
         firmware's ``--host-watchdog-s``.
+    host_id: the node id the host beats as, 1..127, not ``node_id`` (the daemon's
+        ``[amplifier.can] host_id``).
     network: a connected :class:`canopen.Network` to share with other nodes'
         drivers (one bus, several nodes; ``bus`` is then ignored); the caller
         disconnects it.  Default: the link connects its own.
+
+    EMCY: each is logged (WARNING) and remembered for the axis its byte 7 names (every
+    axis of the node when it names none of them); the axis' next step or continuous run, or a wait in
+    progress, raises it (:meth:`raise_emcy`); an error reset (code 0x0000) clears it.
 
     The link closes when the last axis driver on it is closed (:meth:`release`).
     """
@@ -100,13 +185,17 @@ class CanopenNodeLink:
         heartbeat_s: float = 0.25,
         timeout_s: float = 0.5,
         supervise_host: bool = False,
-        host_id: int = 127,
+        host_id: int = DEFAULT_HOST_ID,
         network: canopen.Network | None = None,
     ) -> None:
+        if isinstance(host_id, bool) or not isinstance(host_id, int) or not 1 <= host_id <= 127:
+            raise InputError("host_id", f"the host's node id must be an integer in 1..127, got {host_id!r}")
+        if supervise_host and host_id == node_id:
+            raise InputError("host_id", f"the host's node id {host_id} is the amplifier node's")
         self.node_id = node_id
         self.supervise_host = supervise_host
         self.host_id = host_id
-        self.host_heartbeat: canopen.network.PeriodicMessageTask | None = None
+        self.host_heartbeat: HostHeartbeat | None = None
         self.heartbeat_s = heartbeat_s
         self.timeout_s = timeout_s
         self.sdo_lock = threading.Lock()
@@ -137,6 +226,7 @@ class CanopenNodeLink:
             self.node.sdo.RESPONSE_TIMEOUT = timeout_s
             self.network.add_node(self.node)
             self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
+            self.node.emcy.add_callback(self._on_emcy)
             self._start()
             undo.pop_all()
         self._watchdog = threading.Thread(
@@ -182,9 +272,7 @@ class CanopenNodeLink:
             self.sdo_write(
                 CONSUMER_HEARTBEAT, self.host_id << 16 | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000)
             )
-            self.host_heartbeat = self.network.send_periodic(
-                0x700 + self.host_id, b"\x05", self.heartbeat_s
-            )  # 5: OPERATIONAL
+            self.host_heartbeat = HostHeartbeat(self.network, self.host_id, self.heartbeat_s)
         for axis, feedback in self.feedback.items():
             self.sdo_write(tpdo_type(axis), 255)  # event-driven: on change and on its timer
             self.node.tpdo[axis].add_callback(functools.partial(self._on_tpdo, axis))
@@ -260,6 +348,51 @@ class CanopenNodeLink:
             feedback.ack = int(pdo[ack].raw)
             feedback.seen = True
             self.changed.notify_all()
+
+    def _on_emcy(self, entry: canopen.emcy.EmcyError) -> None:
+        """An EMCY from the node (receive thread): log it, remember it for the axis its byte 7
+        names (every axis when it names none of them), wake waits; an error reset clears it."""
+        data = bytes(entry.data)
+        named = data[4] if len(data) >= 5 else 0  # byte 7 of the frame: the axis in its node
+        axes = [named] if named in self.feedback else list(self.feedback)
+        if entry.code & 0xFF00 == 0:  # error reset / no error (CiA 301)
+            log.info("%s: EMCY 0x%04X error reset on axis %s", self.who, entry.code, named or "all")
+            with self.changed:
+                for axis in axes:
+                    self.feedback[axis].emcy = None
+                    self.feedback[axis].emcy_pending = False
+                self.changed.notify_all()
+            return
+        meaning = EMCY_MEANINGS.get(entry.code) or entry.get_desc().lower() or "error"
+        where = f"axis {axes[0]}" if len(axes) == 1 else f"axes {', '.join(map(str, axes))}"
+        message = f"{self.who}: EMCY 0x{entry.code:04X} {meaning} on {where}"
+        log.warning("%s (error register 0x%02X)", message, entry.register)
+        with self.changed:
+            for axis in axes:
+                self.feedback[axis].emcy = message
+                self.feedback[axis].emcy_pending = True
+            self.changed.notify_all()
+
+    def raise_emcy(self, axis: int) -> None:
+        """Raise :class:`AmplifierError` with axis ``axis``' EMCY that no call has raised yet
+        (once: it is then taken); call with :attr:`changed` held or not."""
+        with self.changed:
+            feedback = self.feedback[axis]
+            if feedback.emcy_pending:
+                feedback.emcy_pending = False
+                raise AmplifierError(str(feedback.emcy))
+
+    def forget_emcy(self, axis: int) -> None:
+        """Drop axis ``axis``' EMCY (its faults were cleared on the host's request)."""
+        with self.changed:
+            self.feedback[axis].emcy = None
+            self.feedback[axis].emcy_pending = False
+
+    def alive(self) -> None:
+        """The caller's control loop is making progress: keeps the host heartbeat going
+        (:class:`HostHeartbeat`; nothing without ``supervise_host``).  Cheap, any thread."""
+        if self.host_heartbeat is not None:
+            self.host_heartbeat.alive()
 
     def _on_bus_error(self, exc: Exception) -> None:
         """The bus itself failed (e.g. the adapter's port vanished): the node is lost."""
