@@ -366,6 +366,7 @@ def test_one_axis_located_by_a_camera(base: Path) -> None:
             f'[amplifier]\nport = "{sim.endpoints["console_tcp"]}"\nmodel = "firmware_sim"\n'
             f'[camera]\naddress = "{sim.endpoints["camera_http"]}/video.mjpg"\n'
             "pixel_size_m = 2.7e-6\nwidth_px = 1024\nheight_px = 512\n"
+            "aligned = true\n"  # the simulator's camera is: image axes the plate's, O at the centre
             "[control]\nmin_position_m = -1e-3\nmax_position_m = 1e-3\n"
         )
         daemon = DaemonProcess(base, f"--config={config}")

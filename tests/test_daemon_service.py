@@ -11,6 +11,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -18,6 +19,7 @@ from test_control_loop import MODES, SETTINGS, TRUE
 from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
 
 from feeder.daemon.client import MAX_LINE_BYTES, Client, DaemonUnavailable
+from feeder.daemon.config import CameraConfig
 from feeder.daemon.service import Daemon, DaemonSetup
 from feeder.daemon.socket_server import bind_socket
 from feeder.daemon.store import Store
@@ -372,6 +374,32 @@ def test_the_stored_camera_calibration_is_what_parts_are_located_with(short_dir:
         assert daemon.handle({"cmd": "status"})["camera_calibration"]["origin_y_px"] == 990.0
         assert daemon.handle({"cmd": "move", "target_m": 150e-6})["ok"]
         assert len(links.sensors) == 2  # nothing new stored: the same camera link
+    finally:
+        daemon.shutdown()
+
+
+def test_a_camera_nobody_calibrated_refuses_moves_until_a_calibration_is_stored(short_dir: Path) -> None:
+    """The configured calibration assumes the image is neither turned nor mirrored; a camera
+    looking down on a plate sees it mirrored, so y and θ would come out with the wrong sign and
+    the planner would steer the wrong way (and learn that).  ``[camera] aligned = true`` says
+    the configured one is right (tests/test_daemon_hil.py); the simulator's camera needs none."""
+    reason = CameraConfig(address="0").uncalibrated()
+    assert reason is not None and "feeder vision calibrate --save-state" in reason and "aligned" in reason
+    assert (
+        CameraConfig().uncalibrated() is None
+        and CameraConfig(address="0", aligned=True).uncalibrated() is None
+    )
+    links = FakeLinks(FakeWorld(TRUE, scatter=0.03, noise_m=0.05e-6, seed=3))
+    links.configured = CONFIGURED
+    daemon = Daemon(links, replace(make_setup(short_dir), uncalibrated_camera=reason))
+    daemon.start()
+    try:
+        reply = daemon.handle({"cmd": "move", "target_m": 120e-6})
+        assert not reply["ok"] and "is not calibrated" in reply["error"], reply
+        assert daemon.handle({"cmd": "history"})["moves"] == []  # nothing was played
+        store_calibration(short_dir, pixel_size_m=2.7e-6, rotation_rad=0.0, mirrored=False)
+        reply = daemon.handle({"cmd": "move", "target_m": 120e-6})
+        assert reply["ok"], reply
     finally:
         daemon.shutdown()
 

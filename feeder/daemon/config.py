@@ -157,6 +157,22 @@ class CameraConfig:
     width_px: int = 2048
     height_px: int = 2048
     fps: float = 15.0
+    aligned: bool = False
+    """The configured calibration is this camera's: its image axes are the plate's (not turned,
+    not mirrored), O at the image centre.  Without it a camera at ``address`` locates nothing for
+    a move until ``feeder vision calibrate --save-state`` stored its measured calibration (a
+    camera looking down on a plate sees it mirrored: y and θ would come out with the wrong sign)."""
+
+    def uncalibrated(self) -> str | None:
+        """Why moves must wait for a stored calibration, or None (the simulator's camera, whose
+        geometry the daemon sets, or ``aligned``)."""
+        if self.address is None or self.aligned:
+            return None
+        return (
+            f"the camera {self.address} is not calibrated: the configuration assumes its image is "
+            "neither turned nor mirrored against the plate; run `feeder vision calibrate --save-state` "
+            "(docs/vision.md), or set [camera] aligned = true if it is so"
+        )
 
     def travel_m(self, part: Part) -> tuple[float, float]:
         """Half-widths (x, y; m) of the region about O where ``part``'s centre keeps the whole

@@ -111,7 +111,7 @@ SECTIONS: dict[str, frozenset[str]] = {
     "state": frozenset({"dir", "socket"}),
     "http": frozenset({"listen", "allow_remote", "origins", "camera", "moves_per_s", "move_burst"}),
     "plate": frozenset({"axes", "axis_map", "lever_arm_m", "parts"}),
-    "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps"}),
+    "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps", "aligned"}),
 }
 """The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
 ``[amplifier.can]``: python-can keyword arguments plus :data:`CAN_DRIVER_KEYS`)."""
@@ -401,6 +401,7 @@ def load_config(path: Path | None) -> DaemonConfig:
         width_px=_integer(camera_t, "width_px", where, cam.width_px, "camera."),
         height_px=_integer(camera_t, "height_px", where, cam.height_px, "camera."),
         fps=_number(camera_t, "fps", where, cam.fps, positive=True, section="camera."),
+        aligned=_flag(camera_t, "aligned", where, "camera."),
     )
     if sensor_address is None and (plate.planar or camera.address is not None):  # the camera locates
         loop = _camera_travel(loop, control, camera, part, where, in_y=plate.planar)
@@ -428,6 +429,14 @@ def load_config(path: Path | None) -> DaemonConfig:
         socket_path=_path(_string(state, "socket", where, None), path.parent.absolute()) or base.socket_path,
         http=http,
     )
+
+
+def _flag(table: dict[str, Any], key: str, where: str, section: str) -> bool:
+    """A true/false key, default false."""
+    value = table.get(key, False)
+    if not isinstance(value, bool):
+        raise InputError(where, f"{section}{key} must be true or false, got {value!r}")
+    return value
 
 
 def _check_host_id(can: dict[str, Any], plate: PlateConfig, where: str) -> None:
@@ -480,9 +489,7 @@ def _camera_travel(
 
 def _http_config(table: dict[str, Any], where: str) -> HttpConfig:
     """The ``[http]`` section (its presence turns the console on)."""
-    allow_remote = table.get("allow_remote", False)
-    if not isinstance(allow_remote, bool):
-        raise InputError(where, f"http.allow_remote must be true or false, got {allow_remote!r}")
+    allow_remote = _flag(table, "allow_remote", where, "http.")
     origins = table.get("origins", [])
     if not (isinstance(origins, list) and all(isinstance(o, str) and "://" in o for o in origins)):
         raise InputError(where, "http.origins must be a list of origins such as 'https://console.lab'")

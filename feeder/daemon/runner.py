@@ -82,6 +82,7 @@ def start_daemon(config: DaemonConfig, simulator: Simulator | None = None) -> Ru
                 **links.describe(),
             },
             sensor_timeout_s=config.camera.timeout_s if uses_camera(config) else config.sensor_timeout_s,
+            uncalibrated_camera=config.camera.uncalibrated() if uses_camera(config) else None,
             **plane,
         )
         daemon = Daemon(links, setup)

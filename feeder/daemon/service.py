@@ -81,6 +81,8 @@ class DaemonSetup:
     calibration_key: identifies part, support and waveforms, so a learned step
     is only reused for the same combination.
     info: static facts shown by ``status`` (transport, part, ...).
+    uncalibrated_camera: why moves wait for a stored camera calibration
+    (:meth:`~feeder.daemon.config.CameraConfig.uncalibrated`), None: they need none.
     axis_modes, pose_navigator: for a plate driven in x, y and θ, every axis'
     waveform modes and a factory of the pose navigator (given the learned response
     the store restored, or None); parts: each part's ``id``, ``shape``, ``size_m``.
@@ -96,6 +98,7 @@ class DaemonSetup:
     axis_modes: dict[str, dict[str, StepMode]] | None = None
     pose_navigator: Callable[[dict[str, Any] | None], Navigator] | None = None
     parts: tuple[dict[str, Any], ...] = ()
+    uncalibrated_camera: str | None = None
 
 
 def lock_state(database_path: Path) -> IO[bytes]:
@@ -249,6 +252,8 @@ class Daemon:
             reason = self._recalibrate()
             if reason is not None:
                 return reason
+        if self.camera_calibration.calibration is None and self.setup.uncalibrated_camera is not None:
+            return self.setup.uncalibrated_camera
         return self.loop.submit(job)
 
     def _recalibrate(self) -> str | None:
