@@ -204,6 +204,16 @@ def test_genicam_components_become_grey_images() -> None:
     rgba = np.dstack([red, np.full((3, 4), 255, np.uint8)])
     grey = component_image(_Component(rgba, "RGBa8"))
     assert grey.shape == (3, 4) and np.all(grey == 76)
+    # a colour camera's raw mosaic: demosaiced to grey, not located as a checkerboard of edges
+    mosaic = np.zeros((4, 6), np.uint8)
+    mosaic[0::2, 0::2] = 200  # R of an RGGB pattern: a red scene
+    for name in ("BayerRG8", "BayerRG16"):
+        raw = mosaic.astype(np.uint16) * 257 if name.endswith("16") else mosaic
+        grey = component_image(_Component(raw, name))
+        assert np.array_equal(grey, cv2.cvtColor(raw, cv2.COLOR_BayerRGGB2GRAY))
+        assert np.ptp(grey[1:-1, 1:-1]) <= np.ptp(raw) / 20  # uniform, where the mosaic alternates
+    rggb = component_image(_Component(mosaic, "BayerRG8"))
+    assert not np.array_equal(component_image(_Component(mosaic, "BayerGB8")), rggb)  # the pattern counts
     with pytest.raises(CameraError, match="YUV422_8 is not supported"):
         component_image(_Component(np.zeros((3, 4, 2), np.uint8), "YUV422_8"))
 

@@ -261,6 +261,8 @@ class VideoCaptureSource(FrameSource):
             capture.release()
             backend = cv2.videoio_registry.getBackendName(self.opening.backend)
             raise CameraError(f"{self.name}: not a camera or stream OpenCV ({backend}) can open")
+        if self.opening.device:  # the newest frame, not the oldest of the driver's queue
+            capture.set(cv2.CAP_PROP_BUFFERSIZE, 1)
         if self.opening.device and self.size_px is not None:
             given = request_frame_size(capture, self.size_px)
             log.info("camera %s: %dx%d px asked for, %dx%d px given", self.name, *self.size_px, *given)
@@ -311,12 +313,24 @@ class ImageFolderSource(FrameSource):
         pass
 
 
+BAYER_TO_GREY = {
+    "BayerRG": cv2.COLOR_BayerRGGB2GRAY,
+    "BayerGB": cv2.COLOR_BayerGBRG2GRAY,
+    "BayerGR": cv2.COLOR_BayerGRBG2GRAY,
+    "BayerBG": cv2.COLOR_BayerBGGR2GRAY,
+}
+"""GenICam's Bayer formats (named by their first two pixels) to OpenCV's demosaicing to grey."""
+
+
 def component_image(component: Any) -> np.ndarray:
     """A GenICam image component (``data``, ``width``, ``height``, ``num_components_per_pixel``,
-    ``data_format``, as harvesters gives it) as a grey image of its own (RGB/BGR converted)."""
+    ``data_format``, as harvesters gives it) as a grey image of its own (RGB/BGR converted, a
+    Bayer mosaic demosaiced: located as it comes, its colour filter's checkerboard is edges)."""
     components = component.num_components_per_pixel
     if components == 1:
-        return np.array(component.data).reshape(component.height, component.width).copy()
+        plane = np.array(component.data).reshape(component.height, component.width).copy()
+        bayer = BAYER_TO_GREY.get(str(component.data_format)[:7])
+        return plane if bayer is None else cv2.cvtColor(plane, bayer)
     layout = str(component.data_format)[:3].upper()
     if components not in (3, 4) or layout not in ("RGB", "BGR"):
         raise CameraError(f"pixel format {component.data_format} is not supported: set Mono8 in the camera")
