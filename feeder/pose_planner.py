@@ -40,6 +40,11 @@ USEFUL_ORBIT = 0.02
 """An orbit step (two parts placed relative to each other, to half the tolerance) is worth a θ
 burst when it moves the part by at least this fraction of ``tolerance_m``."""
 MAX_BURST_STEPS = 2000
+PROBE_FRACTION = 1 / 8
+"""Until an x or y step has been learned (a fresh state, a new device), its bursts aim at most
+this fraction of the way: a real device up to 8× the physics' seed (the stack's gain, the
+contact; a k× step carries a whole-way burst k − 1 times the way past the target, out of the
+travel and the camera's view) reaches the target at most; one learned burst lifts it."""
 CLEARANCE_M = 40e-6
 """θ bursts and targets keep every two parts' footprints at least this far apart (m), or as far
 as they are when already closer: the camera must see them apart.  Its blob search works on the
@@ -322,6 +327,8 @@ class PosePlanner:
                 steps = round(distance / max(step, 1e-12))
             else:
                 continue
+            if not self.model.learned(axis, direction, mode):
+                steps = min(steps, max(1, math.floor(PROBE_FRACTION * distance / step)))
             cut, by = self._within_travel(poses, axis, direction, high, min(steps, MAX_BURST_STEPS))
             if cut >= 1:
                 return AxisBurst(axis, direction, cut, mode), None

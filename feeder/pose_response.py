@@ -287,6 +287,10 @@ class ResponseModel:
         first: :data:`ANCHOR_MODES` when the model has them, else θ's coarse and fine."""
         return [m for m in ANCHOR_MODES if m in self.turn] or self.modes("theta")
 
+    def learned(self, axis: str, direction: int, mode: str) -> bool:
+        """Whether an x or y step along ``direction`` has been learned from a burst (or restored)."""
+        return self._gains[_key(axis, direction, mode)].updates > 0
+
     def step_m(self, axis: str, direction: int, mode: str) -> tuple[float, float]:
         """(step, std) of one x or y step, m, along ``direction``."""
         gain, std = self._gains[_key(axis, direction, mode)].at()

@@ -14,7 +14,7 @@ from feeder.plant.plate_motion import Segment
 from feeder.plant.stick_slip import Friction
 from feeder.pose import Pose, pose_error
 from feeder.pose_pair import _anchor, _length_leg, _length_orbit, anchor_radius_m
-from feeder.pose_planner import AxisBurst, Finish, PosePlanner
+from feeder.pose_planner import PROBE_FRACTION, AxisBurst, Finish, PosePlanner
 from feeder.pose_response import ANCHOR_MODES, AxisMode, GainFilter, ResponseModel, TurnTable, seed_response
 from feeder.travel import Travel
 
@@ -203,6 +203,33 @@ def test_learning_converges_when_the_step_is_30_percent_off(model_seed: Response
         for direction in (1, -1):
             learned, _ = model.step_m(axis, direction, "coarse")
             assert learned == pytest.approx(model_seed.translation[(axis, "coarse")], rel=0.05)
+
+
+def test_a_device_six_times_its_seed_is_probed_and_never_driven_out_of_the_travel() -> None:
+    """A fresh state on a real device whose step is 6× the physics' seed: the whole-way first
+    burst (aimed short by the prior's 2σ) carried the part 2.75× the way, 1.4 mm past a target
+    1.6 mm off, out of the ±1.8 mm travel and the camera's view.  Unlearned steps are probed
+    (:data:`PROBE_FRACTION` of the way), and the move ends placed with the step learned."""
+    model = fresh(scale=1 / 6)
+    planner = PosePlanner(model, TRAVEL, PART, TOL_M, TOL_RAD)
+    world = World([(-1.0e-3, 0.0, 0.0)])
+    target = (0.6e-3, 0.0, 0.0)
+    first = planner.next_burst(world.poses(), {1: target})
+    assert isinstance(first, AxisBurst) and first.axis == "x" and first.mode == "coarse"
+    seed, _ = model.step_m("x", 1, "coarse")
+    assert first.steps * seed <= PROBE_FRACTION * 1.6e-3 * (1 + 1e-9)
+    xs = []
+    for _ in range(200):
+        before = world.poses()
+        nxt = planner.next_burst(before, {1: target})
+        if isinstance(nxt, Finish):
+            break
+        world.burst(nxt)
+        planner.learn(nxt, before, world.poses())
+        xs.append(world.poses()[0][0])
+    assert nxt == Finish("done", "every part within tolerance")
+    assert max(xs) <= target[0] + 0.1e-3 and TRAVEL.contains(max(xs), 0.0)  # never far past the target
+    assert model.step_m("x", 1, "coarse")[0] == pytest.approx(6 * seed, rel=0.1)
 
 
 def test_two_parts_reach_their_own_targets(model_seed: ResponseModel) -> None:
