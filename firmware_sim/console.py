@@ -35,7 +35,13 @@ if TYPE_CHECKING:
 CRLF = "\r\n"
 PROMPT = "> "
 GREETING = "attocube ANC300 compatible controller (firmware_sim)"
-VERSION_LINES = ("attocube ANC300 controller version 1.1.0 compatible (firmware_sim 0.1.0)",)
+VERSION_LINES = (
+    "attocube ANC300 controller version 1.1.0-0000 (firmware_sim 0.1.0)",
+    "ANC150 compatibillity console",
+)
+"""``ver``: two data lines, as a real unit answers (``attocube ANC300 controller version
+1.1.0-1304 2013-10-17 08:16``, then ``ANC150 compatibillity console``, spelt so: the reply
+recorded in qcodes_contrib_drivers' ANC300 simulation); drivers check the first line's start."""
 MAX_LINE = 4096
 MAX_LOGIN_ATTEMPTS = 3
 MIN_LOGIN_INTERVAL_S = 0.2

@@ -1,10 +1,12 @@
 """Endpoints: the console on TCP or a pty, and the camera's frame stream on TCP.
 
 Servers bind to 127.0.0.1 only.  Each console connection gets its own
-:class:`~firmware_sim.console.ConsoleSession`.  The pty behaves like a serial
-port with a modem-control line: a new session (login state, echo) starts each
-time a program opens the pty's device path, and ends when it closes it (the
-pty master sees the hang-up), as a real unit sees DTR.
+:class:`~firmware_sim.console.ConsoleSession`.  The pty behaves like a real
+ANC300's serial console, whose session does not end on DTR: one session (login
+state, echo) from the first program that opens the pty's device path on, and a
+reply the program did not read before closing it stays for the next program
+(``PtyConsole(..., keep_session=False)``: a new session per open, unread
+replies dropped at the hang-up, as a console that resets on DTR would).
 """
 
 from __future__ import annotations
@@ -201,10 +203,19 @@ class TcpConsoleServer:
 
 
 class PtyConsole:
-    """The console on a pseudo-terminal; :attr:`path` is the device to open."""
+    """The console on a pseudo-terminal; :attr:`path` is the device to open.
 
-    def __init__(self, session_factory: SessionFactory) -> None:
+    keep_session: as on a real ANC300, closing the device (the pty's hang-up,
+    DTR on a serial line) ends nothing: the session (login, echo, a command
+    still running) carries on, replies written before the close that the
+    program did not read stay in the pty, and replies made while no program has
+    it open are held and sent when one opens it.  False: a new session (and
+    greeting) each time a program opens it, unread replies dropped at the close.
+    """
+
+    def __init__(self, session_factory: SessionFactory, keep_session: bool = True) -> None:
         self._factory = session_factory
+        self.keep_session = keep_session
         self._master, slave = os.openpty()
         tty.setraw(slave)
         self.path = os.ttyname(slave)
@@ -217,31 +228,61 @@ class PtyConsole:
         poller = select.poll()
         poller.register(self._master, select.POLLIN)
         session: ConsoleSession | None = None
+        attached = False  # a program has the device open
+        held = bytearray()  # replies made while no program had it open (keep_session)
         while not self._stop.is_set():
-            timeout_ms = 100 if session is not None else HANGUP_POLL_S * 1000
+            timeout_ms = 100 if attached else HANGUP_POLL_S * 1000
             event = dict(poller.poll(timeout_ms)).get(self._master, 0)
-            if event & select.POLLHUP:
-                if session is not None:  # the program closed the pty: drop unread replies
-                    with contextlib.suppress(termios.error):
-                        termios.tcflush(self._master, termios.TCOFLUSH)
-                session = None
-                time.sleep(HANGUP_POLL_S)
-                continue
-            if session is None:  # no hang-up any more: a program opened the pty
-                session = self._factory("pty")
-                if not session.logged_in:
-                    self._write(session.greeting())
-            if event & select.POLLIN:
+            hung_up = bool(event & select.POLLHUP)
+            if hung_up:
+                if attached and not self.keep_session:  # the program closed the pty: drop unread replies
+                    self._flush_unread()
+                    session = None
+                attached = False
+            elif not attached:  # no hang-up any more: a program opened the pty
+                attached = True
+                if session is None:
+                    session = self._factory("pty")
+                    if not session.logged_in:
+                        self._write(session.greeting())
+                if held and self._write(bytes(held)):
+                    held.clear()
+            # what the program sent before it closed the pty is still executed (keep_session)
+            if event & select.POLLIN and session is not None:
                 try:
                     data = os.read(self._master, 4096)
                 except OSError:
-                    session = None
-                    continue
-                reply = session.feed(data)
-                if reply and not self._write(reply):
-                    session = None
+                    data = b""
+                    if not hung_up:
+                        session, attached = None, False
+                reply = session.feed(data) if session is not None and data else b""
+                # feed may take long (stepw): the program may have closed the pty meanwhile
+                if reply and self.keep_session and (hung_up or self._hung_up()):
+                    held += reply  # written now it would be lost: the next program gets it
+                elif reply and not self._write(reply):
+                    session, attached = None, False
                 if session is not None and session.closed:
-                    session = None
+                    session, attached = None, False
+            if hung_up:
+                time.sleep(HANGUP_POLL_S)
+
+    def _flush_unread(self) -> None:
+        """Drop what the program left unread (it waits on the device's side: flushing the
+        master's output does not reach it) and what it sent that was not read yet."""
+        with contextlib.suppress(termios.error):
+            termios.tcflush(self._master, termios.TCIFLUSH)
+        with contextlib.suppress(OSError, termios.error):
+            fd = os.open(self.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+            try:
+                termios.tcflush(fd, termios.TCIFLUSH)
+            finally:
+                os.close(fd)
+
+    def _hung_up(self) -> bool:
+        """No program has the pty open now."""
+        poller = select.poll()
+        poller.register(self._master, select.POLLIN)
+        return any(event & select.POLLHUP for _, event in poller.poll(0))
 
     def _write(self, data: bytes) -> bool:
         try:
