@@ -72,3 +72,41 @@ def test_negative_pixel_size_reaches_the_range_check(tmp_path: Path, capsys) -> 
         main(["surface", str(tmp_path / "map.npy"), "--pixel-size", "-2e-9", "--height-unit", "nm"])
     assert usage.value.code == 2
     assert "--pixel-size: must be from 1e-12 to 0.01, got '-2e-9'" in capsys.readouterr().err
+
+
+AFM = Path(__file__).resolve().parents[1].parent / "shared" / "afm"
+
+
+@pytest.mark.skipif(not AFM.is_dir(), reason=f"real AFM files not found at {AFM}")
+def test_a_mean_radius_made_by_a_few_flat_summits_is_warned_about(capsys: pytest.CaptureFixture[str]) -> None:
+    """spot_1-1000nm.ibw: 5 of 4578 summits make 19 % of the mean R (20.5 µm, 3.9× 1/(mean
+    curvature)); the GW model takes the mean.  example_ps.tiff's summits are alike (1.24×)."""
+    assert main(["surface", str(AFM / "spot_1-1000nm.ibw"), "--json"]) == 0
+    spot = json.loads(capsys.readouterr().out)
+    (tail,) = [w for w in spot["warnings"] if "nearly flat summits" in w]
+    ratio = spot["mean_summit_radius_m"] / spot["radius_from_mean_curvature_m"]
+    assert ratio > 3 and f"{ratio:.3g}×" in tail
+    assert main(["surface", str(AFM / "example_ps.tiff"), "--json"]) == 0
+    assert not [w for w in json.loads(capsys.readouterr().out)["warnings"] if "flat summits" in w]
+
+
+def test_quantised_noise_whose_mean_radius_is_kilometres_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Integer heights (pm) of pure noise: flat summits gave R = 36.5 km and a breakaway of 2.3e7 g."""
+    np.save(tmp_path / "ints.npy", (np.random.default_rng(0).normal(size=(256, 256)) * 100).astype(int))
+    out = tmp_path / "s.toml"
+    argv = [
+        "surface",
+        str(tmp_path / "ints.npy"),
+        "--pixel-size",
+        "1e-9",
+        "--height-unit",
+        "pm",
+        "--out",
+        str(out),
+    ]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "summit_radius_m" in err and "beyond 1 m" in err
+    assert not out.exists()

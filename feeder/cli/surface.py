@@ -28,6 +28,10 @@ from feeder.surface.statistics import (
 NOISE_FRACTION_WARNING = 0.1
 """Warn when the summit density exceeds this fraction of pure pixel noise's (summits closer than ~3 px)."""
 
+RADIUS_TAIL_WARNING = 3.0
+"""Warn when the mean summit radius exceeds this multiple of 1/(mean curvature): a few nearly flat
+summits (quantised heights, noise on a plateau) then make most of the mean R the GW model uses."""
+
 NOTES = (
     "heights are measured from the least-squares mean plane of each scan",
     "sigma_m written to the TOML is Sq (paper eq. 14), not the summit-height std",
@@ -194,6 +198,14 @@ def _resolution_warnings(stats: list[SurfaceStatistics], cutoff: float | None) -
                 f"{s.source}: summit density {s.summit_density_per_m2 * 1e-12:.4g} µm⁻² is "
                 f"{s.noise_summit_fraction:.2f} of what pure pixel noise gives (1/(9 px²)): the summits "
                 "are mostly pixel noise, not asperities"
+                + ("" if cutoff else "; try --cutoff-wavelength (e.g. 5 pixels)")
+            )
+        if s.mean_summit_radius_m > RADIUS_TAIL_WARNING * s.radius_from_mean_curvature_m > 0:
+            out.append(
+                f"{s.source}: mean summit radius {s.mean_summit_radius_m * 1e9:.4g} nm is "
+                f"{s.mean_summit_radius_m / s.radius_from_mean_curvature_m:.3g}× 1/(mean curvature) "
+                f"{s.radius_from_mean_curvature_m * 1e9:.4g} nm: a few nearly flat summits (quantised "
+                "heights, noise on a plateau) make most of the mean R the contact model uses"
                 + ("" if cutoff else "; try --cutoff-wavelength (e.g. 5 pixels)")
             )
     return out

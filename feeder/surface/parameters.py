@@ -36,6 +36,9 @@ MAX_HEIGHT_M = 1e-3
 """σ, |μ| and z_max above 1 mm are no surface roughness (AFM scans: 0.1–100 nm): a unit slip."""
 MIN_SUMMIT_RADIUS_M = 1e-12
 """A summit radius below 1 pm (a hundredth of an atom) is no asperity: a unit slip."""
+MAX_SUMMIT_RADIUS_M = 1.0
+"""A mean summit radius beyond 1 m is no asperity either: a few nearly flat summits (quantised
+heights) dominate the mean (integer-valued noise gave 36 km, and a breakaway of 2.3e7 g)."""
 MAX_SUMMIT_DENSITY_PER_M2 = 1e20
 """More than one summit per (0.1 nm)² is denser than the atoms: a unit slip."""
 
@@ -209,7 +212,7 @@ def implausible(surface: SurfaceParameters) -> tuple[str, str] | None:
 
     Positive and finite is not enough: heights read in the wrong unit (metres for nm) give
     σ ≈ 1 m and R ≈ 1e-17 m, which the contact model turns into a separation of 1e10 nm.
-    Bounds: σ, |μ|, z_max ≤ 1 mm; R ≥ 1 pm; η ≤ 1e20 m⁻² (one summit per (0.1 nm)²).
+    Bounds: σ, |μ|, z_max ≤ 1 mm; 1 pm ≤ R ≤ 1 m; η ≤ 1e20 m⁻² (one summit per (0.1 nm)²).
     """
     hint = ": not a surface's summit statistics (heights in the wrong unit?)"
     heights = [("sigma_m", surface.sigma_m), ("mean_summit_height_m", surface.mean_summit_height_m)]
@@ -221,6 +224,10 @@ def implausible(surface: SurfaceParameters) -> tuple[str, str] | None:
     if surface.summit_radius_m < MIN_SUMMIT_RADIUS_M:
         radius = surface.summit_radius_m
         return "summit_radius_m", f"{radius:.4g} m is below {MIN_SUMMIT_RADIUS_M * 1e12:g} pm{hint}"
+    if surface.summit_radius_m > MAX_SUMMIT_RADIUS_M:
+        radius = surface.summit_radius_m
+        return "summit_radius_m", (f"{radius:.4g} m is beyond {MAX_SUMMIT_RADIUS_M:g} m: not an asperity's "
+                                   "(nearly flat summits, quantised heights?)")  # fmt: skip
     if surface.summit_density_per_m2 > MAX_SUMMIT_DENSITY_PER_M2:
         density = surface.summit_density_per_m2
         return "summit_density_per_m2", f"{density:.4g} m⁻² is above {MAX_SUMMIT_DENSITY_PER_M2:g} m⁻²{hint}"
