@@ -105,6 +105,8 @@ def test_cli_contact_and_tau_pairs(capsys: pytest.CaptureFixture[str], tmp_path:
     assert out["breakaway_force_N"] == pytest.approx(out["tau_pa"] * out["real_area_m2"], rel=1e-12)
     assert out["breakaway_accel_m_s2"] == pytest.approx(out["breakaway_force_N"] / out["mass_kg"])
     assert out["summit_tabor"] > 0 and out["adhesion_parameter"] > 0 and out["attracted_summits"] > 0
+    assert main(["contact", "--table", "--adhesion-work", "0.02", "--placements", "0"]) == 0
+    assert capsys.readouterr().out.startswith("Greenwood–Williamson + Maugis–Dugdale")  # was "+ Hertz"
     assert main(["contact", "--part", "300x300x50", "--adhesion-work", "0.1", "--tau", "2e10"]) == 2
     assert "--tau" in capsys.readouterr().err
     with pytest.raises(SystemExit) as usage:  # the range is checked by the option's type

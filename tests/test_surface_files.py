@@ -78,6 +78,13 @@ def test_height_channel_is_chosen_and_named_channels_work() -> None:
             read_height_map(AFM / "spot_1-1000nm.ibw", channel=other)
     with pytest.raises(InputError, match="no channel"):
         read_height_map(AFM / "di-5.di", channel="Nope")
+    # di-1.di has two channels named Height (Sq 9.844 and 9.967 nm): the name picked channel 0
+    with pytest.raises(InputError, match=r"2 channels named 'Height' \(indices 0, 1\): give the index"):
+        read_height_map(AFM / "di-1.di", channel="Height")
+    first, second = (read_height_map(AFM / "di-1.di", channel=k) for k in ("0", "1"))
+    assert first.channel == second.channel == "Height" and not np.array_equal(
+        first.heights_m, second.heights_m
+    )
 
 
 @pytest.mark.parametrize("name", BROKEN)

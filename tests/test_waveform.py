@@ -140,6 +140,10 @@ def test_cli_show_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert data["flyback_s"] == pytest.approx(200 / (i / c + 200 * 100))  # t_f ≈ C·ΔV/I
     assert data["rise_s"] + data["flyback_s"] == pytest.approx(0.01)
     assert data["stroke_m"] == pytest.approx(0.07e-6 * data["output_swing_v"])
+    assert data["command_flyback_peak_slope_v_per_s"] is None  # a step: the current limit shapes it
+    assert main(["waveform", "show", str(PAPER)]) == 0
+    text = capsys.readouterr().out
+    assert "None" not in text and "current limit makes the flyback" in text  # it printed Python's None
 
 
 def test_cli_export_anc300_and_csv(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

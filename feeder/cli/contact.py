@@ -212,8 +212,10 @@ def _table(surface: SurfaceParameters, args: argparse.Namespace, placements: int
     if as_json:
         print_json({"rows": rows, "tau_pa": tau, "tau_band_pa": tau_band, "warnings": warnings})
         return 0
+    summits = "Maugis–Dugdale" if surface.adhesion_work_j_m2 else "Hertz"
     print(
-        f"Greenwood–Williamson + Hertz contact, model vs paper (Table I, Table III); τ = {tau / 1e9:.2f} GPa"
+        f"Greenwood–Williamson + {summits} contact, model vs paper (Table I, Table III); "
+        f"τ = {tau / 1e9:.2f} GPa"
     )
     header = (
         f"{'part µm':<12}{'support':<9}{'weight N':>11}{'d nm':>9}{'A_r 1e-17m²':>13}"

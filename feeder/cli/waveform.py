@@ -201,6 +201,8 @@ def _show(args: argparse.Namespace, waveform: Waveform, amplifier: AmplifierLimi
         print_json(info)
         return 0
     for key, value in info.items():
+        if key == "command_flyback_peak_slope_v_per_s" and value is None:
+            value = "none (the amplifier's current limit makes the flyback)"
         if key != "warnings":
             print(f"{key:<36} {value:.6g}" if isinstance(value, float) else f"{key:<36} {value}")
     for w in warnings:

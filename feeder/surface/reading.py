@@ -181,7 +181,12 @@ def _choose_channel(reader: Any, path: Path, channel: str | None) -> Any:
         if channel.isdigit() and int(channel) < len(channels):
             chosen = channels[int(channel)]
         else:
-            chosen = next((c for c in channels if c.name == channel), None)
+            named = [c for c in channels if c.name == channel]
+            if len(named) > 1:  # e.g. two "Height" channels (trace and retrace): which one?
+                which = ", ".join(str(c.index) for c in named)
+                raise InputError("--channel", f"{path.name} has {len(named)} channels named {channel!r} "
+                                 f"(indices {which}): give the index")  # fmt: skip
+            chosen = named[0] if named else None
         if chosen is None:
             names = ", ".join(f"{c.index}: {c.name}" for c in channels)
             raise InputError("--channel", f"{path.name} has no channel {channel!r} (channels: {names})")
