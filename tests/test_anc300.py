@@ -14,7 +14,8 @@ import serial.rfc2217
 
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost, DriveSettings
-from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
+from feeder.drivers.anc300 import Anc300Amplifier
+from feeder.drivers.anc300_link import Anc300Link
 from feeder.waveform import Waveform
 from firmware_sim.console import ConsoleSession
 from firmware_sim.firmware import Firmware

@@ -15,7 +15,8 @@ import pytest
 from test_anc300_real_unit import RecordingSession
 
 from feeder.drivers.amplifier import DriveSettings
-from feeder.drivers.anc300 import BURST_END_MARGIN_S, Anc300Amplifier, Anc300Link
+from feeder.drivers.anc300 import BURST_END_MARGIN_S, Anc300Amplifier
+from feeder.drivers.anc300_link import Anc300Link
 from firmware_sim.clock import RealTimeClock
 from firmware_sim.firmware import Firmware, FirmwareConfig
 from firmware_sim.transports import PtyConsole

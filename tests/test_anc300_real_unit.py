@@ -14,8 +14,10 @@ import serial
 from serial.urlhandler.protocol_socket import Serial as SocketSerial
 
 import feeder.drivers.anc300 as anc300
+import feeder.drivers.anc300_link as anc300_link
 from feeder.drivers.amplifier import AmplifierLinkLost, DriveSettings
-from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
+from feeder.drivers.anc300 import Anc300Amplifier
+from feeder.drivers.anc300_link import Anc300Link
 from firmware_sim.console import ConsoleSession
 from firmware_sim.firmware import Firmware
 from firmware_sim.transports import PtyConsole
@@ -98,7 +100,7 @@ def test_serial_ports_open_at_the_anc300s_38400_baud_or_the_given_rate(
         opened.append(options)
         raise serial.SerialException(f"{url}: no such port")
 
-    monkeypatch.setattr(anc300.serial, "serial_for_url", refuse)
+    monkeypatch.setattr(anc300_link.serial, "serial_for_url", refuse)
     with pytest.raises(AmplifierLinkLost, match="cannot open"):
         Anc300Link("/dev/ttyUSB7").query("ver")
     with pytest.raises(AmplifierLinkLost, match="cannot open"):
@@ -261,7 +263,7 @@ def test_stepw_without_an_answer_is_a_slow_burst_but_a_broken_link_is_lost(break
         if breaks:
             with pytest.raises(AmplifierLinkLost) as err:
                 amp.wait(1.0)
-            assert not isinstance(err.value, anc300.ReplyTimeout)
+            assert not isinstance(err.value, anc300_link.ReplyTimeout)
         else:
             assert amp.wait(0.5) is False
     finally:

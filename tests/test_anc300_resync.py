@@ -19,7 +19,8 @@ import pytest
 import serial
 
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost, DriveSettings
-from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link, ReplyTimeout
+from feeder.drivers.anc300 import Anc300Amplifier
+from feeder.drivers.anc300_link import Anc300Link, ReplyTimeout
 from firmware_sim.console import ConsoleSession
 from firmware_sim.firmware import Firmware
 from firmware_sim.transports import PtyConsole

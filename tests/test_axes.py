@@ -10,7 +10,7 @@ import pytest
 
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import DriveSettings
-from feeder.drivers.anc300 import Anc300Link
+from feeder.drivers.anc300_link import Anc300Link
 from feeder.drivers.axes import Axes, check_axis_map, open_anc300_axes, open_canopen_axes
 from feeder.drivers.camera import StreamCamera
 from feeder.drivers.sensor import PositionSensor

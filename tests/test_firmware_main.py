@@ -11,7 +11,7 @@ import pytest
 
 from feeder.contact.breakaway import DEFAULT_TAU_PA
 from feeder.daemon.launcher import LaunchError, Simulator
-from feeder.drivers.anc300 import Anc300Link
+from feeder.drivers.anc300_link import Anc300Link
 
 pytestmark = pytest.mark.timeout(120)
 

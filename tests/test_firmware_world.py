@@ -12,7 +12,7 @@ import pytest
 
 from feeder.contact.breakaway import DEFAULT_TAU_BAND_PA, DEFAULT_TAU_PA
 from feeder.daemon.launcher import Simulator
-from feeder.drivers.anc300 import Anc300Link
+from feeder.drivers.anc300_link import Anc300Link
 from feeder.errors import InputError
 from feeder.plant import kernels
 from feeder.plant.plant import run_waveform

@@ -19,7 +19,7 @@ import pytest
 import feeder.drivers.pose_camera as pose_camera
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import DriveSettings
-from feeder.drivers.anc300 import Anc300Link
+from feeder.drivers.anc300_link import Anc300Link
 from feeder.drivers.axes import open_anc300_axes
 from feeder.drivers.pose_camera import CameraPoseSensor, part_template
 from feeder.drivers.sensor import SensorLost

@@ -20,7 +20,8 @@ from typing import Any
 from feeder.daemon.config import PLANE_TICK_WATCHDOG_S, DaemonConfig, uses_camera
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import Amplifier
-from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
+from feeder.drivers.anc300 import Anc300Amplifier
+from feeder.drivers.anc300_link import Anc300Link
 from feeder.drivers.camera import StreamCamera
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import InputError

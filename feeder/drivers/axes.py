@@ -2,7 +2,7 @@
 
 - ANC300 (serial or TCP console): :func:`open_anc300_axes` puts one
   :class:`~feeder.drivers.anc300.Anc300Amplifier` per axis on one
-  :class:`~feeder.drivers.anc300.Anc300Link` (its lock serialises the axes'
+  :class:`~feeder.drivers.anc300_link.Anc300Link` (its lock serialises the axes'
   commands); only a real ANC300's verbs are sent (the strict dialect).
 - CANopen: :func:`open_canopen_axes` puts one
   :class:`~feeder.drivers.canopen.CanopenAmplifier` per axis on one
@@ -29,7 +29,8 @@ from typing import Any
 import canopen
 
 from feeder.drivers.amplifier import Amplifier, AmplifierError
-from feeder.drivers.anc300 import Anc300Amplifier, Anc300Link
+from feeder.drivers.anc300 import Anc300Amplifier
+from feeder.drivers.anc300_link import Anc300Link
 from feeder.drivers.canopen import open_node_axes
 from feeder.errors import InputError
 from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
