@@ -217,8 +217,11 @@ def test_killed_mid_move_restarts_uncertain_until_the_sensor_confirms(short_dir:
     assert history[0]["status"] == "interrupted"
 
 
-def test_amplifier_link_loss_faults_reconnects_and_does_not_resume(short_dir: Path) -> None:
+def test_amplifier_link_loss_faults_reconnects_and_does_not_resume(
+    short_dir: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     daemon, links = start(short_dir)
+    caplog.set_level("ERROR", logger="feeder.daemon.service")
     try:
         with Client(short_dir / "run" / "f.sock") as client:
             assert client.request("move", target_m=800e-6, wait=False)["ok"]
@@ -240,6 +243,9 @@ def test_amplifier_link_loss_faults_reconnects_and_does_not_resume(short_dir: Pa
     assert status["faults"][-1]["reconnected_after_attempts"] >= 2
     fresh = links.amplifiers[-1]
     assert "ground" in fresh.calls and "step" not in fresh.calls  # grounded, not resumed
+    # the lost link could not ground: the log says so (it said "output grounded" regardless)
+    (lost,) = [r.getMessage() for r in caplog.records if "amplifier link lost" in r.getMessage()][:1]
+    assert "the output could not be grounded (x: fake link down)" in lost and "output grounded" not in lost
 
 
 def test_refuses_socket_paths_of_other_users(short_dir: Path) -> None:

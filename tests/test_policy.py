@@ -177,6 +177,27 @@ def test_the_output_is_grounded_once_idle_and_the_next_move_enables_and_measures
     assert [c.kind for c in rig.commands()[n:]][:1] == ["enable"]
 
 
+def test_a_command_the_amplifier_refused_leaves_the_output_unknown_and_it_is_grounded_when_idle() -> None:
+    """The verification review: the axes were enabled (``setm N stp``), then ``setv`` was refused
+    (beyond the rail): the move ended "amplifier refused", and no ground ever followed (the
+    policy had marked the output "not enabled", which the idle ground took for grounded)."""
+    rig = Rig()
+    start_move(rig, 30e-6)
+    rig.complete(rig.run_until_command("enable"))
+    apply = rig.run_until_command("apply")
+    rig.complete(apply, error="Value out of range: voltage = 137.17 not in [0, 100]")
+    rig.tick()
+    assert rig.finished().result.status == "fault" and rig.policy.state == "idle"
+    ended = rig.now
+    grounds = []
+    while rig.now < ended + SETTINGS.idle_ground_s + 1.0:
+        grounds += [o for o in rig.tick() if isinstance(o, Command)]
+    assert [c.kind for c in grounds] == ["ground"]
+    rig.complete(grounds[0])
+    for _ in range(round(2 * SETTINGS.idle_ground_s / DT)):  # grounded now: nothing more
+        assert not [o for o in rig.tick() if isinstance(o, Command)]
+
+
 def test_a_move_submitted_while_the_idle_ground_is_in_flight_waits_for_it() -> None:
     rig = Rig()
     start_move(rig, 30e-6)

@@ -143,6 +143,7 @@ class Policy:
         self._hold_until = 0.0
         self._position_saved_s = -math.inf
         self._idle_until = math.inf  # when the output is grounded if no job comes
+        self._grounded = True  # every axis known grounded (the daemon grounds them at start)
         self._now = 0.0
         self._out: list[Output] = []
 
@@ -252,6 +253,8 @@ class Policy:
                     self._finish(self.job, "fault", f"amplifier refused: {done.error}", None)
             return
         burst = self._burst
+        if kind == "ground":
+            self._grounded = True
         if kind in ("enable", "apply"):
             if kind == "enable":
                 self._enabled = True
@@ -305,6 +308,7 @@ class Policy:
         self.fault = None
         self._applied = {}
         self._enabled = False
+        self._grounded = True  # the new link was grounded
         self._pending = None
         if self.sensor_lost is None:
             self.state = "idle"
@@ -352,7 +356,7 @@ class Policy:
         """No move followed the last one: every axis to ground (the next move enables again and
         measures, the plate's rest having moved)."""
         self._idle_until = math.inf
-        if self._enabled and self.fault is None and self.sensor_lost is None:
+        if not self._grounded and self.fault is None and self.sensor_lost is None:
             self._enabled = False
             self._send(Command("ground"))
 
@@ -434,6 +438,7 @@ class Policy:
             return  # the record comes first: a crash leaves a trace
         if not self._enabled:
             self.state = "moving"
+            self._grounded = False  # from the enable on, until a ground is acknowledged
             self._send(Command("enable"))
             return
         if now < self._settle_until or len(self._samples) < s.average_samples:
@@ -556,7 +561,8 @@ class Policy:
         self.last_result = result
         if self.fault is None and self.sensor_lost is None:
             self.state = "idle"
-            self._idle_until = now + self.settings.idle_ground_s if self._enabled else math.inf
+            # enabled, or unknown (a refused command may have left any axis in stp): ground
+            self._idle_until = now + self.settings.idle_ground_s if not self._grounded else math.inf
         self._out.append(Finished(job, result))
 
     def estimates(self) -> dict[str, StepEstimate]:

@@ -274,25 +274,36 @@ class Daemon:
         return None
 
     # -- faults ----------------------------------------------------------------
+    def _ground_lost_link(self) -> str:
+        """Ground every axis where the lost amplifier link still answers (never through a stale
+        simulator pty: another program may own that path now); what became of the output."""
+        if getattr(self.links, "respawns", 0) != self._amplifier_generation:
+            return "not grounded (a new simulator: the old one's output died with it)"
+        failed = []
+        for axis, amplifier in self.loop.amplifiers.items():
+            try:
+                amplifier.ground()
+            except (FeederError, OSError) as err:
+                failed.append(f"{axis}: {err}")
+        return f"the output could not be grounded ({'; '.join(failed)})" if failed else "output grounded"
+
     def _on_fault(self, kind: str, message: str) -> None:
-        log.error("%s link lost: %s; output grounded, reconnecting", kind, message)
+        if kind != "amplifier":  # the policy stops and grounds the output through the executor
+            log.error("%s link lost: %s; grounding the output, reconnecting", kind, message)
         record: dict[str, Any] = {"link": kind, "message": message, "time_s": time.time()}
         with self._lock:
             self._faults.append(record)
             del self._faults[:-20]
             if kind in self._reconnecting or self._stopping.is_set():
+                if kind == "amplifier":
+                    log.error("amplifier link lost: %s (reconnecting already)", message)
                 return
             self._reconnecting.add(kind)
             queued, self._queue = list(self._queue), collections.deque()
         for job in queued:
             self._refuse_queued(job, f"{kind} lost: {message}")
-        if kind == "amplifier":
-            # ground where the link still allows it (never through a stale simulator pty:
-            # another program may own that path now), then free the port for the reconnect
-            if getattr(self.links, "respawns", 0) == self._amplifier_generation:
-                for amplifier in self.loop.amplifiers.values():
-                    with contextlib.suppress(FeederError, OSError):
-                        amplifier.ground()
+        if kind == "amplifier":  # ground where the link still allows it, then free the port
+            log.error("amplifier link lost: %s; %s, reconnecting", message, self._ground_lost_link())
             with contextlib.suppress(FeederError, OSError):
                 _close(self.loop.amplifiers)
         thread = threading.Thread(
