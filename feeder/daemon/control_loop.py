@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from feeder import stall
 from feeder.daemon.collector import TickCollector
 from feeder.daemon.decision_worker import DecisionWorker
 from feeder.daemon.executor import AmplifierExecutor, RecordWriter
@@ -167,14 +168,21 @@ class SensorFeed:
         self._pending: list[tuple[float, PositionSample]] = [] if first is None else [(clock(), first)]
         self.lost: str | None = None
         self._closing = False
+        stall.watch()
         self._thread = threading.Thread(target=self._run, name="sensor-feed", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
         while not self._closing:
+            started = time.monotonic()
             try:
                 sample = self.sensor.read(self.timeout_s)
             except (SensorLost, OSError) as err:
+                stalled = stall.stalled_since(started)
+                if stalled > 0 and not self._closing:  # the silence was ours: listen again
+                    log.warning("the daemon stood still %.2f s: the sensor's silence is judged again (%s)",
+                                stalled, err)  # fmt: skip
+                    continue
                 if not self._closing:
                     self.lost = str(err) or type(err).__name__
                 return
@@ -459,6 +467,9 @@ class ControlLoop:
                 time.sleep(delay)
             woke = self._clock()
             self.lateness.append(woke - deadline)
+            if woke - deadline > stall.GAP_S:
+                log.warning("the control loop ran %.2f s late: the process stood still (SIGSTOP, a "
+                            "suspended machine, swapping?)", woke - deadline)  # fmt: skip
             self.tick(woke)
             self.quiet.served()
             self.collector.collect_due()  # in the slack the tick leaves, not before a deadline

@@ -26,6 +26,7 @@ import canopen
 from canopen.objectdictionary import ObjectDictionary
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
+from feeder import stall
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost
 from feeder.errors import InputError
 from feeder.protocol.eds import axis_count, axis_object, object_dictionary
@@ -229,6 +230,7 @@ class CanopenNodeLink:
             self.node.emcy.add_callback(self._on_emcy)
             self._start()
             undo.pop_all()
+        stall.watch()
         self._watchdog = threading.Thread(
             target=self._watch_heartbeat, daemon=True, name=f"canopen-heartbeat-{node_id}"
         )
@@ -331,7 +333,11 @@ class CanopenNodeLink:
         limit = HEARTBEAT_LOSS_PERIODS * self.heartbeat_s
         while not self._closing.is_set():
             with self.changed:
-                silent = time.monotonic() - self._last_heartbeat
+                now = time.monotonic()
+                silent = now - self._last_heartbeat
+                if silent >= limit and stall.stalled_since(self._last_heartbeat) > 0:
+                    log.warning("%s: the host stood still: the node's heartbeat is judged again", self.who)
+                    self._last_heartbeat, silent = now, 0.0  # the silence was ours
                 if silent >= limit and self._lost is None:
                     self._lost = f"CANopen node {self.node_id}: no heartbeat for {silent * 1000:.0f} ms"
                     self.changed.notify_all()
