@@ -400,12 +400,14 @@ def test_a_camera_nobody_calibrated_refuses_moves_until_a_calibration_is_stored(
     daemon = Daemon(links, replace(make_setup(short_dir), uncalibrated_camera=reason))
     daemon.start()
     try:
+        assert daemon.handle({"cmd": "status"})["moves_refused"] == reason  # said before any move
         reply = daemon.handle({"cmd": "move", "target_m": 120e-6})
         assert not reply["ok"] and "is not calibrated" in reply["error"], reply
         assert daemon.handle({"cmd": "history"})["moves"] == []  # nothing was played
         store_calibration(short_dir, pixel_size_m=2.7e-6, rotation_rad=0.0, mirrored=False)
         reply = daemon.handle({"cmd": "move", "target_m": 120e-6})
         assert reply["ok"], reply
+        assert daemon.handle({"cmd": "status"})["moves_refused"] is None
     finally:
         daemon.shutdown()
 

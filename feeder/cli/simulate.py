@@ -268,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
             f"a_k {friction.kinetic_accel_m_s2:.4g} m/s² ({out['model']}, axis {args.axis})"
         )
         print(
-            f"  step   {out['step_mean_m'] * 1e6:.4f} ± {out['step_std_m'] * 1e6:.4f} µm "
+            f"  step   {out['step_mean_m'] * 1e6:.4f}{_spread(out)} µm "
             f"({_steady_label(out['transient_periods'], out['steady'])}; "
             f"first period {out['first_step_m'] * 1e6:.4f} µm) "
             f"over {out['periods']} periods"
@@ -290,6 +290,12 @@ def run(args: argparse.Namespace) -> int:
             if key in out:
                 print(f"wrote {out[key]}")
     return 0
+
+
+def _spread(out: dict[str, Any]) -> str:
+    """The std over the steady periods, as " ± x"; none for one period (± 0 would claim a certainty)."""
+    counted = out["periods"] - out["transient_periods"]
+    return f" ± {out['step_std_m'] * 1e6:.4f}" if counted > 1 else ""
 
 
 def _steady_label(transient: int, settled: bool | None) -> str:

@@ -252,9 +252,11 @@ class Daemon:
             reason = self._recalibrate()
             if reason is not None:
                 return reason
-        if self.camera_calibration.calibration is None and self.setup.uncalibrated_camera is not None:
-            return self.setup.uncalibrated_camera
-        return self.loop.submit(job)
+        return self._uncalibrated() or self.loop.submit(job)
+
+    def _uncalibrated(self) -> str | None:
+        """Why every move is refused until a camera calibration is stored, or None."""
+        return None if self.camera_calibration.calibration is not None else self.setup.uncalibrated_camera
 
     def _recalibrate(self) -> str | None:
         """Locate parts with the newly stored calibration from the next move on: the camera is
@@ -527,6 +529,7 @@ class Daemon:
             "faults": faults,
             "queued_moves": queued,
             "camera_calibration": self.camera_calibration.status(),
+            "moves_refused": self._uncalibrated(),
             "interrupted_moves": self.interrupted_moves,
             **waveforms_status(self.setup.modes),
             **self.setup.info,
