@@ -3,9 +3,6 @@ the host, the host's node id, and the drive's rating (never the simulator's by d
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 from typing import cast
@@ -65,22 +62,6 @@ def test_the_simulators_configuration_passes_a_bit_rate() -> None:
     endpoints = {"slcan_pty": "/dev/pts/9", "sensor_tcp": "socket://127.0.0.1:1"}
     address, _ = simulator_addresses(config, cast(Simulator, SimpleNamespace(endpoints=endpoints)))
     assert isinstance(address, dict) and address["interface"] == "slcan" and address["bitrate"] == 500_000
-
-
-def test_a_missing_bit_rate_exits_2_in_one_line(tmp_path: Path) -> None:
-    path = can_config(tmp_path, 'interface = "slcan"\nchannel = "/dev/ttyACM0"\n')
-    done = subprocess.run(
-        [sys.executable, "-m", "feeder", "daemon", "--config", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=tmp_path,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
-    assert done.returncode == 2
-    assert (
-        done.stderr.count("\n") == 1 and "amplifier.can.bitrate" in done.stderr and str(path) in done.stderr
-    )
 
 
 # -- item 3: the host's node id -------------------------------------------------------------------

@@ -134,6 +134,11 @@ def test_simulator_gets_our_part_and_amplifier_rating(tmp_path: Path) -> None:
     [
         ("[control]\nrate_hz = 0\n", "rate_hz"),
         ("[amplifier]\nbaudrate = 12\n", "amplifier.baudrate = 12 is outside"),
+        (  # an slcan adapter opened without a bit rate floods a live bus at its stored one
+            '[amplifier]\ntransport = "can"\nmodel = "firmware_sim"\n[amplifier.can]\ninterface = "slcan"\n'
+            'channel = "/dev/ttyACM0"\n[sensor]\naddress = "socket://127.0.0.1:7240"\n',
+            "amplifier.can.bitrate",
+        ),
         (  # the plane's camera sees ±2.76 mm: a part at x = −4 mm was lost
             '[plate]\naxes = ["x", "y", "theta"]\n[control]\nmin_position_m = -4e-3\n',
             "control.min_position_m = -0.004 reaches beyond the camera's view",
