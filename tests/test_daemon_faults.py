@@ -324,6 +324,9 @@ def test_a_killed_simulator_is_respawned_on_a_fresh_pty(base: Path) -> None:  # 
         or after["simulator_endpoints"]["sensor_tcp"] != before["simulator_endpoints"]["sensor_tcp"]
     )
     assert moved["ok"], moved
+    # the loss names its cause: the camera died with the simulator and was noticed first
+    died = f"the embedded simulator (firmware_sim, pid {before['simulator_pid']}) died (exit code -9): "
+    assert after["faults"] and after["faults"][0]["message"].startswith(died), after["faults"]
     assert len(history) == records + 1  # nothing written before was lost
     assert history[0]["status"] == "done"
 

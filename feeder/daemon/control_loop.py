@@ -18,6 +18,7 @@ documented there.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import logging
 import math
@@ -231,6 +232,7 @@ class ControlLoop:
         navigator: Navigator | None = None,
         on_position: Callable[[float, Reading], None] | None = None,
         on_fault: Callable[[str, str], None] | None = None,
+        cause_of_loss: Callable[[], str | None] | None = None,
         sensor_timeout_s: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
         collect_in_slack: bool = True,
@@ -247,6 +249,8 @@ class ControlLoop:
         self._feed = SensorFeed(sensor, sensor_timeout_s, clock)
         self.on_position = on_position
         self.on_fault = on_fault
+        self.cause_of_loss = cause_of_loss
+        """What took a lost link with it, when the caller knows (the embedded simulator died)."""
         self._lock = threading.Lock()  # guards the policy between tick and API calls
         self._shutdown = threading.Event()
         self._thread: threading.Thread | None = None
@@ -370,9 +374,15 @@ class ControlLoop:
     def amplifier_lost(self, message: str) -> None:
         """Declare the amplifier link lost (the job ends, ``on_fault`` reconnects)."""
         with self._lock:
-            self.policy.on_link_lost(message)
+            self.policy.on_link_lost(self._blamed(message))
             outputs = self.policy.tick(self._clock())
         self._dispatch(outputs)
+
+    def _blamed(self, message: str) -> str:
+        """A lost link's ``message``, led by what took it with it (the simulator died: its camera
+        and console went with it, and the camera's silence was noticed first)."""
+        cause = self.cause_of_loss() if self.cause_of_loss is not None else None
+        return message if cause is None else f"{cause}: {message}"
 
     def _decided(self, decision: Decision) -> None:
         """The navigator's answer (on the decision worker's thread): acted on now, not a period later."""
@@ -488,8 +498,10 @@ class ControlLoop:
             for arrival, sample in feed.take():
                 self.policy.on_sample(sample.position_m, arrival, sample.poses)
             if feed.lost is not None:
-                self.policy.on_sensor_lost(feed.lost)
+                self.policy.on_sensor_lost(self._blamed(feed.lost))
             for completion in self.executor.take():
+                if completion.link_lost and completion.error is not None:
+                    completion = dataclasses.replace(completion, error=self._blamed(completion.error))
                 self.policy.on_completion(completion)
             outputs = self.policy.tick(now)
         self._dispatch(outputs)

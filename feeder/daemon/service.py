@@ -168,6 +168,7 @@ class Daemon:
                 navigator=navigator,
                 on_position=self.store.save_position,
                 on_fault=self._on_fault,
+                cause_of_loss=self._simulator_died,
                 sensor_timeout_s=setup.sensor_timeout_s,
             )
             undo.pop_all()
@@ -276,6 +277,14 @@ class Daemon:
         return None
 
     # -- faults ----------------------------------------------------------------
+    def _simulator_died(self) -> str | None:
+        """That the embedded simulator behind the links died, or None (alive, or hardware)."""
+        simulator = getattr(self.links, "simulator", None)
+        if simulator is None or simulator.alive():
+            return None
+        code = simulator.process.returncode
+        return f"the embedded simulator (firmware_sim, pid {simulator.process.pid}) died (exit code {code})"
+
     def _ground_lost_link(self) -> str:
         """Ground every axis where the lost amplifier link still answers (never through a stale
         simulator pty: another program may own that path now); what became of the output."""
