@@ -426,6 +426,8 @@ function updateCalibration() {
 }
 
 const ADVICE = [
+  [/embedded simulator .* died/i, "The simulated amplifier and camera (firmware_sim) stopped; the daemon starts a new one by itself. No move resumes: send it again."],
+  [/not calibrated/i, "Moves wait for the camera's calibration: run feeder vision calibrate --save-state (docs/daemon.md), or set [camera] aligned = true if the image's axes are the plate's."],
   [/amplifier/i, "Output grounded. Check the amplifier's cable and power; the daemon reconnects by itself. No move resumes: send it again."],
   [/sensor|camera/i, "The position sensor stopped sending. Check the camera's cable or stream; the daemon reconnects by itself."],
   [/unwritable|disk/i, "The state database cannot be written (disk full or read-only?). Free space; moves are refused until then."],
@@ -443,6 +445,7 @@ function updateFaults() {
   const items = [];
   const current = status.fault ? [status.fault] : [];
   if (status.store_unwritable) current.push("state store unwritable: " + status.store_unwritable);
+  if (status.moves_refused) current.push("moves refused: " + status.moves_refused);
   for (const text of current) items.push([text, true]);
   for (const f of (status.faults || []).slice(-5).reverse()) {
     const back = f.reconnected_after_attempts ? ` (back after ${f.reconnected_after_attempts} attempts)` : f.last_error ? ` (retrying: ${f.last_error})` : "";
