@@ -390,7 +390,7 @@ def test_a_camera_nobody_calibrated_refuses_moves_until_a_calibration_is_stored(
     the planner would steer the wrong way (and learn that).  ``[camera] aligned = true`` says
     the configured one is right (tests/test_daemon_hil.py); the simulator's camera needs none."""
     reason = CameraConfig(address="0").uncalibrated()
-    assert reason is not None and "feeder vision calibrate --save-state" in reason and "aligned" in reason
+    assert reason is not None and "feeder vision calibrate --x-move" in reason and "aligned" in reason
     assert (
         CameraConfig().uncalibrated() is None
         and CameraConfig(address="0", aligned=True).uncalibrated() is None
@@ -404,7 +404,13 @@ def test_a_camera_nobody_calibrated_refuses_moves_until_a_calibration_is_stored(
         reply = daemon.handle({"cmd": "move", "target_m": 120e-6})
         assert not reply["ok"] and "is not calibrated" in reply["error"], reply
         assert daemon.handle({"cmd": "history"})["moves"] == []  # nothing was played
+        # a scale from --image alone measured no turn or mirroring: still refused
         store_calibration(short_dir, pixel_size_m=2.7e-6, rotation_rad=0.0, mirrored=False)
+        reply = daemon.handle({"cmd": "move", "target_m": 120e-6})
+        assert not reply["ok"] and "measured no plate moves" in reply["error"], reply
+        time.sleep(0.01)  # a new updated_s
+        measured = {"rotation_rad": 0.0, "mirrored": False, "moves_residual_px": 0.1}
+        store_calibration(short_dir, pixel_size_m=2.7e-6, **measured)
         reply = daemon.handle({"cmd": "move", "target_m": 120e-6})
         assert reply["ok"], reply
         assert daemon.handle({"cmd": "status"})["moves_refused"] is None

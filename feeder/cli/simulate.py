@@ -102,7 +102,7 @@ def register(sub: Any) -> None:
         "--stroke-m",
         type=positive_up_to(length_m, MAX_STROKE_M, "m"),
         metavar="S",
-        help=f"ideal plate: stroke S in m (or 5um, 0.01mm), 0 < S ≤ {MAX_STROKE_M:g} m "
+        help=f"ideal plate, --axis x or y: stroke S in m (or 5um, 0.01mm), 0 < S ≤ {MAX_STROKE_M:g} m "
         "(--direction backward for the other sign)",
     )
     p.add_argument(
@@ -154,7 +154,7 @@ def register(sub: Any) -> None:
         "--map",
         type=output_path,
         metavar="PNG",
-        help="quiver plot of the steady per-period pose change over a grid of poses "
+        help="quiver plot of the per-period pose change (the second period) over a grid of poses "
         "(the planar plant with --waveform, else the ideal plate)",
     )
     p.add_argument(

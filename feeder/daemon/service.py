@@ -256,8 +256,18 @@ class Daemon:
         return self._uncalibrated() or self.loop.submit(job)
 
     def _uncalibrated(self) -> str | None:
-        """Why every move is refused until a camera calibration is stored, or None."""
-        return None if self.camera_calibration.calibration is not None else self.setup.uncalibrated_camera
+        """Why every move is refused until a camera calibration that measured the image's turn
+        and mirroring (``--x-move``/``--y-move``) is stored, or None."""
+        reason = self.setup.uncalibrated_camera
+        record = self.camera_calibration.record if self.camera_calibration.calibration is not None else None
+        if reason is None or (record is not None and "moves_residual_px" in record):
+            return None
+        if record is None:
+            return reason
+        return (
+            "the stored camera calibration measured no plate moves (no --x-move/--y-move): the "
+            "image's turn and mirroring are unknown; calibrate with them, or set [camera] aligned = true"
+        )
 
     def _recalibrate(self) -> str | None:
         """Locate parts with the newly stored calibration from the next move on: the camera is

@@ -38,7 +38,7 @@ MIN_SUMMIT_RADIUS_M = 1e-12
 """A summit radius below 1 pm (a hundredth of an atom) is no asperity: a unit slip."""
 MAX_SUMMIT_RADIUS_M = 1.0
 """A mean summit radius beyond 1 m is no asperity either: a few nearly flat summits (quantised
-heights) dominate the mean (integer-valued noise gave 36 km, and a breakaway of 2.3e7 g)."""
+heights) dominate the mean (integer-valued noise gave 36.5 km, and a breakaway of 2.3e7 g)."""
 MAX_SUMMIT_DENSITY_PER_M2 = 1e20
 """More than one summit per (0.1 nm)² is denser than the atoms: a unit slip."""
 

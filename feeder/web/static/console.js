@@ -427,7 +427,7 @@ function updateCalibration() {
 
 const ADVICE = [
   [/embedded simulator .* died/i, "The simulated amplifier and camera (firmware_sim) stopped; the daemon starts a new one by itself. No move resumes: send it again."],
-  [/not calibrated/i, "Moves wait for the camera's calibration: run feeder vision calibrate --save-state (docs/daemon.md), or set [camera] aligned = true if the image's axes are the plate's."],
+  [/not calibrated|measured no plate moves/i, "Moves wait for the camera's calibration: run feeder vision calibrate with --x-move and --y-move and --save-state (docs/daemon.md), or set [camera] aligned = true if the image's axes are the plate's."],
   [/amplifier/i, "Output grounded. Check the amplifier's cable and power; the daemon reconnects by itself. No move resumes: send it again."],
   [/sensor|camera/i, "The position sensor stopped sending. Check the camera's cable or stream; the daemon reconnects by itself."],
   [/unwritable|disk/i, "The state database cannot be written (disk full or read-only?). Free space; moves are refused until then."],
@@ -437,7 +437,7 @@ const RESULT_ADVICE = {
   limit: "The target is beyond the travel: choose one inside the dashed box.",
   oscillating: "The part overshoots back and forth: move again (the steps learned so far help; one axis: calibrate), or ask for a larger tolerance.",
   unreachable: "The daemon cannot reach it within its bursts: calibrate, or choose a target the part can reach.",
-  fault: "A link was lost during the move; see Faults.",
+  fault: "The move ended on a fault: a lost link (see Faults), or a command the amplifier refused (the reason above).",
   stopped: "Stopped on request.",
 };
 
