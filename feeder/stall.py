@@ -24,17 +24,19 @@ KEPT = 64
 _stalls: collections.deque[tuple[float, float]] = collections.deque(maxlen=KEPT)
 _lock = threading.Lock()
 _thread: threading.Thread | None = None
+_due: float | None = None  # when the monitor should wake next
 
 
 def _watch() -> None:
-    due = time.monotonic() + PERIOD_S
+    global _due
+    _due = time.monotonic() + PERIOD_S
     while True:
-        time.sleep(max(due - time.monotonic(), 0.0))
+        time.sleep(max(_due - time.monotonic(), 0.0))
         now = time.monotonic()
-        if now - due > GAP_S:
-            with _lock:
-                _stalls.append((due, now))
-        due = now + PERIOD_S
+        with _lock:
+            if now - _due > GAP_S:
+                _stalls.append((_due, now))
+            _due = now + PERIOD_S
 
 
 def watch() -> None:
@@ -48,6 +50,11 @@ def watch() -> None:
 
 def stalled_since(start_s: float) -> float:
     """How long (s) the process stood still after ``start_s`` (``time.monotonic()``), as far as
-    the monitor saw (0 before :func:`watch`)."""
+    the monitor saw (0 before :func:`watch`): the stalls it recorded, and one it has not woken
+    from yet (a caller that resumed first: threads resume in any order)."""
+    now = time.monotonic()
     with _lock:
-        return sum(end - max(begin, start_s) for begin, end in _stalls if end > start_s)
+        stalled = sum(end - max(begin, start_s) for begin, end in _stalls if end > start_s)
+        if _due is not None and now - _due > GAP_S:
+            stalled += now - max(_due, start_s)
+        return stalled
