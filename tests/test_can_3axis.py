@@ -151,7 +151,7 @@ class NodeRig:
 @pytest.fixture
 def node_rig() -> Iterator[NodeRig]:
     channel = f"test-can-3axis-{uuid.uuid4().hex}"
-    firmware = Firmware()
+    firmware = Firmware(FirmwareConfig(watchdog_s=5.0))  # in-process: a loaded CI stalls its tick
     od = object_dictionary(NODE_ID, EDS_3AXIS_FILE)
     node = CanopenNode(firmware, AXES, NODE_ID, can.Bus(interface="virtual", channel=channel), od=od)
     network = canopen.Network()
@@ -304,7 +304,7 @@ class DriverRig:
 def start_nodes(axes: int, eds: str, node_id: int = NODE_ID) -> Iterator[DriverRig]:
     """``axes`` real-time firmware axes as nodes of ``eds`` from ``node_id`` on a virtual bus."""
     channel = f"test-can-3axis-driver-{uuid.uuid4().hex}"
-    firmware = Firmware(FirmwareConfig(axes=axes))
+    firmware = Firmware(FirmwareConfig(axes=axes, watchdog_s=5.0))  # in-process: CI stalls its tick
     stop = threading.Event()
     ticker = threading.Thread(target=firmware.run, args=(RealTimeClock(), stop), daemon=True)
     ticker.start()

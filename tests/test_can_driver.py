@@ -23,7 +23,7 @@ from firmware_sim.axis import fault_names as firmware_fault_names
 from firmware_sim.canopen_node import CanopenNode
 from firmware_sim.clock import RealTimeClock
 from firmware_sim.faults import Fault
-from firmware_sim.firmware import Firmware
+from firmware_sim.firmware import Firmware, FirmwareConfig
 from firmware_sim.slcan import SlcanPty
 
 pytestmark = pytest.mark.timeout(60)
@@ -43,7 +43,7 @@ class Rig:
 @pytest.fixture(params=["virtual", "slcan-pty"])
 def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
     channel = f"test-can-driver-{uuid.uuid4().hex}"
-    firmware = Firmware()
+    firmware = Firmware(FirmwareConfig(watchdog_s=5.0))  # in-process: a loaded CI stalls its tick
     stop = threading.Event()
     ticker = threading.Thread(target=firmware.run, args=(RealTimeClock(), stop), daemon=True)
     ticker.start()

@@ -40,7 +40,7 @@ class Rig:
 
 def start(axes: int, per_node: int) -> Iterator[Rig]:
     channel = f"test-canopen-host-emcy-{uuid.uuid4().hex}"
-    firmware = Firmware(FirmwareConfig(axes=axes))
+    firmware = Firmware(FirmwareConfig(axes=axes, watchdog_s=5.0))  # in-process: CI stalls its tick
     stop = threading.Event()
     ticker = threading.Thread(target=firmware.run, args=(RealTimeClock(), stop), daemon=True)
     ticker.start()

@@ -29,7 +29,7 @@ from feeder.drivers.canopen_link import HOST_SILENCE_PERIODS
 from feeder.errors import InputError
 from firmware_sim.canopen_node import CanopenNode
 from firmware_sim.clock import RealTimeClock
-from firmware_sim.firmware import Firmware
+from firmware_sim.firmware import Firmware, FirmwareConfig
 
 pytestmark = pytest.mark.timeout(60)
 NODE_ID = 5
@@ -51,7 +51,7 @@ class Rig:
 @pytest.fixture
 def rig() -> Iterator[Rig]:
     channel = f"test-canopen-host-heartbeat-{uuid.uuid4().hex}"
-    firmware = Firmware()
+    firmware = Firmware(FirmwareConfig(watchdog_s=5.0))  # in-process: a loaded CI stalls its tick
     stop = threading.Event()
     ticker = threading.Thread(target=firmware.run, args=(RealTimeClock(), stop), daemon=True)
     ticker.start()

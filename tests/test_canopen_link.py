@@ -25,7 +25,7 @@ from feeder.errors import FeederError
 from feeder.protocol.eds import object_dictionary
 from firmware_sim.canopen_node import CanopenNode
 from firmware_sim.clock import RealTimeClock
-from firmware_sim.firmware import Firmware
+from firmware_sim.firmware import Firmware, FirmwareConfig
 
 pytestmark = pytest.mark.timeout(60)
 NODE_ID = 6
@@ -38,7 +38,7 @@ def sim_node(od: ObjectDictionary | None = None) -> Iterator[tuple[Firmware, Can
     """A ticking firmware's axis 1 as node :data:`NODE_ID` (dictionary ``od``) on a fresh
     virtual channel; yields the firmware, the node and the host's bus arguments."""
     channel = f"test-canopen-link-{uuid.uuid4().hex}"
-    firmware = Firmware()
+    firmware = Firmware(FirmwareConfig(watchdog_s=5.0))  # in-process: a loaded CI stalls its tick
     stop = threading.Event()
     ticker = threading.Thread(target=firmware.run, args=(RealTimeClock(), stop), daemon=True)
     ticker.start()
