@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 
 import pytest
 
+from feeder.daemon.burst_cycle import counter_difference
 from feeder.daemon.jobs import (
     Burst,
     Command,
@@ -24,7 +25,7 @@ from feeder.daemon.jobs import (
     StepMode,
 )
 from feeder.daemon.line_navigator import COARSE, FINE
-from feeder.daemon.policy import Policy, counter_difference
+from feeder.daemon.policy import Policy
 from feeder.daemon.sensor_latency import MAX_SETTLE_S
 from feeder.drivers.amplifier import DriveSettings
 

@@ -15,17 +15,13 @@ States (:data:`STATES`):
   (a :class:`~feeder.daemon.jobs.Command` ``ground``): a real ANC300 keeps its axes
   driven until told otherwise, whatever becomes of the host.
 - ``moving``: a job is preparing the output or a burst is playing.
-- ``settling``: the burst is over; wait ``settle_s`` (stack ringing, sensor
-  latency) or, if longer, the sensor's latency as seen (:attr:`Policy.latency_s`),
-  average ``average_samples`` fresh readings that agree (the part settled in them) and,
-  for a burst the navigator expects to move a part visibly, show that it moved: frames that
-  lag behind the latency seen still show the part moving or not yet moved.  Up to
-  :data:`MAX_SETTLE_S` more for that, then measure (without learning from frames that never
-  agreed); learn, decide.  The navigator
-  decides off the tick: the policy emits a :class:`~feeder.daemon.jobs.Decide`,
-  the loop runs :meth:`Policy.decide` on a thread of its own, and the answer
-  comes back through :meth:`Policy.on_decision` (one answered after the job
-  ended is dropped).
+- ``settling``: the burst is over; wait until the part may be measured
+  (:mod:`feeder.daemon.burst_cycle`: ``settle_s`` or the sensor's latency as seen,
+  ``average_samples`` fresh readings that agree, the burst's motion seen), measure;
+  learn, decide.  The navigator decides off the tick: the policy emits a
+  :class:`~feeder.daemon.jobs.Decide`, the loop runs :meth:`Policy.decide` on a thread
+  of its own, and the answer comes back through :meth:`Policy.on_decision` (one
+  answered after the job ended is dropped).
 - ``holding``: the job is over early (stop, sensor or limit): the output was
   stopped and the part is watched until the sensor reads it settled (the
   last ``average_samples`` readings agree within the tolerance); only then is
@@ -44,9 +40,9 @@ on travel limits, on too many reversals, on a lost sensor or link
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
+from feeder.daemon.burst_cycle import BurstCycle
 from feeder.daemon.jobs import (
     Burst,
     Command,
@@ -65,35 +61,11 @@ from feeder.daemon.jobs import (
     Started,
     StepMode,
 )
-from feeder.daemon.line_navigator import LineNavigator, mean_reading
+from feeder.daemon.line_navigator import LineNavigator
 from feeder.daemon.navigator import Navigator, part_pose
-from feeder.daemon.sensor_latency import MAX_SETTLE_S, SensorLatency
-from feeder.daemon.step_estimator import FORWARD, StepEstimate
+from feeder.daemon.step_estimator import StepEstimate
 
 STATES = ("idle", "moving", "settling", "holding", "fault")
-
-
-def counter_difference(after: int, before: int) -> int:
-    """Steps between two readings of a drive's step counter, which wraps as an I32 (CANopen's
-    0x2012: 2³¹ − 1 + 1 step is −2³¹); exact while fewer than 2³¹ steps lie between them."""
-    return (after - before + (1 << 31)) % (1 << 32) - (1 << 31)
-
-
-@dataclass
-class _Burst:
-    """The burst in flight."""
-
-    burst: Burst
-    before: Reading
-    learnable: bool
-    reversed: bool
-    counter_before: int | None = None
-    end_s: float = math.inf  # acknowledged + steps/f
-    started_s: float = math.inf  # acknowledged
-    ended_s: float = math.inf  # its end confirmed
-    moved_seen: bool = False  # a reading after the start showed the part moved
-    visible: bool = False  # expected to move a part beyond the settle band (the navigator's)
-    confirming: bool = False
 
 
 class Policy:
@@ -129,14 +101,9 @@ class Policy:
         self.last_result: JobResult | None = None
         self._stop_reason: str | None = None
         self._pending: Command | None = None  # sent, not yet completed
-        self._burst: _Burst | None = None
+        self._cycle = BurstCycle(self.modes, settings, self.navigator)
         self._applied: dict[str, str] = {}  # axis → mode loaded
         self._enabled = False
-        self._last_direction: dict[str, str] = {}  # axis → direction of its last burst
-        self._settle_until = 0.0
-        self._latency = SensorLatency()
-        self._samples: list[Reading] = []
-        self._measured: _Burst | None = None
         self._deciding: Decide | None = None  # asked, not yet answered
         self._decision: Decision | None = None  # answered, to act on at the next tick
         self._finish_as: tuple[str, str] | None = None  # (status, reason) once held
@@ -150,10 +117,7 @@ class Policy:
     @property
     def latency_s(self) -> float:
         """The sensor's latency as seen (s; :class:`~feeder.daemon.sensor_latency.SensorLatency`)."""
-        return self._latency.latency_s
-
-    def _settle_s(self) -> float:
-        return self._latency.settle_s(self.settings.settle_s)
+        return self._cycle.latency_s
 
     def applied(self, axis: str) -> str | None:
         """The waveform mode loaded on ``axis`` (None: none since the link opened)."""
@@ -210,16 +174,7 @@ class Policy:
         job.trace.append((arrival_s, part[0]))
         if job.target_pose is not None:
             job.pose_trace.append((arrival_s, part))
-        if self.state in ("settling", "holding") and arrival_s >= self._settle_until:
-            self._samples.append(reading)
-        for burst in (self._burst, self._measured):  # in flight, or over and not yet measured
-            if burst is None or burst.moved_seen or arrival_s < burst.started_s:
-                continue
-            if not self.navigator.settled([burst.before, reading]):
-                burst.moved_seen = True
-                self._latency.seen(arrival_s - burst.started_s)
-                if burst is self._measured and self.state == "settling":  # now it is known
-                    self._settle_until = burst.ended_s + self._settle_s()
+        self._cycle.on_sample(reading, arrival_s, self.state)
 
     def on_sensor_lost(self, message: str) -> None:
         if self.sensor_lost is not None:
@@ -252,7 +207,7 @@ class Policy:
                     self._emit_stop()
                     self._finish(self.job, "fault", f"amplifier refused: {done.error}", None)
             return
-        burst = self._burst
+        burst = self._cycle.flying
         if kind == "ground":
             self._grounded = True
         if kind in ("enable", "apply"):
@@ -263,26 +218,14 @@ class Policy:
             if burst is None and self.job is not None and self._finish_as is None:
                 self._enter_settling(done.at_s)  # the plate's rest moved: measure again
         elif kind == "step" and burst is not None:
-            burst.counter_before = done.counter
-            b = burst.burst
-            f = self.modes[b.axis][b.mode].settings.frequency_hz
-            burst.end_s = done.at_s + b.steps / f
-            burst.started_s = done.at_s
+            self._cycle.acknowledged(done.at_s, done.counter)
         elif kind == "confirm_end" and burst is not None:
-            self._burst = None
-            self._measured = burst
-            burst.ended_s = done.at_s
-            self._enter_settling(done.at_s)
-            if not self._latency.known and not burst.moved_seen:  # the sensor's latency is unknown:
-                self._settle_until = done.at_s + MAX_SETTLE_S  # wait to see the burst's motion
+            self.state = "settling"
+            self._cycle.ended(done.at_s)
         elif kind == "stop":
             if burst is not None and self.job is not None:
-                played = burst.burst.steps
-                if done.counter is not None and burst.counter_before is not None:
-                    played = min(played, abs(counter_difference(done.counter, burst.counter_before)))
-                self.job.steps -= burst.burst.steps - played
+                self.job.steps -= self._cycle.unplayed(done.counter)
                 self.job.steps_estimated = self.job.steps_estimated or done.estimated
-                self._burst = None
             if self.job is not None and self._finish_as is not None:
                 self._enter_holding(done.at_s)
 
@@ -335,8 +278,8 @@ class Policy:
             elif self._finish_as is not None:
                 pass  # the stop is on its way; hold when it is done
             elif self._pending is None:
-                if self._burst is not None:
-                    self._follow_burst(job, now)
+                if self._cycle.flying is not None:
+                    self._follow_burst(now)
                 elif self._decision is not None:
                     self._decided(job, self._decision)
                 elif self._deciding is None:
@@ -360,20 +303,17 @@ class Policy:
             self._enabled = False
             self._send(Command("ground"))
 
-    def _stop_command(self) -> Command:
-        return Command("stop", axis=self._burst.burst.axis if self._burst is not None else "x")
-
     def _emit_stop(self) -> None:
         """Stop the output now if anything may be playing (jumps any command in flight)."""
-        if self._burst is not None or self._pending is not None:
-            self._out.append(self._stop_command())
+        if self._cycle.flying is not None or self._pending is not None:
+            self._out.append(self._cycle.stop_command())
 
     def _end_early(self, status: str, reason: str, now: float) -> None:
         """End the job with ``status`` once the output stopped and the part settled."""
         self._finish_as = (status, reason)
         self._deciding = self._decision = None
-        if self._burst is not None or self._pending is not None:
-            self._out.append(self._stop_command())  # holding starts when it is done
+        if self._cycle.flying is not None or self._pending is not None:
+            self._out.append(self._cycle.stop_command())  # holding starts when it is done
         else:
             self._enter_holding(now)
 
@@ -382,7 +322,6 @@ class Policy:
         self._pending = None
         self._out.append(Fault("amplifier", message))
         if self.job is not None:
-            self._burst = None
             self._finish(self.job, "fault", self.fault, None)
         self.state = "fault"
 
@@ -393,23 +332,20 @@ class Policy:
 
     def _enter_settling(self, now: float, settle: bool = True) -> None:
         self.state = "settling"
-        self._settle_until = now + (self._settle_s() if settle else 0.0)
-        self._samples = []
+        self._cycle.watch(now, settle)
 
     def _enter_holding(self, now: float) -> None:
         self.state = "holding"
-        self._settle_until = now + self._settle_s()
+        self._cycle.watch(now)
         self._hold_until = now + self.settings.hold_timeout_s
-        self._samples = []
 
     def _hold(self, job: Job, now: float) -> None:
         """Watch the stopped part until the sensor reads it settled, then finish."""
         s = self.settings
         assert self._finish_as is not None
         status, reason = self._finish_as
-        recent = self._samples[-s.average_samples :]
-        if len(recent) == s.average_samples and self.navigator.settled(recent):
-            reading = mean_reading(recent)
+        reading = self._cycle.settled()
+        if reading is not None:
             self._out.append(SavePosition(reading[0][0], reading))
             self._finish(job, status, reason, reading)
         elif now >= self._hold_until:
@@ -420,20 +356,15 @@ class Policy:
                 self.reading,
             )
 
-    def _follow_burst(self, job: Job, now: float) -> None:
-        burst = self._burst
-        assert burst is not None
-        s = self.settings
+    def _follow_burst(self, now: float) -> None:
         if self.reading is not None and self.navigator.outside(self.reading) is not None:
             self._end_early("limit", f"{self.navigator.outside(self.reading)}; stopped", now)
             return
-        if now < burst.end_s or burst.confirming:
-            return
-        burst.confirming = True
-        self._send(Command("confirm_end", timeout_s=s.burst_grace_s, axis=burst.burst.axis))
+        confirm = self._cycle.confirmation(now)
+        if confirm is not None:
+            self._send(confirm)
 
     def _measure(self, job: Job, now: float) -> None:
-        s = self.settings
         if not job.recorded:
             return  # the record comes first: a crash leaves a trace
         if not self._enabled:
@@ -441,35 +372,11 @@ class Policy:
             self._grounded = False  # from the enable on, until a ground is acknowledged
             self._send(Command("enable"))
             return
-        if now < self._settle_until or len(self._samples) < s.average_samples:
+        reading = self._cycle.measure(job, now)
+        if reading is None:
             return
-        b = self._measured
-        if b is not None and b.visible and not b.moved_seen and now < b.ended_s + MAX_SETTLE_S:
-            return  # the frames do not show the burst's motion yet (they lag more than seen): wait
-        recent = self._samples[-s.average_samples :]
-        steady = self.navigator.settled(recent)
-        if not steady and now < self._settle_until + MAX_SETTLE_S:
-            return  # the frames still show the part moving (they lag behind the motion): wait
-        reading = mean_reading(recent)
-        self._samples = []
         self._out.append(SavePosition(reading[0][0], reading))
-        if job.start_m is None:
-            job.start_pose = part_pose(job, reading)
-            job.start_m = job.start_pose[0]
-        if b is not None:
-            if self.navigator.learn(b.burst, b.learnable and steady, b.before, reading):
-                job.stalls += 1
-            else:
-                job.stalls = 0
-            self._measured = None
-        outside = self.navigator.outside(reading)
-        if outside is not None:
-            self._finish(job, "limit", outside, reading)
-            return
-        if job.stalls >= s.stall_bursts:
-            self._finish(job, "stalled", f"{job.stalls} bursts in a row barely moved the part", reading)
-            return
-        nxt = self._planned(job)
+        nxt = self._cycle.verdict(job, reading)
         if nxt is None:  # the navigator's turn, off the tick
             self._deciding = Decide(job, reading, job.refined)
             self._out.append(self._deciding)
@@ -486,7 +393,6 @@ class Policy:
     def _start_burst(self, job: Job, reading: Reading, nxt: Burst | tuple[str, str], refined: bool) -> None:
         """Play ``nxt`` decided from ``reading`` (first loading its waveform), or finish as it says;
         ``refined``: the job's flag before the decision."""
-        s = self.settings
         if isinstance(nxt, tuple):
             self._finish(job, nxt[0], nxt[1], reading)
             return
@@ -507,43 +413,15 @@ class Policy:
             if job.target_m is None and job.target_pose is None:
                 job.planned.popleft()
         job.switched = False
-        previous = job.last_directions.get(nxt.axis)  # a reversal is per axis: x+ then y− is none
-        if previous is not None and nxt.direction != previous:
-            job.reversals += 1
-            if job.reversals > s.max_reversals * len(self.navigator.axes):
-                self._finish(
-                    job,
-                    "oscillating",
-                    f"{job.reversals} direction reversals without reaching the tolerance",
-                    reading,
-                )
-                return
-        reversed_ = self._last_direction.get(nxt.axis) != nxt.direction  # None: unknown history
-        self._last_direction[nxt.axis] = nxt.direction
-        self._burst = _Burst(nxt, reading, learnable=not (reversed_ or unmeasured_switch), reversed=reversed_,
-                             visible=self.navigator.expects_motion(nxt, reading))  # fmt: skip
-        job.steps += nxt.steps
-        job.bursts += 1
-        job.bursts_per_axis[nxt.axis] = job.bursts_per_axis.get(nxt.axis, 0) + 1
-        job.last_directions[nxt.axis] = nxt.direction
+        step = self._cycle.start(job, nxt, reading, unmeasured_switch)
+        if isinstance(step, tuple):
+            self._finish(job, *step, reading)
+            return
         self.state = "moving"
         # (after an unmeasured switch the apply is still in flight: the executor runs both
         # in order, and the step is what the policy waits for)
-        signed = nxt.steps if nxt.direction == FORWARD else -nxt.steps
-        self._send(Command("step", steps=signed, axis=nxt.axis))
+        self._send(step)
         self._out.append(Progress(job))
-
-    def _planned(self, job: Job) -> Burst | tuple[str, str] | None:
-        """A calibration's next burst, (status, reason) when the job is over, or None: the
-        navigator decides."""
-        if job.target_m is None and job.target_pose is None:
-            if not job.planned:
-                return ("done", "calibration complete")
-            return job.planned.popleft()
-        limit = self.settings.max_bursts * len(self.navigator.axes)
-        if job.bursts >= limit:
-            return ("unreachable", f"no convergence after {job.bursts} bursts")
-        return None
 
     def _finish(self, job: Job, status: str, reason: str, reached: Reading | None) -> None:
         now = self._now
@@ -552,9 +430,8 @@ class Policy:
         result = job.ended(status, reason, pose, now, self.estimates_json(),
                            getattr(self.navigator, "symmetry_rad", 0.0))  # fmt: skip
         self.job = None
-        self._burst = None
+        self._cycle.clear()
         self._pending = None
-        self._measured = None
         self._deciding = self._decision = None
         self._finish_as = None
         self._stop_reason = None

@@ -2,7 +2,7 @@
 
 A camera's frames arrive after exposure, encoding, transfer, decoding and
 locating: on a loaded machine longer than the configured ``settle_s``.  The
-policy (:mod:`feeder.daemon.policy`) records, per burst, the time from its first
+policy's burst cycle (:mod:`feeder.daemon.burst_cycle`) records, per burst, the time from its first
 step to the first reading that shows the part moved, and settles for the
 longest of the last :data:`LATENCY_BURSTS` such delays times
 :data:`LATENCY_MARGIN` when that is longer than ``settle_s``.
