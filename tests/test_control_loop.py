@@ -23,11 +23,10 @@ from feeder.daemon.control_loop import (
     JobResult,
     LoopSettings,
     StepMode,
-    TickLateness,
-    percentile_of_sorted,
 )
 from feeder.daemon.jobs import Reading
 from feeder.daemon.line_navigator import LineNavigator
+from feeder.daemon.tick_timing import TickLateness, percentile_of_sorted
 from feeder.drivers.amplifier import DriveSettings
 
 COARSE_V, FINE_V = 100.0, 40.0

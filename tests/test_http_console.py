@@ -24,8 +24,8 @@ from test_daemon_service import short_dir, start, wait_for  # noqa: F401  (short
 
 from feeder.daemon.config import HttpConfig
 from feeder.daemon.config_file import load_config
-from feeder.daemon.control_loop import TICK_PRIORITY
 from feeder.daemon.service import Daemon
+from feeder.daemon.tick_timing import TICK_PRIORITY
 from feeder.errors import InputError
 from feeder.web.security import RateLimit
 from feeder.web.server import ConsoleServer, start_console

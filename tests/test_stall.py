@@ -19,7 +19,7 @@ from test_control_loop import TRUE
 from test_daemon_doubles import FakeSensor, FakeWorld
 
 from feeder import stall
-from feeder.daemon.control_loop import SensorFeed
+from feeder.daemon.sensor_feed import SensorFeed
 from feeder.drivers.canopen import CanopenAmplifier
 from feeder.drivers.canopen_link import HEARTBEAT_LOSS_PERIODS
 from feeder.drivers.sensor import PositionSample, SensorLost

@@ -2,7 +2,7 @@
 
 Every section and key is optional; what is missing takes the default below.
 An unknown section or key is refused, naming the nearest known one; a number outside
-:data:`RANGES` is refused, not clipped.
+:data:`.config_fields.RANGES` is refused, not clipped.
 With no ``amplifier.port`` (serial) or ``amplifier.can.channel`` (CAN) and no
 ``sensor.address``, the daemon starts ``python -m firmware_sim`` itself and
 drives it exactly as it would real hardware.
@@ -68,7 +68,6 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import math
 from pathlib import Path
 from typing import Any
 
@@ -84,6 +83,7 @@ from feeder.daemon.config import (
     HttpConfig,
     PlateConfig,
 )
+from feeder.daemon.config_fields import check_keys, expanded_path, flag, integer, number, string, subtable
 from feeder.daemon.control_loop import LoopSettings
 from feeder.errors import InputError
 from feeder.files import read_toml
@@ -91,14 +91,6 @@ from feeder.parts import Part, Support
 from feeder.plant.amplifier import AmplifierLimits, amplifier_model, within_rating
 from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
 from feeder.pose import parse_poses
-
-
-def _table(doc: dict[str, Any], name: str, where: str) -> dict[str, Any]:
-    value = doc.get(name, {})
-    if not isinstance(value, dict):
-        raise InputError(where, f"[{name}] must be a table")
-    return value
-
 
 SECTIONS: dict[str, frozenset[str]] = {
     "amplifier": frozenset(
@@ -130,102 +122,6 @@ one python-can sends none (slcan: no ``S`` command) or its own default, and the 
 bus at whatever rate it last had, flooding a live bus with error frames.  ``socketcan`` (the rate
 is the kernel's, ``ip link set can0 type can bitrate ...``) and ``virtual`` need none."""
 
-RANGES: dict[str, tuple[float, float]] = {
-    "rate_hz": (1.0, 1000.0),
-    "tolerance_m": (1e-9, 1e-3),
-    "settle_s": (0.0, 10.0),
-    "average_samples": (1, 1000),
-    "max_burst_steps": (1, 100_000),
-    "stall_fraction": (0.0, 1.0),
-    "stall_bursts": (1, 1000),
-    "max_reversals": (1, 1000),
-    "max_bursts": (1, 100_000),
-    "burst_grace_s": (0.0, 60.0),
-    "sensor_noise_m": (0.0, 1e-3),
-    "step_scatter_fraction": (0.0, 1.0),
-    "forgetting": (0.5, 1.0),
-    "position_save_s": (0.0, 3600.0),
-    "hold_timeout_s": (0.0, 60.0),
-    "idle_ground_s": (0.0, 3600.0),
-    "timeout_s": (1e-3, 60.0),
-    "axis": (1, 7),
-    "baudrate": (300, 4_000_000),
-    "node_id": (1, 127),
-    "host_id": (1, 127),
-    "heartbeat_s": (0.01, 10.0),
-    "min_position_m": (-1.0, 1.0),
-    "max_position_m": (-1.0, 1.0),
-    "moves_per_s": (0.01, 1000.0),
-    "move_burst": (1, 1000),
-    "min_y_m": (-1.0, 1.0),
-    "max_y_m": (-1.0, 1.0),
-    "tolerance_rad": (1e-6, 0.5),
-    "lever_arm_m": (1e-4, 1.0),
-    "pixel_size_m": (1e-9, 1e-3),
-    "width_px": (16, 8192),
-    "height_px": (16, 8192),
-    "fps": (0.1, 1000.0),
-}
-"""Accepted ranges of numeric keys (a value outside is refused, not clipped)."""
-
-
-def check_keys(table: dict[str, Any], known: frozenset[str] | set[str], where: str, prefix: str) -> None:
-    """Refuse an unknown key, naming the nearest known one."""
-    for key in table:
-        if key not in known:
-            near = difflib.get_close_matches(str(key), sorted(known), n=1)
-            hint = f"; did you mean {prefix}{near[0]}?" if near else f"; known: {', '.join(sorted(known))}"
-            raise InputError(where, f"unknown key {prefix}{key}{hint}")
-
-
-def _number(
-    table: dict[str, Any], key: str, where: str, default: float, positive: bool = False, section: str = ""
-) -> float:
-    """``table[key]`` as a finite float within :data:`RANGES`; errors name ``section + key``."""
-    name = section + key
-    value = table.get(key, default)
-    try:
-        number = math.nan if isinstance(value, bool) else float(value)
-    except (TypeError, ValueError, OverflowError):
-        number = math.nan
-    if not math.isfinite(number):
-        shown = value if isinstance(value, (str, float, bool)) else type(value).__name__
-        raise InputError(where, f"{name} must be a finite number, got {shown!r}")
-    if positive and number <= 0:
-        raise InputError(where, f"{name} must be positive, got {number!r}")
-    low, high = RANGES.get(key, (-math.inf, math.inf))
-    if not low <= number <= high:
-        raise InputError(where, f"{name} = {number:g} is outside [{low:g}, {high:g}]")
-    return number
-
-
-def _integer(table: dict[str, Any], key: str, where: str, default: int, section: str = "") -> int:
-    """``table[key]`` as an integer within :data:`RANGES`; errors name ``section + key``."""
-    name = section + key
-    value = table.get(key, default)
-    if not isinstance(value, int) or isinstance(value, bool):
-        raise InputError(where, f"{name} must be an integer, got {type(value).__name__}")
-    low, high = RANGES.get(key, (1, math.inf))
-    if not low <= value <= high:
-        shown = value if abs(value) < 10**12 else "a huge integer"
-        raise InputError(where, f"{name} = {shown} is outside [{low:g}, {high:g}]")
-    return value
-
-
-def _string(table: dict[str, Any], key: str, where: str, default: str | None) -> str | None:
-    value = table.get(key, default)
-    if value is not None and not isinstance(value, str):
-        raise InputError(where, f"{key} must be a string, got {value!r}")
-    return value
-
-
-def _path(value: str | None, folder: Path | None = None) -> Path | None:
-    """``value`` with ``~`` expanded; a relative path joined to ``folder`` when given."""
-    if value is None:
-        return None
-    path = Path(value).expanduser()
-    return path if folder is None else folder / path
-
 
 def _plate(table: dict[str, Any], where: str) -> PlateConfig:
     """``[plate]``: axes (any of x, y, theta; x first), axis map, lever arm, simulated parts."""
@@ -238,7 +134,7 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
     if not isinstance(axis_map, dict):
         raise InputError(where, "plate.axis_map must be a table, e.g. { x = 1, y = 2, theta = 3 }")
     check_keys(axis_map, set(AXES), where, "plate.axis_map.")
-    numbers = {str(k): _integer(axis_map, k, where, 1, "plate.axis_map.") for k in axis_map}
+    numbers = {str(k): integer(axis_map, k, where, 1, "plate.axis_map.") for k in axis_map}
     mapped = {**DEFAULT_AXIS_MAP, **numbers}
     if len({mapped[a] for a in axes}) != len(axes):
         raise InputError(where, "plate.axis_map gives two axes the same number")
@@ -252,7 +148,7 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
     return PlateConfig(
         axes=tuple(axes),
         axis_map=mapped,
-        lever_arm_m=_number(
+        lever_arm_m=number(
             table, "lever_arm_m", where, PlateConfig.lever_arm_m, positive=True, section="plate."
         ),
         parts=parts,
@@ -285,20 +181,20 @@ def load_config(path: Path | None) -> DaemonConfig:
             near = difflib.get_close_matches(str(name), sorted(SECTIONS), n=1)
             hint = f"; did you mean [{near[0]}]?" if near else f"; known: {', '.join(SECTIONS)}"
             raise InputError(where, f"unknown section [{name}]{hint}")
-        check_keys(_table(doc, name, where), SECTIONS[name], where, f"{name}.")
+        check_keys(subtable(doc, name, where), SECTIONS[name], where, f"{name}.")
 
-    amp = _table(doc, "amplifier", where)
-    transport = _string(amp, "transport", where, "serial")
+    amp = subtable(doc, "amplifier", where)
+    transport = string(amp, "transport", where, "serial")
     if transport not in TRANSPORTS:
         raise InputError(where, f"amplifier.transport must be one of {', '.join(TRANSPORTS)}")
-    can = _table(amp, "can", where)
-    axis = _integer(amp, "axis", where, 1, "amplifier.")
+    can = subtable(amp, "can", where)
+    axis = integer(amp, "axis", where, 1, "amplifier.")
     if "node_id" in can:
-        _integer(can, "node_id", where, 1, "amplifier.can.")
+        integer(can, "node_id", where, 1, "amplifier.can.")
     if "heartbeat_s" in can:
-        _number(can, "heartbeat_s", where, 0.25, positive=True, section="amplifier.can.")
+        number(can, "heartbeat_s", where, 0.25, positive=True, section="amplifier.can.")
     if "host_id" in can:
-        _integer(can, "host_id", where, 127, "amplifier.can.")
+        integer(can, "host_id", where, 127, "amplifier.can.")
     if "eds" in can:
         can["eds"] = _eds(can["eds"], where, path.parent)
     supervise = can.get("supervise_host", True)
@@ -324,20 +220,20 @@ def load_config(path: Path | None) -> DaemonConfig:
             f"amplifier.can.bitrate: a {interface} adapter takes the bus's bit rate from the host; "
             "set bitrate (e.g. 500000), or btr or timing",
         )
-    if transport == "can" and "channel" in can and "model" not in amp and not _table(amp, "limits", where):
+    if transport == "can" and "channel" in can and "model" not in amp and not subtable(amp, "limits", where):
         # a CAN drive is hardware of unknown rating: only the simulator may default to its own
         raise InputError(
             where, "amplifier.model: a CAN drive needs its rating: model = ... or [amplifier.limits]"
         )
-    model = str(_string(amp, "model", where, DEFAULT_MODELS[str(transport)]))
+    model = str(string(amp, "model", where, DEFAULT_MODELS[str(transport)]))
     try:
         rating = amplifier_model(model)
     except InputError as err:
         raise InputError(where, f"amplifier.model: {err.message}") from None
-    limits_t = _table(amp, "limits", where)
+    limits_t = subtable(amp, "limits", where)
     check_keys(limits_t, {f.name for f in dataclasses.fields(AmplifierLimits)}, where, "amplifier.limits.")
     for key in limits_t:
-        _number(limits_t, key, where, 0.0, section="amplifier.limits.")
+        number(limits_t, key, where, 0.0, section="amplifier.limits.")
     try:
         limits = dataclasses.replace(rating, **{k: float(v) for k, v in limits_t.items()})
         within_rating(limits, rating, model)
@@ -346,62 +242,62 @@ def load_config(path: Path | None) -> DaemonConfig:
     amplifier = AmplifierConfig(
         transport=str(transport),
         model=model,
-        port=_string(amp, "port", where, None),
+        port=string(amp, "port", where, None),
         axis=axis,
-        timeout_s=_number(amp, "timeout_s", where, 1.0, positive=True, section="amplifier."),
-        password=str(_string(amp, "password", where, "123456")),
-        baudrate=_integer(amp, "baudrate", where, AmplifierConfig.baudrate, "amplifier."),
+        timeout_s=number(amp, "timeout_s", where, 1.0, positive=True, section="amplifier."),
+        password=str(string(amp, "password", where, "123456")),
+        baudrate=integer(amp, "baudrate", where, AmplifierConfig.baudrate, "amplifier."),
         limits=limits,
         can=dict(can),
     )
 
-    sensor = _table(doc, "sensor", where)
-    sensor_address = _string(sensor, "address", where, None)
+    sensor = subtable(doc, "sensor", where)
+    sensor_address = string(sensor, "address", where, None)
     if sensor_address is not None and not sensor_address.startswith("socket://"):
         raise InputError(
             where,
             f"sensor.address must be a socket://HOST:PORT URL (the "
             f"amplifier's address syntax), got {sensor_address!r}",
         )
-    sim = _table(doc, "simulator", where)
+    sim = subtable(doc, "simulator", where)
     sim_args = sim.get("args", [])
     if not (isinstance(sim_args, list) and all(isinstance(a, str) for a in sim_args)):
         raise InputError(where, "simulator.args must be a list of strings")
 
-    part_t = _table(doc, "part", where)
-    part = Part.parse(str(_string(part_t, "size", where, DEFAULT_PART)))
-    support = Support.parse(str(_string(part_t, "support", where, "flat")))
+    part_t = subtable(doc, "part", where)
+    part = Part.parse(str(string(part_t, "size", where, DEFAULT_PART)))
+    support = Support.parse(str(string(part_t, "support", where, "flat")))
     tau = part_t.get("tau_pa")
-    tau_pa = None if tau is None else _number(part_t, "tau_pa", where, 0.0, positive=True, section="part.")
+    tau_pa = None if tau is None else number(part_t, "tau_pa", where, 0.0, positive=True, section="part.")
 
-    control = _table(doc, "control", where)
+    control = subtable(doc, "control", where)
     defaults = DaemonConfig().loop
     loop_fields: dict[str, Any] = {}
     for f in dataclasses.fields(LoopSettings):
         if f.name in control:
             default = getattr(defaults, f.name)
             if isinstance(default, int):
-                loop_fields[f.name] = _integer(control, f.name, where, default, "control.")
+                loop_fields[f.name] = integer(control, f.name, where, default, "control.")
             else:
-                loop_fields[f.name] = _number(
+                loop_fields[f.name] = number(
                     control, f.name, where, default, positive=f.name not in TRAVEL_KEYS, section="control."
                 )
     loop = dataclasses.replace(defaults, **loop_fields)
-    plate = _plate(_table(doc, "plate", where), where)
+    plate = _plate(subtable(doc, "plate", where), where)
     if transport == "can" and can.get("supervise_host", True):
         _check_host_id(can, plate, where)
-    camera_t = _table(doc, "camera", where)
+    camera_t = subtable(doc, "camera", where)
     cam = CameraConfig()
     camera = CameraConfig(
-        address=_string(camera_t, "address", where, None),
-        timeout_s=_number(camera_t, "timeout_s", where, cam.timeout_s, positive=True, section="camera."),
-        pixel_size_m=_number(
+        address=string(camera_t, "address", where, None),
+        timeout_s=number(camera_t, "timeout_s", where, cam.timeout_s, positive=True, section="camera."),
+        pixel_size_m=number(
             camera_t, "pixel_size_m", where, cam.pixel_size_m, positive=True, section="camera."
         ),
-        width_px=_integer(camera_t, "width_px", where, cam.width_px, "camera."),
-        height_px=_integer(camera_t, "height_px", where, cam.height_px, "camera."),
-        fps=_number(camera_t, "fps", where, cam.fps, positive=True, section="camera."),
-        aligned=_flag(camera_t, "aligned", where, "camera."),
+        width_px=integer(camera_t, "width_px", where, cam.width_px, "camera."),
+        height_px=integer(camera_t, "height_px", where, cam.height_px, "camera."),
+        fps=number(camera_t, "fps", where, cam.fps, positive=True, section="camera."),
+        aligned=flag(camera_t, "aligned", where, "camera."),
     )
     if sensor_address is None and (plate.planar or camera.address is not None):  # the camera locates
         loop = _camera_travel(loop, control, camera, part, where, in_y=plate.planar)
@@ -410,33 +306,26 @@ def load_config(path: Path | None) -> DaemonConfig:
     if not loop.min_y_m < loop.max_y_m:
         raise InputError(where, "control.min_y_m must be below control.max_y_m")
 
-    state = _table(doc, "state", where)
+    state = subtable(doc, "state", where)
     base = DaemonConfig()
-    http = _http_config(_table(doc, "http", where), where) if "http" in doc else None
+    folder = path.parent.absolute()  # relative paths are relative to the file's folder
+    http = _http_config(subtable(doc, "http", where), where) if "http" in doc else None
     return DaemonConfig(
         amplifier=amplifier,
         sensor_address=sensor_address,
-        sensor_timeout_s=_number(sensor, "timeout_s", where, 1.0, positive=True, section="sensor."),
+        sensor_timeout_s=number(sensor, "timeout_s", where, 1.0, positive=True, section="sensor."),
         simulator_args=tuple(sim_args),
         part=part,
         support=support,
-        surface_path=_path(_string(part_t, "surface", where, None), path.parent.absolute()),
+        surface_path=expanded_path(string(part_t, "surface", where, None), folder),
         tau_pa=tau_pa,
         loop=loop,
         plate=plate,
         camera=camera,
-        state_dir=_path(_string(state, "dir", where, None), path.parent.absolute()) or base.state_dir,
-        socket_path=_path(_string(state, "socket", where, None), path.parent.absolute()) or base.socket_path,
+        state_dir=expanded_path(string(state, "dir", where, None), folder) or base.state_dir,
+        socket_path=expanded_path(string(state, "socket", where, None), folder) or base.socket_path,
         http=http,
     )
-
-
-def _flag(table: dict[str, Any], key: str, where: str, section: str) -> bool:
-    """A true/false key, default false."""
-    value = table.get(key, False)
-    if not isinstance(value, bool):
-        raise InputError(where, f"{section}{key} must be true or false, got {value!r}")
-    return value
 
 
 def _check_host_id(can: dict[str, Any], plate: PlateConfig, where: str) -> None:
@@ -489,18 +378,18 @@ def _camera_travel(
 
 def _http_config(table: dict[str, Any], where: str) -> HttpConfig:
     """The ``[http]`` section (its presence turns the console on)."""
-    allow_remote = _flag(table, "allow_remote", where, "http.")
+    allow_remote = flag(table, "allow_remote", where, "http.")
     origins = table.get("origins", [])
     if not (isinstance(origins, list) and all(isinstance(o, str) and "://" in o for o in origins)):
         raise InputError(where, "http.origins must be a list of origins such as 'https://console.lab'")
     http = HttpConfig(
         allow_remote=allow_remote,
         origins=tuple(o.rstrip("/") for o in origins),
-        camera=_string(table, "camera", where, None),
-        moves_per_s=_number(table, "moves_per_s", where, 2.0, positive=True, section="http."),
-        move_burst=_integer(table, "move_burst", where, 5, "http."),
+        camera=string(table, "camera", where, None),
+        moves_per_s=number(table, "moves_per_s", where, 2.0, positive=True, section="http."),
+        move_burst=integer(table, "move_burst", where, 5, "http."),
     )
-    listen = str(_string(table, "listen", where, DEFAULT_HTTP_LISTEN))
+    listen = str(string(table, "listen", where, DEFAULT_HTTP_LISTEN))
     try:
         return http.listening_on(listen, "http.listen")
     except InputError as err:

@@ -9,7 +9,8 @@ answers the policy takes at once, on the worker's thread) and its events to the
 :class:`~feeder.daemon.executor.RecordWriter`.  Nothing on the tick's thread
 waits for the amplifier, the sensor, the planner or the database: the tick only
 moves data between queues, so its jitter is the scheduler's.  Tick jitter (wake-up time
-− deadline) and overruns (work that ran past the next deadline) are counted.
+− deadline, :mod:`~feeder.daemon.tick_timing`) and overruns (work that ran past the next
+deadline) are counted.
 
 The decisions (what to step, when a move is over) are the policy's, and are
 documented there.
@@ -17,13 +18,10 @@ documented there.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import logging
 import math
-import os
-import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -56,9 +54,11 @@ from feeder.daemon.line_navigator import COARSE, FINE
 from feeder.daemon.navigator import Navigator, not_on_plate
 from feeder.daemon.policy import Policy
 from feeder.daemon.quiet_window import QuietWindow, guard_for
+from feeder.daemon.sensor_feed import SensorFeed
 from feeder.daemon.step_estimator import StepEstimate
+from feeder.daemon.tick_timing import TickLateness, percentile_of_sorted, raise_tick_priority
 from feeder.drivers.amplifier import Amplifier
-from feeder.drivers.sensor import PositionSample, PositionSensor, SensorLost
+from feeder.drivers.sensor import PositionSample, PositionSensor
 
 __all__ = [
     "COARSE",
@@ -68,144 +68,13 @@ __all__ = [
     "Job",
     "JobResult",
     "LoopSettings",
-    "SensorFeed",
     "StepMode",
-    "TickLateness",
 ]
 
 log = logging.getLogger(__name__)
 
 JITTER_WINDOW = 10_000
 """Ticks the jitter figures cover (100 s at 100 Hz): enough for a p99, cheap to sort per status."""
-TICK_PRIORITY = 10
-"""The tick thread's SCHED_FIFO priority where the process may raise it (CAP_SYS_NICE, or an
-rtprio limit): it then wakes before every ordinary thread on the machine (console clients,
-the simulator, other users); a tick sleeps 99 % of its period, so it never starves them."""
-
-
-TICK_SWITCH_INTERVAL_S = 0.5e-3
-"""The interpreter's switch interval while a loop runs (``sys.setswitchinterval``; Python's
-default is 5 ms): the longest a tick that wakes waits for a thread holding the interpreter (the
-console's HTTP server, the camera's locating)."""
-
-
-def raise_tick_priority() -> str:
-    """Make the calling thread real-time (:data:`TICK_PRIORITY`) if allowed, and the interpreter
-    hand over every :data:`TICK_SWITCH_INTERVAL_S`; the thread's policy's name."""
-    sys.setswitchinterval(min(sys.getswitchinterval(), TICK_SWITCH_INTERVAL_S))
-    try:
-        # reset on fork: the threads it starts (the fault handler, a reconnect) and the programs
-        # they start (firmware_sim again) run at ordinary priority
-        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(TICK_PRIORITY))
-    except OSError as err:  # PermissionError without the right to raise it
-        log.info("the tick runs at ordinary priority (SCHED_FIFO refused: %s)", err.strerror or err)
-        return "other"
-    return "fifo"
-
-
-class TickLateness:
-    """The last ``size`` ticks' lateness (wake-up − deadline, s) in a ring: a tick stores one
-    float; a status copies the ring and sorts it, which numpy does without holding the
-    interpreter (a deque converted to an array held it for ~0.3 ms per status, and the
-    console asks 30 times a second)."""
-
-    def __init__(self, size: int) -> None:
-        self._ring = np.zeros(size)
-        self.count = 0
-        """Ticks recorded since the start."""
-
-    def append(self, seconds: float) -> None:
-        self._ring[self.count % self._ring.size] = seconds
-        self.count += 1
-
-    def last(self, n: int) -> np.ndarray:
-        """The last ``n`` ticks' lateness (s), oldest first (fewer when fewer are kept)."""
-        n = max(0, min(n, self.count, self._ring.size))
-        return self._ring[np.arange(self.count - n, self.count) % self._ring.size]
-
-
-def percentile_of_sorted(values: np.ndarray, q: float) -> float:
-    """``np.percentile(values, q)`` (linear) of an already sorted, non-empty array."""
-    rank = q / 100 * (values.size - 1)
-    low = math.floor(rank)
-    high = min(low + 1, values.size - 1)
-    return float(values[low] + (rank - low) * (values[high] - values[low]))
-
-
-PLAUSIBLE_M = 1.0
-"""A position or pose coordinate beyond this (m) is no reading of a part on a feeder's plate."""
-PLAUSIBLE_RAD = 100.0
-"""An angle beyond this (rad) is no camera's reading (they give (−π, π])."""
-
-
-def implausible(sample: PositionSample) -> str | None:
-    """What is wrong with ``sample``'s numbers (non-finite, or off any plate), or None: such a
-    reading is a faulty sensor, never a position to learn from or store."""
-    values = [("position", sample.position_m, PLAUSIBLE_M)]
-    for part, (x, y, psi) in enumerate(sample.poses, start=1):
-        values += [(f"part {part}'s x", x, PLAUSIBLE_M), (f"part {part}'s y", y, PLAUSIBLE_M),
-                   (f"part {part}'s angle", psi, PLAUSIBLE_RAD)]  # fmt: skip
-    for name, value, bound in values:
-        if not (math.isfinite(value) and abs(value) <= bound):
-            return f"an impossible {name}: {value!r}"
-    return None
-
-
-class SensorFeed:
-    """Reads the sensor in its own thread so a slow frame never stalls the tick; ``first``: a
-    reading already taken from it (arriving now)."""
-
-    def __init__(
-        self,
-        sensor: PositionSensor,
-        timeout_s: float,
-        clock: Callable[[], float],
-        first: PositionSample | None = None,
-    ) -> None:
-        self.sensor = sensor
-        self.timeout_s = timeout_s
-        self._clock = clock
-        self._lock = threading.Lock()
-        self._pending: list[tuple[float, PositionSample]] = [] if first is None else [(clock(), first)]
-        self.lost: str | None = None
-        self._closing = False
-        stall.watch()
-        self._thread = threading.Thread(target=self._run, name="sensor-feed", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._closing:
-            started = time.monotonic()
-            try:
-                sample = self.sensor.read(self.timeout_s)
-            except (SensorLost, OSError) as err:
-                stalled = stall.stalled_since(started)
-                if stalled > 0 and not self._closing:  # the silence was ours: listen again
-                    log.warning("the daemon stood still %.2f s: the sensor's silence is judged again (%s)",
-                                stalled, err)  # fmt: skip
-                    continue
-                if not self._closing:
-                    self.lost = str(err) or type(err).__name__
-                return
-            wrong = implausible(sample)
-            if wrong is not None:
-                self.lost = f"the sensor reported {wrong}"
-                return
-            with self._lock:
-                self._pending.append((self._clock(), sample))
-
-    def take(self) -> list[tuple[float, PositionSample]]:
-        """Samples that arrived since the last call: (arrival loop time s, sample)."""
-        with self._lock:
-            out, self._pending = self._pending, []
-        return out
-
-    def close(self) -> None:
-        """Stop reading and close the sensor's link."""
-        self._closing = True
-        with contextlib.suppress(SensorLost, OSError):
-            self.sensor.close()
-        self._thread.join(timeout=self.timeout_s + 1.0)
 
 
 class ControlLoop:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import contextlib
 
-from feeder.daemon.control_loop import implausible
+from feeder.daemon.sensor_feed import implausible
 from feeder.drivers.sensor import PositionSample, PositionSensor, SensorLost
 
 BACKOFF_FIRST_S = 0.2
