@@ -20,8 +20,8 @@ from feeder.cli.control import plane_status_lines
 from feeder.cli.demo_plane import config_for, move_to, true_poses, wait_for_pose
 from feeder.daemon.client import Client
 from feeder.daemon.config import DaemonConfig
+from feeder.daemon.requests import PLANE_CALIBRATE
 from feeder.daemon.runner import RunningDaemon, start_daemon
-from feeder.daemon.service import PLANE_CALIBRATE
 from feeder.daemon.store import Store
 from feeder.parts import Part
 from feeder.pose import Pose, pose_error

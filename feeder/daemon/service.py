@@ -1,7 +1,8 @@
-"""The daemon: control loop + state database + Unix-socket control interface + fault recovery.
+"""The daemon: control loop + state database + move queue + fault recovery.
 
-Requests come over the owner-only Unix socket of :mod:`feeder.daemon.socket_server`; one
-move at a time (a second is refused with the reason, or queued with ``"queue": true``).
+Requests come over the owner-only Unix socket of :mod:`feeder.daemon.socket_server` and are
+answered by :mod:`feeder.daemon.requests`; one move at a time (a second is refused with the
+reason, or queued with ``"queue": true``).
 
 Faults: a lost amplifier link ends the move (``fault``), the output is grounded
 where the link still allows it, and a background thread reconnects with
@@ -27,26 +28,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Protocol
 
-from feeder.daemon.calibration import CALIBRATION_STEPS, calibration_bursts, calibration_room, fine_steps_for
-from feeder.daemon.control_loop import (
-    COARSE,
-    Burst,
-    ControlLoop,
-    Job,
-    JobResult,
-    LoopSettings,
-    Navigator,
-    StepMode,
-)
+from feeder.daemon.control_loop import ControlLoop, Job, JobResult, LoopSettings, Navigator, StepMode
 from feeder.daemon.executor import per_axis
 from feeder.daemon.located_calibration import STORED, LocatedCalibration
 from feeder.daemon.move_records import MoveRecords
 from feeder.daemon.quiet_window import QuietWindow
 from feeder.daemon.reconnect import Outage, first_reading
-from feeder.daemon.request_fields import RequestFieldError, finite, integer
+from feeder.daemon.requests import answer
 from feeder.daemon.socket_server import SocketServer
 from feeder.daemon.status_report import loop_status, waveforms_status
-from feeder.daemon.step_estimator import FORWARD
 from feeder.daemon.store import Store
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.sensor import PositionSensor, SensorLost
@@ -54,14 +44,6 @@ from feeder.errors import FeederError, InputError
 from feeder.vision.calibration import CameraCalibration
 
 log = logging.getLogger(__name__)
-
-PLANE_CALIBRATE = (
-    "calibrate is the one-axis daemon's job (--line): on the plane every burst of a move "
-    "teaches the pose model its x, y and θ steps"
-)
-
-POSE_KEYS = ("x_m", "y_m", "angle_rad")
-"""A pose move's target, any subset (m, m, rad; plate frame)."""
 
 
 class Links(Protocol):
@@ -215,22 +197,6 @@ class Daemon:
         self._state_lock.close()
 
     # -- jobs ----------------------------------------------------------------
-    def _new_job(
-        self,
-        kind: str,
-        target_m: float | None,
-        by_m: float | None,
-        bursts: tuple[Burst, ...] = (),
-        *,
-        pose_target: dict[str, float] | None = None,
-        part: int = 1,
-    ) -> Job:
-        job = Job(kind, target_m=target_m, by_m=by_m, bursts=bursts, pose_target=pose_target, part=part)
-        job.on_start = lambda: self.records.begin(job, self.loop)
-        job.on_done = lambda result: self.records.finish(job, result, self.loop)
-        job.on_progress = lambda: self.records.progress(job)
-        return job
-
     def _refuse_queued(self, job: Job, reason: str) -> None:
         log.warning("a queued %s was refused when its turn came: %s", job.kind, reason)
         job.result = JobResult(job.kind, "refused", reason, job.target_m, None, None, 0, 0, 0.0, {})
@@ -390,35 +356,14 @@ class Daemon:
         return self.loop.quiet
 
     def handle(self, request: Any) -> dict[str, Any]:
-        """Answer one request object (see :mod:`feeder.daemon.client`); waits first while the
-        tick is due (:meth:`QuietWindow.hold`)."""
+        """Answer one request object (:func:`~feeder.daemon.requests.answer`); waits first while
+        the tick is due (:meth:`QuietWindow.hold`)."""
         self.quiet.hold()
-        if not isinstance(request, dict):
-            return {"ok": False, "error": "a request must be a JSON object"}
-        cmd = request.get("cmd")
-        handler: Callable[[dict[str, Any]], dict[str, Any]] | None = (
-            {
-                "move": self._cmd_move,
-                "stop": self._cmd_stop,
-                "status": self._cmd_status,
-                "calibrate": self._cmd_calibrate,
-                "history": self._cmd_history,
-                "release": self._cmd_release,
-                "shutdown": self._cmd_shutdown,
-            }.get(cmd)
-            if isinstance(cmd, str)
-            else None
-        )
-        if handler is None:
-            return {
-                "ok": False,
-                "error": f"unknown cmd {cmd!r}; known: move, stop, status, calibrate, history, release, "
-                "shutdown",
-            }
-        return handler(request)
+        return answer(self, request)
 
-    def _run_job(self, job: Job, request: dict[str, Any]) -> dict[str, Any]:
-        queue = request.get("queue") is True
+    def run(self, job: Job, *, queue: bool) -> tuple[int, str | None]:
+        """Hand ``job`` to the loop, or (``queue``) queue it behind the running and queued moves:
+        its place in the queue (0: handed to the loop) and the reason it is refused, or None."""
         with self._submitting:
             with self._lock:
                 position, reason = 0, None
@@ -429,108 +374,16 @@ class Daemon:
                     reason = 'moves are queued: join the queue (feeder move --queue; "queue": true)'
             if position == 0 and reason is None:
                 reason = self._submit(job)
-        if reason is not None:
-            return {"ok": False, "error": reason}
-        if request.get("wait", True) is False:
-            return {"ok": True, "accepted": True, "queue_position": position}
-        job.done.wait()
-        assert job.result is not None
-        result = job.result.as_dict(with_trace=request.get("trace") is True)
-        result["move_id"] = job.record_id
-        ok = job.result.status == "done"
-        return {"ok": ok, "result": result, **({} if ok else {"error": job.result.reason})}
+        return position, reason
 
-    def _cmd_move(self, request: dict[str, Any]) -> dict[str, Any]:
-        try:
-            target = finite(request, "target_m")
-            by = finite(request, "by_m")
-            pose = {k: v for k in POSE_KEYS if (v := finite(request, k)) is not None}
-            part = integer(request, "part", 1, 1)
-        except RequestFieldError as err:
-            return {"ok": False, "error": str(err)}
-        if pose:
-            if target is not None or by is not None:
-                return {"ok": False, "error": "give a pose (x_m, y_m, angle_rad) or target_m/by_m, not both"}
-            if self.setup.pose_navigator is not None:
-                return self._run_job(self._new_job("move", None, None, pose_target=pose, part=part), request)
-            if set(pose) != {"x_m"}:
-                return {"ok": False, "error": "this configuration drives one axis (x): give x_m or target_m"}
-            target = pose["x_m"]
-        if (target is None) == (by is None):
-            return {
-                "ok": False,
-                "error": "give exactly one of target_m and by_m, or a pose (x_m, y_m, angle_rad)",
-            }
-        return self._run_job(self._new_job("move", target, by, part=part), request)
-
-    def _cmd_calibrate(self, request: dict[str, Any]) -> dict[str, Any]:
-        if self.setup.pose_navigator is not None:
-            return {"ok": False, "error": PLANE_CALIBRATE}
-        try:
-            steps = integer(request, "steps", CALIBRATION_STEPS, 2, 10_000)
-        except RequestFieldError as err:
-            return {"ok": False, "error": str(err)}
-        allowed = self._calibration_room()
-        if isinstance(allowed, str):
-            return {"ok": False, "error": allowed}
-        limited = steps > allowed
-        steps = min(steps, allowed)
-        fine_steps = fine_steps_for(steps, self.setup.modes)
-        reply = self._run_job(
-            self._new_job("calibrate", None, None, calibration_bursts(steps, fine_steps)), request
-        )
-        if limited:
-            reply["note"] = (
-                f"calibration limited to {steps} coarse steps per direction by the "
-                "travel left on either side of the part"
-            )
-        reply["calibration_steps"] = steps
-        return reply
-
-    def _calibration_room(self) -> int | str:
-        """:func:`.calibration_room` from where the part is (waiting up to the sensor timeout for a
-        first reading); a reason string when there is no room or no position."""
-        deadline = time.monotonic() + self.setup.sensor_timeout_s
-        while self.loop.position_m is None and time.monotonic() < deadline:
-            time.sleep(0.01)  # just started: the first frame is on its way
-        x = self.loop.position_m
-        if x is None:
-            return "position uncertain: calibration needs a sensor reading first"
-        estimate = self.loop.estimates()[f"{COARSE}/{FORWARD}"]
-        return calibration_room(x, self.loop.settings, estimate, self.setup.modes[COARSE].predicted_band_m[1])
-
-    def _cmd_stop(self, request: dict[str, Any]) -> dict[str, Any]:
+    def stop(self) -> tuple[bool, int]:
+        """Refuse the queued moves and stop the running one: whether one was running, and how
+        many were dequeued."""
         with self._lock:
             queued, self._queue = list(self._queue), collections.deque()
         for job in queued:
             self._refuse_queued(job, "stop requested")
-        stopped = self.loop.request_stop()
-        return {"ok": True, "stopped": stopped, "dequeued": len(queued)}
-
-    def _cmd_release(self, request: dict[str, Any]) -> dict[str, Any]:
-        """Let held parts go: ``part`` N, or every part when absent (the plane; one axis holds none)."""
-        try:
-            part = None if request.get("part") is None else integer(request, "part", 1, 1)
-        except RequestFieldError as err:
-            return {"ok": False, "error": str(err)}
-        released = self.loop.release(part)
-        if isinstance(released, str):
-            return {"ok": False, "error": released}
-        return {"ok": True, "released": released}
-
-    def _cmd_history(self, request: dict[str, Any]) -> dict[str, Any]:
-        try:
-            limit = integer(request, "limit", 100, 1, 100_000)
-        except RequestFieldError as err:
-            return {"ok": False, "error": str(err)}
-        return {"ok": True, "moves": self.store.moves(limit)}
-
-    def _cmd_shutdown(self, request: dict[str, Any]) -> dict[str, Any]:
-        threading.Thread(target=self.shutdown, name="shutdown", daemon=True).start()
-        return {"ok": True, "shutting_down": True}
-
-    def _cmd_status(self, request: dict[str, Any]) -> dict[str, Any]:
-        return {"ok": True, **self.status()}
+        return self.loop.request_stop(), len(queued)
 
     def status(self) -> dict[str, Any]:
         """The ``status`` reply: the loop's (:func:`.loop_status`), the faults and reconnects,
