@@ -155,7 +155,7 @@ class Axis:
             self._rewrite(resume=True)
 
     def set_offset(self, volts: float) -> None:
-        """DC offset used in ``inp``, ``stp+`` and ``stp-``, within the rails (V)."""
+        """DC offset played in ``off`` (alone) and ``stp+``/``stp-`` (under the steps), in the rails (V)."""
         with self._fw.lock:
             amp = self._fw.config.amplifier
             _check("offset", volts, amp.v_min_v, amp.v_max_v)
@@ -398,7 +398,9 @@ class Axis:
         else:
             steps = np.zeros(n, dtype=np.int64)
             phases = np.full(n, self._phase, dtype=np.uint64)
-            level = self._offset_v if self._mode == "inp" else 0.0  # gnd, off, cap: 0 V
+            # off: the offset alone (ANC300 offset mode); gnd, cap: 0 V; inp: the AC-IN/DC-IN
+            # inputs only, which nothing drives here: 0 V
+            level = self._offset_v if self._mode == "off" else 0.0
             code = round((min(max(level, amp.v_min_v), amp.v_max_v) - amp.v_min_v) / fw.lsb_v)
             if code == self._code:  # at rest: nothing to limit
                 return np.full(n, code, dtype=np.int64), steps, phases

@@ -116,6 +116,21 @@ def test_dac_stream_stays_within_rails_slew_and_current_limit() -> None:
     assert v[-1] == 0.0
 
 
+@pytest.mark.parametrize(
+    ("mode", "level_v"),
+    [("off", 40.0), ("inp", 0.0), ("gnd", 0.0), ("stp", 0.0)],
+)
+def test_modes_play_the_offset_as_a_real_anc300_does(mode: str, level_v: float) -> None:
+    """ANC300 manual, ``setm``: ``off`` is the offset mode (the ``seta`` voltage alone); ``inp``
+    the AC-IN/DC-IN inputs alone (undriven here); ``stp`` turns an offset off; nothing steps."""
+    fw, rec, clock = make()
+    axis = fw.axis(1)
+    axis.set_offset(40.0)
+    axis.set_mode(mode)
+    fw.run(clock, max_ticks=30)
+    assert rec.volts()[-1] == pytest.approx(level_v, abs=fw.lsb_v)
+
+
 def test_limits_refuse_with_field_and_range() -> None:
     fw, _, _ = make()
     axis = fw.axis(2)
