@@ -208,3 +208,23 @@ def test_driver_over_rfc2217(sim: Simulator) -> None:
     finally:
         link.close()
         bridge.close()
+
+
+def test_hold_offset_is_the_offset_mode_and_a_ramp_goes_in_increments(sim: Simulator) -> None:
+    """``setm off`` + ``seta``: a real ANC300's offset mode (the voltage alone); step mode and
+    ground end it, and the next offset puts the axis back in it."""
+    with Anc300Amplifier.open(sim.endpoints["console_tcp"], axis=1, timeout_s=2.0) as amp:
+        amp.ground()
+        assert amp.ramp_offset(0.0, 1.0, 0.3, 0.0) == 4  # 0.25 V each
+        assert amp.status().mode == "off"
+        assert float(amp.link.value("geta 1", "voltage")) == 1.0
+        amp.enable()
+        assert amp.status().mode == "stp"
+        amp.hold_offset(0.5)
+        assert amp.status().mode == "off"
+        amp.ramp_offset(0.5, 0.0, 0.3, 0.0)
+        assert float(amp.link.value("geta 1", "voltage")) == 0.0
+        amp.ground()
+        assert amp.status().mode == "gnd"
+        with pytest.raises(AmplifierError, match="increment"):
+            amp.ramp_offset(0.0, 1.0, 0.0, 0.0)

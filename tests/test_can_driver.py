@@ -243,3 +243,14 @@ def test_a_dead_host_bus_is_a_lost_link_not_a_can_error(rig: Rig) -> None:
         rig.amp.status()
     with pytest.raises(AmplifierLinkLost):
         rig.amp.step(3)
+
+
+def test_hold_offset_is_the_offset_mode(rig: Rig) -> None:
+    amp, axis = rig.amp, rig.firmware.axis(2)
+    amp.hold_offset(12.5)
+    assert (axis.status().mode, axis.status().offset_v) == ("off", 12.5)
+    amp.ground()
+    assert axis.status().mode == "gnd"
+    amp.hold_offset(0.25)  # grounding ended the offset mode: the driver selects it again
+    assert (axis.status().mode, axis.status().offset_v) == ("off", 0.25)
+    amp.ground()

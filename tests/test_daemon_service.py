@@ -390,7 +390,7 @@ def test_a_camera_nobody_calibrated_refuses_moves_until_a_calibration_is_stored(
     the planner would steer the wrong way (and learn that).  ``[camera] aligned = true`` says
     the configured one is right (tests/test_daemon_hil.py); the simulator's camera needs none."""
     reason = CameraConfig(address="0").uncalibrated()
-    assert reason is not None and "feeder vision calibrate --x-move" in reason and "aligned" in reason
+    assert reason is not None and "feeder vision calibrate-moves" in reason and "aligned" in reason
     assert (
         CameraConfig().uncalibrated() is None
         and CameraConfig(address="0", aligned=True).uncalibrated() is None

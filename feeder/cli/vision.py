@@ -10,10 +10,12 @@ from typing import Any
 
 import numpy as np
 
+from feeder.cli import vision_moves
 from feeder.cli.arguments import angle_rad, input_path, length_in, length_m, output_path
+from feeder.cli.calibration_report import check_target, emit_calibration
 from feeder.cli.output import print_json
 from feeder.errors import InputError
-from feeder.files import read_text, save_figure, write_bytes, write_text
+from feeder.files import read_text, save_figure, write_bytes
 from feeder.parts import Part
 from feeder.vision.calibration import (
     CameraCalibration,
@@ -22,8 +24,6 @@ from feeder.vision.calibration import (
     rotation_centre,
 )
 from feeder.vision.model import Detection, LocateResult, PartTemplate
-
-CALIBRATION_NOTE = "printed only: --out writes it as JSON, --save-state stores it for the daemon"
 
 
 def register(sub: Any) -> None:
@@ -106,6 +106,7 @@ def register(sub: Any) -> None:
     )
     cal.add_argument("--json", action="store_true", help="print one JSON object")
     cal.set_defaults(handler=run_calibrate)
+    vision_moves.register(vision)
 
 
 def _read_image(path: Path) -> np.ndarray:
@@ -117,11 +118,6 @@ def _read_image(path: Path) -> np.ndarray:
     if image is None:
         raise InputError(str(path), "not an image OpenCV can read")
     return image
-
-
-def _check_target(path: Path | None, flag: str) -> None:
-    if path is not None and (path.is_dir() or not path.parent.is_dir()):
-        raise InputError(flag, f"cannot write {path}: a directory, or its directory does not exist")
 
 
 def _template(args: argparse.Namespace) -> PartTemplate | None:
@@ -185,7 +181,7 @@ def _part_json(
 def run_locate(args: argparse.Namespace) -> int:
     from feeder.vision.locate import locate
 
-    _check_target(args.plot, "--plot")
+    check_target(args.plot, "--plot")
     calibration = _load_calibration(args.calibration) if args.calibration else None
     if args.pixel_size is None and calibration is not None:
         args.pixel_size = calibration.pixel_size_m
@@ -272,7 +268,7 @@ def run_grab(args: argparse.Namespace) -> int:
 
     from feeder.drivers.video_camera import CameraError, CameraLost, open_camera
 
-    _check_target(args.out, "--out")
+    check_target(args.out, "--out")
     try:
         with open_camera(args.camera) as camera:
             frame = camera.read(timeout_s=args.timeout_s)
@@ -319,25 +315,8 @@ def _length(text: str, flag: str) -> float:
         raise InputError(flag, str(err)) from None
 
 
-def _save_state(state_dir: Path | None, report: dict[str, Any]) -> Path:
-    """Store the calibration in the daemon's SQLite state (one-line error if it is not ours)."""
-    from feeder.daemon.config import default_state_dir
-    from feeder.daemon.store import Store, StoreError
-
-    path = (state_dir or default_state_dir()) / "feeder.sqlite"
-    try:
-        store = Store(path)
-    except (StoreError, OSError) as err:
-        raise InputError("--state-dir", str(err)) from None
-    try:
-        store.save_camera_calibration({k: v for k, v in report.items() if v is not None})
-    finally:
-        store.close()
-    return path
-
-
 def run_calibrate(args: argparse.Namespace) -> int:
-    _check_target(args.out, "--out")
+    check_target(args.out, "--out")
     report: dict[str, Any] = {}
     if args.image:
         if args.part is None:
@@ -389,25 +368,4 @@ def run_calibrate(args: argparse.Namespace) -> int:
         "origin_y_px": report.get("origin_y_px"),
         **report,
     }
-    if args.out is None and not args.save_state:
-        report["note"] = CALIBRATION_NOTE
-    if args.out is not None:
-        write_text(args.out, json.dumps({k: v for k, v in report.items() if v is not None}, indent=2) + "\n")
-        report["out"] = str(args.out)
-    if args.save_state:
-        report["database"] = str(_save_state(args.state_dir, report))
-    if args.json:
-        print_json(report)
-    else:
-        print(
-            f"pixel size {pixel_size * 1e6:.5f} µm, rotation {math.degrees(rotation):.4f}°"
-            f"{', mirrored' if mirrored else ''}"
-            + (
-                f", θ centre ({report['origin_x_px']:.2f}, {report['origin_y_px']:.2f}) px"
-                if report["origin_x_px"] is not None
-                else ""
-            )
-        )
-        if "note" in report:
-            print(report["note"])
-    return 0
+    return emit_calibration(report, args)

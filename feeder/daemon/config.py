@@ -170,9 +170,9 @@ class CameraConfig:
             return None
         return (
             f"the camera {self.address} is not calibrated: the configuration assumes its image is "
-            "neither turned nor mirrored against the plate; run `feeder vision calibrate --x-move … "
-            "--y-move … --save-state` (docs/daemon.md, Configuration), or set [camera] aligned = true "
-            "if it is so"
+            "neither turned nor mirrored against the plate; run `feeder vision calibrate-moves "
+            "--stack-gain … --save-state` (or `feeder vision calibrate --x-move … --y-move … "
+            "--save-state`; docs/daemon.md, Configuration), or set [camera] aligned = true if it is so"
         )
 
     def travel_m(self, part: Part) -> tuple[float, float]:

@@ -7,6 +7,8 @@ peak-to-peak of the sawtooth.  A driver drives one axis.
 
 from __future__ import annotations
 
+import math
+import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from types import TracebackType
@@ -118,6 +120,32 @@ class Amplifier(ABC):
         """
         status = self.status()
         return status.step_counter, status.counted_by == "estimated"
+
+    def hold_offset(self, volts: float) -> None:
+        """Hold the output at ``volts`` DC (the offset mode: an ANC300's ``setm off``/``seta``):
+        the stack's static stroke moves the plate by its gain × volts.
+
+        The level changes at the amplifier's slope limit, as fast as a flyback: a jump of more
+        than a fraction of a volt makes the parts slip; :meth:`ramp_offset` changes it gently.
+        :meth:`enable` (step mode) and :meth:`ground` end the offset at once: return it to 0 V
+        first.  Default: refused (a drive without an offset mode).
+        """
+        raise AmplifierError(f"{type(self).__name__}: this drive has no DC offset mode")
+
+    def ramp_offset(self, start_v: float, end_v: float, increment_v: float, pause_s: float) -> int:
+        """Move the offset from ``start_v`` to ``end_v`` in increments of at most ``increment_v``
+        (V), ``pause_s`` (s) after each (the plate's ringing dies out); returns the increments.
+
+        Each increment is a small jump at the slope limit: its ringing must stay below the
+        parts' breakaway acceleration (firmware_sim's plate, 30 kHz, and a 105 m/s² part:
+        0.1 V increments hold, 0.2 V ones slip; docs/daemon.md)."""
+        if not increment_v > 0:
+            raise AmplifierError(f"offset increment must be positive, got {increment_v!r} V")
+        count = max(1, math.ceil(abs(end_v - start_v) / increment_v))
+        for k in range(1, count + 1):
+            self.hold_offset(start_v + (end_v - start_v) * k / count)
+            time.sleep(pause_s)
+        return count
 
     def alive(self) -> None:  # noqa: B027 (optional hook: most drives have no host watchdog)
         """The caller's control loop is making progress; a drive with a host watchdog stops

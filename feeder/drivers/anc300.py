@@ -64,6 +64,7 @@ class Anc300Amplifier(Amplifier):
         self._burst: tuple[float, int] | None = None  # (start s, signed steps) while it runs
         self._estimated = False
         self._continuous = False  # stepu/stepd c: never ends, so never ``stepw``
+        self._offset_mode = False  # this driver put the axis in ``off`` (hold_offset)
         link.attach(axis, self._stopped_by_link)
 
     @classmethod
@@ -145,12 +146,22 @@ class Anc300Amplifier(Amplifier):
         return True
 
     def ground(self) -> None:
+        self._offset_mode = False
         self.link.query(f"setm {self.axis} gnd")
         with self._lock:
             self._cut_burst()
 
     def enable(self) -> None:
+        self._offset_mode = False
         self.link.query(f"setm {self.axis} stp")
+
+    def hold_offset(self, volts: float) -> None:
+        """``seta`` the level, then ``setm off`` (the offset mode) unless this driver set it:
+        from ``gnd`` at 0 V that changes nothing the plate feels."""
+        self.link.query(f"seta {self.axis} {volts:.6f}")
+        if not self._offset_mode:
+            self.link.query(f"setm {self.axis} off")
+            self._offset_mode = True
 
     def steps_played(self) -> tuple[int, bool]:
         """(signed steps played since this driver started, estimated?) — no I/O."""

@@ -58,6 +58,7 @@ SETTINGS = ("Flyback shape", "Frequency", "Flyback time", "Amplitude")
 
 STATE_OBJECTS = (
     "Mode",
+    "Offset",
     "Continuous",
     "Fault reset",
     "Fault word",
@@ -127,6 +128,7 @@ class CanopenAmplifier(Amplifier):
         self._lock = threading.RLock()
         self._closed = False
         self._continuous = False  # a continuous run was started (by SDO) since the last RPDO command
+        self._offset_mode = False  # this driver put the axis in ``off`` (hold_offset)
         link.acquire()
 
     @property
@@ -255,11 +257,21 @@ class CanopenAmplifier(Amplifier):
 
     def ground(self) -> None:
         with self._lock:
+            self._offset_mode = False
             self._sdo_write("Mode", MODES.index("gnd"))
 
     def enable(self) -> None:
         with self._lock:
+            self._offset_mode = False
             self._sdo_write("Mode", MODES.index("stp"))
+
+    def hold_offset(self, volts: float) -> None:
+        """``Offset`` (mV) first, then ``Mode`` = off unless this driver set it."""
+        with self._lock:
+            self._sdo_write("Offset", round(volts * 1000))
+            if not self._offset_mode:
+                self._sdo_write("Mode", MODES.index("off"))
+                self._offset_mode = True
 
     def clear_faults(self) -> None:
         """Clear the axis' latched fault word (``Fault reset``) and the EMCY that reported it;

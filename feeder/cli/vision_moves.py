@@ -1,0 +1,148 @@
+"""``feeder vision calibrate-moves``: the camera calibration from plate moves the amplifier makes.
+
+Opens the daemon configuration's amplifier and camera (or, with no hardware named, starts the
+simulator as the daemon would), moves the plate by DC offsets on x, y and θ
+(:mod:`feeder.vision.offset_moves`) and reports, writes or stores the calibration as ``feeder
+vision calibrate`` does.  The daemon holds the same amplifier: stop it first (its state
+directory's lock says whether one runs there).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+from typing import Any
+
+from feeder.cli.arguments import float_in, int_in, output_path
+from feeder.cli.calibration_report import check_target, emit_calibration
+from feeder.errors import InputError
+from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, OffsetMoves, measure
+
+SCALE_WARNING = 0.1
+"""The moves' pixel size and the configured one differ by more than this fraction: say so."""
+
+
+def register(vision: Any) -> None:
+    moves = vision.add_parser(
+        "calibrate-moves",
+        help="calibration from plate moves the amplifier makes (DC offsets; stop the daemon first)",
+    )
+    moves.add_argument("--config", type=Path, help="the daemon's TOML (default: the simulated plane)")
+    moves.add_argument(
+        "--volts",
+        type=float_in(1.0, 200.0),
+        default=100.0,
+        help="offset each axis is held at, V (default 100; an ANC300 takes up to 150)",
+    )
+    moves.add_argument(
+        "--stack-gain",
+        type=float_in(1e-12, 1e-3),
+        metavar="M_PER_V",
+        help="the plate's static move per volt of offset, m/V (the stacks' stroke per volt, "
+        f"e.g. 7e-8); required on hardware, firmware_sim's is {FIRMWARE_SIM_GAIN_M_PER_V:g}",
+    )
+    moves.add_argument(
+        "--increment",
+        type=float_in(1e-4, 1.0),
+        default=0.05,
+        metavar="V",
+        help="the offset ramps in steps of at most this, V (default 0.05; a jump is a flyback: "
+        "the parts slip)",
+    )
+    moves.add_argument(
+        "--frames",
+        type=int_in(1, 1000),
+        default=10,
+        help="frames averaged per position (default 10)",
+    )
+    moves.add_argument(
+        "--sim-arg",
+        action="append",
+        default=[],
+        metavar="ARG",
+        help="extra firmware_sim argument when no hardware is named (e.g. --sim-arg=--camera-mirrored)",
+    )
+    moves.add_argument(
+        "--out", type=output_path, help="write the calibration JSON (for `vision locate --calibration`)"
+    )
+    moves.add_argument(
+        "--save-state", action="store_true", help="store it for the daemon (its next move uses it)"
+    )
+    moves.add_argument("--state-dir", type=Path, help="the daemon's state directory (default: the config's)")
+    moves.add_argument("--json", action="store_true", help="print one JSON object")
+    moves.set_defaults(handler=run_calibrate_moves)
+
+
+def run_calibrate_moves(args: argparse.Namespace) -> int:
+    from feeder.daemon.config import embedded_plane
+    from feeder.daemon.config_file import load_config
+    from feeder.daemon.links import open_links
+    from feeder.daemon.service import lock_state
+
+    check_target(args.out, "--out")
+    config = load_config(args.config)
+    if args.config is None:
+        config = embedded_plane(config)
+    if args.state_dir is not None:
+        config = dataclasses.replace(config, state_dir=args.state_dir)
+    if args.sim_arg:
+        config = dataclasses.replace(config, simulator_args=(*config.simulator_args, *args.sim_arg))
+    if not {"x", "y"} <= set(config.plate.axes):
+        raise InputError("plate.axes", "the plate moves need the x and y axes")
+    hardware = not config.amplifier.simulated
+    if hardware and args.stack_gain is None:
+        raise InputError("--stack-gain", "required on hardware: the plate's move per volt of offset (m/V)")
+    moves = OffsetMoves(
+        volts=args.volts,
+        stack_gain_m_per_v=args.stack_gain or FIRMWARE_SIM_GAIN_M_PER_V,
+        lever_arm_m=config.plate.lever_arm_m,
+        increment_v=args.increment,
+        frames=args.frames,
+    )
+    lock = lock_state(config.database_path)  # no daemon drives this amplifier meanwhile
+    try:
+        links = open_links(config)
+        try:
+            report = _measure(links, moves)
+        finally:
+            links.close()
+    finally:
+        lock.close()
+    configured = config.camera.pixel_size_m
+    report["configured_pixel_size_m"] = configured
+    ratio = report["pixel_size_m"] / configured
+    if abs(ratio - 1) > SCALE_WARNING:
+        print(
+            f"feeder vision calibrate-moves: warning: the moves' pixel size is {ratio:.3f} × the "
+            f"configured {configured:.4g} m: check --stack-gain",
+            file=sys.stderr,
+        )
+    if report["slipped"]:
+        print(
+            f"feeder vision calibrate-moves: warning: the parts came back {report['returned_px']:.3f} px "
+            "from where they were: they slipped, and the moves are off by about as much; "
+            "use a smaller --increment",
+            file=sys.stderr,
+        )
+    if args.save_state:  # emit_calibration stores it where the daemon of this config looks
+        args.state_dir = config.state_dir
+    return emit_calibration(report, args)
+
+
+def _measure(links: Any, moves: OffsetMoves) -> dict[str, Any]:
+    """Open the amplifier's axes and the camera, move, close them (the output grounded)."""
+    from feeder.drivers.axes import Axes
+
+    amplifiers = links.open_amplifier()
+    with amplifiers:  # closing grounds every axis
+        if not isinstance(amplifiers, Axes):
+            raise InputError("plate.axes", "the plate moves need the x and y axes")
+        calibration = links.configured_calibration()
+        if calibration is None:
+            raise InputError("camera", "the plate moves are measured by a camera ([camera] address)")
+        with links.open_sensor(calibration) as sensor:
+            return measure(
+                amplifiers, sensor, calibration, moves, progress=lambda line: print(line, file=sys.stderr)
+            )

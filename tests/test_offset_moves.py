@@ -1,0 +1,227 @@
+"""Camera calibration from plate moves made by the stacks' DC offsets (feeder.vision.offset_moves,
+``feeder vision calibrate-moves``): the ramp keeps the parts stuck, the fit recovers a turned and
+mirrored camera, the command runs on the simulator and refuses hardware without a stack gain."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from feeder.cli import main
+from feeder.contact.breakaway import contact
+from feeder.daemon.store import Store
+from feeder.drivers.amplifier import Amplifier, AmplifierError, AmplifierStatus, DriveSettings
+from feeder.drivers.sensor import PositionSample, PositionSensor
+from feeder.parts import Part
+from feeder.plant.planar import PlanarPart
+from feeder.plant.planar_plant import PlanarPlant
+from feeder.plant.stick_slip import Friction
+from feeder.vision.calibration import CameraCalibration
+from feeder.vision.offset_moves import OffsetMoves, measure
+
+START = (0.9e-3, 0.4e-3, 0.2)
+
+
+def _lag_behind_the_plate(command: np.ndarray) -> float:
+    """How far (m) a 300×300×50 part ends from where it sat on the plate after x's ``command``."""
+    shape = Part.parse("300x300x50")
+    part = PlanarPart.from_part(shape, Friction(contact(shape).breakaway_accel_m_s2), START)
+    plant = PlanarPlant([part])
+    line = np.zeros((3, command.size + 5000))
+    line[0, : command.size] = command
+    line[0, command.size :] = command[-1]
+    plant.advance(line)
+    assert plant.plate_pose[0] == pytest.approx(0.07e-6 * command[-1], rel=1e-6)  # the stack's stroke
+    x, y, _ = plant.poses()[0]
+    return math.hypot(x - START[0], y - START[1])
+
+
+def test_an_offset_jump_slips_the_parts_and_fine_increments_do_not() -> None:
+    """The offset plays at the amplifier's slope limit: a jump is a flyback and the part stays
+    behind the plate; 0.1 V increments 1 ms apart (this plate rings at 30 kHz) keep it stuck."""
+    jump = np.full(100, 20.0)
+    assert _lag_behind_the_plate(jump) > 1e-6
+    fine = np.repeat(np.arange(1, 201) * 0.1, 100)  # 0 → 20 V, 0.1 V per 1 ms
+    assert _lag_behind_the_plate(fine) == 0.0
+    coarse = np.repeat(np.arange(1, 101) * 0.2, 100)  # 0.2 V increments slip, a little each
+    assert _lag_behind_the_plate(coarse) > 1e-7
+
+
+class OffsetPlate:
+    """A plate moved by its stacks' offsets, seen by a camera turned 0.5 rad and mirrored."""
+
+    def __init__(self) -> None:
+        self.volts = {"x": 0.0, "y": 0.0, "theta": 0.0}
+        self.true = CameraCalibration(2.0e-6, 0.5, True, 1000.0, 700.0)
+        self.parts = [(0.6e-3, 0.2e-3), (-0.4e-3, 0.5e-3)]
+        self.moves = OffsetMoves(volts=60.0, lever_arm_m=1.5e-3, settle_s=0.0, pause_s=0.0, frames=2)
+
+    def image_points(self) -> list[tuple[float, float]]:
+        gain = self.moves.stack_gain_m_per_v
+        turn = gain * self.volts["theta"] / self.moves.lever_arm_m
+        c, s = math.cos(turn), math.sin(turn)
+        shift = (gain * self.volts["x"], gain * self.volts["y"])
+        return [self.true.to_image(c * x - s * y + shift[0], s * x + c * y + shift[1]) for x, y in self.parts]
+
+
+class OffsetAxis(Amplifier):
+    def __init__(self, plate: OffsetPlate, name: str) -> None:
+        self.plate, self.name = plate, name
+        self.levels: list[float] = []
+
+    def hold_offset(self, volts: float) -> None:
+        if abs(volts - self.plate.volts[self.name]) > self.plate.moves.increment_v + 1e-12:
+            raise AssertionError(f"a jump of {volts - self.plate.volts[self.name]:g} V")
+        self.plate.volts[self.name] = volts
+        self.levels.append(volts)
+
+    def ground(self) -> None:
+        assert self.plate.volts[self.name] == 0.0, "grounded from an offset: a jump"
+
+    def apply(self, settings: DriveSettings) -> None:
+        raise NotImplementedError
+
+    def step(self, count: int) -> None:
+        raise NotImplementedError
+
+    def run_continuous(self, forward: bool) -> None:
+        raise NotImplementedError
+
+    def stop(self) -> None:
+        raise NotImplementedError
+
+    def wait(self, timeout_s: float) -> bool:
+        raise NotImplementedError
+
+    def enable(self) -> None:
+        raise NotImplementedError
+
+    def status(self) -> AmplifierStatus:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+class LocatingCamera(PositionSensor):
+    """Poses located with the configured calibration (not turned, not mirrored)."""
+
+    def __init__(self, plate: OffsetPlate, configured: CameraCalibration) -> None:
+        self.plate, self.configured, self.frames = plate, configured, 0
+
+    def read(self, timeout_s: float = 1.0) -> PositionSample:
+        self.frames += 1
+        poses = tuple((*self.configured.to_plate(u, v), 0.0) for u, v in self.plate.image_points())
+        return PositionSample(
+            time_s=self.frames / 100, position_m=poses[0][0], sequence=self.frames, poses=poses
+        )
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_moves_recover_a_turned_mirrored_camera_and_its_rotation_centre() -> None:
+    plate = OffsetPlate()
+    axes = {name: OffsetAxis(plate, name) for name in ("x", "y", "theta")}
+    configured = CameraCalibration(2.1e-6, origin_x_px=1023.5, origin_y_px=767.5)
+    lines: list[str] = []
+    report = measure(axes, LocatingCamera(plate, configured), configured, plate.moves, lines.append)
+    assert report["pixel_size_m"] == pytest.approx(2.0e-6, rel=1e-9)
+    assert report["rotation_rad"] == pytest.approx(0.5, abs=1e-9) and report["mirrored"] is True
+    assert (report["origin_x_px"], report["origin_y_px"]) == (pytest.approx(1000.0), pytest.approx(700.0))
+    assert report["moves_residual_px"] < 1e-6 and report["returned_px"] < 1e-9 and report["parts"] == 2
+    assert report["origin_uncertainty_px"] < 1e-9  # a camera without noise or bias
+    assert report["plate_move_m"] == pytest.approx(0.07e-6 * 60)
+    for axis in axes.values():  # up to 60 V in 0.05 V increments and back down to 0
+        assert len(axis.levels) == 2 * 1200 and max(axis.levels) == 60.0 and axis.levels[-1] == 0.0
+    assert lines[0] == "x: offset 0 → 60 V" and len(lines) == 6
+
+
+def test_the_moves_need_x_and_y() -> None:
+    plate = OffsetPlate()
+    configured = CameraCalibration(2.1e-6)
+    with pytest.raises(Exception, match="x and y"):
+        measure({"x": OffsetAxis(plate, "x")}, LocatingCamera(plate, configured), configured, plate.moves)
+
+
+def test_a_drive_without_an_offset_mode_refuses() -> None:
+    from test_daemon_doubles import FakeAmplifier, FakeWorld
+
+    with pytest.raises(AmplifierError, match="no DC offset mode"):
+        FakeAmplifier(FakeWorld({(100.0, 1): 1e-6})).hold_offset(1.0)
+
+
+def test_calibrate_moves_on_the_simulator_measures_its_turned_mirrored_camera(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The embedded plane's simulator, its camera turned 0.4 rad and mirrored: the command
+    measures that and stores it where the daemon looks (with the moves the daemon requires)."""
+    pytest.importorskip("cv2", reason="the camera needs OpenCV (the vision extra)")
+    code = main(
+        [
+            "vision",
+            "calibrate-moves",
+            "--state-dir",
+            str(tmp_path),
+            "--volts",
+            "60",
+            "--increment",
+            "0.1",
+            "--frames",
+            "4",
+            "--sim-arg=--camera-mirrored",
+            "--sim-arg=--camera-rotation-rad=0.4",
+            "--save-state",
+            "--json",
+        ]
+    )
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    report = json.loads(out.out)
+    assert report["mirrored"] is True and report["rotation_rad"] == pytest.approx(0.4, abs=0.02)
+    assert report["pixel_size_m"] == pytest.approx(2.7e-6, rel=0.03)
+    # O: the image centre of the simulator's 2048 px camera, within its stated uncertainty (the
+    # turn is 2.1 mrad: a 0.01 px error in the part's 0.7 px move puts O 1.5 % of its 0.9 mm off)
+    assert 0 < report["origin_uncertainty_px"] < 10
+    off = math.hypot(report["origin_x_px"] - 1023.5, report["origin_y_px"] - 1023.5)
+    assert off < 4 * report["origin_uncertainty_px"] + 1.0
+    assert report["slipped"] is False  # the parts came back to where they were
+    assert "x: offset 0 → 60 V" in out.err
+    store = Store(tmp_path / "feeder.sqlite")
+    stored = store.camera_calibration()
+    store.close()
+    assert stored is not None and stored["mirrored"] is True and "moves_residual_px" in stored
+
+
+def test_calibrate_moves_on_hardware_needs_the_stack_gain(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "feeder.toml"
+    config.write_text(
+        '[amplifier]\nport = "socket://127.0.0.1:9"\nmodel = "anc300"\n'
+        '[camera]\naddress = "http://127.0.0.1:9/video.mjpg"\n'
+        '[plate]\naxes = ["x", "y", "theta"]\n'
+    )
+    code = main(["vision", "calibrate-moves", "--config", str(config), "--state-dir", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "--stack-gain" in err, err
+    assert not (tmp_path / "feeder.sqlite").exists()
+
+
+def test_calibrate_moves_refuses_while_a_daemon_holds_the_state(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The daemon drives the same amplifier: its state directory's lock keeps the command off."""
+    from feeder.daemon.service import lock_state
+
+    lock = lock_state(tmp_path / "feeder.sqlite")
+    try:
+        code = main(["vision", "calibrate-moves", "--state-dir", str(tmp_path)])
+    finally:
+        lock.close()
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "another daemon is using" in err, err
