@@ -22,7 +22,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_pose_planner import MODES, PART, RADII, TRAVEL, World, fresh
 
-from feeder.pose_planner import Finish, PosePlanner
+from feeder.pose_burst import Finish
+from feeder.pose_planner import PosePlanner
 from feeder.pose_response import ResponseModel
 
 

@@ -26,11 +26,13 @@ from __future__ import annotations
 import math
 
 from feeder.pose import Pose
-from feeder.pose_planner import USEFUL_ORBIT, AxisBurst, Finish, PosePlanner
+from feeder.pose_burst import AxisBurst, Finish
+from feeder.pose_planner import PosePlanner
+from feeder.pose_turns import USEFUL_ORBIT
 
 ANCHOR_SLACK = 0.2
 """An anchored part moves by less than this fraction of the tolerance during a θ burst (every orbit
-mode; :meth:`PosePlanner.theta_burst` cuts a burst there) ..."""
+mode; :meth:`~feeder.pose_turns.TurnPlanner.theta_burst` cuts a burst there) ..."""
 ANCHOR_STEPS = 10
 """... of at least this many steps, each as large as twice the seed (the prior's pessimistic step)."""
 LEG_REACH = 0.5
@@ -187,7 +189,7 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
                 f"part {ib + 1}'s angle cannot be chosen when two parts are placed together: its turn is "
                 "tied to its orbit about O (move it without an angle; docs/pose-control.md)"
             )
-        if not math.isnan(ta[2]) and abs(planner.angle_error(poses[ia], ta)) > planner.tolerance_rad:
+        if not math.isnan(ta[2]) and abs(planner.turns.angle_error(poses[ia], ta)) > planner.tolerance_rad:
             return (
                 f"part {ia + 1} keeps its angle while part {ib + 1} is placed: turn it first on its own "
                 "or move it without an angle"
@@ -310,7 +312,7 @@ def _orbit_burst(
     r_anchor = anchor_radius_m(planner)
     miss = math.hypot(*end) - math.hypot(b[0], b[1])  # how far B's radius is off the end's
     if math.hypot(a[0], a[1]) <= r_anchor and abs(miss) <= min(0.5 * tol, 0.5 * math.hypot(*rel)):
-        burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
+        burst = planner.turns.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
         if burst is not None:
             return burst
     plan = _pair_plan(planner, poses, targets)
@@ -326,7 +328,7 @@ def _orbit_burst(
         # (the plan's anchor moves with d as B orbits: A would chase it)
         here = _length_orbit(a, b, math.hypot(tb[0] - ta[0], tb[1] - ta[1]))
         if here is not None and abs(here) <= 2 * abs(phi):
-            burst = planner.theta_burst(poses, ib, here, anchored=(ia,), quantity="orbit")
+            burst = planner.turns.theta_burst(poses, ib, here, anchored=(ia,), quantity="orbit")
             if burst is not None:
                 return burst
     stuck = Finish(
@@ -339,11 +341,11 @@ def _orbit_burst(
         # B's orbit from where it will be is checked before A goes there (both carried along):
         # a pair 0.9 mm apart went to the anchor, found B in the dead zone and ended 260 µm off
         there = [(p[0] + shift[0], p[1] + shift[1], p[2]) for p in poses]
-        ahead = planner.theta_burst(there, ib, phi, anchored=(ia,), quantity="orbit")
+        ahead = planner.turns.theta_burst(there, ib, phi, anchored=(ia,), quantity="orbit")
         if not isinstance(ahead, AxisBurst):
             return ahead or stuck
         move = planner.translate_burst(poses, ia, anchor, exact=True)
         if not isinstance(move, Finish):  # else A is as close to the anchor as fine steps get it
             return move
-    burst = planner.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
+    burst = planner.turns.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
     return stuck if burst is None else burst

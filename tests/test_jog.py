@@ -31,9 +31,8 @@ class Model:
 
 
 def plane_status() -> dict:
-    planner = SimpleNamespace(
-        model=Model(), turn_per_step=lambda d, pose: Model().turn_step(d, "coarse", *pose).turn_rad
-    )
+    turns = SimpleNamespace(turn_per_step=lambda d, pose: Model().turn_step(d, "coarse", *pose).turn_rad)
+    planner = SimpleNamespace(model=Model(), turns=turns)
     navigator = PoseNavigator(planner, LoopSettings(), math.pi / 2)  # type: ignore[arg-type]
     steps = navigator.axis_steps(POSE)
     return {"axes": steps, "parts": [{"id": 1, "pose": list(POSE), **steps["theta"]}]}

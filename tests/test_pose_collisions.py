@@ -15,8 +15,10 @@ from feeder.plant.limit_surface import Patch
 from feeder.plant.planar import PlanarPart
 from feeder.plant.stick_slip import Friction
 from feeder.pose import Pose
-from feeder.pose_planner import CLEARANCE_M, AxisBurst, Finish, PosePlanner
+from feeder.pose_burst import AxisBurst, Finish
+from feeder.pose_planner import PosePlanner
 from feeder.pose_response import SEED_STD, ResponseModel, TurnTable
+from feeder.pose_turns import CLEARANCE_M
 from feeder.travel import Travel
 
 FRICTION = Friction(105.25, 0.8)
@@ -173,15 +175,15 @@ def test_parts_closer_than_the_clearance_may_move_apart_but_not_closer() -> None
     phi = math.acos((0.5e-3**2 + 0.2e-3**2 - 0.32e-3**2) / (2 * 0.5e-3 * 0.2e-3))
     near = [(0.2e-3, 0.0, 0.0), (0.5e-3 * math.cos(phi), 0.5e-3 * math.sin(phi), 0.0)]
     assert gap_m(DISC.patch, *near) == pytest.approx(20e-6, abs=1e-9) and CLEARANCE_M > 20e-6
-    away = planner.theta_burst(near, 1, 0.3, quantity="orbit")
+    away = planner.turns.theta_burst(near, 1, 0.3, quantity="orbit")
     far = [(-0.2e-3, 0.0, 0.0), near[1]]  # part 1 out of the way: the burst nothing cuts
-    assert isinstance(away, AxisBurst) and away == planner.theta_burst(far, 1, 0.3, quantity="orbit")
+    assert isinstance(away, AxisBurst) and away == planner.turns.theta_burst(far, 1, 0.3, quantity="orbit")
     end = step_all(orbiting, away, near, PESSIMISTIC)[-1]
     assert gap_m(DISC.patch, *end) > CLEARANCE_M
-    towards = planner.theta_burst(near, 1, -0.3, quantity="orbit")
+    towards = planner.turns.theta_burst(near, 1, -0.3, quantity="orbit")
     assert isinstance(towards, Finish) and towards.status == "unreachable"
     assert "orbiting part 2" in towards.reason and "part 1" in towards.reason
-    assert isinstance(planner.theta_burst(far, 1, -0.3, quantity="orbit"), AxisBurst)
+    assert isinstance(planner.turns.theta_burst(far, 1, -0.3, quantity="orbit"), AxisBurst)
 
 
 def test_check_refuses_a_target_within_the_clearance_of_another_target_naming_both() -> None:

@@ -21,7 +21,8 @@ from feeder.daemon.plane import DONE_MARGIN, plan_theta_modes
 from feeder.daemon.pose_navigator import PoseNavigator
 from feeder.daemon.step_estimator import FORWARD
 from feeder.pose import Pose, pose_error
-from feeder.pose_planner import AxisBurst, Finish, PosePlanner
+from feeder.pose_burst import AxisBurst, Finish
+from feeder.pose_planner import PosePlanner
 from feeder.pose_response import seed_response
 from feeder.surface.parameters import DEFAULT_SURFACE
 from feeder.web.requests import ApiError, jog_request
@@ -253,9 +254,8 @@ def test_a_part_turns_at_o_the_way_its_fine_step_still_turns_it() -> None:
     assert back == AxisBurst("theta", -1, 7, "fine")
     on = planner.next_burst(at_o, {1: (0.0, 0.0, 0.3 + 6e-3)})
     assert isinstance(on, AxisBurst) and on.axis in ("x", "y")  # to the station, 0.5 mm out
-    assert (
-        planner.turn_per_step(1, at_o[0]) == planner.model.turn_step(1, "coarse", 0.5e-3, 0.0, 0.3).turn_rad
-    )
+    station = planner.model.turn_step(1, "coarse", 0.5e-3, 0.0, 0.3).turn_rad
+    assert planner.turns.turn_per_step(1, at_o[0]) == station
 
 
 def test_a_jog_below_the_tolerance_takes_no_step_and_holds_what_is_already_so() -> None:

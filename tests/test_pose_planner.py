@@ -13,8 +13,9 @@ from feeder.plant.planar import PlanarPart, PlanarStickSlip
 from feeder.plant.plate_motion import Segment
 from feeder.plant.stick_slip import Friction
 from feeder.pose import Pose, pose_error
+from feeder.pose_burst import AxisBurst, Finish
 from feeder.pose_pair import _anchor, _length_leg, _length_orbit, anchor_radius_m
-from feeder.pose_planner import PROBE_FRACTION, AxisBurst, Finish, PosePlanner
+from feeder.pose_planner import PROBE_FRACTION, PosePlanner
 from feeder.pose_response import ANCHOR_MODES, AxisMode, GainFilter, ResponseModel, TurnTable, seed_response
 from feeder.travel import Travel
 
@@ -373,7 +374,7 @@ def test_with_both_theta_families_a_part_turns_among_others_and_a_pair_orbits_an
     assert planner.model.orbit_modes() == list(ANCHOR_MODES)
     anchored_only = PosePlanner(fresh(), TRAVEL, PART, TOL_M, TOL_RAD)  # MODES' θ: the old planning
     assert anchor_radius_m(planner) == anchor_radius_m(anchored_only) > 0.4e-3
-    assert planner.station_radius_m == 0.0  # the 1 kHz modes turn a part in place
+    assert planner.turns.station_radius_m == 0.0  # the 1 kHz modes turn a part in place
 
     world = World([(0.3e-3, -0.2e-3, 0.1), (-0.9e-3, 0.9e-3, 0.0)], modes=BOTH)
     target = (0.3e-3, -0.2e-3, 0.1 + math.radians(35))

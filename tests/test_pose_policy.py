@@ -19,7 +19,7 @@ from feeder.daemon.policy import Policy
 from feeder.daemon.pose_navigator import PoseNavigator
 from feeder.drivers.amplifier import DriveSettings
 from feeder.pose import Pose, pose_error
-from feeder.pose_planner import AxisBurst, Finish
+from feeder.pose_burst import AxisBurst, Finish
 
 STEP_M = 1e-6
 TURN_RAD = 1e-3

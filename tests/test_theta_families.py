@@ -28,8 +28,9 @@ from feeder.parts import Part
 from feeder.plant.planar import PlanarPart
 from feeder.plant.stick_slip import Friction
 from feeder.pose import Pose
+from feeder.pose_burst import AxisBurst, Finish
 from feeder.pose_pair import anchor_radius_m
-from feeder.pose_planner import AxisBurst, Finish, PosePlanner
+from feeder.pose_planner import PosePlanner
 from feeder.pose_response import ANCHOR_MODES, MODES
 from feeder.surface.parameters import DEFAULT_SURFACE
 
@@ -89,8 +90,8 @@ def test_on_canopen_a_part_among_others_turns_and_a_pair_orbits_as_with_the_anch
     held = [(0.0, 0.0, 0.1), (1.8e-3, 0.4e-3, 0.3)]
     pair = {1: held[0], 2: (1.4e-3, 1.1e-3, math.nan)}
     assert new.check(pair, held) is None and old.check(pair, held) is None
-    orbit = new.theta_burst(held, 1, 0.3, anchored=(0,), quantity="orbit")
-    before = old.theta_burst(held, 1, 0.3, anchored=(0,), quantity="orbit")
+    orbit = new.turns.theta_burst(held, 1, 0.3, anchored=(0,), quantity="orbit")
+    before = old.turns.theta_burst(held, 1, 0.3, anchored=(0,), quantity="orbit")
     assert isinstance(orbit, AxisBurst) and isinstance(before, AxisBurst)
     assert orbit == dataclasses.replace(before, mode=ANCHOR_MODES[MODES.index(before.mode)])
 
@@ -186,7 +187,7 @@ def test_an_orbit_burst_turns_the_orbited_part_by_less_than_its_symmetry_can_tel
     config = world("can", PARTS, tmp_path)
     nav = planner(config, plan_theta_modes(config, DEFAULT_SURFACE, static_accel(config)))
     held = [(0.0, 0.0, 0.1), (1.8e-3, 0.4e-3, 0.3)]
-    burst = nav.theta_burst(held, 1, 0.8, anchored=(0,), quantity="orbit")
+    burst = nav.turns.theta_burst(held, 1, 0.8, anchored=(0,), quantity="orbit")
     assert isinstance(burst, AxisBurst) and burst.mode in ANCHOR_MODES
     pose, turned = held[1], 0.0
     for _ in range(burst.steps):

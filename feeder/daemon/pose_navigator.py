@@ -28,7 +28,8 @@ from feeder.daemon.request_fields import beyond_one_turn
 from feeder.daemon.step_estimator import BACKWARD, FORWARD, StepEstimate
 from feeder.plate_axes import AXES
 from feeder.pose import Pose, pose_error
-from feeder.pose_planner import AxisBurst, Finish, PosePlanner
+from feeder.pose_burst import AxisBurst, Finish
+from feeder.pose_planner import PosePlanner
 from feeder.travel import Travel
 
 log = logging.getLogger(__name__)
@@ -195,7 +196,7 @@ class PoseNavigator:
         y the coarse step in m (``step_m``, ``step_back_m``, sizes); θ the turn (rad) of a part at
         ``pose`` by one +θ step (``step_rad``) and by one −θ step, sign flipped
         (``step_back_rad``), where the planner turns it (left out: no θ mode turns it anywhere;
-        :meth:`~feeder.pose_planner.PosePlanner.turn_per_step`)."""
+        :meth:`~feeder.pose_turns.TurnPlanner.turn_per_step`)."""
         model = self.planner.model
         out: dict[str, dict[str, float]] = {
             axis: {
@@ -208,7 +209,7 @@ class PoseNavigator:
         if "theta" in self.axes and pose is not None:
             out["theta"] = {}
             for key, direction in (("step_rad", 1), ("step_back_rad", -1)):
-                turn = self.planner.turn_per_step(direction, pose)
+                turn = self.planner.turns.turn_per_step(direction, pose)
                 if turn is not None:
                     out["theta"][key] = direction * turn
         return out
