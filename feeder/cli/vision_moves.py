@@ -34,7 +34,7 @@ def register(vision: Any) -> None:
         "--volts",
         type=float_in(1.0, 200.0),
         default=100.0,
-        help="offset each axis is held at, V (default 100; an ANC300 takes up to 150)",
+        help="offset each axis is held at, 1–200 V (default 100; an ANC300 takes up to 150)",
     )
     moves.add_argument(
         "--stack-gain",
@@ -48,14 +48,14 @@ def register(vision: Any) -> None:
         type=float_in(1e-4, 1.0),
         default=0.05,
         metavar="V",
-        help="the offset ramps in steps of at most this, V (default 0.05; a jump is a flyback: "
+        help="the offset ramps in steps of at most this, 1e-4–1 V (default 0.05; a jump is a flyback: "
         "the parts slip)",
     )
     moves.add_argument(
         "--frames",
         type=int_in(1, 1000),
         default=10,
-        help="frames averaged per position (default 10)",
+        help="frames averaged per position, 1–1000 (default 10)",
     )
     moves.add_argument(
         "--sim-arg",
