@@ -342,8 +342,7 @@ def test_cli_map_on_the_planar_plant_is_the_simulated_pose_change(capsys: pytest
     import json
     from pathlib import Path
 
-    from feeder.cli import main
-    from feeder.cli import simulate as simulate_cli
+    from feeder.cli import main, simulate_models
 
     png = Path(str(tmp_path)) / "map.png"
     wave = ["simulate", "--part", "300x300x50", "--waveform", "waveforms/paper-100hz-200vpp.toml", "--json"]
@@ -357,7 +356,7 @@ def test_cli_map_on_the_planar_plant_is_the_simulated_pose_change(capsys: pytest
     assert main([*wave, "--axis", "theta", "--pose=3e-3,3e-3,0", "--periods", "2"]) == 0
     poses = np.array(json.loads(capsys.readouterr().out)["poses"])
     np.testing.assert_allclose(corner[2:], poses[1] - poses[0], rtol=0, atol=1e-15)
-    monkeypatch.setattr(simulate_cli, "MAP_PROGRESS_S", 0.0)  # as if every pose took long
+    monkeypatch.setattr(simulate_models, "MAP_PROGRESS_S", 0.0)  # as if every pose took long
     assert main([*wave, "--axis", "x", *grid]) == 0
     printed = capsys.readouterr()
     assert "--map 1/9 poses" in printed.err and "--map 9/9 poses" in printed.err
