@@ -250,7 +250,7 @@ def test_hold_offset_is_the_offset_mode(rig: Rig) -> None:
     amp.hold_offset(12.5)
     assert (axis.status().mode, axis.status().offset_v) == ("off", 12.5)
     amp.ground()
-    assert axis.status().mode == "gnd"
+    assert (axis.status().mode, axis.status().offset_v) == ("gnd", 0.0)  # a later offset starts at 0
     amp.hold_offset(0.25)  # grounding ended the offset mode: the driver selects it again
     assert (axis.status().mode, axis.status().offset_v) == ("off", 0.25)
     amp.ground()

@@ -29,7 +29,7 @@ from typing import Any, NoReturn
 
 from feeder.cli.arguments import refuse_overwriting_inputs
 from feeder.cli.output import exit_on_closed_stdout
-from feeder.errors import DaemonRefused, DaemonUnreachable, InputError, MoveFailed
+from feeder.errors import DaemonRefused, DaemonUnreachable, FeederError, InputError, MoveFailed
 
 #: sub-command → (module in this package, one-line help), in ``feeder --help`` order
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -120,6 +120,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except DaemonUnreachable as err:
         print(f"{prefix}: daemon unreachable: {err}", file=sys.stderr)
         return 3
+    except FeederError as err:  # a device's: an amplifier's or camera's refusal, a lost link
+        print(f"{prefix}: error: {err}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"{prefix}: interrupted", file=sys.stderr)
         return 130

@@ -42,13 +42,14 @@ def save_state(state_dir: Path | None, report: dict[str, Any]) -> Path:
 def emit_calibration(report: dict[str, Any], args: argparse.Namespace) -> int:
     """Write, store and print ``report`` (pixel_size_m, rotation_rad, mirrored, origin_*_px ...)
     as ``args.out``, ``args.save_state``/``args.state_dir`` and ``args.json`` ask."""
+    calibration = {k: v for k, v in report.items() if v is not None}
     if args.out is None and not args.save_state:
         report["note"] = CALIBRATION_NOTE
     if args.out is not None:
-        write_text(args.out, json.dumps({k: v for k, v in report.items() if v is not None}, indent=2) + "\n")
+        write_text(args.out, json.dumps(calibration, indent=2) + "\n")
         report["out"] = str(args.out)
     if args.save_state:
-        report["database"] = str(save_state(args.state_dir, report))
+        report["database"] = str(save_state(args.state_dir, calibration))
     if args.json:
         print_json(report)
     else:

@@ -10,8 +10,11 @@ directory's lock says whether one runs there).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import signal
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -68,7 +71,7 @@ def register(vision: Any) -> None:
         "--out", type=output_path, help="write the calibration JSON (for `vision locate --calibration`)"
     )
     moves.add_argument(
-        "--save-state", action="store_true", help="store it for the daemon (its next move uses it)"
+        "--save-state", action="store_true", help="store it for the daemon (used from its next start)"
     )
     moves.add_argument("--state-dir", type=Path, help="the daemon's state directory (default: the config's)")
     moves.add_argument("--json", action="store_true", help="print one JSON object")
@@ -94,6 +97,13 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
     hardware = not config.amplifier.simulated
     if hardware and args.stack_gain is None:
         raise InputError("--stack-gain", "required on hardware: the plate's move per volt of offset (m/V)")
+    limits = config.amplifier.limits
+    if not limits.v_min_v <= args.volts <= limits.v_max_v:
+        raise InputError(
+            "--volts",
+            f"{args.volts:g} V is beyond the amplifier's output, {limits.v_min_v:g}–{limits.v_max_v:g} V "
+            f"(amplifier.model {config.amplifier.model})",
+        )
     moves = OffsetMoves(
         volts=args.volts,
         stack_gain_m_per_v=args.stack_gain or FIRMWARE_SIM_GAIN_M_PER_V,
@@ -105,30 +115,46 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
     try:
         links = open_links(config)
         try:
-            report = _measure(links, moves)
+            with _interrupted_by_signals():
+                report = _measure(links, moves)
         finally:
             links.close()
+        configured = config.camera.pixel_size_m
+        report["configured_pixel_size_m"] = configured
+        ratio = report["pixel_size_m"] / configured
+        if abs(ratio - 1) > SCALE_WARNING:
+            report["warnings"].append(
+                f"the moves' pixel size is {ratio:.3f} × the configured {configured:.4g} m: "
+                "check --stack-gain"
+            )
+        located = links.configured_calibration()
+        if located is not None and config.plate.planar:  # the daemon checks this at its start
+            outside = config.camera.travel_outside(located.updated(report), config.part, config.loop)
+            if outside is not None:
+                report["warnings"].append(f"with this calibration the daemon refuses to start: {outside}")
+        for warning in report["warnings"]:
+            print(f"feeder vision calibrate-moves: warning: {warning}", file=sys.stderr)
+        if args.save_state:  # emit_calibration stores it where the daemon of this config looks
+            args.state_dir = config.state_dir
+        return emit_calibration(report, args)
     finally:
         lock.close()
-    configured = config.camera.pixel_size_m
-    report["configured_pixel_size_m"] = configured
-    ratio = report["pixel_size_m"] / configured
-    if abs(ratio - 1) > SCALE_WARNING:
-        print(
-            f"feeder vision calibrate-moves: warning: the moves' pixel size is {ratio:.3f} × the "
-            f"configured {configured:.4g} m: check --stack-gain",
-            file=sys.stderr,
-        )
-    if report["slipped"]:
-        print(
-            f"feeder vision calibrate-moves: warning: the parts came back {report['returned_px']:.3f} px "
-            "from where they were: they slipped, and the moves are off by about as much; "
-            "use a smaller --increment",
-            file=sys.stderr,
-        )
-    if args.save_state:  # emit_calibration stores it where the daemon of this config looks
-        args.state_dir = config.state_dir
-    return emit_calibration(report, args)
+
+
+@contextlib.contextmanager
+def _interrupted_by_signals() -> Iterator[None]:
+    """SIGTERM and SIGHUP end the moves as Ctrl-C does: the axes grounded on the way out (a real
+    ANC300 has no host watchdog: an axis left in its offset mode stays there)."""
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _measure(links: Any, moves: OffsetMoves) -> dict[str, Any]:

@@ -134,7 +134,7 @@ class Daemon:
                     raise
                 raise InputError(  # the cause is in the state, not in the configuration
                     STORED,
-                    f"{err} (stored by `feeder vision calibrate --save-state`: calibrate again, "
+                    f"{err} (stored by `feeder vision calibrate[-moves] --save-state`: calibrate again, "
                     "or narrow the travel in [control])",
                 ) from None
             navigator = None

@@ -146,8 +146,10 @@ class Anc300Amplifier(Amplifier):
         return True
 
     def ground(self) -> None:
-        self._offset_mode = False
         self.link.query(f"setm {self.axis} gnd")
+        if self._offset_mode:  # grounded: a later ``setm off`` starts from 0 V, not from it
+            self._offset_mode = False
+            self.link.query(f"seta {self.axis} 0")
         with self._lock:
             self._cut_burst()
 

@@ -257,8 +257,10 @@ class CanopenAmplifier(Amplifier):
 
     def ground(self) -> None:
         with self._lock:
-            self._offset_mode = False
             self._sdo_write("Mode", MODES.index("gnd"))
+            if self._offset_mode:  # grounded: a later offset mode starts from 0 V, not from it
+                self._offset_mode = False
+                self._sdo_write("Offset", 0)
 
     def enable(self) -> None:
         with self._lock:

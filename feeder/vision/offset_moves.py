@@ -1,14 +1,22 @@
 """Camera calibration from plate moves the amplifier makes: the stacks' DC offsets (DESIGN §10).
 
 Each axis in turn holds its stack at +V in the offset mode and returns to 0 V; the plate, and
-the parts stuck on it, move by the stack's static stroke: gain × V in x and y, a turn of
-gain × V / lever arm about O in θ.  The offset is ramped in small increments: a jump plays at
-the amplifier's slope limit like a flyback, and the parts slip (firmware_sim: a 100 V jump
-leaves a part 3.9 µm behind a 7 µm plate move; 0.1 V increments hold it).  The camera's
-frames before, at +V and after give each part's image move (at +V against the mean of before
-and after, which cancels a slow drift); :func:`~feeder.vision.calibration.axes_from_moves`
-fits scale, turn and mirroring to the x and y moves, and
-:func:`~feeder.vision.calibration.rotation_centre` O in the image to the θ turn.
+the parts stuck on it, move by the stack's static stroke: gain × V in x and y, a turn about O
+in θ.  The camera's frames before, at +V and after give each part's image move (at +V against
+the mean of before and after, which cancels a slow drift);
+:func:`~feeder.vision.calibration.axes_from_moves` fits scale, turn and mirroring to the x and
+y moves, :func:`~feeder.vision.calibration.rotation_centre` O in the image to the θ move.  The
+θ turn comes from the parts themselves when two or more are seen (the line between them turns
+by it), so O does not rest on the stack's gain or the lever arm; from one part it is
+gain × V / lever arm.
+
+The offset is ramped, never jumped: a new level plays at the amplifier's slope limit like a
+flyback, and the parts slip (firmware_sim: a 100 V jump leaves a part 3.9 µm behind a 7 µm
+plate move).  The ramp up goes in ``increment_v`` steps, the ramp down in half that: a slip
+on the way up that the finer way down does not repeat leaves the parts away from where they
+started (``returned_px``, ``slipped``; a slip repeated in both directions would cancel).  In θ
+a part r from O feels the plate's turn r / lever arm times as hard as a translation: the θ
+increment shrinks by that factor (r from the configured calibration, with a margin).
 
 Units: m, px, rad, V, s.  The amplifiers and the sensor are opened and closed by the caller.
 """
@@ -24,12 +32,23 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from feeder.drivers.amplifier import Amplifier
+from feeder.drivers.amplifier import Amplifier, AmplifierError
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import InputError
 from feeder.vision.calibration import CameraCalibration, axes_from_moves, rotation_centre
 
 log = logging.getLogger(__name__)
+
+FIRMWARE_SIM_GAIN_M_PER_V = 0.07e-6
+"""firmware_sim's stacks: 14 µm at 200 V (:class:`feeder.plant.stack.StackParameters`)."""
+
+SLIP_FRACTION = 0.005
+"""Parts whose images came back further than this fraction of the smallest move (and beyond
+the frames' noise) slipped: the moves they gave are off by about as much."""
+
+RADIUS_MARGIN = 1.25
+"""The parts' distances from O, measured with the configured calibration, are taken this much
+larger for the θ increment (the configured O may be off)."""
 
 
 class Points(NamedTuple):
@@ -39,21 +58,13 @@ class Points(NamedTuple):
     error: np.ndarray
 
 
-SLIP_FRACTION = 0.03
-"""A part whose image came back further than this fraction of the smallest move slipped: the
-moves it gave are that much off (``slipped`` in the report)."""
-
-FIRMWARE_SIM_GAIN_M_PER_V = 0.07e-6
-"""firmware_sim's stacks: 14 µm at 200 V (:class:`feeder.plant.stack.StackParameters`)."""
-
-
 @dataclass(frozen=True)
 class OffsetMoves:
     """How the plate is moved: the offset (V), the stacks' static gain (m/V), the θ stack's lever
     arm (m), the ramp's increments (V) and pause after each (s), the wait before frames are
     averaged (s) and how many."""
 
-    volts: float = 50.0
+    volts: float = 100.0
     stack_gain_m_per_v: float = FIRMWARE_SIM_GAIN_M_PER_V
     lever_arm_m: float = 1e-3
     increment_v: float = 0.05
@@ -72,12 +83,13 @@ def measure(
 ) -> dict[str, Any]:
     """Move the plate on each of ``amplifiers``' axes (``x`` and ``y`` needed, ``theta`` for O)
     and fit the calibration; ``located_with`` is the calibration the sensor's poses were located
-    with (they are mapped back to pixels).  Every axis is grounded before and after.
+    with (they are mapped back to pixels).  Every axis is grounded before and after, also when
+    this is interrupted; an axis that cannot be grounded (its link lost) is named in the
+    :class:`~feeder.drivers.amplifier.AmplifierError` raised.
 
     Returns the fields of a ``feeder vision calibrate`` report (pixel size, rotation, mirroring,
-    O when θ moved and its ``origin_uncertainty_px``, residuals) plus ``offset_v``, ``parts``,
-    ``returned_px`` (how far the parts' images came back from where they started: a part that
-    slipped does not) and ``slipped``.
+    O when θ moved, its ``origin_uncertainty_px``, residuals) plus ``offset_v``, ``parts``,
+    ``turn_rad`` and ``turn_from``, ``returned_px``, ``slipped`` and ``warnings`` (sentences).
     """
     if not {"x", "y"} <= set(amplifiers):
         raise InputError("axes", "the plate moves need the x and y axes ([plate] axes)")
@@ -89,21 +101,54 @@ def measure(
         for axis in ("x", "y", "theta"):
             if axis not in amplifiers:
                 continue
-            amp = amplifiers[axis]
             before = _image_points(sensor, located_with, moves)
-            progress(f"{axis}: offset 0 → {moves.volts:g} V")
-            amp.ramp_offset(0.0, moves.volts, moves.increment_v, moves.pause_s)
-            time.sleep(moves.settle_s)
-            at = _image_points(sensor, located_with, moves)
-            progress(f"{axis}: offset {moves.volts:g} → 0 V")
-            amp.ramp_offset(moves.volts, 0.0, moves.increment_v, moves.pause_s)
-            amp.ground()
-            time.sleep(moves.settle_s)
-            images[axis] = (before, at, _image_points(sensor, located_with, moves))
+            increment = moves.increment_v
+            if axis == "theta":
+                reach = RADIUS_MARGIN * max(math.hypot(*located_with.to_plate(u, v)) for u, v in before.mean)
+                increment *= min(1.0, moves.lever_arm_m / reach)
+            images[axis] = _move(
+                amplifiers[axis], axis, increment, sensor, located_with, moves, progress, before
+            )
     finally:
-        for amp in amplifiers.values():
-            amp.ground()
+        _ground(amplifiers)
     return _fit(images, moves)
+
+
+def _move(
+    amp: Amplifier,
+    axis: str,
+    increment_v: float,
+    sensor: PositionSensor,
+    located_with: CameraCalibration,
+    moves: OffsetMoves,
+    progress: Callable[[str], None],
+    before: Points,
+) -> tuple[Points, Points, Points]:
+    """One axis up to ``moves.volts`` in ``increment_v`` steps and down in half-steps: the parts'
+    image points before, at the offset and after."""
+    progress(f"{axis}: offset 0 → {moves.volts:g} V in {increment_v:.3g} V steps")
+    amp.ramp_offset(0.0, moves.volts, increment_v, moves.pause_s)
+    time.sleep(moves.settle_s)
+    at = _image_points(sensor, located_with, moves)
+    progress(f"{axis}: offset {moves.volts:g} → 0 V in {increment_v / 2:.3g} V steps")
+    amp.ramp_offset(moves.volts, 0.0, increment_v / 2, moves.pause_s)
+    amp.ground()
+    time.sleep(moves.settle_s)
+    return before, at, _image_points(sensor, located_with, moves)
+
+
+def _ground(amplifiers: Mapping[str, Amplifier]) -> None:
+    """Ground every axis; AmplifierError naming those that could not be (they may hold an offset)."""
+    failed = []
+    for name, amp in amplifiers.items():
+        try:
+            amp.ground()
+        except AmplifierError as err:
+            failed.append(f"{name} ({err})")
+    if failed:
+        raise AmplifierError(
+            "could not ground axis " + ", ".join(failed) + ": it may still hold an offset; ground it by hand"
+        )
 
 
 def _image_points(sensor: PositionSensor, located_with: CameraCalibration, moves: OffsetMoves) -> Points:
@@ -139,25 +184,63 @@ def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves
         "moves_residual_px": fit.residual_px,
         "anisotropy": fit.anisotropy,
     }
+    warnings: list[str] = []
     if "theta" in images:
-        before, at, after = images["theta"]
-        turn = stroke / moves.lever_arm_m
-        start = 0.5 * (before.mean + after.mean)
-        ox, oy, residual = rotation_centre(start, at.mean, np.full(len(start), turn), fit.mirrored)
-        # a part's move is turn × its distance from O: an error e in the move puts O e / turn off;
-        # e: the frames' scatter and the locator's bias, which the x and y moves' misfit shows
-        move_error = np.sqrt(at.error**2 + 0.25 * (before.error**2 + after.error**2) + fit.residual_px**2)
-        uncertainty = float(np.sqrt(np.mean(move_error**2)) / (turn * math.sqrt(len(start))))
-        report.update(
-            origin_x_px=ox, origin_y_px=oy, theta_residual_px=residual, origin_uncertainty_px=uncertainty
+        centre, move_error = _centre(
+            images["theta"], stroke / moves.lever_arm_m, fit.mirrored, fit.residual_px
         )
-    returned = max(float(np.max(np.hypot(*(b.mean - a.mean).T))) for a, _, b in images.values())
-    smallest = min(float(np.min(np.hypot(*(at.mean - a.mean).T))) for a, at, _ in images.values())
+        report.update(centre, turn_from_gain_rad=stroke / moves.lever_arm_m)
+        if report["theta_residual_px"] > 3 * fit.residual_px + 4 * move_error:
+            warnings.append(
+                f"the parts did not turn as one (θ misfit {report['theta_residual_px']:.3f} px against "
+                f"{fit.residual_px:.3f} px in x and y): some slipped; use a smaller --increment"
+            )
+    moved = min(float(np.min(np.hypot(*(at.mean - a.mean).T))) for a, at, _ in images.values())
+    returned, noise = 0.0, 0.0
+    for before, _, after in images.values():
+        returned = max(returned, float(np.max(np.hypot(*(after.mean - before.mean).T))))
+        noise = max(noise, float(np.max(np.hypot(before.error, after.error))))
+    slipped = returned > max(SLIP_FRACTION * moved, 4 * noise)
+    if slipped:
+        warnings.append(
+            f"the parts came back {returned:.3f} px from where they were (moves of {moved:.2f} px and "
+            "more): they slipped, and the moves are off by about as much; use a smaller --increment"
+        )
     report.update(
         offset_v=moves.volts,
         plate_move_m=stroke,
         parts=len(images["x"][0].mean),
         returned_px=returned,
-        slipped=returned > SLIP_FRACTION * smallest,
+        slipped=slipped,
+        warnings=warnings,
     )
     return report
+
+
+def _centre(
+    theta: tuple[Points, Points, Points], assumed_turn: float, mirrored: bool, bias_px: float
+) -> tuple[dict[str, Any], float]:
+    """O in the image from the θ move, and the move's error (px): the turn measured by the line
+    between the parts (two or more) or ``assumed_turn`` (rad, from the stack's gain and lever
+    arm), then :func:`rotation_centre`; the error from the frames' and the locator's bias
+    ``bias_px`` (which the x and y misfit shows)."""
+    before, at, after = theta
+    start = 0.5 * (before.mean + after.mean)
+    if len(start) >= 2:
+        s, a = start - start.mean(axis=0), at.mean - at.mean.mean(axis=0)
+        image_turn = math.atan2(float(np.sum(s[:, 0] * a[:, 1] - s[:, 1] * a[:, 0])), float(np.sum(s * a)))
+        turn, source = (-image_turn if mirrored else image_turn), "parts"
+    else:
+        turn, source = assumed_turn, "stack gain"
+    ox, oy, residual = rotation_centre(start, at.mean, np.full(len(start), turn), mirrored)
+    # a part's move is turn × its distance from O: an error e in the move puts O e / turn off
+    move_error = float(np.sqrt(np.mean(at.error**2 + 0.25 * (before.error**2 + after.error**2) + bias_px**2)))
+    fields = {
+        "origin_x_px": ox,
+        "origin_y_px": oy,
+        "theta_residual_px": residual,
+        "origin_uncertainty_px": move_error / (abs(turn) * math.sqrt(len(start))),
+        "turn_rad": turn,
+        "turn_from": source,
+    }
+    return fields, move_error
