@@ -368,3 +368,20 @@ def test_calibrate_moves_refuses_an_offset_beyond_the_amplifier(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("feeder vision: error: ") and "127.0.0.1:9" in err, err
     assert not (tmp_path / "feeder.sqlite").exists()
+
+
+def test_a_calibration_whose_parts_slipped_is_neither_stored_nor_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """0.5 V steps slip the simulator's parts (the pixel size came out 0.68 × the truth): the
+    command says so and keeps the daemon's state as it was."""
+    pytest.importorskip("cv2", reason="the camera needs OpenCV (the vision extra)")
+    out = tmp_path / "camera.json"
+    argv = ["vision", "calibrate-moves", "--state-dir", str(tmp_path), "--volts", "40", "--increment", "0.5",
+            "--frames", "3", "--save-state", "--out", str(out)]  # fmt: skip
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "they slipped" in err and err.splitlines()[-1] == (
+        "feeder vision: error: the parts slipped during the moves: nothing stored or written"
+    ), err
+    assert not out.exists() and not (tmp_path / "feeder.sqlite").exists()

@@ -20,7 +20,7 @@ from typing import Any
 
 from feeder.cli.arguments import float_in, int_in, output_path
 from feeder.cli.calibration_report import check_target, emit_calibration
-from feeder.errors import InputError
+from feeder.errors import FeederError, InputError
 from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, OffsetMoves, measure
 
 SCALE_WARNING = 0.1
@@ -134,6 +134,8 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
                 report["warnings"].append(f"with this calibration the daemon refuses to start: {outside}")
         for warning in report["warnings"]:
             print(f"feeder vision calibrate-moves: warning: {warning}", file=sys.stderr)
+        if report["slipped"] and (args.save_state or args.out is not None):
+            raise FeederError("the parts slipped during the moves: nothing stored or written")
         if args.save_state:  # emit_calibration stores it where the daemon of this config looks
             args.state_dir = config.state_dir
         return emit_calibration(report, args)

@@ -204,7 +204,7 @@ def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves
     if slipped:
         warnings.append(
             f"the parts came back {returned:.3f} px from where they were (moves of {moved:.2f} px and "
-            "more): they slipped, and the moves are off by about as much; use a smaller --increment"
+            "more): they slipped, and the moves are off by at least as much; use a smaller --increment"
         )
     report.update(
         offset_v=moves.volts,
