@@ -456,5 +456,5 @@ def test_a_stored_calibration_the_travel_does_not_fit_is_named_as_the_cause(shor
         Daemon(links, make_setup(short_dir))
     assert str(refused.value) == (
         "the stored camera calibration: travel: the travel reaches beyond what the camera sees (stored by "
-        "`feeder vision calibrate --save-state`: calibrate again, or narrow the travel in [control])"
+        "`feeder vision calibrate[-moves] --save-state`: calibrate again, or narrow the travel in [control])"
     )
