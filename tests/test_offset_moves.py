@@ -283,9 +283,9 @@ def test_calibrate_moves_on_the_simulator_measures_its_turned_mirrored_camera(
             "--state-dir",
             str(tmp_path),
             "--volts",
-            "60",
+            "40",
             "--increment",
-            "0.1",
+            "0.05",
             "--frames",
             "4",
             "--sim-arg=--camera-mirrored",
@@ -300,12 +300,12 @@ def test_calibrate_moves_on_the_simulator_measures_its_turned_mirrored_camera(
     assert report["mirrored"] is True and report["rotation_rad"] == pytest.approx(0.4, abs=0.02)
     assert report["pixel_size_m"] == pytest.approx(2.7e-6, rel=0.03)
     # O: the image centre of the simulator's 2048 px camera, within its stated uncertainty (the
-    # turn is 2.1 mrad: a 0.01 px error in the part's 0.7 px move puts O 1.5 % of its 0.9 mm off)
+    # turn is 2.8 mrad: a 0.01 px error in the part's move puts O 3.6 px off)
     assert 0 < report["origin_uncertainty_px"] < 10
     off = math.hypot(report["origin_x_px"] - 1023.5, report["origin_y_px"] - 1023.5)
     assert off < 4 * report["origin_uncertainty_px"] + 1.0
     assert report["returned_px"] < 0.1  # the parts came back to where they were
-    assert "x: offset 0 → 60 V in 0.1 V steps" in out.err
+    assert "x: offset 0 → 40 V in 0.05 V steps" in out.err
     store = Store(tmp_path / "feeder.sqlite")
     stored = store.camera_calibration()
     store.close()

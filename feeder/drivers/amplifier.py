@@ -134,7 +134,8 @@ class Amplifier(ABC):
 
     def ramp_offset(self, start_v: float, end_v: float, increment_v: float, pause_s: float) -> int:
         """Move the offset from ``start_v`` to ``end_v`` in increments of at most ``increment_v``
-        (V), ``pause_s`` (s) after each (the plate's ringing dies out); returns the increments.
+        (V), ``pause_s`` (s) apart or a round trip when that is longer (the plate's ringing dies
+        out between them); returns the increments.
 
         Each increment is a small jump at the slope limit: its ringing must stay below the
         parts' breakaway acceleration (firmware_sim's plate, 30 kHz, and a 105 m/s² part:
@@ -142,9 +143,13 @@ class Amplifier(ABC):
         if not increment_v > 0:
             raise AmplifierError(f"offset increment must be positive, got {increment_v!r} V")
         count = max(1, math.ceil(abs(end_v - start_v) / increment_v))
+        due = time.monotonic()
         for k in range(1, count + 1):
+            time.sleep(max(0.0, due - time.monotonic()))
             self.hold_offset(start_v + (end_v - start_v) * k / count)
-            time.sleep(pause_s)
+            # on a fixed beat: a late increment shortens the next gap, never below half a pause
+            due = max(due + pause_s, time.monotonic() + 0.5 * pause_s)
+        time.sleep(max(0.0, due - time.monotonic()))
         return count
 
     def alive(self) -> None:  # noqa: B027 (optional hook: most drives have no host watchdog)

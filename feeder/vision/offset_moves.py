@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 FIRMWARE_SIM_GAIN_M_PER_V = 0.07e-6
 """firmware_sim's stacks: 14 µm at 200 V (:class:`feeder.plant.stack.StackParameters`)."""
 
-SLIP_FRACTION = 0.005
+SLIP_FRACTION = 0.01
 """Parts whose images came back further than this fraction of the smallest move (and beyond
 the frames' noise) slipped: the moves they gave are off by about as much."""
 
