@@ -134,7 +134,7 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
                 report["warnings"].append(f"with this calibration the daemon refuses to start: {outside}")
         for warning in report["warnings"]:
             print(f"feeder vision calibrate-moves: warning: {warning}", file=sys.stderr)
-        if report["slipped"] and (args.save_state or args.out is not None):
+        if report["slipped"]:
             raise FeederError("the parts slipped during the moves: nothing stored or written")
         if args.save_state:  # emit_calibration stores it where the daemon of this config looks
             args.state_dir = config.state_dir
@@ -160,11 +160,11 @@ def _interrupted_by_signals() -> Iterator[None]:
 
 
 def _measure(links: Any, moves: OffsetMoves) -> dict[str, Any]:
-    """Open the amplifier's axes and the camera, move, close them (the output grounded)."""
+    """Open the amplifier's axes and the camera, move, release them (measure() grounds the axes)."""
     from feeder.drivers.axes import Axes
 
     amplifiers = links.open_amplifier()
-    with amplifiers:  # closing grounds every axis
+    try:  # measure() grounds the axes it moved, and names any it could not
         if not isinstance(amplifiers, Axes):
             raise InputError("plate.axes", "the plate moves need the x and y axes")
         calibration = links.configured_calibration()
@@ -174,3 +174,6 @@ def _measure(links: Any, moves: OffsetMoves) -> dict[str, Any]:
             return measure(
                 amplifiers, sensor, calibration, moves, progress=lambda line: print(line, file=sys.stderr)
             )
+    finally:
+        release = getattr(amplifiers, "release", amplifiers.close)
+        release()

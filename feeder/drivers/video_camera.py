@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import sys
 import threading
 import time
@@ -40,6 +41,11 @@ import cv2
 import numpy as np
 
 from feeder.drivers.sensor import CameraError, SensorLost
+
+# OpenCV's and FFmpeg's own warnings go to stderr beside this module's errors on every failed
+# open (a camera that stays down: every reconnect); the failures come back as those errors
+cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # read when its back end first opens
 
 log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".pgm")

@@ -46,6 +46,10 @@ SLIP_FRACTION = 0.01
 """Parts whose images came back further than this fraction of the smallest move (and beyond
 the frames' noise) slipped: the moves they gave are off by about as much."""
 
+GAIN_UNCERTAINTY = 0.05
+"""A stack's stroke per volt (and a lever arm) is known to a few percent: O from one part, whose
+turn is assumed from them, is this fraction of the part's distance from O uncertain besides."""
+
 RADIUS_MARGIN = 1.25
 """The parts' distances from O, measured with the configured calibration, are taken this much
 larger for the θ increment (the configured O may be off)."""
@@ -97,10 +101,12 @@ def measure(
         amp.ground()
     time.sleep(moves.settle_s)
     images: dict[str, tuple[Points, Points, Points]] = {}
+    moving = None  # the axis that may hold an offset
     try:
         for axis in ("x", "y", "theta"):
             if axis not in amplifiers:
                 continue
+            moving = axis
             before = _image_points(sensor, located_with, moves)
             increment = moves.increment_v
             if axis == "theta":
@@ -109,8 +115,9 @@ def measure(
             images[axis] = _move(
                 amplifiers[axis], axis, increment, sensor, located_with, moves, progress, before
             )
+            moving = None
     finally:
-        _ground(amplifiers)
+        _ground(amplifiers, moving, moves.volts)
     return _fit(images, moves)
 
 
@@ -137,8 +144,9 @@ def _move(
     return before, at, _image_points(sensor, located_with, moves)
 
 
-def _ground(amplifiers: Mapping[str, Amplifier]) -> None:
-    """Ground every axis; AmplifierError naming those that could not be (they may hold an offset)."""
+def _ground(amplifiers: Mapping[str, Amplifier], moving: str | None, volts: float) -> None:
+    """Ground every axis; AmplifierError when one cannot be (its link lost), naming ``moving``,
+    the axis that may still hold an offset of up to ``volts``."""
     failed = []
     for name, amp in amplifiers.items():
         try:
@@ -146,9 +154,13 @@ def _ground(amplifiers: Mapping[str, Amplifier]) -> None:
         except AmplifierError as err:
             failed.append(f"{name} ({err})")
     if failed:
-        raise AmplifierError(
-            "could not ground axis " + ", ".join(failed) + ": it may still hold an offset; ground it by hand"
+        held = (
+            f"axis {moving} may still hold an offset of up to {volts:g} V: ground it by hand (an "
+            "ANC300: setm N gnd, then seta N 0)"
+            if moving is not None
+            else "no axis held an offset"
         )
+        raise AmplifierError("could not ground axis " + ", ".join(failed) + f"; {held}")
 
 
 def _image_points(sensor: PositionSensor, located_with: CameraCalibration, moves: OffsetMoves) -> Points:
@@ -190,6 +202,12 @@ def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves
             images["theta"], stroke / moves.lever_arm_m, fit.mirrored, fit.residual_px
         )
         report.update(centre, turn_from_gain_rad=stroke / moves.lever_arm_m)
+        if report["turn_from"] == "stack gain":
+            warnings.append(
+                "O rests on --stack-gain and [plate] lever_arm_m (one part: its turn is assumed from "
+                "them): an error ε in either puts O ε × the part's distance from O off; two or more "
+                "parts measure the turn"
+            )
         if report["theta_residual_px"] > 3 * fit.residual_px + 4 * move_error:
             warnings.append(
                 f"the parts did not turn as one (θ misfit {report['theta_residual_px']:.3f} px against "
@@ -204,7 +222,7 @@ def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves
     if slipped:
         warnings.append(
             f"the parts came back {returned:.3f} px from where they were (moves of {moved:.2f} px and "
-            "more): they slipped, and the moves are off by at least as much; use a smaller --increment"
+            "more): they slipped, and the moves are off by a similar amount; use a smaller --increment"
         )
     report.update(
         offset_v=moves.volts,
@@ -235,11 +253,14 @@ def _centre(
     ox, oy, residual = rotation_centre(start, at.mean, np.full(len(start), turn), mirrored)
     # a part's move is turn × its distance from O: an error e in the move puts O e / turn off
     move_error = float(np.sqrt(np.mean(at.error**2 + 0.25 * (before.error**2 + after.error**2) + bias_px**2)))
+    uncertainty = move_error / (abs(turn) * math.sqrt(len(start)))
+    if source == "stack gain":  # and a turn wrong by ε puts O ε × the part's distance off
+        uncertainty = math.hypot(uncertainty, GAIN_UNCERTAINTY * math.hypot(*(start[0] - (ox, oy))))
     fields = {
         "origin_x_px": ox,
         "origin_y_px": oy,
         "theta_residual_px": residual,
-        "origin_uncertainty_px": move_error / (abs(turn) * math.sqrt(len(start))),
+        "origin_uncertainty_px": uncertainty,
         "turn_rad": turn,
         "turn_from": source,
     }
