@@ -83,6 +83,17 @@ def int_in(low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
+def add_sim_arg(parser: argparse.ArgumentParser, example: str) -> None:
+    """``--sim-arg ARG`` (repeatable): an extra firmware_sim argument for an embedded simulator."""
+    parser.add_argument(
+        "--sim-arg",
+        action="append",
+        default=[],
+        metavar="ARG",
+        help=f"extra firmware_sim argument when no hardware is named (repeatable; e.g. {example})",
+    )
+
+
 def output_path(text: str) -> Path:
     """argparse type: a file to write: a name, in a directory that exists, not a directory itself."""
     path = Path(text)

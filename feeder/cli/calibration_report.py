@@ -22,8 +22,9 @@ def check_target(path: Path | None, flag: str) -> None:
         raise InputError(flag, f"cannot write {path}: a directory, or its directory does not exist")
 
 
-def save_state(state_dir: Path | None, report: dict[str, Any]) -> Path:
-    """Store the calibration in the daemon's SQLite state (one-line error if it is not ours)."""
+def save_state(state_dir: Path | None, calibration: dict[str, Any]) -> Path:
+    """Store ``calibration`` (its fields that have a value) in the daemon's SQLite state
+    (one-line error if it is not ours)."""
     from feeder.daemon.config import default_state_dir
     from feeder.daemon.store import Store, StoreError
 
@@ -33,7 +34,7 @@ def save_state(state_dir: Path | None, report: dict[str, Any]) -> Path:
     except (StoreError, OSError) as err:
         raise InputError("--state-dir", str(err)) from None
     try:
-        store.save_camera_calibration({k: v for k, v in report.items() if v is not None})
+        store.save_camera_calibration(calibration)
     finally:
         store.close()
     return path

@@ -13,7 +13,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING
 
-from feeder.cli.arguments import float_in
+from feeder.cli.arguments import add_sim_arg, float_in
 from feeder.cli.output import print_json
 from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, embedded_plane, uses_camera
 from feeder.daemon.config_file import load_config
@@ -53,13 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--state-dir", type=Path, help="calibration/history database directory")
     parser.add_argument("--socket", type=Path, help="control socket path")
-    parser.add_argument(
-        "--sim-arg",
-        action="append",
-        default=[],
-        metavar="ARG",
-        help="extra firmware_sim argument (repeatable; e.g. --sim-arg=--seed=3)",
-    )
+    add_sim_arg(parser, "--sim-arg=--seed=3")
     parser.add_argument(
         "--json", action="store_true", help="print the ready object (socket, endpoints, ...) as JSON"
     )
@@ -128,8 +122,7 @@ def run(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, state_dir=args.state_dir)
     if args.socket:
         config = dataclasses.replace(config, socket_path=args.socket)
-    if args.sim_arg:
-        config = dataclasses.replace(config, simulator_args=(*config.simulator_args, *args.sim_arg))
+    config = config.with_simulator_args(args.sim_arg)
     if args.http:
         config = dataclasses.replace(
             config, http=(config.http or HttpConfig()).listening_on(args.http, "--http")

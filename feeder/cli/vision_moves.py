@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from feeder.cli.arguments import float_in, int_in, output_path
+from feeder.cli.arguments import add_sim_arg, float_in, int_in, output_path
 from feeder.cli.calibration_report import check_target, emit_calibration
 from feeder.errors import FeederError, InputError
 from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, OffsetMoves, measure
@@ -60,13 +60,7 @@ def register(vision: Any) -> None:
         default=10,
         help="frames averaged per position, 1–1000 (default 10)",
     )
-    moves.add_argument(
-        "--sim-arg",
-        action="append",
-        default=[],
-        metavar="ARG",
-        help="extra firmware_sim argument when no hardware is named (e.g. --sim-arg=--camera-mirrored)",
-    )
+    add_sim_arg(moves, "--sim-arg=--camera-mirrored")
     moves.add_argument(
         "--out", type=output_path, help="write the calibration JSON (for `vision locate --calibration`)"
     )
@@ -90,8 +84,7 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
         config = embedded_plane(config)
     if args.state_dir is not None:
         config = dataclasses.replace(config, state_dir=args.state_dir)
-    if args.sim_arg:
-        config = dataclasses.replace(config, simulator_args=(*config.simulator_args, *args.sim_arg))
+    config = config.with_simulator_args(args.sim_arg)
     if not {"x", "y"} <= set(config.plate.axes):
         raise InputError("plate.axes", "the plate moves need the x and y axes")
     hardware = not config.amplifier.simulated
@@ -164,9 +157,8 @@ def _measure(links: Any, moves: OffsetMoves) -> dict[str, Any]:
     from feeder.drivers.axes import Axes
 
     amplifiers = links.open_amplifier()
+    assert isinstance(amplifiers, Axes)  # a plate with x and y (run_calibrate_moves checked)
     try:  # measure() grounds the axes it moved, and names any it could not
-        if not isinstance(amplifiers, Axes):
-            raise InputError("plate.axes", "the plate moves need the x and y axes")
         calibration = links.configured_calibration()
         if calibration is None:
             raise InputError("camera", "the plate moves are measured by a camera ([camera] address)")
@@ -175,5 +167,4 @@ def _measure(links: Any, moves: OffsetMoves) -> dict[str, Any]:
                 amplifiers, sensor, calibration, moves, progress=lambda line: print(line, file=sys.stderr)
             )
     finally:
-        release = getattr(amplifiers, "release", amplifiers.close)
-        release()
+        amplifiers.release()

@@ -12,6 +12,7 @@ import dataclasses
 import ipaddress
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -261,6 +262,10 @@ class DaemonConfig:
             model = DEFAULT_MODELS[transport]
             amp = dataclasses.replace(amp, model=model, limits=AMPLIFIER_MODELS[model])
         return dataclasses.replace(self, amplifier=amp)
+
+    def with_simulator_args(self, extra: Sequence[str]) -> DaemonConfig:
+        """The same configuration, the embedded firmware_sim given ``extra`` arguments too."""
+        return dataclasses.replace(self, simulator_args=(*self.simulator_args, *extra))
 
 
 PLANE_TRAVEL_M = 2.5e-3
