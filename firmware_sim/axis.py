@@ -128,7 +128,7 @@ class Axis:
             if mode != "gnd" and self._fault_word:
                 raise FirmwareError("Axis in fault state")
             if mode == "cap":
-                self._cap_done_sample = self._fw.samples_played + round(
+                self._cap_done_sample = self._fw.command_sample() + round(
                     CAPACITANCE_MEASURE_S * self._fw.sample_rate
                 )
             if mode not in STEPPING_MODES:
@@ -291,26 +291,28 @@ class Axis:
         return self._remaining != 0 or self._mode == "cap" or self._fw.samples_played < self._active_until
 
     def _rewrite(self, resume: bool) -> None:
-        """Regenerate the unplayed part of the DAC buffer from the current state, so
-        that every command acts from the next sample the DAC plays.
+        """Regenerate the DAC buffer from the current state, from the sample the DAC plays
+        when the command arrives (``Firmware.command_sample``): every command acts from
+        there, the samples before it play as they were generated.
 
-        The DDS restarts from the phase of the first unplayed sample; with
-        ``resume`` a burst in progress keeps the steps it has not played yet.
+        The DDS restarts from the phase of the first regenerated sample; with ``resume``
+        a burst in progress keeps the steps it has not played yet.
         """
         played = self._fw.samples_played
-        n = self._written - played
+        start = min(self._fw.command_sample(), self._written)
+        n = self._written - start
         if n <= 0:
             return
-        if self._pending_phases.size:
-            self._phase = int(self._pending_phases[0])
-            if resume and self._remaining >= 0 and self._active_until > played:
-                self._remaining += int(np.abs(self._pending_steps).sum())
-        self._active_until = min(self._active_until, played)
-        self._code = self._played_code
-        self._written = self._fw.samples_played
-        self._pending_codes = self._pending_codes[:0]
-        self._pending_steps = self._pending_steps[:0]
-        self._pending_phases = self._pending_phases[:0]
+        kept = start - played  # buffered samples the DAC plays before the command acts
+        self._phase = int(self._pending_phases[kept])
+        if resume and self._remaining >= 0 and self._active_until > start:
+            self._remaining += int(np.abs(self._pending_steps[kept:]).sum())
+        self._active_until = min(self._active_until, start)
+        self._code = int(self._pending_codes[kept - 1]) if kept else self._played_code
+        self._written = start
+        self._pending_codes = self._pending_codes[:kept]
+        self._pending_steps = self._pending_steps[:kept]
+        self._pending_phases = self._pending_phases[:kept]
         self._fill(n)
         self._fw.lock.notify_all()
 

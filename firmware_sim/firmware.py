@@ -40,7 +40,7 @@ from firmware_sim.faults import Fault, FirmwareError
 DEFAULT_LOAD_CAPACITANCE_F = StackParameters().capacitance_f
 DEFAULT_DAC_BUFFER_S = 0.100
 """Deep enough for a busy shared machine; it costs no command latency, because
-commands regenerate the unplayed part of the buffer."""
+commands regenerate the buffer from the sample the DAC plays when they arrive."""
 
 
 @dataclass(frozen=True)
@@ -145,6 +145,7 @@ class Firmware:
         self._now_s = 0.0
         self._tick_index = 0
         self._epoch_s: float | None = None  # clock time of the first tick: the DAC starts there
+        self._clock: Clock | None = None  # the tick loop's clock, once it runs
 
     def axis(self, number: int) -> Axis:
         """Axis ``number`` (1-based); empty or non-existent slots raise FirmwareError."""
@@ -178,6 +179,20 @@ class Firmware:
         with self.lock:
             for axis in self._axes.values():
                 axis.ground()
+
+    def command_sample(self) -> int:
+        """Index of the sample the DAC plays now, where a command takes effect (lock held).
+
+        Between two ticks the DAC goes on playing its buffer, so a command that arrives
+        0.3 ms after a tick acts 30 samples (at 100 kS/s) after that tick's sample, and two
+        commands 0.3 ms apart act 0.3 ms apart, as on a real amplifier.  Before the loop
+        runs, and under a virtual clock (which stands at the last tick), it is the last
+        tick's sample.
+        """
+        if self._clock is None or self._epoch_s is None:
+            return self.samples_played
+        now = int((self._clock.now_s() - self._epoch_s) * self.sample_rate + 1e-6)
+        return max(self.samples_played, now)
 
     def tick(self, now_s: float) -> None:
         """One tick at time ``now_s``.
@@ -234,6 +249,8 @@ class Firmware:
         """
         period = 1.0 / self.config.tick_hz
         done = 0
+        with self.lock:
+            self._clock = clock
         while not (stop is not None and stop.is_set()) and (max_ticks is None or done < max_ticks):
             deadline = self._tick_index * period
             now = clock.sleep_until(deadline)

@@ -319,3 +319,34 @@ def test_settings_changed_mid_burst_keep_its_step_count_and_stop_ends_it() -> No
     fw.run(clock, max_ticks=100)
     assert axis.status().step_counter == stopped_at
     assert 20 - 9 <= stopped_at <= 20 - 7  # 40 ms at 200 Hz = 8 periods
+
+
+class HandClock(VirtualClock):
+    """Virtual time that the test moves between ticks, as wall time passes between them."""
+
+    realtime = True
+
+    def advance_to(self, t_s: float) -> None:
+        self._now = t_s
+
+
+def test_commands_between_ticks_act_when_they_arrive_not_at_the_last_tick() -> None:
+    """A real DAC plays on between the firmware's ticks: ``seta`` 0.3 ms and 0.6 ms after a
+    tick change the offset 30 and 60 samples (100 kS/s) after it, as two increments.  Acting
+    from the last tick's sample would merge them into one jump of twice the size."""
+    fw, rec, _ = make(dac_buffer_s=0.010)
+    clock = HandClock()
+    axis = fw.axis(1)
+    axis.set_mode("off")
+    fw.run(clock, max_ticks=3)  # ticks at 0, 1 and 2 ms: 200 samples at 0 V
+    clock.advance_to(0.0023)
+    axis.set_offset(0.5)
+    clock.advance_to(0.0026)
+    axis.set_offset(1.0)
+    fw.run(clock, max_ticks=2)  # ticks at 3 and 4 ms
+    v = rec.volts()
+    assert v.size == 400
+    lsb = fw.lsb_v
+    assert np.all(v[:230] == 0.0)
+    assert np.all(np.abs(v[231:260] - 0.5) <= lsb)  # 0.5 V reached within a sample (slope limit)
+    assert np.all(np.abs(v[261:] - 1.0) <= lsb)
