@@ -288,7 +288,8 @@ class Axis:
     # -- internals (called with the lock held) --------------------------------
 
     def _busy(self) -> bool:
-        return self._remaining != 0 or self._mode == "cap" or self._fw.samples_played < self._active_until
+        # the DAC plays on between ticks: a burst a command ended is over from that command's sample
+        return self._remaining != 0 or self._mode == "cap" or self._fw.command_sample() < self._active_until
 
     def _rewrite(self, resume: bool) -> None:
         """Regenerate the DAC buffer from the current state, from the sample the DAC plays
