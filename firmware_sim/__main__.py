@@ -35,13 +35,23 @@ from types import FrameType
 from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.pose import parse_poses
+from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
 from firmware_sim.axis import Axis
-from firmware_sim.canopen_node import serve_slcan_pty
+from firmware_sim.can_wire import CanWire
+from firmware_sim.canopen_node import CanopenNode
 from firmware_sim.clock import Clock, RealTimeClock, VirtualClock
-from firmware_sim.console import ConsoleSession, LoginThrottle
+from firmware_sim.console import ConsoleSession
 from firmware_sim.faults import FirmwareError
 from firmware_sim.firmware import Firmware, FirmwareConfig
-from firmware_sim.options import REFERENCE_FREQUENCY_HZ, build_parser, check_options, tcp_spec
+from firmware_sim.login_throttle import LoginThrottle
+from firmware_sim.options import (
+    REFERENCE_FREQUENCY_HZ,
+    build_parser,
+    check_can_layout,
+    check_options,
+    tcp_spec,
+)
+from firmware_sim.slcan import SlcanPty
 from firmware_sim.transports import LineBroadcastServer, PtyConsole, SessionFactory, TcpConsoleServer
 from firmware_sim.world import CameraConfig, TrueStep, World, WorldConfig
 
@@ -52,6 +62,9 @@ STOP_JOIN_S = 0.3
 EXIT_DEADLINE_S = 0.7
 """After SIGINT/SIGTERM the process is gone within this long: if the orderly shutdown
 overruns it (a stuck tick), SIGALRM ends the process (exit status 128 + 14)."""
+INTERRUPT_LATENCY_S = 100e-6
+"""Longest wait of an arriving frame's thread for the interpreter (``sys.setswitchinterval``;
+Python's default of 5 ms would let a busy tick delay an SDO answer by milliseconds)."""
 
 
 def start_endpoints(
@@ -123,6 +136,42 @@ def start_extra_front_ends(
     if args.can == "slcan-pty":
         endpoints["slcan_pty"], close_can = serve_slcan_pty(firmware, args.can_node_id_base, args.can_eds)
         closers.append(close_can)
+
+
+def serve_slcan_pty(
+    firmware: Firmware, node_id_base: int = 1, eds: str = EDS_FILE
+) -> tuple[str, Callable[[], None]]:
+    """Every configured axis behind an emulated SLCAN adapter on one :class:`CanWire`, as
+    nodes of the EDS ``eds``: with A axes per node, node ``node_id_base`` + k serves axes
+    k·A + 1 .. k·A + A; returns the pty path and a function that stops it all.
+
+    Sets the interpreter's switch interval to :data:`INTERRUPT_LATENCY_S`: the
+    thread a frame arrives in then gets the interpreter from the busy tick
+    thread within that time, as an interrupt preempts a firmware's main loop.
+    """
+    per_node = axis_count(object_dictionary(node_id_base, eds, "--can-eds"))
+    numbers = firmware.axis_numbers
+    check_can_layout(len(numbers), per_node, node_id_base, eds)
+    sys.setswitchinterval(INTERRUPT_LATENCY_S)
+    wire = CanWire()
+    adapter = SlcanPty(wire.bus()).start()
+    nodes = [
+        CanopenNode(
+            firmware,
+            numbers[first : first + per_node],
+            node_id_base + first // per_node,
+            wire.bus(),
+            od=object_dictionary(node_id_base + first // per_node, eds),
+        ).start()
+        for first in range(0, len(numbers), per_node)
+    ]
+
+    def close() -> None:
+        for node in nodes:
+            node.close()
+        adapter.close()
+
+    return adapter.path, close
 
 
 def build(args: argparse.Namespace) -> tuple[Firmware, World, TrueStep]:

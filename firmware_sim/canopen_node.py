@@ -11,8 +11,8 @@ heartbeat, SDO, EMCY and the error register are the node's.  It calls the same
 two front ends.
 
 Frames are handled when they arrive, in the thread that delivers them: on a
-:class:`~firmware_sim.can_wire.CanWire` (``serve_slcan_pty``) that is the
-adapter's pty thread, like a CAN receive interrupt; on any other python-can bus
+:class:`~firmware_sim.can_wire.CanWire` (:func:`firmware_sim.__main__.serve_slcan_pty`)
+that is the adapter's pty thread, like a CAN receive interrupt; on any other python-can bus
 the network's receive thread.  Each SDO request, NMT command, SYNC and RPDO is
 handled whole under the firmware's lock, so it sees (and leaves) one consistent
 state between two ticks, and every write goes through the axis' limits and
@@ -59,7 +59,6 @@ import functools
 import logging
 import re
 import struct
-import sys
 import threading
 import time
 import zlib
@@ -72,14 +71,13 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
 
 from feeder.errors import InputError
-from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
+from feeder.protocol.eds import axis_count, object_dictionary
 from firmware_sim.axis import AxisStatus
-from firmware_sim.can_wire import CanWire, WireBus
+from firmware_sim.can_wire import WireBus
 from firmware_sim.canopen_axis import AxisPort
 from firmware_sim.faults import Fault, FirmwareError, LimitError
 from firmware_sim.firmware import Firmware
 from firmware_sim.sdo_server import SdoServer
-from firmware_sim.slcan import SlcanPty
 
 log = logging.getLogger(__name__)
 
@@ -111,10 +109,6 @@ LIMIT_FIELDS = {
     "Step command": "steps",
 }
 """The firmware's name (``LimitError.field``) of the value each object sets."""
-
-INTERRUPT_LATENCY_S = 100e-6
-"""Longest wait of an arriving frame's thread for the interpreter (``sys.setswitchinterval``;
-Python's default of 5 ms would let a busy tick delay an SDO answer by milliseconds)."""
 
 IDLE_POLL_S = 0.01
 """How often a node without event-driven PDOs to send (not OPERATIONAL, or TPDOs on
@@ -453,49 +447,3 @@ class CanopenNode:
                 if changed or timer_due:
                     self.network.send_message(port.tpdo_cob_id, data)
                     port.last_data, port.last_sent = data, now
-
-
-def serve_slcan_pty(
-    firmware: Firmware, node_id_base: int = 1, eds: str = EDS_FILE
-) -> tuple[str, Callable[[], None]]:
-    """Every configured axis behind an emulated SLCAN adapter on one :class:`CanWire`, as
-    nodes of the EDS ``eds``: with A axes per node, node ``node_id_base`` + k serves axes
-    k·A + 1 .. k·A + A; returns the pty path and a function that stops it all.
-
-    Sets the interpreter's switch interval to :data:`INTERRUPT_LATENCY_S`: the
-    thread a frame arrives in then gets the interpreter from the busy tick
-    thread within that time, as an interrupt preempts a firmware's main loop.
-    """
-    per_node = axis_count(object_dictionary(node_id_base, eds, "--can-eds"))
-    numbers = firmware.axis_numbers
-    check_can_layout(len(numbers), per_node, node_id_base, eds)
-    sys.setswitchinterval(INTERRUPT_LATENCY_S)
-    wire = CanWire()
-    adapter = SlcanPty(wire.bus()).start()
-    nodes = [
-        CanopenNode(
-            firmware,
-            numbers[first : first + per_node],
-            node_id_base + first // per_node,
-            wire.bus(),
-            od=object_dictionary(node_id_base + first // per_node, eds),
-        ).start()
-        for first in range(0, len(numbers), per_node)
-    ]
-
-    def close() -> None:
-        for node in nodes:
-            node.close()
-        adapter.close()
-
-    return adapter.path, close
-
-
-def check_can_layout(axes: int, per_node: int, node_id_base: int, eds: str) -> None:
-    """``axes`` firmware axes fit whole nodes of ``per_node`` axes with ids in 1..127;
-    :class:`InputError` naming the option otherwise."""
-    if axes % per_node:
-        raise InputError("--can-eds", f"{eds} has {per_node} axes per node; --axes {axes} is not a multiple")
-    last = node_id_base + axes // per_node - 1
-    if not 1 <= node_id_base <= last <= 127:
-        raise InputError("--can-node-id-base", f"node ids {node_id_base}..{last} leave CANopen's 1..127")

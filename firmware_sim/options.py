@@ -18,7 +18,6 @@ from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
 from feeder.protocol.anc300 import DEFAULT_PASSWORD, DIALECTS
 from feeder.protocol.eds import EDS_3AXIS_FILE, EDS_FILE, axis_count, object_dictionary
-from firmware_sim.canopen_node import check_can_layout
 from firmware_sim.firmware import DEFAULT_DAC_BUFFER_S, DEFAULT_LOAD_CAPACITANCE_F, FirmwareConfig
 from firmware_sim.transports import check_local
 from firmware_sim.world import PLANTS
@@ -395,3 +394,13 @@ def check_options(args: argparse.Namespace) -> None:
             tcp_spec(spec, "--console")
     if args.sensor:
         tcp_spec(args.sensor, "--sensor")
+
+
+def check_can_layout(axes: int, per_node: int, node_id_base: int, eds: str) -> None:
+    """``axes`` firmware axes fit whole nodes of ``per_node`` axes with ids in 1..127;
+    :class:`InputError` naming the option otherwise."""
+    if axes % per_node:
+        raise InputError("--can-eds", f"{eds} has {per_node} axes per node; --axes {axes} is not a multiple")
+    last = node_id_base + axes // per_node - 1
+    if not 1 <= node_id_base <= last <= 127:
+        raise InputError("--can-node-id-base", f"node ids {node_id_base}..{last} leave CANopen's 1..127")

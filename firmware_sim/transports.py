@@ -73,7 +73,7 @@ class TcpConsoleServer:
     (``max_pending``, the longest-waiting idle one makes room for a new one)
     and a login timeout, so idle connections cannot lock out an operator who
     has the password; logged-in sessions have a separate cap.  Password tries
-    are paced per source by the sessions' :class:`~firmware_sim.console.LoginThrottle`.
+    are paced per source by the sessions' :class:`~firmware_sim.login_throttle.LoginThrottle`.
     """
 
     def __init__(

@@ -25,7 +25,7 @@ from feeder.daemon.control_loop import COARSE, FINE, ControlLoop, LoopSettings, 
 from feeder.daemon.links import CAN_KEYS
 from feeder.drivers.amplifier import AmplifierError, DriveSettings
 from feeder.drivers.canopen import CanopenAmplifier
-from feeder.drivers.canopen_link import HOST_SILENCE_PERIODS
+from feeder.drivers.canopen_heartbeat import HOST_SILENCE_PERIODS
 from feeder.errors import InputError
 from firmware_sim.canopen_node import CanopenNode
 from firmware_sim.clock import RealTimeClock

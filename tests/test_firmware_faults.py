@@ -27,8 +27,9 @@ from hypothesis import strategies as st
 
 from feeder.daemon.launcher import LaunchError, Simulator
 from firmware_sim import __main__ as program
-from firmware_sim.console import MAX_LOGIN_INTERVAL_S, ConsoleSession, LoginThrottle
+from firmware_sim.console import ConsoleSession
 from firmware_sim.firmware import Firmware
+from firmware_sim.login_throttle import MAX_LOGIN_INTERVAL_S, LoginThrottle
 from firmware_sim.options import build_parser
 from firmware_sim.transports import (
     LOGIN_TIMEOUT_S,

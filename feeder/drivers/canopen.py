@@ -48,7 +48,8 @@ from feeder.drivers.amplifier import (
     AmplifierStatus,
     DriveSettings,
 )
-from feeder.drivers.canopen_link import DEFAULT_HOST_ID, CanopenNodeLink, HostHeartbeat
+from feeder.drivers.canopen_heartbeat import HostHeartbeat
+from feeder.drivers.canopen_link import DEFAULT_HOST_ID, CanopenNodeLink
 from feeder.errors import InputError
 from feeder.protocol import anc300
 from feeder.protocol.eds import MODES, bit_mask
@@ -148,7 +149,7 @@ class CanopenAmplifier(Amplifier):
 
     def alive(self) -> None:
         """The caller's control loop is making progress: the link's host heartbeat goes on
-        (:class:`~feeder.drivers.canopen_link.HostHeartbeat`).  Cheap, any thread."""
+        (:class:`~feeder.drivers.canopen_heartbeat.HostHeartbeat`).  Cheap, any thread."""
         self.link.alive()
 
     # -- SDO and RPDO -----------------------------------------------------------
