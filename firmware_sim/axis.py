@@ -270,7 +270,11 @@ class Axis:
             return self._capacitance_f
 
     def status(self) -> AxisStatus:
+        """The axis as of now: the steps and output of the samples the DAC has played by the
+        time of the call (it plays on between ticks)."""
         with self._fw.lock:
+            played = min(self._fw.command_sample(), self._written) - self._fw.samples_played
+            code = int(self._pending_codes[played - 1]) if played else self._played_code
             return AxisStatus(
                 axis=self.number,
                 mode=self._mode,
@@ -279,10 +283,10 @@ class Axis:
                 offset_v=self._offset_v,
                 flyback_shape=self._flyback_shape,
                 flyback_s=self._flyback_s,
-                step_counter=self._step_counter,
+                step_counter=self._step_counter + int(self._pending_steps[:played].sum()),
                 moving=self._busy() and self._mode != "cap",
                 fault_word=self._fault_word,
-                output_v=self._fw.volts(self._played_code),
+                output_v=self._fw.volts(code),
             )
 
     # -- internals (called with the lock held) --------------------------------
