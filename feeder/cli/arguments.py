@@ -250,7 +250,7 @@ def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
     p.add_argument(
         "--tau",
         type=positive_float,
-        help=f"interfacial shear strength in Pa (default: the paper's, {DEFAULT_TAU_PA:g} "
+        help=f"interfacial shear strength in Pa, > 0 (default: the paper's, {DEFAULT_TAU_PA:g} "
         "at w = 0, fitted again with the surface's w when it has one)",
     )
     p.add_argument(

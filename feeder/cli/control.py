@@ -91,12 +91,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     calibrate = subparsers.add_parser(
         "calibrate", help="learn the step sizes: bursts forward and back, both waveforms"
     )
-    calibrate.add_argument("--steps", type=int, default=20, help="coarse steps per direction")
+    calibrate.add_argument(
+        "--steps", type=int, default=20, help="coarse steps per direction, 2–10000 (default 20)"
+    )
     _common(calibrate)
     calibrate.set_defaults(handler=run_calibrate)
 
     history = subparsers.add_parser("history", help="recorded moves, oldest first")
-    history.add_argument("--limit", type=int, default=20, help="newest N moves")
+    history.add_argument("--limit", type=int, default=20, help="newest N moves, 1–100000 (default 20)")
     _common(history)
     history.set_defaults(handler=run_history)
 

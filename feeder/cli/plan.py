@@ -38,13 +38,13 @@ def register(sub: Any) -> None:
         "--kinetic-ratio",
         type=positive_float,
         default=DEFAULT_KINETIC_RATIO,
-        help=f"F_k/F_s (default {DEFAULT_KINETIC_RATIO})",
+        help=f"F_k/F_s, in (0, 1] (default {DEFAULT_KINETIC_RATIO})",
     )
     p.add_argument(
         "--margin",
         type=positive_float,
         default=DEFAULT_MARGIN,
-        help=f"k in the acceleration margins (default {DEFAULT_MARGIN})",
+        help=f"k in the acceleration margins, ≥ 1 (default {DEFAULT_MARGIN})",
     )
     p.add_argument(
         "--frequency-hz", type=float_in(1e-3, 1e6), help="fix the frequency, 1 mHz–1 MHz (default: chosen)"

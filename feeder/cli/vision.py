@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from feeder.cli import vision_moves
-from feeder.cli.arguments import angle_rad, input_path, length_in, length_m, output_path
+from feeder.cli.arguments import angle_rad, input_path, length_in, length_m, output_path, positive_float
 from feeder.cli.calibration_report import check_target, emit_calibration
 from feeder.cli.output import print_json
 from feeder.errors import InputError
@@ -63,7 +63,9 @@ def register(sub: Any) -> None:
         help="stream URL, camera index, video file, image folder or genicam:PRODUCER.cti[#SERIAL]",
     )
     grab.add_argument("--out", type=output_path, required=True, help="PNG to write (lossless)")
-    grab.add_argument("--timeout-s", type=float, default=10.0, help="wait this long for a frame")
+    grab.add_argument(
+        "--timeout-s", type=positive_float, default=10.0, help="wait this long for a frame, s (default 10)"
+    )
     grab.add_argument("--json", action="store_true", help="print one JSON object")
     grab.set_defaults(handler=run_grab)
 

@@ -24,6 +24,7 @@ from feeder.cli.arguments import (
     positive_length_m,
 )
 from feeder.cli.output import print_json
+from feeder.daemon.config import PlateConfig
 from feeder.errors import InputError
 from feeder.files import save_figure, write_text
 from feeder.plant.amplifier import AmplifierLimits, OutputStage, limits_from_table
@@ -129,7 +130,9 @@ def register(sub: Any) -> None:
     )
     design.add_argument("--lever-arm-m", type=positive_length_m, default=DEFAULT_LEVER_ARM_M, metavar="L",
                         help=f"theta: radius at which the θ stack drives the plate about O "
-                             f"(default {DEFAULT_LEVER_ARM_M:g} m, as [plate] lever_arm_m)")  # fmt: skip
+                             f"(default {DEFAULT_LEVER_ARM_M:g} m, firmware_sim's plate; give "
+                             f"the daemon's [plate] lever_arm_m, {PlateConfig.lever_arm_m:g} m "
+                             f"unless configured)")  # fmt: skip
     design.add_argument("--out", type=output_path, required=True, help="design file (TOML) to write")
     design.add_argument("--json", action="store_true", help="print one JSON object")
     design.set_defaults(handler=run_design)

@@ -5,7 +5,7 @@ CLI and scripts share one vocabulary:
 
 | route | request |
 |---|---|
-| ``GET /api/status`` | ``{"cmd": "status"}`` (shared by the requests within 40 ms) |
+| ``GET /api/status`` | ``{"cmd": "status"}`` (shared by the requests within 25 ms) |
 | ``GET /api/history?limit=N`` | ``{"cmd": "history", "limit": N}`` |
 | ``POST /api/move`` | ``{"cmd": "move", ...body}`` (``target_m``, ``by_m``, or ``x_m``, ``y_m``,
   ``angle_rad``, ``part``) |
