@@ -198,6 +198,33 @@ def test_the_moves_recover_a_turned_mirrored_camera_and_its_rotation_centre() ->
     )
 
 
+def test_the_report_gives_each_parts_image_points_and_the_plot_draws_them(tmp_path: Path) -> None:
+    """``moves_px``: where each part was seen before, at the offset and after, per axis (the
+    camera's true image points, as the fit used them); ``--plot`` draws them over the image with
+    the plate's axes the fit found."""
+    from feeder.cli.vision_moves import plot_moves
+
+    plate = OffsetPlate()
+    _, report = _measure(plate)
+    gain, volts = plate.moves.stack_gain_m_per_v, plate.moves.volts
+    stroke = gain * volts
+    for axis, shift in (("x", (stroke, 0.0)), ("y", (0.0, stroke))):
+        rows = np.array(report["moves_px"][axis]).reshape(-1, 3, 2)
+        for (x, y), (before, at, after) in zip(plate.parts, rows, strict=True):
+            np.testing.assert_allclose(before, plate.true.to_image(x, y), atol=1e-3)
+            np.testing.assert_allclose(at, plate.true.to_image(x + shift[0], y + shift[1]), atol=1e-3)
+            np.testing.assert_allclose(after, before, atol=1e-3)
+    turned = np.array(report["moves_px"]["theta"]).reshape(-1, 3, 2)[:, 1]
+    turn = stroke / plate.moves.lever_arm_m
+    c, s = math.cos(turn), math.sin(turn)
+    np.testing.assert_allclose(
+        turned, [plate.true.to_image(c * x - s * y, s * x + c * y) for x, y in plate.parts], atol=1e-3
+    )
+    png = tmp_path / "moves.png"
+    plot_moves(report, CONFIGURED.updated(report), (2048, 1536), png)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+
+
 def test_two_parts_measure_the_turn_so_o_does_not_rest_on_the_stack_gain() -> None:
     """A stack gain 10 % high scales the pixel size by as much; O stays where it is, since the
     line between the parts gives the turn.  From one part the turn is the gain's, and O moves."""
@@ -300,12 +327,15 @@ def test_calibrate_moves_on_the_simulator_measures_its_turned_mirrored_camera(
             "--sim-arg=--camera-mirrored",
             "--sim-arg=--camera-rotation-rad=0.4",
             "--save-state",
+            "--plot",
+            str(tmp_path / "moves.png"),
             "--json",
         ]
     )
     out = capsys.readouterr()
     assert code == 0, out.err
     report = json.loads(out.out)
+    assert report["plot"] == str(tmp_path / "moves.png") and (tmp_path / "moves.png").stat().st_size > 20_000
     assert report["mirrored"] is True and report["rotation_rad"] == pytest.approx(0.4, abs=0.02)
     assert report["pixel_size_m"] == pytest.approx(2.7e-6, rel=0.03)
     # O: the image centre of the simulator's 2048 px camera.  One part: the turn is the stack

@@ -12,15 +12,20 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import math
 import signal
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from feeder.cli.arguments import add_sim_arg, float_in, int_in, output_path
 from feeder.cli.calibration_report import check_target, emit_calibration
 from feeder.errors import FeederError, InputError
+from feeder.files import save_figure
+from feeder.vision.calibration import CameraCalibration
 from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, OffsetMoves, measure
 
 SCALE_WARNING = 0.1
@@ -67,6 +72,11 @@ def register(vision: Any) -> None:
     moves.add_argument(
         "--save-state", action="store_true", help="store it for the daemon (used from its next start)"
     )
+    moves.add_argument(
+        "--plot",
+        type=output_path,
+        help="PNG of the parts' moves in the image (magnified) and the plate's axes the fit found",
+    )
     moves.add_argument("--state-dir", type=Path, help="the daemon's state directory (default: the config's)")
     moves.add_argument("--json", action="store_true", help="print one JSON object")
     moves.set_defaults(handler=run_calibrate_moves)
@@ -79,6 +89,7 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
     from feeder.daemon.service import lock_state
 
     check_target(args.out, "--out")
+    check_target(args.plot, "--plot")
     config = load_config(args.config)
     if args.config is None:
         config = embedded_plane(config)
@@ -125,6 +136,10 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
             outside = config.camera.travel_outside(located.updated(report), config.part, config.loop)
             if outside is not None:
                 report["warnings"].append(f"with this calibration the daemon refuses to start: {outside}")
+        if args.plot is not None and located is not None:  # drawn also when the parts slipped
+            size = (config.camera.width_px, config.camera.height_px)
+            plot_moves(report, located.updated(report), size, args.plot)
+            report["plot"] = str(args.plot)
         for warning in report["warnings"]:
             print(f"feeder vision calibrate-moves: warning: {warning}", file=sys.stderr)
         if report["slipped"]:
@@ -168,3 +183,61 @@ def _measure(links: Any, moves: OffsetMoves) -> dict[str, Any]:
             )
     finally:
         amplifiers.release()
+
+
+def plot_moves(
+    report: dict[str, Any], calibration: CameraCalibration, size_px: tuple[int, int], path: Path
+) -> None:
+    """The image (``size_px``: width, height): each part's move per axis from where it rested
+    (the mean of before and after) to where the offset held it, and back (the miss: a slip),
+    magnified alike; the plate's +x and +y at O as ``calibration`` (the fit) maps them; O."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    width, height = size_px
+    moves = {axis: np.array(rows, dtype=float).reshape(-1, 3, 2) for axis, rows in report["moves_px"].items()}
+    longest = max(float(np.max(np.hypot(*(m[:, 1] - m[:, [0, 2]].mean(axis=1)).T))) for m in moves.values())
+    gain = 10 ** math.floor(math.log10(0.08 * math.hypot(width, height) / max(longest, 1e-9)))
+    fig, ax = plt.subplots(figsize=(7, 7 * height / width))
+    ax.add_patch(plt.Rectangle((-0.5, -0.5), width, height, fill=False, color="0.6"))
+    colours = {"x": "tab:red", "y": "tab:green", "theta": "tab:blue"}
+    for axis, m in moves.items():
+        rest = m[:, [0, 2]].mean(axis=1)
+        for k, (start, at, back) in enumerate(zip(rest, m[:, 1], m[:, 2] - m[:, 0], strict=True)):
+            ax.annotate(
+                "",
+                start + gain * (at - start),
+                start,
+                arrowprops={"arrowstyle": "->", "color": colours[axis], "lw": 1.5},
+            )
+            ax.plot(*zip(start, start + gain * back, strict=True), color="k", lw=2)
+            if axis == "x":
+                ax.text(start[0], start[1], f" {k + 1}", fontsize=8)
+        ax.plot([], [], color=colours[axis], label=f"{axis} move, × {gain:g}")
+    ax.plot([], [], color="k", lw=2, label=f"after − before (a slip), × {gain:g}")
+    o = calibration.to_image(0.0, 0.0)
+    reach = 0.2 * min(width, height) * calibration.pixel_size_m
+    for name, end in (("plate +x", (reach, 0.0)), ("plate +y", (0.0, reach))):
+        tip = calibration.to_image(*end)
+        ax.annotate("", tip, o, arrowprops={"arrowstyle": "-|>", "color": "0.3"})
+        ax.text(tip[0], tip[1], " " + name, color="0.3", fontsize=8)
+    if report.get("origin_x_px") is not None:
+        ax.plot(o[0], o[1], "+", color="k", ms=12)
+        ax.add_patch(plt.Circle(o, report["origin_uncertainty_px"], fill=False, color="k", ls=":"))
+        ax.text(o[0], o[1], f" O ± {report['origin_uncertainty_px']:.1f} px", fontsize=8, va="top")
+    ax.set_xlim(-0.05 * width, 1.05 * width)
+    ax.set_ylim(1.05 * height, -0.05 * height)  # image rows grow downwards
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (px)")
+    ax.set_ylabel("y (px)")
+    ax.legend(loc="lower right", fontsize=7)
+    verdict = "SLIPPED, not stored" if report["slipped"] else f"back within {report['returned_px']:.3f} px"
+    ax.set_title(
+        f"{report['pixel_size_m'] * 1e6:.4f} µm/px, turned {math.degrees(report['rotation_rad']):.2f}°"
+        f"{', mirrored' if report['mirrored'] else ''}; {verdict}",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    save_figure(fig, path)

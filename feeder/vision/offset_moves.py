@@ -93,7 +93,9 @@ def measure(
 
     Returns the fields of a ``feeder vision calibrate`` report (pixel size, rotation, mirroring,
     O when θ moved, its ``origin_uncertainty_px``, residuals) plus ``offset_v``, ``parts``,
-    ``turn_rad`` and ``turn_from``, ``returned_px``, ``slipped`` and ``warnings`` (sentences).
+    ``turn_rad`` and ``turn_from``, ``returned_px``, ``slipped``, ``moves_px`` (per axis moved,
+    each part's image centre before, at the offset and after: [u, v, u, v, u, v] px) and
+    ``warnings`` (sentences).
     """
     if not {"x", "y"} <= set(amplifiers):
         raise InputError("axes", "the plate moves need the x and y axes ([plate] axes)")
@@ -230,6 +232,7 @@ def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves
         parts=len(images["x"][0].mean),
         returned_px=returned,
         slipped=slipped,
+        moves_px={axis: np.hstack([p.mean for p in seen]).round(4).tolist() for axis, seen in images.items()},
         warnings=warnings,
     )
     return report
