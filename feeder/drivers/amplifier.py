@@ -139,8 +139,7 @@ class Amplifier(ABC):
 
         Each increment is a small jump at the slope limit: its ringing must stay below the
         parts' breakaway acceleration (firmware_sim's plate, 30 kHz, and a 105 m/s² part:
-        0.05 V increments hold with a margin, 0.1 V ones barely, 0.2 V ones slip;
-        docs/vision.md)."""
+        0.05 V and 0.1 V increments hold, 0.2 V ones slip; docs/vision.md)."""
         if not increment_v > 0:
             raise AmplifierError(f"offset increment must be positive, got {increment_v!r} V")
         count = max(1, math.ceil(abs(end_v - start_v) / increment_v))
