@@ -350,3 +350,22 @@ def test_commands_between_ticks_act_when_they_arrive_not_at_the_last_tick() -> N
     assert np.all(v[:230] == 0.0)
     assert np.all(np.abs(v[231:260] - 0.5) <= lsb)  # 0.5 V reached within a sample (slope limit)
     assert np.all(np.abs(v[261:] - 1.0) <= lsb)
+
+
+def test_status_between_ticks_is_what_the_dac_has_played_by_then() -> None:
+    """A burst of 3 steps at 1 kHz ends at 3 ms.  Asked at 3.05 ms, before the tick at 4 ms has
+    counted the samples since 2 ms, the axis is idle with its 3 steps (not moving with 2)."""
+    fw, _, _ = make(dac_buffer_s=0.010)
+    clock = HandClock()
+    axis = fw.axis(1)
+    axis.set_frequency(1000.0)
+    axis.set_amplitude(50.0)
+    axis.set_mode("stp")
+    fw.run(clock, max_ticks=1)  # the DAC starts at 0
+    axis.step(3)
+    fw.run(clock, max_ticks=2)  # ticks at 1 and 2 ms: 200 samples played
+    assert axis.status().moving and axis.status().step_counter == 2
+    clock.advance_to(0.00305)
+    status = axis.status()
+    assert not status.moving and status.step_counter == 3
+    assert axis.wait_idle(0.0)
