@@ -6,7 +6,7 @@ it does to a part depends on where it sits (docs/plant.md, the θ vector field):
 inside the dead zone nothing; outside the part *orbits* O by ``orbit_rad``,
 drifts radially by ``radial_m`` and *turns* by ``turn_rad`` per step.  The
 turn also depends on the part's orientation β = ψ − φ relative to the radial
-direction (a rectangle lying along the radius turns ~2.5× more than across it).
+direction (a rectangle lying along the radius turns up to ~3× more than across it near the dead zone).
 
 The seed is one period of :func:`feeder.plant.planar.simulate`
 on the ideal sawtooth of each mode: x/y once per mode, θ on a grid of radii
