@@ -166,14 +166,13 @@ def test_a_part_among_others_on_a_canopen_drive_turns_by_twenty_degrees() -> Non
     assert true_m <= status["tolerance_m"] + CAMERA_M and true_rad <= status["tolerance_rad"] + CAMERA_RAD
 
 
-def test_a_turned_mirrored_camera_is_located_with_the_stored_calibration() -> None:
-    """A real microscope's image is turned and often mirrored: `feeder vision calibrate
-    --save-state` measures that, and the daemon locates (and moves) parts with it."""
-    base = Path(tempfile.mkdtemp(prefix="fcal"))
-    config = config_for(PART, "can", base)
-    # turned 0.4 rad the camera sees the ±2.5 mm square's corners off the image: ±1.8 mm it sees whole
+def turned_mirrored_camera(transport: str, base: Path) -> DaemonConfig:
+    """The embedded plane with the simulator's camera turned 0.4 rad and mirrored, one part at
+    (0.8, 0.3) mm: turned, the camera sees the ±2.5 mm square's corners off the image, so the
+    travel is the ±1.8 mm it sees whole."""
+    config = config_for(PART, transport, base)
     half = 1.8e-3
-    config = dataclasses.replace(
+    return dataclasses.replace(
         config,
         loop=dataclasses.replace(
             config.loop, min_position_m=-half, max_position_m=half, min_y_m=-half, max_y_m=half
@@ -181,6 +180,13 @@ def test_a_turned_mirrored_camera_is_located_with_the_stored_calibration() -> No
         plate=dataclasses.replace(config.plate, parts=((0.8e-3, 0.3e-3, 0.2),)),
         simulator_args=(*config.simulator_args, "--camera-rotation-rad", "0.4", "--camera-mirrored"),
     )
+
+
+def test_a_turned_mirrored_camera_is_located_with_the_stored_calibration() -> None:
+    """A real microscope's image is turned and often mirrored: `feeder vision calibrate
+    --save-state` measures that, and the daemon locates (and moves) parts with it."""
+    base = Path(tempfile.mkdtemp(prefix="fcal"))
+    config = turned_mirrored_camera("can", base)
     config.state_dir.mkdir(parents=True)
     store = Store(config.database_path)
     store.save_camera_calibration(

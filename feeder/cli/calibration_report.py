@@ -44,7 +44,7 @@ def emit_calibration(report: dict[str, Any], args: argparse.Namespace) -> int:
     """Write, store and print ``report`` (pixel_size_m, rotation_rad, mirrored, origin_*_px ...)
     as ``args.out``, ``args.save_state``/``args.state_dir`` and ``args.json`` ask."""
     calibration = {k: v for k, v in report.items() if v is not None}
-    if args.out is None and not args.save_state:
+    if args.out is None and not args.save_state and "note" not in report:
         report["note"] = CALIBRATION_NOTE
     if args.out is not None:
         write_text(args.out, json.dumps(calibration, indent=2) + "\n")

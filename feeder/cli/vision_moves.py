@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.arguments import add_sim_arg, float_in, int_in, output_path
+from feeder.cli.arguments import add_sim_arg, float_in, int_in, output_path, positive_float
 from feeder.cli.calibration_report import check_target, emit_calibration
+from feeder.daemon.client import DEFAULT_TIMEOUT_S, Client, default_socket_path
 from feeder.errors import FeederError, InputError
 from feeder.files import save_figure
 from feeder.vision.calibration import CameraCalibration
@@ -38,6 +39,23 @@ def register(vision: Any) -> None:
         help="calibration from plate moves the amplifier makes (DC offsets; stop the daemon first)",
     )
     moves.add_argument("--config", type=Path, help="the daemon's TOML (default: the simulated plane)")
+    moves.add_argument(
+        "--daemon",
+        action="store_true",
+        help="ask the running daemon to make the moves with its amplifier and camera (no restart; "
+        "--save-state stores it for its next move)",
+    )
+    moves.add_argument(
+        "--socket", type=Path, help=f"with --daemon: its socket (default {default_socket_path()})"
+    )
+    moves.add_argument(
+        "--timeout",
+        type=positive_float,
+        default=DEFAULT_TIMEOUT_S,
+        metavar="SECONDS",
+        help=f"with --daemon: give up (exit 3) when it answers no heartbeat within SECONDS; the "
+        f"moves may take longer (default {DEFAULT_TIMEOUT_S:g})",
+    )
     moves.add_argument(
         "--volts",
         type=float_in(1.0, 200.0),
@@ -83,6 +101,10 @@ def register(vision: Any) -> None:
 
 
 def run_calibrate_moves(args: argparse.Namespace) -> int:
+    if args.daemon:
+        return _by_the_daemon(args)
+    if args.socket is not None:
+        raise InputError("--socket", "only with --daemon")
     from feeder.daemon.config import embedded_plane
     from feeder.daemon.config_file import load_config
     from feeder.daemon.links import open_links
@@ -140,15 +162,61 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
             size = (config.camera.width_px, config.camera.height_px)
             plot_moves(report, located.updated(report), size, args.plot)
             report["plot"] = str(args.plot)
-        for warning in report["warnings"]:
-            print(f"feeder vision calibrate-moves: warning: {warning}", file=sys.stderr)
-        if report["slipped"]:
-            raise FeederError("the parts slipped during the moves: nothing stored or written")
+        _warn_and_check(report)
         if args.save_state:  # emit_calibration stores it where the daemon of this config looks
             args.state_dir = config.state_dir
         return emit_calibration(report, args)
     finally:
         lock.close()
+
+
+def _warn_and_check(report: dict[str, Any]) -> None:
+    """Print the report's warnings; a calibration whose parts slipped goes no further."""
+    for warning in report["warnings"]:
+        print(f"feeder vision calibrate-moves: warning: {warning}", file=sys.stderr)
+    if report["slipped"]:
+        raise FeederError("the parts slipped during the moves: nothing stored or written")
+
+
+def _by_the_daemon(args: argparse.Namespace) -> int:
+    """``--daemon``: the running daemon makes the moves (the socket's ``calibrate_camera``) and,
+    with ``--save-state``, stores the calibration itself."""
+    own = (("--config", args.config), ("--state-dir", args.state_dir), ("--sim-arg", args.sim_arg))
+    for flag, given in own:
+        if given:
+            raise InputError(flag, "not with --daemon: the daemon's own configuration and state are used")
+    check_target(args.out, "--out")
+    check_target(args.plot, "--plot")
+    print("the daemon moves the plate (its log shows each axis; feeder stop ends it) ...", file=sys.stderr)
+    with Client(args.socket, timeout_s=args.timeout) as client:
+        report = client.calibrate_camera(
+            volts=args.volts,
+            stack_gain_m_per_v=args.stack_gain,
+            increment_v=args.increment,
+            frames=args.frames,
+            save=args.save_state,
+        )
+    if args.plot is not None:
+        width, height = report["image_px"]
+        plot_moves(report, fitted(report, (width, height)), (width, height), args.plot)
+        report["plot"] = str(args.plot)
+    _warn_and_check(report)
+    if report["saved"]:
+        report["note"] = "stored by the daemon: used from its next move on"
+    args.save_state = False  # the daemon stored it in its own state
+    return emit_calibration(report, args)
+
+
+def fitted(report: dict[str, Any], image_px: tuple[int, int]) -> CameraCalibration:
+    """The calibration the report gives (O at the image centre when θ did not move)."""
+    centre = ((image_px[0] - 1) / 2, (image_px[1] - 1) / 2)
+    return CameraCalibration(
+        report["pixel_size_m"],
+        report["rotation_rad"],
+        report["mirrored"],
+        centre[0] if report["origin_x_px"] is None else report["origin_x_px"],
+        centre[1] if report["origin_y_px"] is None else report["origin_y_px"],
+    )
 
 
 @contextlib.contextmanager

@@ -417,6 +417,31 @@ class Client:
             raise InputError("steps", f"must be an integer in [2, 10000], got {steps!r}")
         return self._job("calibrate", {"steps": steps}, queue, wait, timeout_s)
 
+    def calibrate_camera(
+        self,
+        *,
+        volts: float | None = None,
+        stack_gain_m_per_v: float | None = None,
+        increment_v: float | None = None,
+        frames: int | None = None,
+        save: bool = False,
+        timeout_s: float | None = None,
+    ) -> dict[str, Any]:
+        """The camera's calibration from plate moves the daemon makes with its own amplifier and
+        camera while no move runs (``feeder vision calibrate-moves --daemon``; the fields and
+        report as :func:`feeder.vision.offset_moves.measure`'s, plus ``saved`` and ``image_px``;
+        the daemon's defaults for what is None).  ``save`` stores it for the next move.  Returns
+        when the moves end (about a minute), checking on the daemon by heartbeat;
+        :class:`~feeder.errors.DaemonRefused` with the reason it was refused, stopped or failed."""
+        given = {"volts": volts, "stack_gain_m_per_v": stack_gain_m_per_v, "increment_v": increment_v}
+        fields: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
+        if frames is not None:
+            fields["frames"] = frames
+        reply = self._await("calibrate_camera", {**fields, "save": save}, self._timeout(timeout_s))
+        if reply.get("ok") is not True:
+            raise DaemonRefused(str(reply.get("error") or "calibrate_camera refused without a reason"))
+        return _parse("calibrate_camera", lambda r: dict(r["calibration"]), reply)
+
     def _job(
         self, cmd: str, fields: dict[str, Any], queue: bool, wait: bool, timeout_s: float | None
     ) -> MoveResult | Accepted:

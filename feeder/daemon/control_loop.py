@@ -18,13 +18,14 @@ documented there.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -147,6 +148,22 @@ class ControlLoop:
     @property
     def sensor(self) -> PositionSensor:
         return self._feed.sensor
+
+    def next_sample(self, timeout_s: float) -> PositionSample:
+        """The sensor's next sample, for a reader besides the loop (:meth:`SensorFeed.next_sample`)."""
+        return self._feed.next_sample(timeout_s)
+
+    @contextlib.contextmanager
+    def lent_output(self) -> Iterator[dict[str, Amplifier]]:
+        """The amplifiers for a caller alone while no job runs (the caller checks): the policy's
+        commands wait meanwhile; afterwards the policy takes every axis as grounded, and the
+        next job enables and applies its waveforms again."""
+        with self.executor.lent() as amplifiers:
+            try:
+                yield amplifiers
+            finally:
+                with self._lock:
+                    self.policy.output_taken()
 
     @property
     def amplifiers(self) -> dict[str, Amplifier]:

@@ -14,11 +14,12 @@ calibration) on its own thread in order, so a slow commit never delays a tick.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import sqlite3
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 
 from feeder.daemon.jobs import Command, Completion, StepMode
 from feeder.drivers.amplifier import Amplifier, AmplifierError, AmplifierLinkLost
@@ -52,6 +53,8 @@ class AmplifierExecutor:
         self._queue: collections.deque[Command] = collections.deque()
         self._done: list[Completion] = []
         self._closing = False
+        self._running = False  # a command is in flight
+        self._lent = False  # the amplifiers are lent out (lent()): the queue waits
         self._thread = threading.Thread(target=self._run, name="amplifier-executor", daemon=True)
         self._thread.start()
 
@@ -82,6 +85,21 @@ class AmplifierExecutor:
             self._queue.clear()
             self.amplifiers = per_axis(amplifiers)
 
+    @contextlib.contextmanager
+    def lent(self) -> Iterator[dict[str, Amplifier]]:
+        """The amplifiers, for the caller alone: waits for the command in flight; commands
+        submitted meanwhile wait in the queue until the caller is done."""
+        with self._cond:
+            self._lent = True
+            self._cond.wait_for(lambda: not self._running)
+            amplifiers = self.amplifiers
+        try:
+            yield amplifiers
+        finally:
+            with self._cond:
+                self._lent = False
+                self._cond.notify_all()
+
     def close(self) -> None:
         with self._cond:
             self._closing = True
@@ -92,14 +110,17 @@ class AmplifierExecutor:
     def _run(self) -> None:
         while True:
             with self._cond:
-                self._cond.wait_for(lambda: self._queue or self._closing)
+                self._cond.wait_for(lambda: (self._queue and not self._lent) or self._closing)
                 if self._closing:
                     return
                 command = self._queue.popleft()
                 amplifiers = self.amplifiers
+                self._running = True
             completion = self._execute(amplifiers, command)
             with self._cond:
                 self._done.append(completion)
+                self._running = False
+                self._cond.notify_all()
 
     def _execute(self, amplifiers: dict[str, Amplifier], command: Command) -> Completion:
         try:

@@ -256,6 +256,14 @@ class Policy:
         if self.sensor_lost is None:
             self.state = "idle"
 
+    def output_taken(self) -> None:
+        """The axes were driven outside the policy (a camera calibration's offset moves) and
+        left grounded: the next job enables and applies its waveforms again."""
+        self._applied = {}
+        self._enabled = False
+        self._grounded = True
+        self._idle_until = math.inf
+
     def sensor_restored(self) -> None:
         """A new sensor link: the position is uncertain until it reports."""
         self.sensor_lost = None

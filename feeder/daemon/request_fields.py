@@ -35,9 +35,13 @@ ONE_TURN_RAD = 2 * math.pi
 degrees meant as radians)."""
 
 
+UNITS = (("_rad", "radians"), ("_m_per_v", "m/V"), ("_v", "volts"), ("volts", "volts"), ("", "metres"))
+"""A field's unit by the end of its name (the first that fits)."""
+
+
 def finite(request: dict[str, Any], key: str) -> float | None:
-    """``request[key]`` as a finite number (m, or rad for a ``_rad`` key; ``angle_rad`` within
-    ±:data:`ONE_TURN_RAD`); None when absent."""
+    """``request[key]`` as a finite number (its unit by its name: :data:`UNITS`; ``angle_rad``
+    within ±:data:`ONE_TURN_RAD`); None when absent."""
     value = request.get(key)
     if value is None:
         return None
@@ -46,7 +50,7 @@ def finite(request: dict[str, Any], key: str) -> float | None:
     except (TypeError, ValueError, OverflowError):
         number = math.nan
     if not isinstance(value, (int, float)) or not math.isfinite(number):
-        unit = "radians" if key.endswith("_rad") else "metres"
+        unit = next(name for suffix, name in UNITS if key.endswith(suffix))
         raise RequestFieldError(f"{key} must be a finite number of {unit}, got {brief(value)}")
     wrong = beyond_one_turn(number) if key == "angle_rad" else None
     if wrong is not None:

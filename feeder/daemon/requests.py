@@ -17,6 +17,7 @@ from feeder.daemon.calibration import CALIBRATION_STEPS, calibration_bursts, cal
 from feeder.daemon.control_loop import COARSE, Burst, Job
 from feeder.daemon.request_fields import RequestFieldError, finite, integer
 from feeder.daemon.step_estimator import FORWARD
+from feeder.errors import FeederError
 
 if TYPE_CHECKING:
     from feeder.daemon.service import Daemon
@@ -139,6 +140,23 @@ def _calibration_room(daemon: Daemon) -> int | str:
     return calibration_room(x, daemon.loop.settings, estimate, daemon.setup.modes[COARSE].predicted_band_m[1])
 
 
+def _calibrate_camera(daemon: Daemon, request: dict[str, Any]) -> dict[str, Any]:
+    """The camera's calibration from plate moves (:mod:`~feeder.daemon.camera_moves`): the
+    report, stored with ``"save": true``; answered when the moves end (~1 min)."""
+    plate = daemon.setup.plate_moves
+    if plate is None:
+        return {"ok": False, "error": "the plate moves calibrate the camera of a plane (x, y, θ; a camera)"}
+    save = request.get("save", False)
+    if not isinstance(save, bool):
+        return {"ok": False, "error": "save must be true or false"}
+    try:
+        moves = plate.moves(request)
+        report = daemon.camera_moves(moves, save)
+    except FeederError as err:  # a refused field, a refusal, a stop or a device's error
+        return {"ok": False, "error": str(err)}
+    return {"ok": True, "calibration": {**report, "image_px": list(plate.image_px)}}
+
+
 def _stop(daemon: Daemon, request: dict[str, Any]) -> dict[str, Any]:
     stopped, dequeued = daemon.stop()
     return {"ok": True, "stopped": stopped, "dequeued": dequeued}
@@ -178,6 +196,7 @@ _COMMANDS: dict[str, Callable[[Daemon, dict[str, Any]], dict[str, Any]]] = {
     "stop": _stop,
     "status": _status,
     "calibrate": _calibrate,
+    "calibrate_camera": _calibrate_camera,
     "history": _history,
     "release": _release,
     "shutdown": _shutdown,

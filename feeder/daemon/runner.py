@@ -8,6 +8,7 @@ from typing import Any
 
 from feeder.contact.breakaway import contact
 from feeder.contact.tau_pair import tau_pair
+from feeder.daemon.camera_moves import PlateMoves
 from feeder.daemon.config import DaemonConfig, uses_camera
 from feeder.daemon.launcher import Simulator
 from feeder.daemon.links import DriverLinks, open_links
@@ -65,6 +66,16 @@ def start_daemon(config: DaemonConfig, simulator: Simulator | None = None) -> Ru
                 "pose_navigator": pose_navigator_factory(config, every_axis, static),
                 "parts": tuple({"shape": "rectangle", "size_m": size} for _ in config.plate.parts),
             }
+            if uses_camera(config):
+                limits = config.amplifier.limits
+                plane["plate_moves"] = PlateMoves(
+                    v_min_v=limits.v_min_v,
+                    v_max_v=limits.v_max_v,
+                    lever_arm_m=config.plate.lever_arm_m,
+                    image_px=(config.camera.width_px, config.camera.height_px),
+                    gain_required=not config.amplifier.simulated,
+                    travel_outside=lambda c: config.camera.travel_outside(c, config.part, config.loop),
+                )
         links = open_links(config, simulator)
         undo.callback(links.close)
         setup = DaemonSetup(

@@ -55,6 +55,8 @@ class SensorFeed:
         self.timeout_s = timeout_s
         self._clock = clock
         self._lock = threading.Lock()
+        self._arrived = threading.Condition(self._lock)
+        self._last: tuple[int, PositionSample] | None = None  # (arrivals so far, the latest)
         self._pending: list[tuple[float, PositionSample]] = [] if first is None else [(clock(), first)]
         self.lost: str | None = None
         self._closing = False
@@ -74,20 +76,41 @@ class SensorFeed:
                                 stalled, err)  # fmt: skip
                     continue
                 if not self._closing:
-                    self.lost = str(err) or type(err).__name__
+                    self._lose(str(err) or type(err).__name__)
                 return
             wrong = implausible(sample)
             if wrong is not None:
-                self.lost = f"the sensor reported {wrong}"
+                self._lose(f"the sensor reported {wrong}")
                 return
-            with self._lock:
+            with self._arrived:
                 self._pending.append((self._clock(), sample))
+                self._last = (1 if self._last is None else self._last[0] + 1, sample)
+                self._arrived.notify_all()
+
+    def _lose(self, reason: str) -> None:
+        with self._arrived:
+            self.lost = reason
+            self._arrived.notify_all()
 
     def take(self) -> list[tuple[float, PositionSample]]:
         """Samples that arrived since the last call: (arrival loop time s, sample)."""
         with self._lock:
             out, self._pending = self._pending, []
         return out
+
+    def next_sample(self, timeout_s: float) -> PositionSample:
+        """The next sample to arrive after this call, for a reader besides the loop (which still
+        takes it); :class:`SensorLost` when none comes within ``timeout_s`` or the sensor is lost."""
+        with self._arrived:
+            seen = 0 if self._last is None else self._last[0]
+            arrived = self._arrived.wait_for(
+                lambda: self.lost is not None or (self._last is not None and self._last[0] > seen), timeout_s
+            )
+            if self.lost is not None:
+                raise SensorLost(self.lost)
+            if not arrived or self._last is None:
+                raise SensorLost(f"no poses within {timeout_s:g} s")
+            return self._last[1]
 
     def close(self) -> None:
         """Stop reading and close the sensor's link."""

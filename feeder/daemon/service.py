@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Protocol
 
+from feeder.daemon.camera_moves import LoopPoses, PlateMoves
 from feeder.daemon.control_loop import ControlLoop, Job, JobResult, LoopSettings, Navigator, StepMode
 from feeder.daemon.executor import per_axis
 from feeder.daemon.located_calibration import STORED, LocatedCalibration
@@ -38,10 +39,11 @@ from feeder.daemon.requests import answer
 from feeder.daemon.socket_server import SocketServer
 from feeder.daemon.status_report import loop_status, waveforms_status
 from feeder.daemon.store import Store
-from feeder.drivers.amplifier import Amplifier
+from feeder.drivers.amplifier import Amplifier, AmplifierLinkLost
 from feeder.drivers.sensor import PositionSensor, SensorLost
 from feeder.errors import FeederError, InputError
 from feeder.vision.calibration import CameraCalibration
+from feeder.vision.offset_moves import OffsetMoves, measure
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +69,8 @@ class DaemonSetup:
     (:meth:`~feeder.daemon.config.CameraConfig.uncalibrated`), None: they need none.
     axis_modes, pose_navigator: for a plate driven in x, y and θ, every axis'
     waveform modes and a factory of the pose navigator (given the learned response
-    the store restored, or None); parts: each part's ``id``, ``shape``, ``size_m``.
+    the store restored, or None); parts: each part's ``id``, ``shape``, ``size_m``;
+    plate_moves: what a camera calibration from plate moves needs (a plane with a camera).
     """
 
     modes: dict[str, StepMode]
@@ -81,6 +84,7 @@ class DaemonSetup:
     pose_navigator: Callable[[dict[str, Any] | None], Navigator] | None = None
     parts: tuple[dict[str, Any], ...] = ()
     uncalibrated_camera: str | None = None
+    plate_moves: PlateMoves | None = None
 
 
 def lock_state(database_path: Path) -> IO[bytes]:
@@ -112,6 +116,7 @@ class Daemon:
         self._clients = 0
         self._faults: list[dict[str, Any]] = []
         self._reconnecting: set[str] = set()
+        self._camera_moves: threading.Event | None = None  # a camera calibration runs; set: stop it
         self._server: SocketServer | None = None
         self._state_lock = lock_state(setup.database_path)
         with contextlib.ExitStack() as undo:  # on failure: release what was opened
@@ -172,6 +177,8 @@ class Daemon:
         with self._lock:
             first = not self._stopping.is_set()
             self._stopping.set()
+            if self._camera_moves is not None:
+                self._camera_moves.set()
         if not first:
             self._stopped.wait()
             return
@@ -367,7 +374,9 @@ class Daemon:
         with self._submitting:
             with self._lock:
                 position, reason = 0, None
-                if queue and (self.loop.busy() or self._queue):
+                if self._camera_moves is not None:
+                    reason = "a camera calibration is moving the plate: wait for it, or stop it (feeder stop)"
+                elif queue and (self.loop.busy() or self._queue):
                     self._queue.append(job)
                     position = len(self._queue)
                 elif self._queue:
@@ -381,9 +390,53 @@ class Daemon:
         many were dequeued."""
         with self._lock:
             queued, self._queue = list(self._queue), collections.deque()
+            calibrating = self._camera_moves is not None
+            if self._camera_moves is not None:
+                self._camera_moves.set()
         for job in queued:
             self._refuse_queued(job, "stop requested")
-        return self.loop.request_stop(), len(queued)
+        return self.loop.request_stop() or calibrating, len(queued)
+
+    def camera_moves(self, moves: OffsetMoves, save: bool) -> dict[str, Any]:
+        """Calibrate the camera from plate moves (:mod:`~feeder.daemon.camera_moves`) while no
+        move runs, with the daemon's amplifier and camera; with ``save`` store it (unless the
+        parts slipped), to locate parts with from the next move.  The report of
+        :func:`~feeder.vision.offset_moves.measure` (``saved``: whether it was stored);
+        :class:`~feeder.errors.FeederError` with the reason it was refused or failed."""
+        with self._submitting, self._lock:
+            if self._camera_moves is not None:
+                raise FeederError("a camera calibration is running already")
+            if self.loop.busy() or self._queue:
+                raise FeederError("a move is running or queued: the plate moves wait until none is")
+            if self._reconnecting or self._stopping.is_set():
+                raise FeederError("the daemon is reconnecting a link or shutting down")
+            stop = self._camera_moves = threading.Event()
+        try:
+            configured = self.links.configured_calibration()
+            assert configured is not None  # the requests check that the plane has a camera
+            located = self.camera_calibration.calibration or configured
+            with self.loop.lent_output() as amplifiers:
+                log.info("camera calibration: the plate moves by offsets of %g V", moves.volts)
+                report = measure(amplifiers, LoopPoses(self.loop), located, moves, log.info, stop)
+        except AmplifierLinkLost as err:
+            self.loop.amplifier_lost(str(err))
+            raise
+        finally:
+            with self._lock:
+                self._camera_moves = None
+        plate = self.setup.plate_moves
+        outside = None if plate is None else plate.travel_outside(located.updated(report))
+        if outside is not None:
+            report["warnings"].append(f"with this calibration every move is refused: {outside}")
+        report["saved"] = save and not report["slipped"]
+        if report["saved"]:
+            store = Store(self.setup.database_path)
+            try:
+                store.save_camera_calibration({k: v for k, v in report.items() if v is not None})
+            finally:
+                store.close()
+            log.info("camera calibration stored: used from the next move on")
+        return report
 
     def status(self) -> dict[str, Any]:
         """The ``status`` reply: the loop's (:func:`.loop_status`), the faults and reconnects,
@@ -402,6 +455,7 @@ class Daemon:
             "queued_moves": queued,
             "camera_calibration": self.camera_calibration.status(),
             "moves_refused": self._uncalibrated(),
+            "camera_moves": self._camera_moves is not None,  # a camera calibration moves the plate
             "interrupted_moves": self.interrupted_moves,
             **waveforms_status(self.setup.modes),
             **self.setup.info,

@@ -8,6 +8,7 @@ peak-to-peak of the sawtooth.  A driver drives one axis.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
@@ -132,10 +133,18 @@ class Amplifier(ABC):
         """
         raise AmplifierError(f"{type(self).__name__}: this drive has no DC offset mode")
 
-    def ramp_offset(self, start_v: float, end_v: float, increment_v: float, pause_s: float) -> int:
+    def ramp_offset(
+        self,
+        start_v: float,
+        end_v: float,
+        increment_v: float,
+        pause_s: float,
+        stop: threading.Event | None = None,
+    ) -> int:
         """Move the offset from ``start_v`` to ``end_v`` in increments of at most ``increment_v``
         (V), ``pause_s`` (s) apart or a round trip when that is longer (the plate's ringing dies
-        out between them); returns the increments.
+        out between them); returns the increments made (fewer when ``stop`` was set: the
+        offset stays where it got).
 
         Each increment is a small jump at the slope limit: its ringing must stay below the
         parts' breakaway acceleration (firmware_sim's plate, 30 kHz, and a 105 m/s² part:
@@ -146,6 +155,8 @@ class Amplifier(ABC):
         due = time.monotonic()
         for k in range(1, count + 1):
             time.sleep(max(0.0, due - time.monotonic()))
+            if stop is not None and stop.is_set():
+                return k - 1
             self.hold_offset(start_v + (end_v - start_v) * k / count)
             # on a fixed beat: a late increment shortens the next gap, never below half a pause
             due = max(due + pause_s, time.monotonic() + 0.5 * pause_s)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -34,7 +35,7 @@ import numpy as np
 
 from feeder.drivers.amplifier import Amplifier, AmplifierError
 from feeder.drivers.sensor import PositionSensor
-from feeder.errors import InputError
+from feeder.errors import FeederError, InputError
 from feeder.vision.calibration import CameraCalibration, axes_from_moves, rotation_centre
 
 log = logging.getLogger(__name__)
@@ -53,6 +54,10 @@ turn is assumed from them, is this fraction of the part's distance from O uncert
 RADIUS_MARGIN = 1.25
 """The parts' distances from O, measured with the configured calibration, are taken this much
 larger for the θ increment (the configured O may be off)."""
+
+
+class MovesStopped(FeederError):
+    """The moves were stopped (``stop`` set): every axis grounded, nothing measured."""
 
 
 class Points(NamedTuple):
@@ -84,11 +89,13 @@ def measure(
     located_with: CameraCalibration,
     moves: OffsetMoves,
     progress: Callable[[str], None] = lambda _: None,
+    stop: threading.Event | None = None,
 ) -> dict[str, Any]:
     """Move the plate on each of ``amplifiers``' axes (``x`` and ``y`` needed, ``theta`` for O)
     and fit the calibration; ``located_with`` is the calibration the sensor's poses were located
     with (they are mapped back to pixels).  Every axis is grounded before and after, also when
-    this is interrupted; an axis that cannot be grounded (its link lost) is named in the
+    this is interrupted or ``stop`` is set (:class:`MovesStopped`, within an increment or a
+    position's frames); an axis that cannot be grounded (its link lost) is named in the
     :class:`~feeder.drivers.amplifier.AmplifierError` raised.
 
     Returns the fields of a ``feeder vision calibrate`` report (pixel size, rotation, mirroring,
@@ -115,7 +122,7 @@ def measure(
                 reach = RADIUS_MARGIN * max(math.hypot(*located_with.to_plate(u, v)) for u, v in before.mean)
                 increment *= min(1.0, moves.lever_arm_m / reach)
             images[axis] = _move(
-                amplifiers[axis], axis, increment, sensor, located_with, moves, progress, before
+                amplifiers[axis], axis, increment, sensor, located_with, moves, progress, before, stop
             )
             moving = None
     finally:
@@ -132,16 +139,25 @@ def _move(
     moves: OffsetMoves,
     progress: Callable[[str], None],
     before: Points,
+    stop: threading.Event | None,
 ) -> tuple[Points, Points, Points]:
     """One axis up to ``moves.volts`` in ``increment_v`` steps and down in half-steps: the parts'
     image points before, at the offset and after."""
+
+    def stopped() -> None:
+        if stop is not None and stop.is_set():
+            raise MovesStopped(f"the plate moves were stopped on axis {axis}; every axis grounded")
+
     progress(f"{axis}: offset 0 → {moves.volts:g} V in {increment_v:.3g} V steps")
-    amp.ramp_offset(0.0, moves.volts, increment_v, moves.pause_s)
+    amp.ramp_offset(0.0, moves.volts, increment_v, moves.pause_s, stop)
+    stopped()
     time.sleep(moves.settle_s)
     at = _image_points(sensor, located_with, moves)
+    stopped()
     progress(f"{axis}: offset {moves.volts:g} → 0 V in {increment_v / 2:.3g} V steps")
-    amp.ramp_offset(moves.volts, 0.0, increment_v / 2, moves.pause_s)
+    amp.ramp_offset(moves.volts, 0.0, increment_v / 2, moves.pause_s, stop)
     amp.ground()
+    stopped()
     time.sleep(moves.settle_s)
     return before, at, _image_points(sensor, located_with, moves)
 

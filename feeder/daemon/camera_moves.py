@@ -1,0 +1,80 @@
+"""The camera calibration from plate moves, run by the daemon with its own amplifier and camera.
+
+``feeder vision calibrate-moves --daemon`` (the socket's ``calibrate_camera``) measures what
+``calibrate-moves`` measures (:mod:`feeder.vision.offset_moves`) without stopping the daemon:
+while no move runs, the control loop lends it the amplifiers (its commands wait) and the
+camera's poses (the loop goes on reading them), and it stores the calibration, used from the
+next move on.  ``stop`` ends the moves within an increment, every axis grounded.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from feeder.daemon.request_fields import RequestFieldError, finite, integer
+from feeder.drivers.sensor import PositionSample, PositionSensor
+from feeder.vision.calibration import CameraCalibration
+from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, OffsetMoves
+
+if TYPE_CHECKING:
+    from feeder.daemon.control_loop import ControlLoop
+
+
+@dataclass(frozen=True)
+class PlateMoves:
+    """What the moves need of the daemon's configuration: the amplifier's output range (V), the
+    θ stack's lever arm (m), the camera's image (width, height px), whether the stacks' static
+    gain must be given (hardware: True; the simulator's is known), and why a calibration would
+    not show the whole travel (:meth:`~feeder.daemon.config.CameraConfig.travel_outside`)."""
+
+    v_min_v: float
+    v_max_v: float
+    lever_arm_m: float
+    image_px: tuple[int, int]
+    gain_required: bool
+    travel_outside: Callable[[CameraCalibration], str | None]
+
+    def moves(self, request: dict[str, Any]) -> OffsetMoves:
+        """The request's moves (``volts``, ``stack_gain_m_per_v``, ``increment_v``, ``frames``;
+        defaults as ``calibrate-moves``'); :class:`RequestFieldError` naming a bad field."""
+        defaults = OffsetMoves()
+        volts = _within(request, "volts", defaults.volts, 1.0, self.v_max_v)
+        if volts < self.v_min_v:
+            raise RequestFieldError(f"volts must be within the amplifier's output, ≥ {self.v_min_v:g} V")
+        gain = finite(request, "stack_gain_m_per_v")
+        if gain is None and self.gain_required:
+            raise RequestFieldError("stack_gain_m_per_v is required on hardware: the plate's move per volt")
+        if gain is not None and not 1e-12 <= gain <= 1e-3:
+            raise RequestFieldError(f"stack_gain_m_per_v must be in [1e-12, 1e-3] m/V, got {gain!r}")
+        return OffsetMoves(
+            volts=volts,
+            stack_gain_m_per_v=FIRMWARE_SIM_GAIN_M_PER_V if gain is None else gain,
+            lever_arm_m=self.lever_arm_m,
+            increment_v=_within(request, "increment_v", defaults.increment_v, 1e-4, 1.0),
+            frames=integer(request, "frames", defaults.frames, 1, 1000),
+        )
+
+
+def _within(request: dict[str, Any], key: str, default: float, low: float, high: float) -> float:
+    value = finite(request, key)
+    if value is None:
+        return default
+    if not low <= value <= high:
+        raise RequestFieldError(f"{key} must be in [{low:g}, {high:g}], got {value!r}")
+    return value
+
+
+class LoopPoses(PositionSensor):
+    """The control loop's camera poses as a sensor: each read waits for the next sample the loop
+    reads (the loop still takes it)."""
+
+    def __init__(self, loop: ControlLoop) -> None:
+        self._loop = loop
+
+    def read(self, timeout_s: float = 1.0) -> PositionSample:
+        return self._loop.next_sample(timeout_s)
+
+    def close(self) -> None:
+        """The loop's camera stays open."""

@@ -1,0 +1,105 @@
+"""The pieces of the daemon's camera calibration (feeder/daemon/camera_moves.py), without I/O
+waits beyond a few ms: the executor lends its amplifiers, the sensor feed hands its next sample
+to a second reader, the request's fields are checked, and a stop ends the moves grounded."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
+from test_offset_moves import CONFIGURED, LocatingCamera, OffsetAxis, OffsetPlate
+
+from feeder.daemon.camera_moves import PlateMoves
+from feeder.daemon.executor import AmplifierExecutor
+from feeder.daemon.jobs import Command, StepMode
+from feeder.daemon.request_fields import RequestFieldError
+from feeder.daemon.sensor_feed import SensorFeed
+from feeder.drivers.amplifier import DriveSettings
+from feeder.drivers.sensor import SensorLost
+from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, MovesStopped, measure
+
+
+class SlowAmplifier(FakeAmplifier):
+    """``ground`` takes ``delay_s``: a command in flight when the amplifiers are lent."""
+
+    def __init__(self, world: FakeWorld, delay_s: float) -> None:
+        super().__init__(world)
+        self.delay_s = delay_s
+
+    def ground(self) -> None:
+        time.sleep(self.delay_s)
+        super().ground()
+
+
+def test_the_executor_lends_its_amplifiers_after_the_command_in_flight_and_queues_meanwhile() -> None:
+    amp = SlowAmplifier(FakeWorld({(50.0, 1): 1e-6}), delay_s=0.2)
+    mode = StepMode("coarse", DriveSettings(1000.0, 50.0), 1e-6, (0.5e-6, 1.5e-6))
+    executor = AmplifierExecutor(amp, {"x": {"coarse": mode}})
+    try:
+        executor.submit(Command("ground"))
+        time.sleep(0.05)  # the ground is in flight
+        started = time.monotonic()
+        with executor.lent() as amplifiers:
+            waited = time.monotonic() - started
+            assert amplifiers == {"x": amp} and amp.calls == ["ground"]  # the ground is over
+            executor.submit(Command("enable"))
+            time.sleep(0.1)
+            assert amp.calls == ["ground"]  # the enable waits for the lender
+        deadline = time.monotonic() + 2.0
+        while "enable" not in amp.calls and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert amp.calls[0] == "ground" and "enable" in amp.calls
+        assert 0.1 < waited < 0.3
+    finally:
+        executor.close()
+
+
+def test_the_feed_hands_its_next_sample_to_a_second_reader_and_the_loop_still_takes_it() -> None:
+    feed = SensorFeed(FakeSensor(FakeWorld({}), rate_hz=100.0), timeout_s=1.0, clock=time.monotonic)
+    try:
+        time.sleep(0.05)
+        feed.take()
+        first = feed.next_sample(1.0)
+        second = feed.next_sample(1.0)
+        assert second.sequence > first.sequence  # each read waits for a new sample
+        assert second.sequence in {sample.sequence for _, sample in feed.take()}
+    finally:
+        feed.close()
+    with pytest.raises(SensorLost):
+        feed.next_sample(0.05)
+
+
+PLATE = PlateMoves(0.0, 150.0, 1e-3, (2048, 2048), gain_required=True, travel_outside=lambda _: None)
+
+
+def test_the_requests_moves_are_checked_field_by_field() -> None:
+    moves = PLATE.moves({"volts": 60, "stack_gain_m_per_v": 8e-8, "increment_v": 0.02, "frames": 3})
+    assert (moves.volts, moves.stack_gain_m_per_v, moves.increment_v, moves.frames) == (60, 8e-8, 0.02, 3)
+    assert moves.lever_arm_m == 1e-3
+    simulated = PlateMoves(0.0, 200.0, 1e-3, (2048, 2048), False, lambda _: None).moves({})
+    assert (simulated.volts, simulated.stack_gain_m_per_v) == (100.0, FIRMWARE_SIM_GAIN_M_PER_V)
+    for request, named in [
+        ({"stack_gain_m_per_v": 8e-8, "volts": 151}, "volts must be in [1, 150]"),
+        ({"stack_gain_m_per_v": 8e-8, "volts": "100"}, "volts must be a finite number of volts"),
+        ({}, "stack_gain_m_per_v is required on hardware"),
+        ({"stack_gain_m_per_v": 1.0}, "stack_gain_m_per_v must be in [1e-12, 1e-3] m/V"),
+        ({"stack_gain_m_per_v": 8e-8, "increment_v": 2.0}, "increment_v must be in [0.0001, 1]"),
+        ({"stack_gain_m_per_v": 8e-8, "frames": 0}, "frames must be an integer in [1, 1000]"),
+    ]:
+        with pytest.raises(RequestFieldError, match=named.replace("[", r"\[")):
+            PLATE.moves(request)
+
+
+def test_a_stop_ends_the_moves_within_an_increment_every_axis_grounded() -> None:
+    plate = OffsetPlate()
+    axes = {name: OffsetAxis(plate, name) for name in ("x", "y", "theta")}
+    stop = threading.Event()
+    camera = LocatingCamera(plate, CONFIGURED)
+    camera.on_read = lambda frames: stop.set() if frames > 3 else None  # during x's offset
+    with pytest.raises(MovesStopped, match="stopped on axis x"):
+        measure(axes, camera, CONFIGURED, plate.moves, stop=stop)
+    assert plate.volts == {"x": 0.0, "y": 0.0, "theta": 0.0}
+    assert axes["y"].grounded_at == [0.0, 0.0] and axes["theta"].grounded_at == [0.0, 0.0]
+    assert axes["x"].grounded_at[-1] == pytest.approx(plate.moves.volts)  # grounded where it stood
