@@ -4,7 +4,8 @@
 ``calibrate-moves`` measures (:mod:`feeder.vision.offset_moves`) without stopping the daemon:
 while no move runs, the control loop lends it the amplifiers (its commands wait) and the
 camera's poses (the loop goes on reading them), and it stores the calibration, used from the
-next move on.  ``stop`` ends the moves within an increment, every axis grounded.
+next move on.  ``stop`` ends the moves within an increment (or the frames being averaged),
+every axis grounded.
 """
 
 from __future__ import annotations

@@ -386,16 +386,16 @@ class Daemon:
         return position, reason
 
     def stop(self) -> tuple[bool, int]:
-        """Refuse the queued moves and stop the running one: whether one was running, and how
-        many were dequeued."""
+        """Refuse the queued moves and stop the running one, or the camera calibration's plate
+        moves: whether one was running, and how many were dequeued."""
         with self._lock:
             queued, self._queue = list(self._queue), collections.deque()
-            calibrating = self._camera_moves is not None
-            if self._camera_moves is not None:
-                self._camera_moves.set()
+            camera_moves = self._camera_moves
+            if camera_moves is not None:
+                camera_moves.set()
         for job in queued:
             self._refuse_queued(job, "stop requested")
-        return self.loop.request_stop() or calibrating, len(queued)
+        return self.loop.request_stop() or camera_moves is not None, len(queued)
 
     def camera_moves(self, moves: OffsetMoves, save: bool) -> dict[str, Any]:
         """Calibrate the camera from plate moves (:mod:`~feeder.daemon.camera_moves`) while no
