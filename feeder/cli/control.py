@@ -289,6 +289,8 @@ def run_status(args: argparse.Namespace) -> int:
         print_json(reply)
         return 0
     print(f"state: {status.state}" + (f" ({status.fault})" if status.fault else ""))
+    if reply.get("camera_moves"):
+        print("a camera calibration is moving the plate (feeder stop ends it)")
     if reply.get("moves_refused"):
         print(f"moves refused: {reply['moves_refused']}")
     if len(reply.get("axes") or {}) > 1:  # a plate driven in the plane
