@@ -55,12 +55,15 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             with Client(config.socket_path, timeout_s=30.0) as other:
                 busy = other.request("move", part=1, x_m=0.5e-3, y_m=0.3e-3)
                 assert not busy["ok"] and "camera calibration is moving the plate" in busy["error"]
+                assert other.request("status")["camera_moves"] is True
                 stopped_at = time.monotonic()
                 assert other.request("stop") == {"ok": True, "stopped": True, "dequeued": 0}
             worker.join(30.0)
             assert time.monotonic() - stopped_at < 3.0
             assert refused and "stopped on axis x" in refused[0] and "grounded" in refused[0]
-            assert client.request("status")["camera_calibration"]["source"] == "configuration"
+            after_stop = client.request("status")
+            assert after_stop["camera_calibration"]["source"] == "configuration"
+            assert after_stop["camera_moves"] is False
 
             plot = base / "moves.png"
             moves = ["--volts", "40", "--frames", "4", "--save-state", "--plot", str(plot), "--json"]
