@@ -18,7 +18,8 @@ import pytest
 from test_control_loop import MODES, SETTINGS, TRUE
 from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
 
-from feeder.daemon.client import MAX_LINE_BYTES, Client, DaemonUnavailable
+from feeder.daemon.client import Client, DaemonUnavailable
+from feeder.daemon.client_connection import MAX_LINE_BYTES
 from feeder.daemon.config import CameraConfig
 from feeder.daemon.service import Daemon, DaemonSetup
 from feeder.daemon.socket_server import bind_socket

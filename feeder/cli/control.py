@@ -15,7 +15,8 @@ from typing import Any
 
 from feeder.cli.arguments import angle_rad, int_in, length_m, positive_float
 from feeder.cli.output import print_json
-from feeder.daemon.client import DEFAULT_TIMEOUT_S, Client, default_socket_path
+from feeder.daemon.client import DEFAULT_TIMEOUT_S, Client
+from feeder.daemon.client_connection import default_socket_path
 from feeder.daemon.replies import Accepted, MoveRecord, MoveResult
 from feeder.errors import InputError, MoveFailed
 

@@ -23,7 +23,8 @@ import numpy as np
 
 from feeder.cli.arguments import add_sim_arg, float_in, int_in, output_path, positive_float
 from feeder.cli.calibration_report import check_target, emit_calibration
-from feeder.daemon.client import DEFAULT_TIMEOUT_S, Client, default_socket_path
+from feeder.daemon.client import DEFAULT_TIMEOUT_S, Client
+from feeder.daemon.client_connection import default_socket_path
 from feeder.errors import FeederError, InputError
 from feeder.files import save_figure
 from feeder.vision.calibration import CameraCalibration

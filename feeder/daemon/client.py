@@ -1,15 +1,16 @@
 """Client of the daemon's Unix socket: one JSON object per line each way.
 
-Requests are ``{"cmd": "move" | "stop" | "status" | "calibrate" | "history" |
-"release" | "shutdown", ...}``; replies are ``{"ok": true, ...}`` or ``{"ok": false,
-"error": "..."}``.  The client refuses a socket that another user owns, so a
-planted socket cannot impersonate the daemon.
+Requests are ``{"cmd": "move" | "stop" | "status" | "calibrate" | "calibrate_camera" |
+"history" | "release" | "shutdown", ...}``; replies are ``{"ok": true, ...}`` or ``{"ok":
+false, "error": "..."}``.  The client refuses a socket that another user owns, so a
+planted socket cannot impersonate the daemon (the wire: :mod:`feeder.daemon.client_connection`).
 
 :class:`Client` (also ``feeder.Client``) has two layers:
 
 - typed calls for scripts: :meth:`~Client.move_to`, :meth:`~Client.move_by`,
   :meth:`~Client.calibrate`, :meth:`~Client.stop`, :meth:`~Client.status`,
-  :meth:`~Client.history`, :meth:`~Client.release`, :meth:`~Client.shutdown`.  They return dataclasses
+  :meth:`~Client.history`, :meth:`~Client.release`, :meth:`~Client.shutdown`,
+  :meth:`~Client.calibrate_camera`.  They return dataclasses (the camera's report a dict)
   (:mod:`feeder.daemon.replies`: SI units, the protocol's key names) and raise
   the :class:`~feeder.errors.DaemonError` family: :class:`~feeder.errors.DaemonRefused`,
   :class:`~feeder.errors.MoveFailed` (:class:`~feeder.errors.MoveFaulted`),
@@ -29,14 +30,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import socket
-import stat
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal, TypeVar, overload
 
+from feeder.daemon.client_connection import Connection, default_socket_path, listening
 from feeder.daemon.replies import Accepted, MoveRecord, MoveResult, Status, StopResult
 from feeder.errors import (
     DaemonRefused,
@@ -47,10 +46,6 @@ from feeder.errors import (
     MoveFaulted,
 )
 
-MAX_LINE_BYTES = 64 * 1024
-"""Longest request line the daemon reads."""
-MAX_REPLY_BYTES = 64 * MAX_LINE_BYTES
-"""Longest reply line the client reads (histories and traces are long)."""
 DEFAULT_TIMEOUT_S = 10.0
 HEARTBEAT_S = 0.25
 """Silence on a waiting move after which the client checks that the daemon still answers."""
@@ -60,102 +55,6 @@ T = TypeVar("T")
 
 DaemonUnavailable = DaemonUnreachable
 """The former name of :class:`~feeder.errors.DaemonUnreachable`."""
-
-
-def default_socket_path() -> Path:
-    """``$XDG_RUNTIME_DIR/feeder/feeder.sock``, else ``/tmp/feeder-<uid>/feeder.sock``."""
-    runtime = os.environ.get("XDG_RUNTIME_DIR")
-    base = Path(runtime) / "feeder" if runtime else Path("/tmp") / f"feeder-{os.getuid()}"
-    return base / "feeder.sock"
-
-
-def check_owned_by_me(path: Path, what: str) -> os.stat_result:
-    """``lstat`` of ``path``; raises :class:`PermissionError` unless the current user owns it."""
-    info = path.lstat()
-    if info.st_uid != os.getuid():
-        raise PermissionError(
-            f"{what} {path} is owned by uid {info.st_uid}, not by this user (uid {os.getuid()}); refusing it"
-        )
-    return info
-
-
-# -- the connection -----------------------------------------------------------
-
-
-class _Connection:
-    """One socket connection: send a line, read a line by a deadline (timeouts leave it usable)."""
-
-    def __init__(self, socket_path: Path, timeout_s: float | None) -> None:
-        try:
-            info = check_owned_by_me(socket_path, "socket")
-        except FileNotFoundError:
-            raise DaemonUnreachable(
-                f"no daemon socket at {socket_path} (start one with `feeder daemon`)"
-            ) from None
-        except PermissionError as err:
-            raise DaemonUnreachable(str(err)) from None
-        if not stat.S_ISSOCK(info.st_mode):
-            raise DaemonUnreachable(f"{socket_path} is not a socket")
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self._sock.settimeout(timeout_s)
-        try:
-            self._sock.connect(str(socket_path))
-        except TimeoutError:
-            self._sock.close()
-            raise DaemonTimeout(
-                f"the daemon at {socket_path} did not accept the connection within {timeout_s:g} s",
-                timeout_s or 0.0,
-            ) from None
-        except OSError as err:
-            self._sock.close()
-            raise DaemonUnreachable(f"no daemon listening on {socket_path}: {err}") from None
-        self._buffer = bytearray()
-
-    def send(self, cmd: str, fields: dict[str, Any], timeout_s: float | None) -> None:
-        line = json.dumps({"cmd": cmd, **fields}).encode() + b"\n"
-        self._sock.settimeout(timeout_s)
-        try:
-            self._sock.sendall(line)
-        except TimeoutError:
-            raise DaemonTimeout(
-                f"the daemon did not take the {cmd!r} request within {timeout_s:g} s", timeout_s or 0.0
-            ) from None
-        except OSError as err:
-            raise DaemonUnreachable(f"daemon connection failed: {err}") from None
-
-    def receive(self, cmd: str, timeout_s: float | None) -> dict[str, Any]:
-        """The next reply object; :class:`DaemonTimeout` when none is complete in ``timeout_s``."""
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        while (end := self._buffer.find(b"\n")) < 0:
-            if len(self._buffer) > MAX_REPLY_BYTES:
-                raise DaemonUnreachable(f"reply to {cmd!r} longer than {MAX_REPLY_BYTES} bytes")
-            remaining = None if deadline is None else deadline - time.monotonic()
-            try:
-                if remaining is not None and remaining <= 0:
-                    raise TimeoutError
-                self._sock.settimeout(remaining)
-                chunk = self._sock.recv(65536)
-            except TimeoutError:
-                raise DaemonTimeout(
-                    f"the daemon did not answer {cmd!r} within {timeout_s:g} s", timeout_s or 0.0
-                ) from None
-            except OSError as err:
-                raise DaemonUnreachable(f"daemon connection failed: {err}") from None
-            if not chunk:
-                raise DaemonUnreachable("the daemon closed the connection")
-            self._buffer += chunk
-        line = bytes(self._buffer[:end])
-        del self._buffer[: end + 1]
-        try:
-            obj = json.loads(line)
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            obj = None
-        if not isinstance(obj, dict):
-            raise DaemonUnreachable(f"unexpected reply to {cmd!r}: {line[:200]!r}")
-        return obj
-
-    def close(self) -> None:
-        self._sock.close()
 
 
 # -- the client ---------------------------------------------------------------
@@ -175,7 +74,7 @@ class Client:
             raise InputError("timeout_s", f"must be a positive number of seconds, got {timeout_s!r}")
         self.socket_path = default_socket_path() if socket_path is None else Path(socket_path)
         self.timeout_s = timeout_s
-        self._conn: _Connection | None = _Connection(self.socket_path, timeout_s)
+        self._conn: Connection | None = Connection(self.socket_path, timeout_s)
 
     # -- raw requests -----------------------------------------------------------
     def request(self, cmd: str, timeout_s: float | None = None, **fields: Any) -> dict[str, Any]:
@@ -192,9 +91,9 @@ class Client:
             self._drop()  # a late reply would answer the next request
             raise
 
-    def _connection(self) -> _Connection:
+    def _connection(self) -> Connection:
         if self._conn is None:
-            self._conn = _Connection(self.socket_path, self.timeout_s)
+            self._conn = Connection(self.socket_path, self.timeout_s)
         return self._conn
 
     def _drop(self) -> None:
@@ -267,7 +166,7 @@ class Client:
             pass  # it went away before its acknowledgement got out; checked below
         self._drop()
         end = time.monotonic() + timeout
-        while wait and _listening(self.socket_path):
+        while wait and listening(self.socket_path, SHUTDOWN_POLL_S):
             if time.monotonic() > end:
                 raise DaemonTimeout(
                     f"the daemon acknowledged the shutdown but still listens on "
@@ -464,7 +363,7 @@ class Client:
         """Send a request the daemon answers only when the job ends; check on it by heartbeat
         (see the module's docstring)."""
         conn = self._connection()
-        heartbeat: _Connection | None = None
+        heartbeat: Connection | None = None
         try:
             conn.send(cmd, fields, timeout_s)
             while True:
@@ -473,7 +372,7 @@ class Client:
                 except DaemonTimeout:
                     pass  # silence: the job runs; is the daemon still there?
                 if heartbeat is None:
-                    heartbeat = _Connection(self.socket_path, timeout_s)
+                    heartbeat = Connection(self.socket_path, timeout_s)
                 heartbeat.send("status", {}, timeout_s)
                 heartbeat.receive("status (heartbeat)", timeout_s)
         except DaemonUnreachable:
@@ -482,21 +381,6 @@ class Client:
         finally:
             if heartbeat is not None:
                 heartbeat.close()
-
-
-def _listening(socket_path: Path) -> bool:
-    """Whether a connection to ``socket_path`` is accepted (or queued) right now."""
-    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    probe.settimeout(SHUTDOWN_POLL_S)
-    try:
-        probe.connect(str(socket_path))
-    except (FileNotFoundError, ConnectionRefusedError):
-        return False
-    except OSError:  # e.g. a full backlog: somebody is still there
-        return True
-    finally:
-        probe.close()
-    return True
 
 
 def _metres(name: str, value: float) -> float:

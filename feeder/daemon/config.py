@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from feeder.daemon.client import default_socket_path
+from feeder.daemon.client_connection import default_socket_path
 from feeder.daemon.control_loop import LoopSettings
 from feeder.errors import InputError
 from feeder.parts import Part, Support

@@ -2,7 +2,7 @@
 
 Owner-only (0600) in an owner-only directory (0700); a socket path or directory that another
 user owns is refused, and so is a peer whose uid is not ours (SO_PEERCRED).  One JSON object
-per line, at most :data:`~feeder.daemon.client.MAX_LINE_BYTES`; a longer line is answered with
+per line, at most :data:`~feeder.daemon.client_connection.MAX_LINE_BYTES`; a longer line is answered with
 an error and the connection closed; a line that is not JSON gets an error reply.
 
 Up to :data:`MAX_CLIENTS` clients are served in full at once, each on its own thread.  No client
@@ -34,7 +34,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from feeder.daemon.client import MAX_LINE_BYTES, check_owned_by_me
+from feeder.daemon.client_connection import MAX_LINE_BYTES, check_owned_by_me
 from feeder.errors import InputError
 
 log = logging.getLogger(__name__)

@@ -10,7 +10,7 @@ from typing import Any
 from starlette.requests import Request
 from starlette.responses import JSONResponse
 
-from feeder.daemon.client import MAX_LINE_BYTES
+from feeder.daemon.client_connection import MAX_LINE_BYTES
 from feeder.daemon.request_fields import FieldRangeError, RequestFieldError, beyond_one_turn, finite
 from feeder.errors import FeederError
 
