@@ -6,8 +6,10 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import signal
+import subprocess
+import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -18,7 +20,6 @@ from feeder.cli import main
 from feeder.cli.demo_plane import true_poses, wait_for_pose
 from feeder.daemon.client import Client
 from feeder.daemon.runner import start_daemon
-from feeder.errors import DaemonRefused
 from feeder.pose import pose_error
 
 pytest.importorskip("cv2", reason="the camera needs OpenCV (the vision extra)")
@@ -29,10 +30,10 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     """The simulator's camera turned 0.4 rad and mirrored (the travel narrowed to what it sees
-    whole).  A stop ends the moves at once, grounded, nothing stored, and a move runs after it;
-    then the daemon measures the camera with its own amplifier and camera, stores it, locates
-    parts with it from the next move on, and that move reaches its target by the simulator's
-    truth within what the calibration's errors allow."""
+    whole).  Moves are refused while the daemon moves the plate; Ctrl-C of the command stops it
+    within 3 s, grounded, nothing stored; then the daemon measures the camera with its own
+    amplifier and camera, stores it, locates parts with it from the next move on, and that move
+    reaches its target by the simulator's truth within what the calibration's errors allow."""
     base = Path(tempfile.mkdtemp(prefix="fcam"))
     config = turned_mirrored_camera("serial", base)
     running = start_daemon(config)
@@ -41,26 +42,24 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             wait_for_pose(client)
             assert client.request("status")["camera_calibration"]["source"] == "configuration"
 
-            refused: list[str] = []
-
-            def calibrate_then_stopped() -> None:
-                try:
-                    client.calibrate_camera(volts=40.0, frames=2, save=True)
-                except DaemonRefused as err:
-                    refused.append(str(err))
-
-            worker = threading.Thread(target=calibrate_then_stopped)
-            worker.start()
-            time.sleep(2.0)  # x ramps up meanwhile (0.8 s of the 1.6 s ramp)
-            with Client(config.socket_path, timeout_s=30.0) as other:
-                busy = other.request("move", part=1, x_m=0.5e-3, y_m=0.3e-3)
-                assert not busy["ok"] and "camera calibration is moving the plate" in busy["error"]
-                assert other.request("status")["camera_moves"] is True
-                stopped_at = time.monotonic()
-                assert other.request("stop") == {"ok": True, "stopped": True, "dequeued": 0}
-            worker.join(30.0)
+            # Ctrl-C of the command stops the daemon's moves, as it ends its own
+            command = [sys.executable, "-m", "feeder", "vision", "calibrate-moves", "--daemon"]
+            options = ["--socket", str(config.socket_path), "--volts", "40", "--frames", "2", "--save-state"]
+            cli = subprocess.Popen([*command, *options], stderr=subprocess.PIPE, text=True)
+            deadline = time.monotonic() + 20.0
+            while not client.request("status")["camera_moves"] and time.monotonic() < deadline:
+                time.sleep(0.05)
+            time.sleep(0.5)  # x ramps up meanwhile
+            busy = client.request("move", part=1, x_m=0.5e-3, y_m=0.3e-3)
+            assert not busy["ok"] and "camera calibration is moving the plate" in busy["error"]
+            assert client.request("status")["camera_moves"] is True
+            stopped_at = time.monotonic()
+            cli.send_signal(signal.SIGINT)
+            _, err = cli.communicate(timeout=30.0)
+            assert cli.returncode == 130 and "stopped: every axis grounded, nothing stored" in err, err
+            while client.request("status")["camera_moves"] and time.monotonic() - stopped_at < 5.0:
+                time.sleep(0.05)
             assert time.monotonic() - stopped_at < 3.0
-            assert refused and "stopped on axis x" in refused[0] and "grounded" in refused[0]
             after_stop = client.request("status")
             assert after_stop["camera_calibration"]["source"] == "configuration"
             assert after_stop["camera_moves"] is False

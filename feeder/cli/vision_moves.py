@@ -181,22 +181,34 @@ def _warn_and_check(report: dict[str, Any]) -> None:
 
 def _by_the_daemon(args: argparse.Namespace) -> int:
     """``--daemon``: the running daemon makes the moves (the socket's ``calibrate_camera``) and,
-    with ``--save-state``, stores the calibration itself."""
+    with ``--save-state``, stores the calibration itself.  Ctrl-C, SIGTERM and SIGHUP stop its
+    moves (every axis grounded, nothing stored), as they end this command's own."""
     own = (("--config", args.config), ("--state-dir", args.state_dir), ("--sim-arg", args.sim_arg))
     for flag, given in own:
         if given:
             raise InputError(flag, "not with --daemon: the daemon's own configuration and state are used")
     check_target(args.out, "--out")
     check_target(args.plot, "--plot")
-    print("the daemon moves the plate (its log shows each axis; feeder stop ends it) ...", file=sys.stderr)
-    with Client(args.socket, timeout_s=args.timeout) as client:
-        report = client.calibrate_camera(
-            volts=args.volts,
-            stack_gain_m_per_v=args.stack_gain,
-            increment_v=args.increment,
-            frames=args.frames,
-            save=args.save_state,
+    print("the daemon moves the plate (its log shows each axis; Ctrl-C stops it) ...", file=sys.stderr)
+    try:
+        with _interrupted_by_signals(), Client(args.socket, timeout_s=args.timeout) as client:
+            report = client.calibrate_camera(
+                volts=args.volts,
+                stack_gain_m_per_v=args.stack_gain,
+                increment_v=args.increment,
+                frames=args.frames,
+                save=args.save_state,
+            )
+    except KeyboardInterrupt:
+        with Client(args.socket, timeout_s=args.timeout) as client:
+            stopped = client.stop().stopped
+        print(
+            "the daemon's plate moves were stopped: every axis grounded, nothing stored"
+            if stopped
+            else "the daemon's plate moves had ended (feeder status shows the calibration in use)",
+            file=sys.stderr,
         )
+        raise
     if args.plot is not None:
         width, height = report["image_px"]
         plot_moves(report, fitted(report, (width, height)), (width, height), args.plot)
