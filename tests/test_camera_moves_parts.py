@@ -6,19 +6,23 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
 from test_offset_moves import CONFIGURED, LocatingCamera, OffsetAxis, OffsetPlate
 
+from feeder.cli import main
 from feeder.daemon.camera_moves import PlateMoves
+from feeder.daemon.client import Client
 from feeder.daemon.executor import AmplifierExecutor
 from feeder.daemon.jobs import Command, StepMode
 from feeder.daemon.request_fields import RequestFieldError
+from feeder.daemon.requests import answer
 from feeder.daemon.sensor_feed import SensorFeed
 from feeder.drivers.amplifier import DriveSettings
 from feeder.drivers.sensor import SensorLost
-from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, MovesStopped, measure
+from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, MovesStopped, OffsetMoves, measure
 
 
 class SlowAmplifier(FakeAmplifier):
@@ -103,3 +107,49 @@ def test_a_stop_ends_the_moves_within_an_increment_every_axis_grounded() -> None
     assert plate.volts == {"x": 0.0, "y": 0.0, "theta": 0.0}
     assert axes["y"].grounded_at == [0.0, 0.0] and axes["theta"].grounded_at == [0.0, 0.0]
     assert axes["x"].grounded_at[-1] == pytest.approx(plate.moves.volts)  # grounded where it stood
+
+
+class _Daemon:
+    """What the request handler sees of a daemon: its setup and the moves it would make."""
+
+    def __init__(self) -> None:
+        self.setup = type("Setup", (), {"plate_moves": PLATE})()
+        self.asked: list[tuple[OffsetMoves, bool]] = []
+
+    def camera_moves(self, moves: OffsetMoves, save: bool) -> dict[str, object]:
+        self.asked.append((moves, save))
+        return {"saved": save}
+
+
+def test_a_request_with_an_unknown_field_moves_nothing() -> None:
+    """A typo (``volt``) must not leave the offset at its 100 V default."""
+    daemon = _Daemon()
+    reply = answer(daemon, {"cmd": "calibrate_camera", "volt": 40, "stack_gain_m_per_v": 7e-8})
+    assert reply["ok"] is False and reply["error"].startswith("unknown field 'volt'; known: cmd, frames")
+    reply = answer(daemon, {"cmd": "calibrate_camera", "stack_gain_m_per_v": 7e-8, "save": "yes"})
+    assert reply == {"ok": False, "error": "save must be true or false, got 'yes'"}
+    assert daemon.asked == []
+    reply = answer(daemon, {"cmd": "calibrate_camera", "stack_gain_m_per_v": 7e-8, "volts": 40, "save": True})
+    assert reply["ok"] is True and reply["calibration"]["image_px"] == [2048, 2048]
+    assert daemon.asked[0][0].volts == 40 and daemon.asked[0][1] is True
+
+
+def test_a_calibration_the_running_daemon_could_not_use_is_neither_stored_nor_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The daemon does not store a calibration with which its travel leaves the camera's view
+    (every move would be refused, and its next start); the command says so and writes nothing."""
+    report = {
+        "warnings": [],
+        "slipped": False,
+        "saved": False,
+        "travel_outside": "the travel x [...] reaches beyond",
+    }
+    monkeypatch.setattr(Client, "__init__", lambda self, *a, **k: None)
+    monkeypatch.setattr(Client, "close", lambda self: None)
+    monkeypatch.setattr(Client, "calibrate_camera", lambda self, **fields: dict(report))
+    out = tmp_path / "camera.json"
+    code = main(["vision", "calibrate-moves", "--daemon", "--save-state", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 1 and "would refuse every move: the travel x [...] reaches beyond" in err
+    assert "nothing stored or written" in err and not out.exists()

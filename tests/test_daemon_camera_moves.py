@@ -52,7 +52,7 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             time.sleep(0.5)  # x ramps up meanwhile
             busy = client.request("move", part=1, x_m=0.5e-3, y_m=0.3e-3)
             assert not busy["ok"] and "camera calibration is moving the plate" in busy["error"]
-            assert client.request("status")["camera_moves"] is True
+            assert client.request("status")["camera_moves"] is True and client.status().camera_moves
             stopped_at = time.monotonic()
             cli.send_signal(signal.SIGINT)
             _, err = cli.communicate(timeout=30.0)

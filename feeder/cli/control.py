@@ -255,7 +255,7 @@ def run_stop(args: argparse.Namespace) -> int:
     if args.json:
         print_json({"stopped": stopped.stopped, "dequeued": stopped.dequeued})
     else:
-        print("stopped the running move" if stopped.stopped else "nothing was moving")
+        print("stopped the running move (or camera calibration)" if stopped.stopped else "nothing was moving")
     return 0
 
 

@@ -157,7 +157,7 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
         located = links.configured_calibration()
         if located is not None and config.plate.planar:  # the daemon checks this at its start
             outside = config.camera.travel_outside(located.updated(report), config.part, config.loop)
-            if outside is not None:
+            if outside is not None:  # stored all the same: narrowing the travel keeps it
                 report["warnings"].append(f"with this calibration the daemon refuses to start: {outside}")
         if args.plot is not None and located is not None:  # drawn also when the parts slipped
             size = (config.camera.width_px, config.camera.height_px)
@@ -189,9 +189,9 @@ def _by_the_daemon(args: argparse.Namespace) -> int:
             raise InputError(flag, "not with --daemon: the daemon's own configuration and state are used")
     check_target(args.out, "--out")
     check_target(args.plot, "--plot")
-    print("the daemon moves the plate (its log shows each axis; Ctrl-C stops it) ...", file=sys.stderr)
     try:
         with _interrupted_by_signals(), Client(args.socket, timeout_s=args.timeout) as client:
+            print("the daemon moves the plate (its log shows each axis; Ctrl-C stops it)", file=sys.stderr)
             report = client.calibrate_camera(
                 volts=args.volts,
                 stack_gain_m_per_v=args.stack_gain,
@@ -214,6 +214,11 @@ def _by_the_daemon(args: argparse.Namespace) -> int:
         plot_moves(report, fitted(report, (width, height)), (width, height), args.plot)
         report["plot"] = str(args.plot)
     _warn_and_check(report)
+    if report["travel_outside"] is not None:  # the running daemon would refuse every move with it
+        raise FeederError(
+            f"with this calibration the daemon would refuse every move: {report['travel_outside']}; "
+            "nothing stored or written: narrow [control]'s travel, restart the daemon, calibrate again"
+        )
     if report["saved"]:
         report["note"] = "stored by the daemon: used from its next move on"
     args.save_state = False  # the daemon stored it in its own state

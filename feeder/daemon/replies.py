@@ -155,6 +155,7 @@ class Status:
     ``fault``) where the daemon reports it.
 
     ``parts`` every part's pose (a plate driven in x, y and θ; one part otherwise).
+    ``camera_moves``: a camera calibration is moving the plate (``state`` stays ``idle``).
     ``raw`` holds the whole reply (timing, waveforms, transport, ...).
     """
 
@@ -171,6 +172,7 @@ class Status:
     last_result: MoveResult | None
     loop_state: str | None = None
     parts: tuple[PartPose, ...] = ()
+    camera_moves: bool = False
     raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
@@ -191,6 +193,7 @@ class Status:
             last_result=None if last is None else MoveResult.from_dict(last),
             loop_state=d.get("loop_state"),
             parts=tuple(PartPose.from_dict(p) for p in d.get("parts") or ()),
+            camera_moves=d.get("camera_moves") is True,
             raw=d,
         )
 

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from feeder.daemon.calibration import CALIBRATION_STEPS, calibration_bursts, calibration_room, fine_steps_for
 from feeder.daemon.control_loop import COARSE, Burst, Job
-from feeder.daemon.request_fields import RequestFieldError, finite, integer
+from feeder.daemon.request_fields import RequestFieldError, brief, finite, integer
 from feeder.daemon.step_estimator import FORWARD
 from feeder.errors import FeederError
 
@@ -140,15 +140,22 @@ def _calibration_room(daemon: Daemon) -> int | str:
     return calibration_room(x, daemon.loop.settings, estimate, daemon.setup.modes[COARSE].predicted_band_m[1])
 
 
+CAMERA_MOVES_FIELDS = frozenset({"cmd", "volts", "stack_gain_m_per_v", "increment_v", "frames", "save"})
+
+
 def _calibrate_camera(daemon: Daemon, request: dict[str, Any]) -> dict[str, Any]:
     """The camera's calibration from plate moves (:mod:`~feeder.daemon.camera_moves`): the
     report, stored with ``"save": true``; answered when the moves end (~1 min)."""
     plate = daemon.setup.plate_moves
     if plate is None:
         return {"ok": False, "error": "the plate moves calibrate the camera of a plane (x, y, θ; a camera)"}
+    unknown = sorted(set(request) - CAMERA_MOVES_FIELDS)
+    if unknown:  # a typo must not leave the volts at their default
+        known = ", ".join(sorted(CAMERA_MOVES_FIELDS))
+        return {"ok": False, "error": f"unknown field {brief(unknown[0])}; known: {known}"}
     save = request.get("save", False)
     if not isinstance(save, bool):
-        return {"ok": False, "error": "save must be true or false"}
+        return {"ok": False, "error": f"save must be true or false, got {brief(save)}"}
     try:
         moves = plate.moves(request)
         report = daemon.camera_moves(moves, save)

@@ -43,7 +43,7 @@ from feeder.drivers.amplifier import Amplifier, AmplifierLinkLost
 from feeder.drivers.sensor import PositionSensor, SensorLost
 from feeder.errors import FeederError, InputError
 from feeder.vision.calibration import CameraCalibration
-from feeder.vision.offset_moves import OffsetMoves, measure
+from feeder.vision.offset_moves import MovesStopped, OffsetMoves, measure
 
 log = logging.getLogger(__name__)
 
@@ -407,7 +407,7 @@ class Daemon:
             if self._camera_moves is not None:
                 raise FeederError("a camera calibration is running already")
             if self.loop.busy() or self._queue:
-                raise FeederError("a move is running or queued: the plate moves wait until none is")
+                raise FeederError("a move is running or queued: calibrate the camera once it has ended")
             if self._reconnecting or self._stopping.is_set():
                 raise FeederError("the daemon is reconnecting a link or shutting down")
             stop = self._camera_moves = threading.Event()
@@ -418,24 +418,36 @@ class Daemon:
             with self.loop.lent_output() as amplifiers:
                 log.info("camera calibration: the plate moves by offsets of %g V", moves.volts)
                 report = measure(amplifiers, LoopPoses(self.loop), located, moves, log.info, stop)
-        except AmplifierLinkLost as err:
-            self.loop.amplifier_lost(str(err))
+        except MovesStopped as err:
+            log.warning("camera calibration: %s; nothing stored", err)
+            raise
+        except FeederError as err:
+            log.error("camera calibration failed (the axes grounded where the link allowed): %s", err)
+            if isinstance(err, AmplifierLinkLost):
+                self.loop.amplifier_lost(str(err))
             raise
         finally:
             with self._lock:
                 self._camera_moves = None
         plate = self.setup.plate_moves
-        outside = None if plate is None else plate.travel_outside(located.updated(report))
-        if outside is not None:
-            report["warnings"].append(f"with this calibration every move is refused: {outside}")
-        report["saved"] = save and not report["slipped"]
+        report["travel_outside"] = None if plate is None else plate.travel_outside(located.updated(report))
+        report["saved"] = save and not report["slipped"] and report["travel_outside"] is None
+        log.info(
+            "camera calibration: %.5g µm/px, turned %.4f rad%s, O at (%s, %s) px, back within %.3f px%s",
+            report["pixel_size_m"] * 1e6,
+            report["rotation_rad"],
+            ", mirrored" if report["mirrored"] else "",
+            report["origin_x_px"],
+            report["origin_y_px"],
+            report["returned_px"],
+            "; stored, used from the next move on" if report["saved"] else "; not stored",
+        )
         if report["saved"]:
             store = Store(self.setup.database_path)
             try:
                 store.save_camera_calibration({k: v for k, v in report.items() if v is not None})
             finally:
                 store.close()
-            log.info("camera calibration stored: used from the next move on")
         return report
 
     def status(self) -> dict[str, Any]:
