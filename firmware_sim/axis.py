@@ -273,7 +273,7 @@ class Axis:
         """The axis as of now: the steps and output of the samples the DAC has played by the
         time of the call (it plays on between ticks)."""
         with self._fw.lock:
-            played = min(self._fw.command_sample(), self._written) - self._fw.samples_played
+            played = self._played_since_tick()
             code = int(self._pending_codes[played - 1]) if played else self._played_code
             return AxisStatus(
                 axis=self.number,
@@ -291,6 +291,11 @@ class Axis:
 
     # -- internals (called with the lock held) --------------------------------
 
+    def _played_since_tick(self) -> int:
+        """How many buffered samples the DAC has played since the last tick (it plays on
+        between ticks; at most what was buffered)."""
+        return min(self._fw.command_sample(), self._written) - self._fw.samples_played
+
     def _busy(self) -> bool:
         # the DAC plays on between ticks: a burst a command ended is over from that command's sample
         return self._remaining != 0 or self._mode == "cap" or self._fw.command_sample() < self._active_until
@@ -303,12 +308,11 @@ class Axis:
         The DDS restarts from the phase of the first regenerated sample; with ``resume``
         a burst in progress keeps the steps it has not played yet.
         """
-        played = self._fw.samples_played
-        start = min(self._fw.command_sample(), self._written)
+        kept = self._played_since_tick()  # buffered samples the DAC plays before the command acts
+        start = self._fw.samples_played + kept
         n = self._written - start
         if n <= 0:
             return
-        kept = start - played  # buffered samples the DAC plays before the command acts
         self._phase = int(self._pending_phases[kept])
         if resume and self._remaining >= 0 and self._active_until > start:
             self._remaining += int(np.abs(self._pending_steps[kept:]).sum())

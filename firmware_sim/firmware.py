@@ -191,8 +191,11 @@ class Firmware:
         """
         if self._clock is None or self._epoch_s is None:
             return self.samples_played
-        now = int((self._clock.now_s() - self._epoch_s) * self.sample_rate + 1e-6)
-        return max(self.samples_played, now)
+        return max(self.samples_played, self._sample_at(self._clock.now_s() - self._epoch_s))
+
+    def _sample_at(self, t_s: float) -> int:
+        """Index of the sample the DAC plays at ``t_s`` (s since its start)."""
+        return int(t_s * self.sample_rate + 1e-6)
 
     def tick(self, now_s: float) -> None:
         """One tick at time ``now_s``.
@@ -207,7 +210,7 @@ class Firmware:
         with self.lock:
             self._now_s = now_s
             cfg = self.config
-            played = int(now_s * self.sample_rate + 1e-6)
+            played = self._sample_at(now_s)
             if played > self.samples_played:
                 axes = list(self._axes.values())
                 if any(axis._written < played for axis in axes):

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
-from test_offset_moves import CONFIGURED, LocatingCamera, OffsetAxis, OffsetPlate
+from test_offset_moves import CONFIGURED, OffsetPlate, rig
 
 from feeder.cli import main
 from feeder.daemon.camera_moves import PlateMoves
@@ -98,9 +98,8 @@ def test_the_requests_moves_are_checked_field_by_field() -> None:
 
 def test_a_stop_ends_the_moves_within_an_increment_every_axis_grounded() -> None:
     plate = OffsetPlate()
-    axes = {name: OffsetAxis(plate, name) for name in ("x", "y", "theta")}
+    axes, camera = rig(plate)
     stop = threading.Event()
-    camera = LocatingCamera(plate, CONFIGURED)
     camera.on_read = lambda frames: stop.set() if frames > 3 else None  # during x's offset
     with pytest.raises(MovesStopped, match="stopped on axis x"):
         measure(axes, camera, CONFIGURED, plate.moves, stop=stop)

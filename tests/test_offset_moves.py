@@ -165,19 +165,21 @@ class LocatingCamera(PositionSensor):
 CONFIGURED = CameraCalibration(2.1e-6, origin_x_px=1023.5, origin_y_px=767.5)
 
 
+def rig(plate: OffsetPlate) -> tuple[dict[str, OffsetAxis], LocatingCamera]:
+    """The plate's x, y and θ axes, and a camera locating its parts with :data:`CONFIGURED`."""
+    return {name: OffsetAxis(plate, name) for name in ("x", "y", "theta")}, LocatingCamera(plate, CONFIGURED)
+
+
 def _measure(plate: OffsetPlate, **moves: Any) -> tuple[dict[str, OffsetAxis], dict[str, Any]]:
-    axes = {name: OffsetAxis(plate, name) for name in ("x", "y", "theta")}
-    report = measure(
-        axes, LocatingCamera(plate, CONFIGURED), CONFIGURED, dataclasses.replace(plate.moves, **moves)
-    )
-    return axes, report
+    axes, camera = rig(plate)
+    return axes, measure(axes, camera, CONFIGURED, dataclasses.replace(plate.moves, **moves))
 
 
 def test_the_moves_recover_a_turned_mirrored_camera_and_its_rotation_centre() -> None:
     plate = OffsetPlate()
-    axes = {name: OffsetAxis(plate, name) for name in ("x", "y", "theta")}
+    axes, camera = rig(plate)
     lines: list[str] = []
-    report = measure(axes, LocatingCamera(plate, CONFIGURED), CONFIGURED, plate.moves, lines.append)
+    report = measure(axes, camera, CONFIGURED, plate.moves, lines.append)
     assert report["pixel_size_m"] == pytest.approx(2.0e-6, rel=1e-9)
     assert report["rotation_rad"] == pytest.approx(0.5, abs=1e-9) and report["mirrored"] is True
     assert (report["origin_x_px"], report["origin_y_px"]) == (pytest.approx(1000.0), pytest.approx(700.0))
@@ -264,8 +266,7 @@ def test_the_theta_increment_shrinks_with_the_parts_distance_from_o() -> None:
 
 def test_an_interrupt_mid_ramp_grounds_every_axis() -> None:
     plate = OffsetPlate()
-    axes = {name: OffsetAxis(plate, name) for name in ("x", "y", "theta")}
-    camera = LocatingCamera(plate, CONFIGURED)
+    axes, camera = rig(plate)
 
     def interrupt(frames: int) -> None:
         if plate.volts["y"] > 0:
@@ -279,8 +280,7 @@ def test_an_interrupt_mid_ramp_grounds_every_axis() -> None:
 
 def test_an_axis_that_cannot_be_grounded_is_named() -> None:
     plate = OffsetPlate()
-    axes = {name: OffsetAxis(plate, name) for name in ("x", "y", "theta")}
-    camera = LocatingCamera(plate, CONFIGURED)
+    axes, camera = rig(plate)
 
     def lose_y(frames: int) -> None:
         if plate.volts["y"] > 0:

@@ -227,14 +227,9 @@ def _by_the_daemon(args: argparse.Namespace) -> int:
 
 def fitted(report: dict[str, Any], image_px: tuple[int, int]) -> CameraCalibration:
     """The calibration the report gives (O at the image centre when θ did not move)."""
-    centre = ((image_px[0] - 1) / 2, (image_px[1] - 1) / 2)
-    return CameraCalibration(
-        report["pixel_size_m"],
-        report["rotation_rad"],
-        report["mirrored"],
-        centre[0] if report["origin_x_px"] is None else report["origin_x_px"],
-        centre[1] if report["origin_y_px"] is None else report["origin_y_px"],
-    )
+    width, height = image_px
+    centred = CameraCalibration(report["pixel_size_m"], 0.0, False, (width - 1) / 2, (height - 1) / 2)
+    return centred.updated(report)
 
 
 @contextlib.contextmanager

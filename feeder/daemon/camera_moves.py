@@ -41,9 +41,7 @@ class PlateMoves:
         """The request's moves (``volts``, ``stack_gain_m_per_v``, ``increment_v``, ``frames``;
         defaults as ``calibrate-moves``'); :class:`RequestFieldError` naming a bad field."""
         defaults = OffsetMoves()
-        volts = _within(request, "volts", defaults.volts, 1.0, self.v_max_v)
-        if volts < self.v_min_v:
-            raise RequestFieldError(f"volts must be within the amplifier's output, ≥ {self.v_min_v:g} V")
+        volts = _within(request, "volts", defaults.volts, max(1.0, self.v_min_v), self.v_max_v)
         gain = finite(request, "stack_gain_m_per_v")
         if gain is None and self.gain_required:
             raise RequestFieldError("stack_gain_m_per_v is required on hardware: the plate's move per volt")
