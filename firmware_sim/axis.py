@@ -243,7 +243,8 @@ class Axis:
         """
         with self._fw.lock:
             idle = self._fw.lock.wait_for(
-                lambda: not self._busy() or self._fw.stopped or self._remaining < 0, timeout_s
+                lambda: not self._busy(self._fw.command_sample()) or self._fw.stopped or self._remaining < 0,
+                timeout_s,
             )
             if self._remaining < 0:
                 raise FirmwareError("Axis in continuous motion")
@@ -273,7 +274,8 @@ class Axis:
         """The axis as of now: the steps and output of the samples the DAC has played by the
         time of the call (it plays on between ticks)."""
         with self._fw.lock:
-            played = self._played_since_tick()
+            now = self._fw.command_sample()  # one instant: the DAC plays on while this is taken
+            played = self._played_since_tick(now)
             code = int(self._pending_codes[played - 1]) if played else self._played_code
             return AxisStatus(
                 axis=self.number,
@@ -284,21 +286,22 @@ class Axis:
                 flyback_shape=self._flyback_shape,
                 flyback_s=self._flyback_s,
                 step_counter=self._step_counter + int(self._pending_steps[:played].sum()),
-                moving=self._busy() and self._mode != "cap",
+                moving=self._busy(now) and self._mode != "cap",
                 fault_word=self._fault_word,
                 output_v=self._fw.volts(code),
             )
 
     # -- internals (called with the lock held) --------------------------------
 
-    def _played_since_tick(self) -> int:
-        """How many buffered samples the DAC has played since the last tick (it plays on
-        between ticks; at most what was buffered)."""
-        return min(self._fw.command_sample(), self._written) - self._fw.samples_played
+    def _played_since_tick(self, now: int) -> int:
+        """How many buffered samples the DAC has played since the last tick by sample ``now``
+        (it plays on between ticks; at most what was buffered)."""
+        return min(now, self._written) - self._fw.samples_played
 
-    def _busy(self) -> bool:
-        # the DAC plays on between ticks: a burst a command ended is over from that command's sample
-        return self._remaining != 0 or self._mode == "cap" or self._fw.command_sample() < self._active_until
+    def _busy(self, now: int) -> bool:
+        """Whether the axis is busy at sample ``now`` (a burst a command ended is over from
+        that command's sample)."""
+        return self._remaining != 0 or self._mode == "cap" or now < self._active_until
 
     def _rewrite(self, resume: bool) -> None:
         """Regenerate the DAC buffer from the current state, from the sample the DAC plays
@@ -308,7 +311,9 @@ class Axis:
         The DDS restarts from the phase of the first regenerated sample; with ``resume``
         a burst in progress keeps the steps it has not played yet.
         """
-        kept = self._played_since_tick()  # buffered samples the DAC plays before the command acts
+        kept = self._played_since_tick(
+            self._fw.command_sample()
+        )  # buffered samples the DAC plays before the command acts
         start = self._fw.samples_played + kept
         n = self._written - start
         if n <= 0:

@@ -369,3 +369,33 @@ def test_status_between_ticks_is_what_the_dac_has_played_by_then() -> None:
     status = axis.status()
     assert not status.moving and status.step_counter == 3
     assert axis.wait_idle(0.0)
+
+
+class CreepingClock(HandClock):
+    """Virtual time that moves on by ``creep_s`` at every reading, as wall time does."""
+
+    creep_s = 0.0
+
+    def now_s(self) -> float:
+        self._now += self.creep_s
+        return self._now
+
+
+def test_status_is_one_instant_even_when_the_dac_plays_on_while_it_is_taken() -> None:
+    """The count and ``moving`` come from one reading of the DAC's sample: asked one sample
+    before a burst's last step, with a sample passing between two readings of the clock, the
+    status is (2 steps, moving) or (3, idle), never (2, idle): the executor would then take
+    a 2-step count as final."""
+    fw, _, _ = make(dac_buffer_s=0.010)
+    clock = CreepingClock()
+    axis = fw.axis(1)
+    axis.set_frequency(1000.0)
+    axis.set_amplitude(50.0)
+    axis.set_mode("stp")
+    fw.run(clock, max_ticks=1)
+    axis.step(3)
+    fw.run(clock, max_ticks=2)
+    clock.advance_to(0.003 - 1.5 / fw.sample_rate)  # the sample before the last step's
+    clock.creep_s = 1.0 / fw.sample_rate
+    status = axis.status()
+    assert (status.step_counter, status.moving) in ((2, True), (3, False))
