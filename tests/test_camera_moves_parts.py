@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -13,7 +14,7 @@ from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
 from test_offset_moves import CONFIGURED, OffsetPlate, rig
 
 from feeder.cli import main
-from feeder.daemon.camera_moves import PlateMoves
+from feeder.daemon.camera_moves import HANG_UP_POLL_S, PlateMoves, stop_on_hang_up
 from feeder.daemon.client import Client
 from feeder.daemon.executor import AmplifierExecutor
 from feeder.daemon.jobs import Command, StepMode
@@ -115,7 +116,7 @@ class _Daemon:
         self.setup = type("Setup", (), {"plate_moves": PLATE})()
         self.asked: list[tuple[OffsetMoves, bool]] = []
 
-    def camera_moves(self, moves: OffsetMoves, save: bool) -> dict[str, object]:
+    def camera_moves(self, moves: OffsetMoves, save: bool, hung_up: Callable[[], bool]) -> dict[str, object]:
         self.asked.append((moves, save))
         return {"saved": save}
 
@@ -152,3 +153,17 @@ def test_a_calibration_the_running_daemon_could_not_use_is_neither_stored_nor_wr
     err = capsys.readouterr().err
     assert code == 1 and "would refuse every move: the travel x [...] reaches beyond" in err
     assert "nothing stored or written" in err and not out.exists()
+
+
+def test_the_moves_stop_when_their_client_hangs_up_and_only_then() -> None:
+    """``stop`` is set once ``hung_up()`` turns true, within a poll; never after the moves ended."""
+    stop, gone = threading.Event(), threading.Event()
+    with stop_on_hang_up(gone.is_set, stop):
+        assert not stop.wait(2.5 * HANG_UP_POLL_S)
+        gone.set()
+        assert stop.wait(2.5 * HANG_UP_POLL_S)
+    stop, gone = threading.Event(), threading.Event()
+    with stop_on_hang_up(gone.is_set, stop):
+        pass
+    gone.set()
+    assert not stop.wait(2.5 * HANG_UP_POLL_S)

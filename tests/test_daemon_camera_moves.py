@@ -31,9 +31,10 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
 ) -> None:
     """The simulator's camera turned 0.4 rad and mirrored (the travel narrowed to what it sees
     whole).  Moves are refused while the daemon moves the plate; Ctrl-C of the command stops it
-    within 3 s, grounded, nothing stored; then the daemon measures the camera with its own
-    amplifier and camera, stores it, locates parts with it from the next move on, and that move
-    reaches its target by the simulator's truth within what the calibration's errors allow."""
+    within 3 s, grounded, nothing stored, and so does killing the command outright; then the
+    daemon measures the camera with its own amplifier and camera, stores it, locates parts with
+    it from the next move on, and that move reaches its target by the simulator's truth within
+    what the calibration's errors allow."""
     base = Path(tempfile.mkdtemp(prefix="fcam"))
     config = turned_mirrored_camera("serial", base)
     running = start_daemon(config)
@@ -63,6 +64,19 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             after_stop = client.request("status")
             assert after_stop["camera_calibration"]["source"] == "configuration"
             assert after_stop["camera_moves"] is False
+
+            # a command killed outright cannot send the stop: the daemon sees its client gone
+            killed = subprocess.Popen([*command, *options], stderr=subprocess.DEVNULL)
+            deadline = time.monotonic() + 20.0
+            while not client.request("status")["camera_moves"] and time.monotonic() < deadline:
+                time.sleep(0.05)
+            killed.kill()
+            killed.wait(timeout=10.0)
+            killed_at = time.monotonic()
+            while client.request("status")["camera_moves"] and time.monotonic() - killed_at < 5.0:
+                time.sleep(0.05)
+            assert time.monotonic() - killed_at < 3.0
+            assert client.request("status")["camera_calibration"]["source"] == "configuration"
 
             plot = base / "moves.png"
             moves = ["--volts", "40", "--frames", "4", "--save-state", "--plot", str(plot), "--json"]

@@ -11,7 +11,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -33,11 +33,18 @@ class ScriptedDaemon:
     def __init__(self, move_s: float = 30.0) -> None:
         self.move_s = move_s
         self.stopped = threading.Event()
+        self.hung_up = threading.Event()
         self.waiting = 0
         self._lock = threading.Lock()
 
-    def handle(self, request: Any) -> dict[str, Any]:
+    def handle(self, request: Any, hung_up: Callable[[], bool]) -> dict[str, Any]:
         cmd = request.get("cmd") if isinstance(request, dict) else None
+        if cmd == "watch":  # as a camera calibration: until a stop or its client's hang-up
+            while not self.stopped.wait(0.01):
+                if hung_up():
+                    self.hung_up.set()
+                    break
+            return {"ok": True, "hung_up": self.hung_up.is_set()}
         if cmd == "stop":
             self.stopped.set()
             return {"ok": True, "stopped": True, "dequeued": 0}
@@ -289,3 +296,22 @@ def test_a_handler_that_fails_gets_its_client_an_error_reply_and_the_connection_
     assert reply == {"ok": False, "error": "internal error (KeyError: 'key'): see the daemon's log"}
     assert "Traceback" in caplog.text or any(r.exc_info for r in caplog.records)
     assert line.ask({"cmd": "status"}) == {"ok": True, "state": "moving", "waiting": 0}
+
+
+def test_a_handler_sees_its_client_hang_up_but_not_a_client_done_sending(served: Served) -> None:
+    """A long request stops when its client closes the connection (killed: no one will read the
+    reply); a client that only shut down its sending side, as ``nc -N`` does, still gets it."""
+    gone = served.connect()
+    gone.send({"cmd": "watch"})
+    time.sleep(0.1)
+    assert not served.daemon.hung_up.is_set()
+    gone.close()
+    assert served.daemon.hung_up.wait(2.0)
+
+    served.daemon.hung_up.clear()
+    half = served.connect()
+    half.send({"cmd": "watch"})
+    half.sock.shutdown(socket.SHUT_WR)
+    time.sleep(0.3)
+    assert served.connect().ask({"cmd": "stop"}) == {"ok": True, "stopped": True, "dequeued": 0}
+    assert half.read() == {"ok": True, "hung_up": False}

@@ -5,12 +5,15 @@
 while no move runs, the control loop lends it the amplifiers (its commands wait) and the
 camera's poses (the loop goes on reading them), and it stores the calibration, used from the
 next move on.  ``stop`` ends the moves within an increment (or the frames being averaged),
-every axis grounded.
+every axis grounded, and so does the requesting client's hang-up (:func:`stop_on_hang_up`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+import logging
+import threading
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -21,6 +24,11 @@ from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, OffsetMoves
 
 if TYPE_CHECKING:
     from feeder.daemon.control_loop import ControlLoop
+
+log = logging.getLogger(__name__)
+
+HANG_UP_POLL_S = 0.2
+"""How often the moves check that the client that asked for them is still there."""
 
 
 @dataclass(frozen=True)
@@ -77,3 +85,38 @@ class LoopPoses(PositionSensor):
 
     def close(self) -> None:
         """The loop's camera stays open."""
+
+
+@contextlib.contextmanager
+def stop_on_hang_up(hung_up: Callable[[], bool], stop: threading.Event) -> Iterator[None]:
+    """While inside, set ``stop`` once ``hung_up()`` (checked every :data:`HANG_UP_POLL_S`): a
+    client killed outright cannot send ``stop``, and no one would read the result."""
+    ended = threading.Event()
+
+    def watch() -> None:
+        while not ended.wait(HANG_UP_POLL_S):
+            if hung_up():
+                log.warning("camera calibration: the client that asked for it has gone; stopping the moves")
+                stop.set()
+                return
+
+    watcher = threading.Thread(target=watch, name="camera-moves-client", daemon=True)
+    watcher.start()
+    try:
+        yield
+    finally:
+        ended.set()
+        watcher.join()
+
+
+def summary(report: dict[str, Any]) -> str:
+    """One line of a calibration report for the log: the fitted values and whether it was stored."""
+    return "{:.5g} µm/px, turned {:.4f} rad{}, O at ({}, {}) px, back within {:.3f} px; {}".format(
+        report["pixel_size_m"] * 1e6,
+        report["rotation_rad"],
+        ", mirrored" if report["mirrored"] else "",
+        report["origin_x_px"],
+        report["origin_y_px"],
+        report["returned_px"],
+        "stored, used from the next move on" if report["saved"] else "not stored",
+    )

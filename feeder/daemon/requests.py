@@ -31,15 +31,17 @@ POSE_KEYS = ("x_m", "y_m", "angle_rad")
 """A pose move's target, any subset (m, m, rad; plate frame)."""
 
 
-def answer(daemon: Daemon, request: Any) -> dict[str, Any]:
-    """The reply to one request object: its ``cmd``'s, or why there is none."""
+def answer(daemon: Daemon, request: Any, hung_up: Callable[[], bool] = lambda: False) -> dict[str, Any]:
+    """The reply to one request object: its ``cmd``'s, or why there is none.  ``hung_up``:
+    whether the client has gone (a camera calibration then stops: no one would read it)."""
     if not isinstance(request, dict):
         return {"ok": False, "error": "a request must be a JSON object"}
     cmd = request.get("cmd")
-    command = _COMMANDS.get(cmd) if isinstance(cmd, str) else None
-    if command is None:
-        return {"ok": False, "error": f"unknown cmd {cmd!r}; known: {', '.join(_COMMANDS)}"}
-    return command(daemon, request)
+    if not isinstance(cmd, str) or cmd not in COMMANDS:
+        return {"ok": False, "error": f"unknown cmd {cmd!r}; known: {', '.join(COMMANDS)}"}
+    if cmd in _UNTIL_HANG_UP:
+        return _UNTIL_HANG_UP[cmd](daemon, request, hung_up)
+    return _COMMANDS[cmd](daemon, request)
 
 
 def _new_job(
@@ -143,9 +145,10 @@ def _calibration_room(daemon: Daemon) -> int | str:
 CAMERA_MOVES_FIELDS = frozenset({"cmd", "volts", "stack_gain_m_per_v", "increment_v", "frames", "save"})
 
 
-def _calibrate_camera(daemon: Daemon, request: dict[str, Any]) -> dict[str, Any]:
+def _calibrate_camera(daemon: Daemon, request: dict[str, Any], hung_up: Callable[[], bool]) -> dict[str, Any]:
     """The camera's calibration from plate moves (:mod:`~feeder.daemon.camera_moves`): the
-    report, stored with ``"save": true``; answered when the moves end (~1 min)."""
+    report, stored with ``"save": true``; answered when the moves end (~1 min), stopped
+    (grounded, nothing stored) when the client hangs up meanwhile."""
     plate = daemon.setup.plate_moves
     if plate is None:
         return {"ok": False, "error": "the plate moves calibrate the camera of a plane (x, y, θ; a camera)"}
@@ -158,7 +161,7 @@ def _calibrate_camera(daemon: Daemon, request: dict[str, Any]) -> dict[str, Any]
         return {"ok": False, "error": f"save must be true or false, got {brief(save)}"}
     try:
         moves = plate.moves(request)
-        report = daemon.camera_moves(moves, save)
+        report = daemon.camera_moves(moves, save, hung_up)
     except FeederError as err:  # a refused field, a refusal, a stop or a device's error
         return {"ok": False, "error": str(err)}
     return {"ok": True, "calibration": {**report, "image_px": list(plate.image_px)}}
@@ -203,9 +206,14 @@ _COMMANDS: dict[str, Callable[[Daemon, dict[str, Any]], dict[str, Any]]] = {
     "stop": _stop,
     "status": _status,
     "calibrate": _calibrate,
-    "calibrate_camera": _calibrate_camera,
     "history": _history,
     "release": _release,
     "shutdown": _shutdown,
 }
+"""The requests answered whatever the client does meanwhile (a move runs on when its client goes)."""
+_UNTIL_HANG_UP: dict[str, Callable[[Daemon, dict[str, Any], Callable[[], bool]], dict[str, Any]]] = {
+    "calibrate_camera": _calibrate_camera,
+}
+"""The requests that stop when their client hangs up (no one would read their result)."""
+COMMANDS = (*_COMMANDS, *_UNTIL_HANG_UP)
 """Every ``cmd``, in the order the unknown-cmd error lists them."""

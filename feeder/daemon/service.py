@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Protocol
 
-from feeder.daemon.camera_moves import LoopPoses, PlateMoves
+from feeder.daemon.camera_moves import LoopPoses, PlateMoves, stop_on_hang_up, summary
 from feeder.daemon.control_loop import ControlLoop, Job, JobResult, LoopSettings, Navigator, StepMode
 from feeder.daemon.executor import per_axis
 from feeder.daemon.located_calibration import STORED, LocatedCalibration
@@ -362,11 +362,11 @@ class Daemon:
         """Where request threads stand back for the tick (:mod:`~feeder.daemon.quiet_window`)."""
         return self.loop.quiet
 
-    def handle(self, request: Any) -> dict[str, Any]:
-        """Answer one request object (:func:`~feeder.daemon.requests.answer`); waits first while
-        the tick is due (:meth:`QuietWindow.hold`)."""
+    def handle(self, request: Any, hung_up: Callable[[], bool] = lambda: False) -> dict[str, Any]:
+        """Answer one request object (:func:`~feeder.daemon.requests.answer`; ``hung_up``: whether
+        the client has gone); waits first while the tick is due (:meth:`QuietWindow.hold`)."""
         self.quiet.hold()
-        return answer(self, request)
+        return answer(self, request, hung_up)
 
     def run(self, job: Job, *, queue: bool) -> tuple[int, str | None]:
         """Hand ``job`` to the loop, or (``queue``) queue it behind the running and queued moves:
@@ -397,12 +397,16 @@ class Daemon:
             self._refuse_queued(job, "stop requested")
         return self.loop.request_stop() or camera_moves is not None, len(queued)
 
-    def camera_moves(self, moves: OffsetMoves, save: bool) -> dict[str, Any]:
+    def camera_moves(
+        self, moves: OffsetMoves, save: bool, hung_up: Callable[[], bool] = lambda: False
+    ) -> dict[str, Any]:
         """Calibrate the camera from plate moves (:mod:`~feeder.daemon.camera_moves`) while no
         move runs, with the daemon's amplifier and camera; with ``save`` store it (unless the
         parts slipped), to locate parts with from the next move.  The report of
         :func:`~feeder.vision.offset_moves.measure` (``saved``: whether it was stored);
-        :class:`~feeder.errors.FeederError` with the reason it was refused or failed."""
+        :class:`~feeder.errors.FeederError` with the reason it was refused or failed.  The
+        moves stop, as on :meth:`stop`, once ``hung_up()``: the client that asked has gone
+        (:func:`~feeder.daemon.camera_moves.stop_on_hang_up`)."""
         with self._submitting, self._lock:
             if self._camera_moves is not None:
                 raise FeederError("a camera calibration is running already")
@@ -415,7 +419,7 @@ class Daemon:
             configured = self.links.configured_calibration()
             assert configured is not None  # the requests check that the plane has a camera
             located = self.camera_calibration.calibration or configured
-            with self.loop.lent_output() as amplifiers:
+            with stop_on_hang_up(hung_up, stop), self.loop.lent_output() as amplifiers:
                 log.info("camera calibration: the plate moves by offsets of %g V", moves.volts)
                 report = measure(amplifiers, LoopPoses(self.loop), located, moves, log.info, stop)
         except MovesStopped as err:
@@ -432,16 +436,7 @@ class Daemon:
         plate = self.setup.plate_moves
         report["travel_outside"] = None if plate is None else plate.travel_outside(located.updated(report))
         report["saved"] = save and not report["slipped"] and report["travel_outside"] is None
-        log.info(
-            "camera calibration: %.5g µm/px, turned %.4f rad%s, O at (%s, %s) px, back within %.3f px%s",
-            report["pixel_size_m"] * 1e6,
-            report["rotation_rad"],
-            ", mirrored" if report["mirrored"] else "",
-            report["origin_x_px"],
-            report["origin_y_px"],
-            report["returned_px"],
-            "; stored, used from the next move on" if report["saved"] else "; not stored",
-        )
+        log.info("camera calibration: %s", summary(report))
         if report["saved"]:
             store = Store(self.setup.database_path)
             try:

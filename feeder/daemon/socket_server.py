@@ -17,6 +17,10 @@ can hold the socket against ``stop``:
   ``status`` (:data:`ALWAYS_SERVED`) are answered on them, anything else gets the one-line
   refusal and the connection is closed; each request line must arrive within
   :data:`DOORWAY_TIMEOUT_S`.  Such a connection is served in full once a slot frees.
+
+A handler gets, beside the request, a ``hung_up()`` check: whether the client has closed its
+connection (gone, not merely done sending) while its request is answered, so that a long
+request nobody will read the reply of can stop (:func:`peer_closed`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import contextlib
 import json
 import logging
 import os
+import select
 import socket
 import stat
 import struct
@@ -108,6 +113,15 @@ def bind_socket(socket_path: Path) -> socket.socket:
     return sock
 
 
+def peer_closed(conn: socket.socket) -> bool:
+    """Whether the peer has closed the connection (both ways: ``POLLHUP``), without reading or
+    waiting.  A client that only shut down its sending side (``nc -N``, ``socat``) still reads
+    its reply: that is ``POLLRDHUP`` alone, and not a close."""
+    poller = select.poll()
+    poller.register(conn, select.POLLHUP)
+    return any(events & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, events in poller.poll(0))
+
+
 def peer_uid(conn: socket.socket) -> int:
     """The connecting process' uid (Linux SO_PEERCRED)."""
     creds = conn.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
@@ -130,13 +144,13 @@ class _Client:
 
 
 class SocketServer:
-    """Serves ``handle(request) -> reply`` on a Unix socket (:func:`bind_socket`) until
+    """Serves ``handle(request, hung_up) -> reply`` on a Unix socket (:func:`bind_socket`) until
     :meth:`close`; once ``closing`` is set, clients get no further replies."""
 
     def __init__(
         self,
         socket_path: Path,
-        handle: Callable[[Any], dict[str, Any]],
+        handle: Callable[[Any, Callable[[], bool]], dict[str, Any]],
         closing: threading.Event | None = None,
     ) -> None:
         self.socket_path = socket_path
@@ -312,7 +326,9 @@ class SocketServer:
                 if not (full or always):
                     self._send(conn, self._refusal())
                     return
-                if not self._send(conn, reply if reply is not None else self._safe_handle(request)):
+                if reply is None:
+                    reply = self._safe_handle(request, lambda: peer_closed(conn))
+                if not self._send(conn, reply):
                     return
         except OSError:
             pass
@@ -334,9 +350,9 @@ class SocketServer:
                 if not conn.recv(MAX_LINE_BYTES):
                     return
 
-    def _safe_handle(self, request: Any) -> dict[str, Any]:
+    def _safe_handle(self, request: Any, hung_up: Callable[[], bool]) -> dict[str, Any]:
         try:
-            reply = self._handle(request)
+            reply = self._handle(request, hung_up)
             json.dumps(reply, allow_nan=False, default=str)
             return reply
         except (ValueError, TypeError, OverflowError, RecursionError) as err:
