@@ -175,6 +175,37 @@ def test_stop_and_escape_stop_a_long_move(page: Any, daemon: DaemonProcess) -> N
     assert "stopped" in page.inner_text("#result")
 
 
+def test_the_camera_is_calibrated_from_the_page_and_stop_ends_it(page: Any, daemon: DaemonProcess) -> None:
+    """Calibrate camera: the state shows it, Escape ends it grounded (nothing stored); run again
+    (not stored) it shows the daemon's report: the embedded camera's 2.7 µm/px, not mirrored."""
+    assert page.is_visible("#calibrate-camera")
+    page.fill("#cam-volts", "20")
+    page.fill("#cam-frames", "2")
+    page.uncheck("#cam-save")
+    page.click("#calibrate-camera")
+    page.wait_for_function(
+        "document.getElementById('state').textContent === 'calibrating camera'", timeout=10_000
+    )
+    assert daemon.request("status")["camera_moves"] is True
+    page.keyboard.press("Escape")
+    page.wait_for_function(
+        "document.getElementById('message').textContent.includes('were stopped')", timeout=10_000
+    )
+    status = daemon.request("status")
+    assert status["camera_moves"] is False and status["camera_calibration"]["source"] == "configuration"
+    assert page.inner_text("#camera-result") == ""
+
+    page.click("#calibrate-camera")
+    page.wait_for_function(
+        "document.getElementById('camera-result').textContent.includes('µm/px')", timeout=60_000
+    )
+    lines = page.inner_text("#camera-result").splitlines()
+    assert float(lines[0].split(" µm/px")[0]) == pytest.approx(2.7, rel=0.05) and "mirrored" not in lines[0]
+    assert lines[2] == "not stored" and page.text_content("#message") == "camera calibrated"
+    assert daemon.request("status")["camera_calibration"]["source"] == "configuration"
+    page.wait_for_function("document.getElementById('state').className === 'idle'", timeout=5_000)
+
+
 def test_a_wrong_token_is_refused(browser: Any, daemon: DaemonProcess) -> None:
     page = browser.new_page(bypass_csp=True)
     url = daemon.ready["console_url"].split("#")[0]

@@ -38,7 +38,7 @@ MJPEG (10 moves of the five-pose test; a truth 1.0008 µm off a 1 µm tolerance 
 
 
 def random_targets(count: int, seed: int) -> list[Pose]:
-    """Reachable targets: centres within ±1.5 mm (the travel is ±2.5 mm), angles within ±40°."""
+    """Reachable targets: centres within ±1.5 mm (the travel is ±2.4 mm), angles within ±40°."""
     rng = random.Random(seed)
     return [
         (rng.uniform(-1.5e-3, 1.5e-3), rng.uniform(-1.5e-3, 1.5e-3), rng.uniform(-0.7, 0.7))
@@ -168,7 +168,7 @@ def test_a_part_among_others_on_a_canopen_drive_turns_by_twenty_degrees() -> Non
 
 def turned_mirrored_camera(transport: str, base: Path) -> DaemonConfig:
     """The embedded plane with the simulator's camera turned 0.4 rad and mirrored, one part at
-    (0.8, 0.3) mm: turned, the camera sees the ±2.5 mm square's corners off the image, so the
+    (0.8, 0.3) mm: turned, the camera sees the ±2.4 mm square's corners off the image, so the
     travel is the ±1.8 mm it sees whole."""
     config = config_for(PART, transport, base)
     half = 1.8e-3
@@ -227,8 +227,8 @@ def test_the_embedded_default_is_the_plane_and_line_is_the_one_axis_world(tmp_pa
             assert moving["target_pose"][2] == pytest.approx(status["parts"][0]["pose"][2], abs=1e-2)
             text = plane_status_lines(moving)
             assert text[0].startswith("part 1: (") and ", moving to (" in text[0]
-            assert text[1] == "tolerance: ±1.000 µm, ±0.100°; travel x [-2500.000 µm, 2500.000 µm]; " \
-                "travel y [-2500.000 µm, 2500.000 µm]"  # fmt: skip
+            assert text[1] == "tolerance: ±1.000 µm, ±0.100°; travel x [-2400.000 µm, 2400.000 µm]; " \
+                "travel y [-2400.000 µm, 2400.000 µm]"  # fmt: skip
             assert [line.split(":")[0] for line in text[2:]] == ["axis x", "axis y", "axis theta"]
             client.request("stop")
             refused = client.request("calibrate")  # a line job: the plane learns from its moves
@@ -237,7 +237,7 @@ def test_the_embedded_default_is_the_plane_and_line_is_the_one_axis_world(tmp_pa
     finally:
         assert daemon.stop() == 0
     assert list(status["axes"]) == ["x", "y", "theta"]
-    assert status["travel_m"] == {"x": [-2.5e-3, 2.5e-3], "y": [-2.5e-3, 2.5e-3]}
+    assert status["travel_m"] == {"x": [-2.4e-3, 2.4e-3], "y": [-2.4e-3, 2.4e-3]}
     assert len(status["parts"]) == 1 and len(status["parts"][0]["pose"]) == 3
     calibration = status["camera_calibration"]  # what it locates with: the configured scale
     assert calibration["source"] == "configuration" and calibration["pixel_size_m"] == 2.7e-6

@@ -42,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--plane",
         action="store_true",
         help="with --config: its simulated amplifier in the embedded planar world (axes x, y, θ, "
-        "±2.5 mm travel, the simulator's camera; parts from its [plate] parts). Without "
+        "±2.4 mm travel, the simulator's camera; parts from its [plate] parts). Without "
         "--config this is the default",
     )
     world.add_argument(

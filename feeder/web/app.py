@@ -12,6 +12,9 @@ CLI and scripts share one vocabulary:
 | ``POST /api/jog`` | ``{"axis", "steps"}``: a relative move by ``steps`` learned steps of one axis |
 | ``POST /api/stop`` | ``{"cmd": "stop"}`` |
 | ``POST /api/calibrate`` | ``{"cmd": "calibrate", ...body}`` |
+| ``POST /api/calibrate_camera`` | ``{"cmd": "calibrate_camera", ...body}`` (``volts``,
+  ``stack_gain_m_per_v``, ``increment_v``, ``frames``, ``save``): answered when the plate moves
+  end (a closed page does not stop them: STOP does) |
 | ``POST /api/release`` | ``{"cmd": "release", ...body}`` (``part``; none: every held part) |
 | ``WS /api/live`` | pushes the status (JSON text, ``time_s`` = wall clock of the snapshot) at
   :data:`LIVE_PERIOD_S` and the newest camera frame (binary JPEG) when there is a camera |
@@ -112,7 +115,7 @@ def console_app(
     origins = own_origins(settings.host, port, settings.origins)
     moves = RateLimit(settings.moves_per_s, settings.move_burst)
     urgent = UrgentLane()  # stop and status
-    waiting = MoveLane()  # moves, jogs, calibrations
+    waiting = MoveLane()  # moves, jogs, calibrations (the camera's too)
     live = LiveFeed(daemon, urgent)
     pages = {name: resources.files("feeder.web.static").joinpath(name).read_bytes() for name in STATIC}
 
@@ -182,6 +185,11 @@ def console_app(
         body = checked("calibrate", await json_body(request))
         rate_limited()
         return reply(await ask_move({**body, "cmd": "calibrate"}))
+
+    async def calibrate_camera(request: Request) -> Response:
+        body = checked("calibrate_camera", await json_body(request))
+        rate_limited()
+        return reply(await ask_move({**body, "cmd": "calibrate_camera"}))
 
     async def release(request: Request) -> Response:
         body = checked("release", await json_body(request))
@@ -253,6 +261,7 @@ def console_app(
         Route("/api/jog", endpoint(jog), methods=["POST"]),
         Route("/api/stop", endpoint(stop), methods=["POST"]),
         Route("/api/calibrate", endpoint(calibrate), methods=["POST"]),
+        Route("/api/calibrate_camera", endpoint(calibrate_camera), methods=["POST"]),
         Route("/api/release", endpoint(release), methods=["POST"]),
         WebSocketRoute("/api/live", live_socket),
     ]

@@ -48,11 +48,15 @@ async def json_body(request: Request) -> dict[str, Any]:
     return body
 
 
-NUMBERS = frozenset({"target_m", "by_m", "x_m", "y_m", "angle_rad"})
-FLAGS = frozenset({"queue", "wait", "trace"})
+NUMBERS = frozenset(
+    {"target_m", "by_m", "x_m", "y_m", "angle_rad", "volts", "stack_gain_m_per_v", "increment_v"}
+)
+FLAGS = frozenset({"queue", "wait", "trace", "save"})
+INTEGERS = frozenset({"part", "steps", "frames"})
 FIELDS = {
-    "move": NUMBERS | FLAGS | {"part"},
-    "calibrate": FLAGS | {"steps"},
+    "move": frozenset({"target_m", "by_m", "x_m", "y_m", "angle_rad", "queue", "wait", "trace", "part"}),
+    "calibrate": frozenset({"queue", "wait", "trace", "steps"}),
+    "calibrate_camera": frozenset({"volts", "stack_gain_m_per_v", "increment_v", "frames", "save"}),
     "stop": frozenset(),
     "release": frozenset({"part"}),
     "jog": frozenset({"axis", "steps", "part"}),
@@ -83,7 +87,7 @@ def checked(cmd: str, body: dict[str, Any]) -> dict[str, Any]:
                 raise ApiError(400, f"{key} must be a finite number, got {_brief(value)}")
         if key in FLAGS and not isinstance(value, bool):
             raise ApiError(400, f"{key} must be true or false")
-        if key in ("part", "steps") and (isinstance(value, bool) or not isinstance(value, int)):
+        if key in INTEGERS and (isinstance(value, bool) or not isinstance(value, int)):
             raise ApiError(400, f"{key} must be an integer")
         if key == "part" and value < 1:
             raise ApiError(400, f"part must be a part id ≥ 1, got {_brief(value)}")

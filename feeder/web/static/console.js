@@ -305,6 +305,27 @@ $("calibrate").addEventListener("click", async () => {
   if (answer && answer.ok) say("calibrating");
 });
 
+$("calibrate-camera").addEventListener("click", async () => {
+  const request = { volts: Number($("cam-volts").value), frames: Math.round(Number($("cam-frames").value)), save: $("cam-save").checked };
+  if ($("cam-gain").value !== "") request.stack_gain_m_per_v = Number($("cam-gain").value) * 1e-9;
+  say("calibrating the camera: the plate moves by offsets along x, y and θ (STOP ends it)");
+  $("camera-result").textContent = "";
+  const answer = await api("POST", "/api/calibrate_camera", request);
+  if (answer && answer.ok) {
+    say("camera calibrated");
+    $("camera-result").innerHTML = cameraReport(answer.calibration).map((l) => `<div>${escapeHtml(l)}</div>`).join("");
+  }
+});
+
+function cameraReport(c) {  // the daemon's calibrate_camera report, as lines
+  const lines = [
+    `${(c.pixel_size_m * UM).toFixed(4)} µm/px, turned ${deg(c.rotation_rad)}${c.mirrored ? ", mirrored" : ""}`,
+    `O at (${c.origin_x_px.toFixed(1)}, ${c.origin_y_px.toFixed(1)}) px ± ${c.origin_uncertainty_px.toFixed(1)} px; the parts came back within ${c.returned_px.toFixed(3)} px`,
+    c.saved ? "stored: parts are located with it from the next move on" : "not stored" + (c.slipped ? ": the parts slipped" : c.travel_outside ? ": " + c.travel_outside : ""),
+  ];
+  return lines.concat(c.warnings || []);
+}
+
 function jog(axis, sign) {
   const steps = sign * Math.max(1, Math.round(Number($("jog-steps").value)));
   api("POST", "/api/jog", { axis, steps, part: selectedPart() }).then((answer) => {
@@ -319,13 +340,14 @@ const deg = (rad) => (rad === null || rad === undefined ? "–" : (rad * DEG).to
 function axisNames() { return hasPoses() && status.axes ? Object.keys(status.axes) : ["x"]; }
 
 function onStatus() {
-  const state = status.state;
-  $("state").textContent = state + (status.position_state === "uncertain" ? " (position uncertain)" : "");
+  const state = status.camera_moves ? "calibrating" : status.state;  // the camera's: the plate moves, no job
+  $("state").textContent = (status.camera_moves ? "calibrating camera" : state) + (status.position_state === "uncertain" ? " (position uncertain)" : "");
   $("state").className = state;
   const part = parts().find((p) => p.id === selectedPart()) || parts()[0];
   $("position").textContent = part ? `part ${part.id}: x ${um(part.pose[0])}` + (hasPoses() ? `, y ${um(part.pose[1])}, ${deg(part.pose[2])}` : "") : "position unknown";
   for (const el of document.querySelectorAll(".pose-only")) el.hidden = !hasPoses();
   for (const el of document.querySelectorAll(".line-only")) el.hidden = hasPoses();  // calibrate: a line job
+  for (const el of document.querySelectorAll(".camera-only")) el.hidden = !(hasPoses() && status.camera_calibration);
   updatePartChoice();
   updateAxes(part);
   updateCalibration();
@@ -421,13 +443,13 @@ function updateCalibration() {
     }
   }
   const cal = status.camera_calibration;
-  lines.push(cal ? `camera: ${(cal.pixel_size_m * UM).toFixed(3)} µm/px, rotation ${deg(cal.rotation_rad || 0)}` + (cal.source === "configuration" ? " (from the configuration; feeder vision calibrate measures it)" : "") : "camera: not calibrated (feeder vision calibrate)");
+  lines.push(cal ? `camera: ${(cal.pixel_size_m * UM).toFixed(3)} µm/px, rotation ${deg(cal.rotation_rad || 0)}` + (cal.source === "configuration" ? ` (from the configuration; ${hasPoses() ? "Calibrate camera" : "feeder vision calibrate"} measures it)` : "") : "camera: not calibrated (feeder vision calibrate)");
   $("calibration").innerHTML = lines.map((l) => `<div>${escapeHtml(l)}</div>`).join("");
 }
 
 const ADVICE = [
   [/embedded simulator .* died/i, "The simulated amplifier and camera (firmware_sim) stopped; the daemon starts a new one by itself. No move resumes: send it again."],
-  [/not calibrated|measured no plate moves/i, "Moves wait for the camera's calibration: run feeder vision calibrate with --x-move and --y-move and --save-state (docs/daemon.md), or set [camera] aligned = true if the image's axes are the plate's."],
+  [/not calibrated|measured no plate moves/i, "Moves wait for the camera's calibration: Calibrate camera (with your stacks' gain; store checked), or feeder vision calibrate-moves --daemon --save-state (docs/vision.md); or set [camera] aligned = true if the image's axes are the plate's."],
   [/amplifier/i, "Output grounded. Check the amplifier's cable and power; the daemon reconnects by itself. No move resumes: send it again."],
   [/sensor|camera/i, "The position sensor stopped sending. Check the camera's cable or stream; the daemon reconnects by itself."],
   [/unwritable|disk/i, "The state database cannot be written (disk full or read-only?). Free space; moves are refused until then."],
