@@ -99,12 +99,17 @@ def test_the_page_loads_without_the_token_and_holds_no_data(console: Console) ->
     conn.request("GET", "/")
     page = conn.getresponse()
     html = page.read().decode()
-    conn.request("GET", "/console.js")
-    script = conn.getresponse().read().decode()
+    script = ""
+    for name in ("plate_view.js", "console.js"):
+        conn.request("GET", f"/{name}")
+        answer = conn.getresponse()
+        assert answer.status == 200 and answer.getheader("Content-Type", "").startswith("text/javascript")
+        script += answer.read().decode()
     conn.close()
     assert page.status == 200 and page.getheader("Content-Type", "").startswith("text/html")
     assert "frame-ancestors 'none'" in page.getheader("Content-Security-Policy", "")
-    assert '<script src="console.js">' in html and "Authorization" in script
+    assert '<script src="plate_view.js">' in html and '<script src="console.js">' in html
+    assert "Authorization" in script
     assert console.token not in html + script
     assert "position_m" not in html  # the state comes from /api only
 

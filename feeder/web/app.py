@@ -61,7 +61,7 @@ STATUS_MAX_AGE_S = 0.025
 """A status snapshot is shared by the requests within this time of it."""
 MAX_LIMIT_DIGITS = 9
 """``/api/history?limit=``: longer is refused (400) before the daemon sees it."""
-STATIC = ("console.html", "console.js")
+STATIC = ("console.html", "plate_view.js", "console.js")
 """The page's files, package data of :mod:`feeder.web.static`."""
 
 
@@ -254,6 +254,7 @@ def console_app(
 
     routes = [
         Route("/", page),
+        Route("/plate_view.js", page),
         Route("/console.js", page),
         Route("/api/status", endpoint(status)),
         Route("/api/history", endpoint(history)),

@@ -29,7 +29,7 @@ from feeder.web.requests import error_response
 
 TOKEN_FILE = "http-token"
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
-PUBLIC_PATHS = frozenset({"/", "/console.js"})
+PUBLIC_PATHS = frozenset({"/", "/plate_view.js", "/console.js"})
 """What loads without the token: the page (static, no data)."""
 WS_AUTH_TIMEOUT_S = 5.0
 WS_UNAUTHORIZED = 4401
