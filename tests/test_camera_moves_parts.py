@@ -14,7 +14,7 @@ from test_daemon_doubles import FakeAmplifier, FakeSensor, FakeWorld
 from test_offset_moves import CONFIGURED, OffsetPlate, rig
 
 from feeder.cli import main
-from feeder.daemon.camera_moves import HANG_UP_POLL_S, PlateMoves, stop_on_hang_up
+from feeder.daemon.camera_moves import HANG_UP_POLL_S, PlateMoves, stop_on_hang_up, summary
 from feeder.daemon.client import Client
 from feeder.daemon.executor import AmplifierExecutor
 from feeder.daemon.jobs import Command, StepMode
@@ -167,3 +167,14 @@ def test_the_moves_stop_when_their_client_hangs_up_and_only_then() -> None:
         pass
     gone.set()
     assert not stop.wait(2.5 * HANG_UP_POLL_S)
+
+
+def test_the_logged_summary_names_what_was_measured() -> None:
+    """The log's line: O when θ moved, and says it was not measured when it did not."""
+    report = {"pixel_size_m": 2.6918e-6, "rotation_rad": 0.3965, "mirrored": True, "returned_px": 0.008}
+    turned = summary({**report, "origin_x_px": 1022.06, "origin_y_px": 1024.9, "saved": True})
+    assert turned == (
+        "2.6918 µm/px, turned 0.3965 rad, mirrored, O at (1022.1, 1024.9) px, back within 0.008 px; "
+        "stored, used from the next move on"
+    )
+    assert ", O not measured (no θ axis), " in summary({**report, "origin_x_px": None, "saved": False})

@@ -204,6 +204,14 @@ def test_the_camera_is_calibrated_from_the_page_and_stop_ends_it(page: Any, daem
     assert lines[2] == "not stored" and page.text_content("#message") == "camera calibrated"
     assert daemon.request("status")["camera_calibration"]["source"] == "configuration"
     page.wait_for_function("document.getElementById('state').className === 'idle'", timeout=5_000)
+    # a plane without θ measures no O: said so, not a script error
+    report = {
+        "pixel_size_m": 2.7e-6, "rotation_rad": 0.0, "mirrored": False, "origin_x_px": None,
+        "origin_y_px": None, "returned_px": 0.002, "saved": False, "slipped": False,
+        "travel_outside": None, "warnings": [],
+    }  # fmt: skip
+    lines = page.evaluate(f"cameraReport({json.dumps(report)})")
+    assert lines[1] == "O not measured (no θ axis moved); the parts came back within 0.002 px"
 
 
 def test_a_wrong_token_is_refused(browser: Any, daemon: DaemonProcess) -> None:

@@ -248,7 +248,7 @@ def test_a_slip_on_the_way_up_shows_as_parts_that_do_not_come_back() -> None:
     """Up in steps that slip, down in half-steps that do not: the parts end behind where they
     started, and the report says so (a slip repeated both ways would cancel unseen)."""
     _, report = _measure(OffsetPlate(slip_above_v=0.07), increment_v=0.1)
-    assert report["slipped"] is True and "use a smaller --increment" in report["warnings"][-1]
+    assert report["slipped"] is True and "use smaller increments (--increment)" in report["warnings"][-1]
     _, held = _measure(OffsetPlate(slip_above_v=0.07), increment_v=0.06)
     assert held["slipped"] is False and held["warnings"] == []
 

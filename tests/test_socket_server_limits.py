@@ -308,6 +308,8 @@ def test_a_handler_sees_its_client_hang_up_but_not_a_client_done_sending(served:
     gone.close()
     assert served.daemon.hung_up.wait(2.0)
 
+    assert socket_server.peer_closed(gone.sock)  # closed on this side: gone as well
+
     served.daemon.hung_up.clear()
     half = served.connect()
     half.send({"cmd": "watch"})

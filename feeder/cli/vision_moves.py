@@ -54,8 +54,9 @@ def register(vision: Any) -> None:
         type=positive_float,
         default=DEFAULT_TIMEOUT_S,
         metavar="SECONDS",
-        help=f"with --daemon: give up (exit 3) when it answers no heartbeat within SECONDS; the "
-        f"moves may take longer (default {DEFAULT_TIMEOUT_S:g})",
+        help=f"with --daemon: give up (exit 3) when it answers no heartbeat within SECONDS (its "
+        f"moves then stop, as when this command is killed); the moves may take longer (default "
+        f"{DEFAULT_TIMEOUT_S:g})",
     )
     moves.add_argument(
         "--volts",
@@ -182,16 +183,18 @@ def _warn_and_check(report: dict[str, Any]) -> None:
 def _by_the_daemon(args: argparse.Namespace) -> int:
     """``--daemon``: the running daemon makes the moves (the socket's ``calibrate_camera``) and,
     with ``--save-state``, stores the calibration itself.  Ctrl-C, SIGTERM and SIGHUP stop its
-    moves (every axis grounded, nothing stored), as they end this command's own."""
+    moves (every axis grounded, nothing stored), as they end this command's own; so does this
+    command's end in any other way (killed, or giving up on a silent daemon after ``--timeout``):
+    the daemon stops the moves of a client that hangs up."""
     own = (("--config", args.config), ("--state-dir", args.state_dir), ("--sim-arg", args.sim_arg))
     for flag, given in own:
         if given:
             raise InputError(flag, "not with --daemon: the daemon's own configuration and state are used")
     check_target(args.out, "--out")
     check_target(args.plot, "--plot")
-    try:
-        with _interrupted_by_signals(), Client(args.socket, timeout_s=args.timeout) as client:
-            print("the daemon moves the plate (its log shows each axis; Ctrl-C stops it)", file=sys.stderr)
+    with _interrupted_by_signals(), Client(args.socket, timeout_s=args.timeout) as client:
+        print("the daemon moves the plate (its log shows each axis; Ctrl-C stops it)", file=sys.stderr)
+        try:
             report = client.calibrate_camera(
                 volts=args.volts,
                 stack_gain_m_per_v=args.stack_gain,
@@ -199,16 +202,18 @@ def _by_the_daemon(args: argparse.Namespace) -> int:
                 frames=args.frames,
                 save=args.save_state,
             )
-    except KeyboardInterrupt:
-        with Client(args.socket, timeout_s=args.timeout) as client:
-            stopped = client.stop().stopped
-        print(
-            "the daemon's plate moves were stopped: every axis grounded, nothing stored"
-            if stopped
-            else "the daemon's plate moves had ended (feeder status shows the calibration in use)",
-            file=sys.stderr,
-        )
-        raise
+        except KeyboardInterrupt:
+            # stop on a second connection while this one is open: its close stops the moves too,
+            # and a stop arriving after that would find none (and say they had ended)
+            with Client(args.socket, timeout_s=args.timeout) as stopper:
+                stopped = stopper.stop().stopped
+            print(
+                "the daemon's plate moves were stopped: every axis grounded, nothing stored"
+                if stopped
+                else "the daemon's plate moves had ended (feeder status shows the calibration in use)",
+                file=sys.stderr,
+            )
+            raise
     if args.plot is not None:
         width, height = report["image_px"]
         plot_moves(report, fitted(report, (width, height)), (width, height), args.plot)

@@ -111,12 +111,16 @@ def stop_on_hang_up(hung_up: Callable[[], bool], stop: threading.Event) -> Itera
 
 def summary(report: dict[str, Any]) -> str:
     """One line of a calibration report for the log: the fitted values and whether it was stored."""
-    return "{:.5g} µm/px, turned {:.4f} rad{}, O at ({}, {}) px, back within {:.3f} px; {}".format(
+    origin = (
+        "O not measured (no θ axis)"
+        if report["origin_x_px"] is None
+        else f"O at ({report['origin_x_px']:.1f}, {report['origin_y_px']:.1f}) px"
+    )
+    return "{:.5g} µm/px, turned {:.4f} rad{}, {}, back within {:.3f} px; {}".format(
         report["pixel_size_m"] * 1e6,
         report["rotation_rad"],
         ", mirrored" if report["mirrored"] else "",
-        report["origin_x_px"],
-        report["origin_y_px"],
+        origin,
         report["returned_px"],
         "stored, used from the next move on" if report["saved"] else "not stored",
     )

@@ -116,9 +116,12 @@ def bind_socket(socket_path: Path) -> socket.socket:
 def peer_closed(conn: socket.socket) -> bool:
     """Whether the peer has closed the connection (both ways: ``POLLHUP``), without reading or
     waiting.  A client that only shut down its sending side (``nc -N``, ``socat``) still reads
-    its reply: that is ``POLLRDHUP`` alone, and not a close."""
+    its reply: that is ``POLLRDHUP`` alone, and not a close.  A socket closed here is gone too."""
     poller = select.poll()
-    poller.register(conn, select.POLLHUP)
+    try:
+        poller.register(conn, select.POLLHUP)
+    except (ValueError, OSError):  # closed: no file descriptor
+        return True
     return any(events & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, events in poller.poll(0))
 
 

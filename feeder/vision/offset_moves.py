@@ -229,7 +229,7 @@ def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves
         if report["theta_residual_px"] > 3 * fit.residual_px + 4 * move_error:
             warnings.append(
                 f"the parts did not turn as one (θ misfit {report['theta_residual_px']:.3f} px against "
-                f"{fit.residual_px:.3f} px in x and y): some slipped; use a smaller --increment"
+                f"{fit.residual_px:.3f} px in x and y): some slipped; use smaller increments (--increment)"
             )
     moved = min(float(np.min(np.hypot(*(at.mean - a.mean).T))) for a, at, _ in images.values())
     returned, noise = 0.0, 0.0
@@ -240,7 +240,8 @@ def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves
     if slipped:
         warnings.append(
             f"the parts came back {returned:.3f} px from where they were (moves of {moved:.2f} px and "
-            "more): they slipped, and the moves are off by a similar amount; use a smaller --increment"
+            "more): they slipped, and the moves are off by a similar amount; use smaller increments "
+            "(--increment)"
         )
     report.update(
         offset_v=moves.volts,

@@ -177,21 +177,37 @@ $("calibrate").addEventListener("click", async () => {
 });
 
 $("calibrate-camera").addEventListener("click", async () => {
-  const request = { volts: Number($("cam-volts").value), frames: Math.round(Number($("cam-frames").value)), save: $("cam-save").checked };
-  if ($("cam-gain").value !== "") request.stack_gain_m_per_v = Number($("cam-gain").value) * 1e-9;
+  const request = { save: $("cam-save").checked };  // an empty field: the daemon's default
+  for (const [id, key] of [["cam-volts", "volts"], ["cam-increment", "increment_v"], ["cam-frames", "frames"]]) {
+    if ($(id).value !== "") request[key] = key === "frames" ? Math.round(Number($(id).value)) : Number($(id).value);
+  }
+  if ($("cam-gain").value !== "") {
+    const gain = Number($("cam-gain").value);
+    if (!(gain > 0)) return say("stack gain must be a positive number of nm/V (the plate's move per volt)", true);
+    request.stack_gain_m_per_v = gain * 1e-9;
+  }
   say("calibrating the camera: the plate moves by offsets along x, y and θ (STOP ends it)");
   $("camera-result").textContent = "";
-  const answer = await api("POST", "/api/calibrate_camera", request);
-  if (answer && answer.ok) {
-    say("camera calibrated");
-    $("camera-result").innerHTML = cameraReport(answer.calibration).map((l) => `<div>${escapeHtml(l)}</div>`).join("");
+  $("calibrate-camera").disabled = true;
+  try {
+    const answer = await api("POST", "/api/calibrate_camera", request);
+    if (answer && answer.ok) {
+      say("camera calibrated");
+      $("camera-result").innerHTML = cameraReport(answer.calibration).map((l) => `<div>${escapeHtml(l)}</div>`).join("");
+    }
+  } finally {
+    $("calibrate-camera").disabled = false;
   }
 });
 
 function cameraReport(c) {  // the daemon's calibrate_camera report, as lines
+  const px = (v) => (v === null || v === undefined ? "–" : v.toFixed(1));
+  const origin = c.origin_x_px === null || c.origin_x_px === undefined
+    ? "O not measured (no θ axis moved)"
+    : `O at (${px(c.origin_x_px)}, ${px(c.origin_y_px)}) px ± ${px(c.origin_uncertainty_px)} px`;
   const lines = [
     `${(c.pixel_size_m * UM).toFixed(4)} µm/px, turned ${deg(c.rotation_rad)}${c.mirrored ? ", mirrored" : ""}`,
-    `O at (${c.origin_x_px.toFixed(1)}, ${c.origin_y_px.toFixed(1)}) px ± ${c.origin_uncertainty_px.toFixed(1)} px; the parts came back within ${c.returned_px.toFixed(3)} px`,
+    `${origin}; the parts came back within ${c.returned_px.toFixed(3)} px`,
     c.saved ? "stored: parts are located with it from the next move on" : "not stored" + (c.slipped ? ": the parts slipped" : c.travel_outside ? ": " + c.travel_outside : ""),
   ];
   return lines.concat(c.warnings || []);

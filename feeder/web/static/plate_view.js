@@ -1,6 +1,7 @@
 // The console's plate view (docs/console.md): the model the page draws (parts with poses, the
 // travel), the plate (m) ↔ canvas (px) frame, and the drawing of parts, target and camera image.
-// Loaded before console.js, whose state (status, camera, target, trajectory) it reads.
+// Loaded before console.js, whose state (status, camera, target, trajectory) and helpers ($, UM,
+// DEG, selectedPart) it uses when called, never at load.
 "use strict";
 
 // -- the model the page draws: parts with poses, travel -------------------------------------
