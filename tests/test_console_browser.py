@@ -187,6 +187,11 @@ def test_the_camera_is_calibrated_from_the_page_and_stop_ends_it(page: Any, daem
         "document.getElementById('state').textContent === 'calibrating camera'", timeout=10_000
     )
     assert daemon.request("status")["camera_moves"] is True
+    page.wait_for_function(
+        "document.getElementById('message').textContent"
+        ".startsWith('calibrating the camera: x: offset 0 → 20 V')",
+        timeout=5_000,
+    )
     page.keyboard.press("Escape")
     page.wait_for_function(
         "document.getElementById('message').textContent.includes('were stopped')", timeout=10_000

@@ -54,6 +54,7 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             busy = client.request("move", part=1, x_m=0.5e-3, y_m=0.3e-3)
             assert not busy["ok"] and "camera calibration is moving the plate" in busy["error"]
             assert client.request("status")["camera_moves"] is True and client.status().camera_moves
+            assert client.status().camera_moves_progress == "x: offset 0 → 40 V in 0.05 V steps"
             stopped_at = time.monotonic()
             cli.send_signal(signal.SIGINT)
             _, err = cli.communicate(timeout=30.0)
@@ -63,7 +64,7 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             assert time.monotonic() - stopped_at < 3.0
             after_stop = client.request("status")
             assert after_stop["camera_calibration"]["source"] == "configuration"
-            assert after_stop["camera_moves"] is False
+            assert after_stop["camera_moves"] is False and after_stop["camera_moves_progress"] is None
 
             # a command killed outright cannot send the stop: the daemon sees its client gone
             killed = subprocess.Popen([*command, *options], stderr=subprocess.DEVNULL)
@@ -85,6 +86,16 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             out = capsys.readouterr()
             assert code == 0, out.err
             report = json.loads(out.out)
+            steps = [line for line in out.err.splitlines() if ": offset " in line]  # each shown once
+            assert steps[:4] == [
+                "x: offset 0 → 40 V in 0.05 V steps",
+                "x: offset 40 → 0 V in 0.025 V steps",
+                "y: offset 0 → 40 V in 0.05 V steps",
+                "y: offset 40 → 0 V in 0.025 V steps",
+            ] and [s.split(" in ")[0] for s in steps[4:]] == [
+                "theta: offset 0 → 40 V",
+                "theta: offset 40 → 0 V",
+            ]
             assert plot.stat().st_size > 20_000 and report["note"].startswith("stored by the daemon")
             assert report["saved"] is True and report["slipped"] is False
             assert report["mirrored"] is True and report["rotation_rad"] == pytest.approx(0.4, abs=0.02)

@@ -291,7 +291,12 @@ def run_status(args: argparse.Namespace) -> int:
         return 0
     print(f"state: {status.state}" + (f" ({status.fault})" if status.fault else ""))
     if reply.get("camera_moves"):
-        print("a camera calibration is moving the plate (feeder stop ends it)")
+        now = reply.get("camera_moves_progress")
+        print(
+            "a camera calibration is moving the plate"
+            + (f" ({now})" if now else "")
+            + "; feeder stop ends it"
+        )
     if reply.get("moves_refused"):
         print(f"moves refused: {reply['moves_refused']}")
     if len(reply.get("axes") or {}) > 1:  # a plate driven in the plane

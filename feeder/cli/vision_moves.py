@@ -193,7 +193,7 @@ def _by_the_daemon(args: argparse.Namespace) -> int:
     check_target(args.out, "--out")
     check_target(args.plot, "--plot")
     with _interrupted_by_signals(), Client(args.socket, timeout_s=args.timeout) as client:
-        print("the daemon moves the plate (its log shows each axis; Ctrl-C stops it)", file=sys.stderr)
+        print("the daemon moves the plate (Ctrl-C stops it):", file=sys.stderr)
         try:
             report = client.calibrate_camera(
                 volts=args.volts,
@@ -201,6 +201,7 @@ def _by_the_daemon(args: argparse.Namespace) -> int:
                 increment_v=args.increment,
                 frames=args.frames,
                 save=args.save_state,
+                progress=lambda step: print(step, file=sys.stderr),
             )
         except KeyboardInterrupt:
             # stop on a second connection while this one is open: its close stops the moves too,

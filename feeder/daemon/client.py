@@ -325,18 +325,28 @@ class Client:
         frames: int | None = None,
         save: bool = False,
         timeout_s: float | None = None,
+        progress: Callable[[str], None] | None = None,
     ) -> dict[str, Any]:
         """The camera's calibration from plate moves the daemon makes with its own amplifier and
         camera while no move runs (``feeder vision calibrate-moves --daemon``; the fields and
         report as :func:`feeder.vision.offset_moves.measure`'s, plus ``saved`` and ``image_px``;
         the daemon's defaults for what is None).  ``save`` stores it for the next move.  Returns
-        when the moves end (about a minute), checking on the daemon by heartbeat;
+        when the moves end (about a minute), checking on the daemon by heartbeat, whose status
+        hands ``progress`` each new step of the moves ("x: offset 0 → 100 V in 0.05 V steps");
         :class:`~feeder.errors.DaemonRefused` with the reason it was refused, stopped or failed."""
         given = {"volts": volts, "stack_gain_m_per_v": stack_gain_m_per_v, "increment_v": increment_v}
         fields: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
         if frames is not None:
             fields["frames"] = frames
-        reply = self._await("calibrate_camera", {**fields, "save": save}, self._timeout(timeout_s))
+        shown: list[str] = []
+
+        def heard(status: dict[str, Any]) -> None:
+            now = status.get("camera_moves_progress")
+            if progress is not None and isinstance(now, str) and now not in shown:
+                shown.append(now)
+                progress(now)
+
+        reply = self._await("calibrate_camera", {**fields, "save": save}, self._timeout(timeout_s), heard)
         if reply.get("ok") is not True:
             raise DaemonRefused(str(reply.get("error") or "calibrate_camera refused without a reason"))
         return _parse("calibrate_camera", lambda r: dict(r["calibration"]), reply)
@@ -359,9 +369,15 @@ class Client:
             raise DaemonRefused(result.reason, result)
         raise (MoveFaulted if result.status == "fault" else MoveFailed)(result)
 
-    def _await(self, cmd: str, fields: dict[str, Any], timeout_s: float) -> dict[str, Any]:
+    def _await(
+        self,
+        cmd: str,
+        fields: dict[str, Any],
+        timeout_s: float,
+        heard: Callable[[dict[str, Any]], None] = lambda _: None,
+    ) -> dict[str, Any]:
         """Send a request the daemon answers only when the job ends; check on it by heartbeat
-        (see the module's docstring)."""
+        (see the module's docstring), each heartbeat's status handed to ``heard``."""
         conn = self._connection()
         heartbeat: Connection | None = None
         try:
@@ -374,7 +390,7 @@ class Client:
                 if heartbeat is None:
                     heartbeat = Connection(self.socket_path, timeout_s)
                 heartbeat.send("status", {}, timeout_s)
-                heartbeat.receive("status (heartbeat)", timeout_s)
+                heard(heartbeat.receive("status (heartbeat)", timeout_s))
         except DaemonUnreachable:
             self._drop()
             raise

@@ -155,7 +155,9 @@ class Status:
     ``fault``) where the daemon reports it.
 
     ``parts`` every part's pose (a plate driven in x, y and θ; one part otherwise).
-    ``camera_moves``: a camera calibration is moving the plate (``state`` stays ``idle``).
+    ``camera_moves``: a camera calibration is moving the plate (``state`` stays ``idle``);
+    ``camera_moves_progress`` what its moves are doing now ("y: offset 0 → 100 V in 0.05 V
+    steps"), else None.
     ``raw`` holds the whole reply (timing, waveforms, transport, ...).
     """
 
@@ -173,6 +175,7 @@ class Status:
     loop_state: str | None = None
     parts: tuple[PartPose, ...] = ()
     camera_moves: bool = False
+    camera_moves_progress: str | None = None
     raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
@@ -194,6 +197,7 @@ class Status:
             loop_state=d.get("loop_state"),
             parts=tuple(PartPose.from_dict(p) for p in d.get("parts") or ()),
             camera_moves=d.get("camera_moves") is True,
+            camera_moves_progress=d.get("camera_moves_progress"),
             raw=d,
         )
 

@@ -117,6 +117,7 @@ class Daemon:
         self._faults: list[dict[str, Any]] = []
         self._reconnecting: set[str] = set()
         self._camera_moves: threading.Event | None = None  # a camera calibration runs; set: stop it
+        self._camera_progress: str | None = None  # what its moves are doing now
         self._server: SocketServer | None = None
         self._state_lock = lock_state(setup.database_path)
         with contextlib.ExitStack() as undo:  # on failure: release what was opened
@@ -421,7 +422,7 @@ class Daemon:
             located = self.camera_calibration.calibration or configured
             with stop_on_hang_up(hung_up, stop), self.loop.lent_output() as amplifiers:
                 log.info("camera calibration: the plate moves by offsets of %g V", moves.volts)
-                report = measure(amplifiers, LoopPoses(self.loop), located, moves, log.info, stop)
+                report = measure(amplifiers, LoopPoses(self.loop), located, moves, self._camera_step, stop)
         except MovesStopped as err:
             log.warning("camera calibration: %s; nothing stored", err)
             raise
@@ -432,7 +433,7 @@ class Daemon:
             raise
         finally:
             with self._lock:
-                self._camera_moves = None
+                self._camera_moves = self._camera_progress = None
         plate = self.setup.plate_moves
         report["travel_outside"] = None if plate is None else plate.travel_outside(located.updated(report))
         report["saved"] = save and not report["slipped"] and report["travel_outside"] is None
@@ -445,6 +446,12 @@ class Daemon:
                 store.close()
         return report
 
+    def _camera_step(self, message: str) -> None:
+        """A camera calibration's progress: logged, and shown in ``status``."""
+        log.info("camera calibration: %s", message)
+        with self._lock:
+            self._camera_progress = message
+
     def status(self) -> dict[str, Any]:
         """The ``status`` reply: the loop's (:func:`.loop_status`), the faults and reconnects,
         the queue, the store, the camera's calibration and the links."""
@@ -453,6 +460,7 @@ class Daemon:
             faults = [dict(f) for f in self._faults]
             queued = len(self._queue)
             reconnecting = sorted(self._reconnecting)
+            camera_moves, camera_progress = self._camera_moves is not None, self._camera_progress
         last_known = self.store.position()
         return {
             **loop_status(loop, self.setup.parts),
@@ -462,7 +470,8 @@ class Daemon:
             "queued_moves": queued,
             "camera_calibration": self.camera_calibration.status(),
             "moves_refused": self._uncalibrated(),
-            "camera_moves": self._camera_moves is not None,  # a camera calibration moves the plate
+            "camera_moves": camera_moves,  # a camera calibration moves the plate
+            "camera_moves_progress": camera_progress,  # its axis and ramp now, or None
             "interrupted_moves": self.interrupted_moves,
             **waveforms_status(self.setup.modes),
             **self.setup.info,

@@ -228,6 +228,7 @@ function axisNames() { return hasPoses() && status.axes ? Object.keys(status.axe
 
 function onStatus() {
   const state = status.camera_moves ? "calibrating" : status.state;  // the camera's: the plate moves, no job
+  if (status.camera_moves && status.camera_moves_progress) say("calibrating the camera: " + status.camera_moves_progress + " (STOP ends it)");
   $("state").textContent = (status.camera_moves ? "calibrating camera" : state) + (status.position_state === "uncertain" ? " (position uncertain)" : "");
   $("state").className = state;
   const part = parts().find((p) => p.id === selectedPart()) || parts()[0];
