@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.waveform import Waveform
-from firmware_sim.axis import _slew_limit
+from firmware_sim.axis import Axis, _slew_limit
 from firmware_sim.clock import VirtualClock
 from firmware_sim.faults import Fault, FirmwareError, LimitError
 from firmware_sim.firmware import Firmware, FirmwareConfig
@@ -352,18 +352,25 @@ def test_commands_between_ticks_act_when_they_arrive_not_at_the_last_tick() -> N
     assert np.all(np.abs(v[261:] - 1.0) <= lsb)
 
 
-def test_status_between_ticks_is_what_the_dac_has_played_by_then() -> None:
-    """A burst of 3 steps at 1 kHz ends at 3 ms.  Asked at 3.05 ms, before the tick at 4 ms has
-    counted the samples since 2 ms, the axis is idle with its 3 steps (not moving with 2)."""
+def three_steps_at_1khz(clock: HandClock) -> tuple[Firmware, Axis]:
+    """Axis 1 stepping 3 times at 1 kHz from 0 s; ``clock`` stands at the tick at 2 ms (200
+    samples played, 2 steps counted), the burst ends at 3 ms."""
     fw, _, _ = make(dac_buffer_s=0.010)
-    clock = HandClock()
     axis = fw.axis(1)
     axis.set_frequency(1000.0)
     axis.set_amplitude(50.0)
     axis.set_mode("stp")
     fw.run(clock, max_ticks=1)  # the DAC starts at 0
     axis.step(3)
-    fw.run(clock, max_ticks=2)  # ticks at 1 and 2 ms: 200 samples played
+    fw.run(clock, max_ticks=2)  # ticks at 1 and 2 ms
+    return fw, axis
+
+
+def test_status_between_ticks_is_what_the_dac_has_played_by_then() -> None:
+    """A burst of 3 steps at 1 kHz ends at 3 ms.  Asked at 3.05 ms, before the tick at 4 ms has
+    counted the samples since 2 ms, the axis is idle with its 3 steps (not moving with 2)."""
+    clock = HandClock()
+    _, axis = three_steps_at_1khz(clock)
     assert axis.status().moving and axis.status().step_counter == 2
     clock.advance_to(0.00305)
     status = axis.status()
@@ -386,15 +393,8 @@ def test_status_is_one_instant_even_when_the_dac_plays_on_while_it_is_taken() ->
     before a burst's last step, with a sample passing between two readings of the clock, the
     status is (2 steps, moving) or (3, idle), never (2, idle): the executor would then take
     a 2-step count as final."""
-    fw, _, _ = make(dac_buffer_s=0.010)
     clock = CreepingClock()
-    axis = fw.axis(1)
-    axis.set_frequency(1000.0)
-    axis.set_amplitude(50.0)
-    axis.set_mode("stp")
-    fw.run(clock, max_ticks=1)
-    axis.step(3)
-    fw.run(clock, max_ticks=2)
+    fw, axis = three_steps_at_1khz(clock)
     clock.advance_to(0.003 - 1.5 / fw.sample_rate)  # the sample before the last step's
     clock.creep_s = 1.0 / fw.sample_rate
     status = axis.status()
