@@ -48,13 +48,17 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             options = ["--socket", str(config.socket_path), "--volts", "40", "--frames", "2", "--save-state"]
             cli = subprocess.Popen([*command, *options], stderr=subprocess.PIPE, text=True)
             deadline = time.monotonic() + 20.0
-            while not client.request("status")["camera_moves"] and time.monotonic() < deadline:
-                time.sleep(0.05)
-            time.sleep(0.5)  # x ramps up meanwhile
+            while not client.request("status")["camera_moves_progress"] and time.monotonic() < deadline:
+                time.sleep(0.05)  # the first frames, then x ramps up (1.6 s)
             busy = client.request("move", part=1, x_m=0.5e-3, y_m=0.3e-3)
             assert not busy["ok"] and "camera calibration is moving the plate" in busy["error"]
             assert client.request("status")["camera_moves"] is True and client.status().camera_moves
             assert client.status().camera_moves_progress == "x: offset 0 → 40 V in 0.05 V steps"
+            assert main(["status", "--socket", str(config.socket_path)]) == 0
+            assert (
+                "a camera calibration is moving the plate (x: offset 0 → 40 V in 0.05 V steps); "
+                "feeder stop ends it" in capsys.readouterr().out.splitlines()
+            )
             stopped_at = time.monotonic()
             cli.send_signal(signal.SIGINT)
             _, err = cli.communicate(timeout=30.0)
