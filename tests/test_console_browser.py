@@ -175,7 +175,9 @@ def test_stop_and_escape_stop_a_long_move(page: Any, daemon: DaemonProcess) -> N
     assert "stopped" in page.inner_text("#result")
 
 
-def test_the_camera_is_calibrated_from_the_page_and_stop_ends_it(page: Any, daemon: DaemonProcess) -> None:
+def test_the_camera_is_calibrated_from_the_page_and_stop_ends_it(
+    browser: Any, page: Any, daemon: DaemonProcess
+) -> None:
     """Calibrate camera: the state shows it, Escape ends it grounded (nothing stored); run again
     (not stored) it shows the daemon's report: the embedded camera's 2.7 µm/px, not mirrored."""
     assert page.is_visible("#calibrate-camera")
@@ -199,15 +201,27 @@ def test_the_camera_is_calibrated_from_the_page_and_stop_ends_it(page: Any, daem
     assert status["camera_moves"] is False and status["camera_calibration"]["source"] == "configuration"
     assert page.inner_text("#camera-result") == ""
 
+    other = browser.new_page(bypass_csp=True)  # another operator's page watches
+    other.goto(daemon.ready["console_url"])
     page.click("#calibrate-camera")
+    other.wait_for_function(
+        "document.getElementById('message').textContent.startsWith('calibrating the camera: ')",
+        timeout=10_000,
+    )
     page.wait_for_function(
         "document.getElementById('camera-result').textContent.includes('µm/px')", timeout=60_000
     )
     lines = page.inner_text("#camera-result").splitlines()
     assert float(lines[0].split(" µm/px")[0]) == pytest.approx(2.7, rel=0.05) and "mirrored" not in lines[0]
-    assert lines[2] == "not stored" and page.text_content("#message") == "camera calibrated"
+    assert lines[2] == "not stored"
     assert daemon.request("status")["camera_calibration"]["source"] == "configuration"
     page.wait_for_function("document.getElementById('state').className === 'idle'", timeout=5_000)
+    time.sleep(0.2)  # a status taken before the answer arrived does not bring the last step back
+    assert page.text_content("#message") == "camera calibrated"
+    other.wait_for_function(
+        "document.getElementById('message').textContent === 'the camera calibration ended'", timeout=5_000
+    )
+    other.close()
     # a plane without θ measures no O: said so, not a script error
     report = {
         "pixel_size_m": 2.7e-6, "rotation_rad": 0.0, "mirrored": False, "origin_x_px": None,

@@ -27,6 +27,7 @@ let target = null;          // {x, y, angle} (m, m, rad) or null
 let drag = null;
 let trajectory = [];        // [t_s, x_m, y_m, psi_rad] of the current or last move
 let lastState = null;
+let cameraProgress = null;  // the camera calibration's step last shown
 
 // -- API ---------------------------------------------------------------------------------
 async function api(method, path, body) {
@@ -200,6 +201,16 @@ $("calibrate-camera").addEventListener("click", async () => {
   }
 });
 
+function showCameraProgress() {
+  // each new step once: a status taken before the calibration's answer must not overwrite it;
+  // its end clears a step still shown (another page's calibration)
+  const progress = (status.camera_moves && status.camera_moves_progress) || null;
+  if (progress === cameraProgress) return;
+  if (progress) say(`calibrating the camera: ${progress} (STOP ends it)`);
+  else if ($("message").textContent.startsWith("calibrating the camera:")) say("the camera calibration ended");
+  cameraProgress = progress;
+}
+
 function cameraReport(c) {  // the daemon's calibrate_camera report, as lines
   const px = (v) => (v === null || v === undefined ? "–" : v.toFixed(1));
   const origin = c.origin_x_px === null || c.origin_x_px === undefined
@@ -228,7 +239,7 @@ function axisNames() { return hasPoses() && status.axes ? Object.keys(status.axe
 
 function onStatus() {
   const state = status.camera_moves ? "calibrating" : status.state;  // the camera's: the plate moves, no job
-  if (status.camera_moves && status.camera_moves_progress) say("calibrating the camera: " + status.camera_moves_progress + " (STOP ends it)");
+  showCameraProgress();
   $("state").textContent = (status.camera_moves ? "calibrating camera" : state) + (status.position_state === "uncertain" ? " (position uncertain)" : "");
   $("state").className = state;
   const part = parts().find((p) => p.id === selectedPart()) || parts()[0];
