@@ -6,11 +6,13 @@ reads request lines of at most :data:`MAX_LINE_BYTES`.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import socket
 import stat
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -71,14 +73,8 @@ class Connection:
     def send(self, cmd: str, fields: dict[str, Any], timeout_s: float | None) -> None:
         line = json.dumps({"cmd": cmd, **fields}).encode() + b"\n"
         self._sock.settimeout(timeout_s)
-        try:
+        with _socket_errors(f"take the {cmd!r} request", timeout_s):
             self._sock.sendall(line)
-        except TimeoutError:
-            raise DaemonTimeout(
-                f"the daemon did not take the {cmd!r} request within {timeout_s:g} s", timeout_s or 0.0
-            ) from None
-        except OSError as err:
-            raise DaemonUnreachable(f"daemon connection failed: {err}") from None
 
     def receive(self, cmd: str, timeout_s: float | None) -> dict[str, Any]:
         """The next reply object; :class:`DaemonTimeout` when none is complete in ``timeout_s``."""
@@ -87,17 +83,11 @@ class Connection:
             if len(self._buffer) > MAX_REPLY_BYTES:
                 raise DaemonUnreachable(f"reply to {cmd!r} longer than {MAX_REPLY_BYTES} bytes")
             remaining = None if deadline is None else deadline - time.monotonic()
-            try:
+            with _socket_errors(f"answer {cmd!r}", timeout_s):
                 if remaining is not None and remaining <= 0:
                     raise TimeoutError
                 self._sock.settimeout(remaining)
                 chunk = self._sock.recv(65536)
-            except TimeoutError:
-                raise DaemonTimeout(
-                    f"the daemon did not answer {cmd!r} within {timeout_s:g} s", timeout_s or 0.0
-                ) from None
-            except OSError as err:
-                raise DaemonUnreachable(f"daemon connection failed: {err}") from None
             if not chunk:
                 raise DaemonUnreachable("the daemon closed the connection")
             self._buffer += chunk
@@ -128,3 +118,15 @@ def listening(socket_path: Path, timeout_s: float) -> bool:
     finally:
         probe.close()
     return True
+
+
+@contextlib.contextmanager
+def _socket_errors(what: str, timeout_s: float | None) -> Iterator[None]:
+    """The socket's errors as the client's: a timeout is :class:`DaemonTimeout` ("the daemon
+    did not ``what`` within ``timeout_s``"), any other :class:`OSError` :class:`DaemonUnreachable`."""
+    try:
+        yield
+    except TimeoutError:
+        raise DaemonTimeout(f"the daemon did not {what} within {timeout_s:g} s", timeout_s or 0.0) from None
+    except OSError as err:
+        raise DaemonUnreachable(f"daemon connection failed: {err}") from None

@@ -439,11 +439,7 @@ class Daemon:
         report["saved"] = save and not report["slipped"] and report["travel_outside"] is None
         log.info("camera calibration: %s", summary(report))
         if report["saved"]:
-            store = Store(self.setup.database_path)
-            try:
-                store.save_camera_calibration({k: v for k, v in report.items() if v is not None})
-            finally:
-                store.close()
+            self.store.save_camera_calibration({k: v for k, v in report.items() if v is not None})
         return report
 
     def _camera_step(self, message: str) -> None:
