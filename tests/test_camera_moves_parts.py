@@ -23,7 +23,13 @@ from feeder.daemon.requests import answer
 from feeder.daemon.sensor_feed import SensorFeed
 from feeder.drivers.amplifier import DriveSettings
 from feeder.drivers.sensor import SensorLost
-from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, MovesStopped, OffsetMoves, measure
+from feeder.vision.offset_moves import (
+    FIRMWARE_SIM_GAIN_M_PER_V,
+    STEADY_FRAMES,
+    MovesStopped,
+    OffsetMoves,
+    measure,
+)
 
 
 class SlowAmplifier(FakeAmplifier):
@@ -101,7 +107,8 @@ def test_a_stop_ends_the_moves_within_an_increment_every_axis_grounded() -> None
     plate = OffsetPlate()
     axes, camera = rig(plate)
     stop = threading.Event()
-    camera.on_read = lambda frames: stop.set() if frames > 3 else None  # during x's offset
+    # before x's move: STEADY_FRAMES read; then during x's offset
+    camera.on_read = lambda frames: stop.set() if frames > STEADY_FRAMES else None
     with pytest.raises(MovesStopped, match="stopped on axis x"):
         measure(axes, camera, CONFIGURED, plate.moves, stop=stop)
     assert plate.volts == {"x": 0.0, "y": 0.0, "theta": 0.0}

@@ -9,6 +9,7 @@ import json
 import math
 import subprocess
 import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ from feeder.plant.planar import PlanarPart
 from feeder.plant.planar_plant import PlanarPlant
 from feeder.plant.stick_slip import Friction
 from feeder.vision.calibration import CameraCalibration
-from feeder.vision.offset_moves import OffsetMoves, measure
+from feeder.vision.offset_moves import MovesStopped, OffsetMoves, measure
 
 START = (0.9e-3, 0.4e-3, 0.2)
 
@@ -251,6 +252,67 @@ def test_a_slip_on_the_way_up_shows_as_parts_that_do_not_come_back() -> None:
     assert report["slipped"] is True and "use smaller increments (--increment)" in report["warnings"][-1]
     _, held = _measure(OffsetPlate(slip_above_v=0.07), increment_v=0.06)
     assert held["slipped"] is False and held["warnings"] == []
+
+
+class LaggingCamera(LocatingCamera):
+    """Each frame shows the plate as it was ``lag`` frames before (a camera's latency, or a
+    simulator that falls behind), drifting ``drift_px`` a frame in u besides (a creeping stack)."""
+
+    def __init__(self, plate: OffsetPlate, lag: int, drift_px: float = 0.0) -> None:
+        super().__init__(plate, CONFIGURED)
+        self.seen: list[list[tuple[float, float]]] = []
+        self.lag, self.drift_px = lag, drift_px
+        self.image_points = self._lagging
+
+    def _lagging(self) -> list[tuple[float, float]]:
+        self.seen.append(self.plate.image_points())
+        shown = self.seen[max(0, len(self.seen) - 1 - self.lag)]
+        return [(u + self.drift_px * len(self.seen), v) for u, v in shown]
+
+    def read(self, timeout_s: float = 1.0) -> PositionSample:
+        self.frames += 1
+        self.on_read(self.frames)
+        poses = tuple((*self.configured.to_plate(u, v), 0.0) for u, v in self._lagging())
+        return PositionSample(self.frames / 100, poses[0][0], self.frames, poses)
+
+
+def test_frames_are_read_until_a_lagging_camera_shows_the_plate_still() -> None:
+    """A camera 2 frames behind the plate (the settle shorter than its latency): the frames
+    right after a move still show the plate on its way.  They are read until the image stops
+    moving, and the calibration is exact; averaged at once they gave moves far too short."""
+    plate = OffsetPlate()
+    axes, _ = rig(plate)
+    camera = LaggingCamera(plate, lag=2)
+    report = measure(axes, camera, CONFIGURED, plate.moves)
+    assert report["pixel_size_m"] == pytest.approx(2.0e-6, rel=1e-9)
+    assert (report["origin_x_px"], report["origin_y_px"]) == (pytest.approx(1000.0), pytest.approx(700.0))
+    assert report["unsteady_px"] == 0.0 and report["slipped"] is False and report["warnings"] == []
+    assert camera.frames >= 6 * (2 + 4)  # each of the 6 positions after a move waited out the lag
+
+
+def test_an_image_that_keeps_moving_is_reported_when_the_wait_runs_out() -> None:
+    """A drift of 0.05 px a frame never settles: after ``steady_timeout_s`` the last frames are
+    taken, and the report says how far the image still moved (2 frames between the halves)."""
+    plate = OffsetPlate()
+    axes, _ = rig(plate)
+    moves = dataclasses.replace(plate.moves, steady_timeout_s=0.0)
+    report = measure(axes, LaggingCamera(plate, lag=0, drift_px=0.05), CONFIGURED, moves)
+    assert report["unsteady_px"] == pytest.approx(0.1)
+    assert (
+        "the image still moved 0.100 px (between the halves of the last frames) 0 s after a move"
+        in (report["warnings"][-1])
+    )
+
+
+def test_a_stop_ends_the_wait_for_a_steady_image_at_the_next_frame() -> None:
+    """Up to ``steady_timeout_s`` (10 s) of frames: a stop ends it at once, every axis grounded."""
+    plate = OffsetPlate()
+    axes, _ = rig(plate)
+    camera, stop = LaggingCamera(plate, lag=0, drift_px=0.05), threading.Event()
+    camera.on_read = lambda frames: stop.set() if frames == 20 else None  # x's first wait
+    with pytest.raises(MovesStopped, match="stopped on axis x"):
+        measure(axes, camera, CONFIGURED, plate.moves, stop=stop)
+    assert camera.frames == 20 and all(v == 0.0 for v in plate.volts.values())
 
 
 def test_the_theta_increment_shrinks_with_the_parts_distance_from_o() -> None:

@@ -27,6 +27,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -60,18 +61,32 @@ class MovesStopped(FeederError):
     """The moves were stopped (``stop`` set): every axis grounded, nothing measured."""
 
 
+STEADY_FRAMES = 4
+"""The image is steady when the two halves of the last ``max(frames, STEADY_FRAMES)`` frames
+show every part at the same place: within 4 standard errors of their difference (from the
+frames' noise, :func:`_frame_noise`), ..."""
+
+STEADY_PX = 0.02
+"""... or this much (px: a sub-pixel locator's noise), ..."""
+
+STEADY_FRACTION = 0.005
+"""... or this fraction of the part's move since the axis was last at 0 V (a stack's creep)."""
+
+
 class Points(NamedTuple):
-    """The parts' centres in the image (parts, 2) px and their standard errors (parts,) px."""
+    """The parts' centres in the image (parts, 2) px, their standard errors (parts,) px, and how
+    far the image was still moving when the wait for a steady one ran out (px; 0 when steady)."""
 
     mean: np.ndarray
     error: np.ndarray
+    unsteady_px: float = 0.0
 
 
 @dataclass(frozen=True)
 class OffsetMoves:
     """How the plate is moved: the offset (V), the stacks' static gain (m/V), the θ stack's lever
     arm (m), the ramp's increments (V) and pause after each (s), the wait before frames are
-    averaged (s) and how many."""
+    read (s), how many are averaged, and the longest wait for a steady image after that (s)."""
 
     volts: float = 100.0
     stack_gain_m_per_v: float = FIRMWARE_SIM_GAIN_M_PER_V
@@ -81,6 +96,7 @@ class OffsetMoves:
     settle_s: float = 0.3
     frames: int = 10
     frame_timeout_s: float = 2.0
+    steady_timeout_s: float = 10.0
 
 
 def measure(
@@ -100,7 +116,8 @@ def measure(
 
     Returns the fields of a ``feeder vision calibrate`` report (pixel size, rotation, mirroring,
     O when θ moved, its ``origin_uncertainty_px``, residuals) plus ``offset_v``, ``parts``,
-    ``turn_rad`` and ``turn_from``, ``returned_px``, ``slipped``, ``moves_px`` (per axis moved,
+    ``turn_rad`` and ``turn_from``, ``returned_px``, ``slipped``, ``unsteady_px`` (how far the
+    image still moved when the wait for a steady one ran out; 0), ``moves_px`` (per axis moved,
     each part's image centre before, at the offset and after: [u, v, u, v, u, v] px) and
     ``warnings`` (sentences).
     """
@@ -116,7 +133,7 @@ def measure(
             if axis not in amplifiers:
                 continue
             moving = axis
-            before = _image_points(sensor, located_with, moves)
+            before = _image_points(sensor, located_with, moves, (stop, axis))
             increment = moves.increment_v
             if axis == "theta":
                 reach = RADIUS_MARGIN * max(math.hypot(*located_with.to_plate(u, v)) for u, v in before.mean)
@@ -144,22 +161,23 @@ def _move(
     """One axis up to ``moves.volts`` in ``increment_v`` steps and down in half-steps: the parts'
     image points before, at the offset and after."""
 
-    def stopped() -> None:
-        if stop is not None and stop.is_set():
-            raise MovesStopped(f"the plate moves were stopped on axis {axis}; every axis grounded")
-
     progress(f"{axis}: offset 0 → {moves.volts:g} V in {increment_v:.3g} V steps")
     amp.ramp_offset(0.0, moves.volts, increment_v, moves.pause_s, stop)
-    stopped()
+    _check_stop(stop, axis)
     time.sleep(moves.settle_s)
-    at = _image_points(sensor, located_with, moves)
-    stopped()
+    at = _image_points(sensor, located_with, moves, (stop, axis), before)
     progress(f"{axis}: offset {moves.volts:g} → 0 V in {increment_v / 2:.3g} V steps")
     amp.ramp_offset(moves.volts, 0.0, increment_v / 2, moves.pause_s, stop)
     amp.ground()
-    stopped()
+    _check_stop(stop, axis)
     time.sleep(moves.settle_s)
-    return before, at, _image_points(sensor, located_with, moves)
+    return before, at, _image_points(sensor, located_with, moves, (stop, axis), at)
+
+
+def _check_stop(stop: threading.Event | None, axis: str) -> None:
+    """:class:`MovesStopped` once ``stop`` is set (on ``axis``)."""
+    if stop is not None and stop.is_set():
+        raise MovesStopped(f"the plate moves were stopped on axis {axis}; every axis grounded")
 
 
 def _ground(amplifiers: Mapping[str, Amplifier], moving: str | None, volts: float) -> None:
@@ -181,18 +199,67 @@ def _ground(amplifiers: Mapping[str, Amplifier], moving: str | None, volts: floa
         raise AmplifierError("could not ground axis " + ", ".join(failed) + f"; {held}")
 
 
-def _image_points(sensor: PositionSensor, located_with: CameraCalibration, moves: OffsetMoves) -> Points:
-    """Every part's centre in the image (parts, 2) px averaged over ``moves.frames`` frames taken
-    after the settle (the first sample read may predate it), and that mean's standard error (px,
-    per part; 0 from one frame)."""
-    sensor.read(moves.frame_timeout_s)
-    frames = []
-    for _ in range(moves.frames):
+def _image_points(
+    sensor: PositionSensor,
+    located_with: CameraCalibration,
+    moves: OffsetMoves,
+    stop: tuple[threading.Event | None, str],
+    moved_from: Points | None = None,
+) -> Points:
+    """Every part's centre in the image (parts, 2) px averaged over the last ``moves.frames``
+    frames of a steady image, and that mean's standard error (px, per part; 0 from one frame).
+
+    Frames are read until the image stops moving (:data:`STEADY_FRAMES`; ``moved_from``: the
+    points before the move, for :data:`STEADY_FRACTION`), at most ``moves.steady_timeout_s``: a
+    fixed settle cannot know a camera's latency (a loaded host's, or a lagging simulator's) nor a
+    stack's creep, and frames that still show the plate on its way give moves too short (a
+    sample that predates the settle is one of them).  ``stop``: the event that ends the moves
+    and the axis moved (:func:`_check_stop`, at each frame)."""
+    window = max(moves.frames, STEADY_FRAMES)
+    half = window // 2
+    frames: deque[list[tuple[float, float]]] = deque(maxlen=window)
+    started = time.monotonic()
+    deadline = started + moves.steady_timeout_s
+    while True:
         sample = sensor.read(moves.frame_timeout_s)
+        _check_stop(*stop)
         frames.append([located_with.to_image(x, y) for x, y, _ in sample.poses])
-    points = np.array(frames, dtype=float)
-    spread = np.std(points, axis=0, ddof=1) if len(frames) > 1 else np.zeros(points.shape[1:])
-    return Points(points.mean(axis=0), np.hypot(*spread.T) / math.sqrt(len(frames)))
+        if len(frames) < window:
+            continue
+        points = np.array(frames, dtype=float)
+        late = points[-half:].mean(axis=0)
+        shift = np.hypot(*(late - points[:half].mean(axis=0)).T)
+        moved = 0.0 if moved_from is None else np.hypot(*(late - moved_from.mean).T)
+        noise = 4 * _frame_noise(points) * math.sqrt(2 / half)  # 4 standard errors of the shift
+        allowed = np.maximum(max(STEADY_PX, noise), STEADY_FRACTION * moved)
+        if np.all(shift <= allowed):
+            log.debug(
+                "steady after %d frames, %.2f s: moved %.4f px, within %.4f px",
+                sample.sequence,
+                time.monotonic() - started,
+                float(np.max(shift)),
+                float(np.min(allowed)),
+            )
+            return _mean_and_error(points[-moves.frames :])
+        if time.monotonic() > deadline:
+            mean, error, _ = _mean_and_error(points[-moves.frames :])
+            return Points(mean, error, float(np.max(shift)))
+
+
+def _frame_noise(points: np.ndarray) -> float:
+    """One frame's noise in a coordinate (px) from frames' points (frames, parts, 2): the median of
+    the frame-to-frame changes or of their changes (white noise: 0.674 √2 σ and 0.674 √6 σ),
+    the smaller.  A step in the image (a lagging camera) changes one frame-to-frame change,
+    which their median ignores; a steady drift changes every one, but none of their changes."""
+    first = np.median(np.abs(np.diff(points, axis=0))) / (0.6745 * math.sqrt(2))
+    second = np.median(np.abs(np.diff(points, n=2, axis=0))) / (0.6745 * math.sqrt(6))
+    return float(min(first, second))
+
+
+def _mean_and_error(points: np.ndarray) -> Points:
+    """The mean of frames' points (frames, parts, 2) px and its standard error (parts,) px."""
+    spread = np.std(points, axis=0, ddof=1) if len(points) > 1 else np.zeros(points.shape[1:])
+    return Points(points.mean(axis=0), np.hypot(*spread.T) / math.sqrt(len(points)))
 
 
 def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves) -> dict[str, Any]:
@@ -243,12 +310,20 @@ def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves
             "more): they slipped, and the moves are off by a similar amount; use smaller increments "
             "(--increment)"
         )
+    unsteady = max(points.unsteady_px for seen in images.values() for points in seen)
+    if unsteady:
+        warnings.append(
+            f"the image still moved {unsteady:.3f} px (between the halves of the last frames) "
+            f"{moves.steady_timeout_s:g} s after a move: a stack creeping or a camera lagging; the moves "
+            "are off by up to a similar amount"
+        )
     report.update(
         offset_v=moves.volts,
         plate_move_m=stroke,
         parts=len(images["x"][0].mean),
         returned_px=returned,
         slipped=slipped,
+        unsteady_px=unsteady,
         moves_px={axis: np.hstack([p.mean for p in seen]).round(4).tolist() for axis, seen in images.items()},
         warnings=warnings,
     )
