@@ -299,7 +299,7 @@ def test_an_image_that_keeps_moving_is_reported_when_the_wait_runs_out() -> None
     report = measure(axes, LaggingCamera(plate, lag=0, drift_px=0.05), CONFIGURED, moves)
     assert report["unsteady_px"] == pytest.approx(0.1)
     assert (
-        "the image still moved 0.100 px (between the halves of the last frames) 0 s after a move"
+        "the image still moved 0.100 px (between the halves of the last frames) after 0 s more of frames"
         in (report["warnings"][-1])
     )
 

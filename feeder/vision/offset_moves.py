@@ -86,7 +86,8 @@ class Points(NamedTuple):
 class OffsetMoves:
     """How the plate is moved: the offset (V), the stacks' static gain (m/V), the θ stack's lever
     arm (m), the ramp's increments (V) and pause after each (s), the wait before frames are
-    read (s), how many are averaged, and the longest wait for a steady image after that (s)."""
+    read (s), how many are averaged, and how long frames are read beyond those for a steady
+    image (s)."""
 
     volts: float = 100.0
     stack_gain_m_per_v: float = FIRMWARE_SIM_GAIN_M_PER_V
@@ -210,16 +211,17 @@ def _image_points(
     frames of a steady image, and that mean's standard error (px, per part; 0 from one frame).
 
     Frames are read until the image stops moving (:data:`STEADY_FRAMES`; ``moved_from``: the
-    points before the move, for :data:`STEADY_FRACTION`), at most ``moves.steady_timeout_s``: a
-    fixed settle cannot know a camera's latency (a loaded host's, or a lagging simulator's) nor a
-    stack's creep, and frames that still show the plate on its way give moves too short (a
-    sample that predates the settle is one of them).  ``stop``: the event that ends the moves
-    and the axis moved (:func:`_check_stop`, at each frame)."""
+    points before the move, for :data:`STEADY_FRACTION`), at most ``moves.steady_timeout_s``
+    after the first window of them: a fixed settle cannot know a camera's latency (a loaded
+    host's, or a lagging simulator's) nor a stack's creep, and frames that still show the plate
+    on its way give moves too short (a sample that predates the settle is one of them).
+    ``stop``: the event that ends the moves and the axis moved (:func:`_check_stop`, at each
+    frame)."""
     window = max(moves.frames, STEADY_FRAMES)
     half = window // 2
     frames: deque[list[tuple[float, float]]] = deque(maxlen=window)
     started = time.monotonic()
-    deadline = started + moves.steady_timeout_s
+    deadline = math.inf  # from the first full window on
     while True:
         sample = sensor.read(moves.frame_timeout_s)
         _check_stop(*stop)
@@ -244,6 +246,7 @@ def _image_points(
         if time.monotonic() > deadline:
             mean, error, _ = _mean_and_error(points[-moves.frames :])
             return Points(mean, error, float(np.max(shift)))
+        deadline = min(deadline, time.monotonic() + moves.steady_timeout_s)
 
 
 def _frame_noise(points: np.ndarray) -> float:
@@ -314,8 +317,8 @@ def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves
     if unsteady:
         warnings.append(
             f"the image still moved {unsteady:.3f} px (between the halves of the last frames) "
-            f"{moves.steady_timeout_s:g} s after a move: a stack creeping or a camera lagging; the moves "
-            "are off by up to a similar amount"
+            f"after {moves.steady_timeout_s:g} s more of frames: a stack creeping or a camera "
+            "lagging; the moves are off by up to a similar amount"
         )
     report.update(
         offset_v=moves.volts,
