@@ -311,9 +311,8 @@ class Axis:
         The DDS restarts from the phase of the first regenerated sample; with ``resume``
         a burst in progress keeps the steps it has not played yet.
         """
-        kept = self._played_since_tick(
-            self._fw.command_sample()
-        )  # buffered samples the DAC plays before the command acts
+        # buffered samples the DAC plays before the command acts
+        kept = self._played_since_tick(self._fw.command_sample())
         start = self._fw.samples_played + kept
         n = self._written - start
         if n <= 0:
