@@ -6,13 +6,13 @@ reads), one JPEG per new frame; ``GET /frame.png``: the latest frame, lossless
 of that frame and its exposure time (tests only: the host's control path never
 reads it).
 
-:class:`CameraFeed` renders on its own thread at ``fps`` from a snapshot of the
-world (exposure time, parts in the image) and publishes each frame
-``latency_s`` after its exposure (JPEG-encoded there, once, while an MJPEG
-client is connected; the PNG on the first request); the firmware tick only ever has its pose read,
-so nothing here can make it wait.  :class:`CameraHttpServer` binds 127.0.0.1,
-serves at most ``max_clients`` connections at once (more get 503 at once) and
-drops a client that reads nothing for ``idle_timeout_s``.
+:class:`CameraFeed` takes a snapshot of the world (exposure time, parts in the
+image) at ``fps`` on its own thread and publishes each one rendered ``latency_s``
+after its exposure, a pipeline: the latency does not slow the frame rate (JPEG-encoded
+there, once, while an MJPEG client is connected; the PNG on the first request); the
+firmware tick only ever has its pose read, so nothing here can make it wait.
+:class:`CameraHttpServer` binds 127.0.0.1, serves at most ``max_clients`` connections at
+once (more get 503 at once) and drops a client that reads nothing for ``idle_timeout_s``.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import socket
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -115,25 +116,35 @@ class CameraFeed:
         self._thread.start()
 
     def _run(self) -> None:
+        """Expose at ``fps`` and release each exposure ``latency_s`` later, a pipeline as a real
+        camera's: the latency does not slow the frame rate.  A frame is rendered when released
+        (the exposures in flight are snapshots); when rendering falls behind, the newest due
+        exposure is released and the older ones are dropped (gaps in ``sequence``)."""
+        in_flight: deque[tuple[float, int, Snapshot]] = deque()  # (release time, sequence, exposure)
         sequence = 0
-        deadline = time.monotonic()
+        exposure = time.monotonic()
         while not self._stop.is_set():
-            exposed = time.monotonic()
-            shot = self.snapshot()
-            image = self.renderer.render(shot.parts)
-            release = exposed + self.latency_s - time.monotonic()
-            if release > 0 and self._stop.wait(release):
-                break
-            truth = {"sequence": sequence, "time_s": shot.time_s, **shot.truth}
-            published = Published(sequence, image, truth)
-            if self._streams:
-                published.jpeg()  # here, once, while the frame is fresh: the clients only send it
-            with self._cond:
-                self._latest = published
-                self._cond.notify_all()
-            sequence += 1
-            deadline = max(deadline + self.period_s, time.monotonic())
-            self._stop.wait(deadline - time.monotonic())
+            now = time.monotonic()
+            if now >= exposure:
+                in_flight.append((now + self.latency_s, sequence, self.snapshot()))
+                sequence += 1
+                exposure = max(exposure + self.period_s, now)
+            due = None
+            while in_flight and in_flight[0][0] <= time.monotonic():
+                due = in_flight.popleft()
+            if due is not None:
+                self._publish(due[1], due[2])
+            wake = min(exposure, in_flight[0][0]) if in_flight else exposure
+            self._stop.wait(max(0.0, wake - time.monotonic()))
+
+    def _publish(self, sequence: int, shot: Snapshot) -> None:
+        truth = {"sequence": sequence, "time_s": shot.time_s, **shot.truth}
+        published = Published(sequence, self.renderer.render(shot.parts), truth)
+        if self._streams:
+            published.jpeg()  # here, once, while the frame is fresh: the clients only send it
+        with self._cond:
+            self._latest = published
+            self._cond.notify_all()
 
     @contextlib.contextmanager
     def streaming(self) -> Iterator[None]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import socket
+import time
 import urllib.error
 import urllib.request
 
@@ -15,6 +16,8 @@ import pytest
 from feeder.daemon.launcher import Simulator
 from feeder.vision.locate import locate
 from feeder.vision.model import PartTemplate
+from firmware_sim.camera_http import CameraFeed, Snapshot
+from firmware_sim.camera_render import CameraModel, FrameRenderer, PartInImage
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -105,3 +108,30 @@ def test_unknown_path_is_404(camera_url: str) -> None:
     with pytest.raises(urllib.error.HTTPError) as missing:
         _get(camera_url + "/nothing")
     assert missing.value.code == 404
+
+
+def test_the_latency_delays_each_frame_and_does_not_slow_the_frame_rate() -> None:
+    """A camera 0.3 s late at 20 frames/s still gives 20 frames/s (a pipeline, as a real
+    camera's), each released 0.3 s after its exposure; before, each frame waited for the last
+    one's release: 3 frames/s."""
+    renderer = FrameRenderer(CameraModel(width_px=64, height_px=48), seed=0)
+    exposures: dict[int, float] = {}
+
+    def snapshot() -> Snapshot:
+        exposed = time.monotonic()
+        exposures[len(exposures)] = exposed
+        return Snapshot(exposed, [PartInImage(32, 24, 0.0, 20, 10)], {})
+
+    feed = CameraFeed(renderer, snapshot, fps=20, latency_s=0.3)
+    try:
+        released: list[tuple[int, float]] = []
+        frame = feed.latest(timeout_s=2.0)
+        end = time.monotonic() + 1.0
+        while frame is not None and time.monotonic() < end:
+            released.append((frame.sequence, time.monotonic()))
+            frame = feed.latest(after=frame.sequence, timeout_s=1.0)
+    finally:
+        feed.close()
+    assert len(released) >= 15  # 20 in the second, on a loaded machine some fewer
+    delays = [at - exposures[sequence] for sequence, at in released]
+    assert min(delays) >= 0.3 and float(np.median(delays)) < 0.35
