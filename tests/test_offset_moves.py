@@ -33,7 +33,7 @@ from feeder.plant.planar import PlanarPart
 from feeder.plant.planar_plant import PlanarPlant
 from feeder.plant.stick_slip import Friction
 from feeder.vision.calibration import CameraCalibration
-from feeder.vision.offset_moves import MovesStopped, OffsetMoves, measure
+from feeder.vision.offset_moves import STEADY_FRAMES, MovesStopped, OffsetMoves, measure
 
 START = (0.9e-3, 0.4e-3, 0.2)
 
@@ -287,19 +287,57 @@ def test_frames_are_read_until_a_lagging_camera_shows_the_plate_still() -> None:
     assert report["pixel_size_m"] == pytest.approx(2.0e-6, rel=1e-9)
     assert (report["origin_x_px"], report["origin_y_px"]) == (pytest.approx(1000.0), pytest.approx(700.0))
     assert report["unsteady_px"] == 0.0 and report["slipped"] is False and report["warnings"] == []
-    assert camera.frames >= 6 * (2 + 4)  # each of the 6 positions after a move waited out the lag
+    assert camera.frames >= 6 * (2 + STEADY_FRAMES)  # each position after a move waited out the lag
+
+
+class SettlingCamera(LocatingCamera):
+    """Each frame shows the plate's image approaching where the plate is, over ``frames`` frames
+    (an exponential settle: a camera's latency spread by a loaded host, a stack's creep), with
+    Gaussian noise of ``noise_px`` (px, seeded) in u and v."""
+
+    def __init__(self, plate: OffsetPlate, frames: float, noise_px: float) -> None:
+        super().__init__(plate, CONFIGURED)
+        self.tau, self.noise_px, self.rng = frames, noise_px, np.random.default_rng(7)
+        self.target = self.start = np.array(plate.image_points())
+        self.since = 0
+
+    def read(self, timeout_s: float = 1.0) -> PositionSample:
+        self.frames += 1
+        target = np.array(self.plate.image_points())
+        if not np.array_equal(target, self.target):  # the plate moved: settle from what is shown
+            self.start = self.target + (self.start - self.target) * math.exp(-self.since / self.tau)
+            self.target, self.since = target, 0
+        self.since += 1
+        shown = self.target + (self.start - self.target) * math.exp(-self.since / self.tau)
+        shown = shown + self.rng.normal(0.0, self.noise_px, shown.shape)
+        poses = tuple((*self.configured.to_plate(u, v), 0.0) for u, v in shown)
+        return PositionSample(self.frames / 100, poses[0][0], self.frames, poses)
+
+
+def test_a_noisy_slowly_settling_image_is_waited_for() -> None:
+    """An image settling over 2 frames, 0.01 px of noise, moves of 2.1 px, 10 frames: the pixel
+    size within 1 % (20 seeds: 0.43 % short on average, at most 0.89 %; averaged at once, 16 %).
+    The noise sets what is left: the wait ends when the image moves less between the window's
+    halves than 3 standard errors of their difference."""
+    plate = OffsetPlate()
+    axes, _ = rig(plate)
+    report = measure(
+        axes, SettlingCamera(plate, 2.0, 0.01), CONFIGURED, dataclasses.replace(plate.moves, frames=10)
+    )
+    assert report["pixel_size_m"] == pytest.approx(2.0e-6, rel=1e-2)
+    assert report["unsteady_px"] == 0.0 and report["slipped"] is False
 
 
 def test_an_image_that_keeps_moving_is_reported_when_the_wait_runs_out() -> None:
     """A drift of 0.05 px a frame never settles: after ``steady_timeout_s`` the last frames are
-    taken, and the report says how far the image still moved (2 frames between the halves)."""
+    taken, and the report says how far the image still moved (3 frames between the halves)."""
     plate = OffsetPlate()
     axes, _ = rig(plate)
     moves = dataclasses.replace(plate.moves, steady_timeout_s=0.0)
     report = measure(axes, LaggingCamera(plate, lag=0, drift_px=0.05), CONFIGURED, moves)
-    assert report["unsteady_px"] == pytest.approx(0.1)
+    assert report["unsteady_px"] == pytest.approx(0.15)
     assert (
-        "the image still moved 0.100 px (between the halves of the last frames) after 0 s more of frames"
+        "the image still moved 0.150 px (between the halves of the last frames) after 0 s more of frames"
         in (report["warnings"][-1])
     )
 

@@ -61,16 +61,20 @@ class MovesStopped(FeederError):
     """The moves were stopped (``stop`` set): every axis grounded, nothing measured."""
 
 
-STEADY_FRAMES = 4
+STEADY_FRAMES = 6
 """The image is steady when the two halves of the last ``max(frames, STEADY_FRAMES)`` frames
-show every part at the same place: within 4 standard errors of their difference (from the
-frames' noise, :func:`_frame_noise`), ..."""
+show every part at the same place: within :data:`STEADY_ERRORS` standard errors of the
+difference of their means (from the frames' noise, :func:`_frame_noise`), ..."""
 
-STEADY_PX = 0.02
-"""... or this much (px: a sub-pixel locator's noise), ..."""
+STEADY_ERRORS = 3.0
+"""(a still image seen as moving costs a frame; a moving one seen as still biases the move)"""
+
+STEADY_PX = 0.01
+"""... or this much (px: a sub-pixel locator's quantisation), ..."""
 
 STEADY_FRACTION = 0.005
-"""... or this fraction of the part's move since the axis was last at 0 V (a stack's creep)."""
+"""... or this fraction of the part's move (from before the offset to at it, or from at it
+back; none for the points before a move: a stack's creep)."""
 
 
 class Points(NamedTuple):
@@ -134,7 +138,7 @@ def measure(
             if axis not in amplifiers:
                 continue
             moving = axis
-            before = _image_points(sensor, located_with, moves, (stop, axis))
+            before = _image_points(sensor, located_with, moves, stop, axis)
             increment = moves.increment_v
             if axis == "theta":
                 reach = RADIUS_MARGIN * max(math.hypot(*located_with.to_plate(u, v)) for u, v in before.mean)
@@ -166,13 +170,13 @@ def _move(
     amp.ramp_offset(0.0, moves.volts, increment_v, moves.pause_s, stop)
     _check_stop(stop, axis)
     time.sleep(moves.settle_s)
-    at = _image_points(sensor, located_with, moves, (stop, axis), before)
+    at = _image_points(sensor, located_with, moves, stop, axis, before)
     progress(f"{axis}: offset {moves.volts:g} → 0 V in {increment_v / 2:.3g} V steps")
     amp.ramp_offset(moves.volts, 0.0, increment_v / 2, moves.pause_s, stop)
     amp.ground()
     _check_stop(stop, axis)
     time.sleep(moves.settle_s)
-    return before, at, _image_points(sensor, located_with, moves, (stop, axis), at)
+    return before, at, _image_points(sensor, located_with, moves, stop, axis, at)
 
 
 def _check_stop(stop: threading.Event | None, axis: str) -> None:
@@ -204,7 +208,8 @@ def _image_points(
     sensor: PositionSensor,
     located_with: CameraCalibration,
     moves: OffsetMoves,
-    stop: tuple[threading.Event | None, str],
+    stop: threading.Event | None,
+    axis: str,
     moved_from: Points | None = None,
 ) -> Points:
     """Every part's centre in the image (parts, 2) px averaged over the last ``moves.frames``
@@ -215,16 +220,17 @@ def _image_points(
     after the first window of them: a fixed settle cannot know a camera's latency (a loaded
     host's, or a lagging simulator's) nor a stack's creep, and frames that still show the plate
     on its way give moves too short (a sample that predates the settle is one of them).
-    ``stop``: the event that ends the moves and the axis moved (:func:`_check_stop`, at each
-    frame)."""
+    ``stop`` ends it at the next frame (:func:`_check_stop`, naming ``axis``)."""
     window = max(moves.frames, STEADY_FRAMES)
     half = window // 2
     frames: deque[list[tuple[float, float]]] = deque(maxlen=window)
     started = time.monotonic()
     deadline = math.inf  # from the first full window on
+    read = 0
     while True:
         sample = sensor.read(moves.frame_timeout_s)
-        _check_stop(*stop)
+        read += 1
+        _check_stop(stop, axis)
         frames.append([located_with.to_image(x, y) for x, y, _ in sample.poses])
         if len(frames) < window:
             continue
@@ -232,21 +238,16 @@ def _image_points(
         late = points[-half:].mean(axis=0)
         shift = np.hypot(*(late - points[:half].mean(axis=0)).T)
         moved = 0.0 if moved_from is None else np.hypot(*(late - moved_from.mean).T)
-        noise = 4 * _frame_noise(points) * math.sqrt(2 / half)  # 4 standard errors of the shift
+        noise = STEADY_ERRORS * _frame_noise(points) * math.sqrt(2 / half)  # the shift's errors
         allowed = np.maximum(max(STEADY_PX, noise), STEADY_FRACTION * moved)
         if np.all(shift <= allowed):
-            log.debug(
-                "steady after %d frames, %.2f s: moved %.4f px, within %.4f px",
-                sample.sequence,
-                time.monotonic() - started,
-                float(np.max(shift)),
-                float(np.min(allowed)),
-            )
+            log.debug("steady after %d frames, %.2f s", read, time.monotonic() - started)
             return _mean_and_error(points[-moves.frames :])
         if time.monotonic() > deadline:
             mean, error, _ = _mean_and_error(points[-moves.frames :])
             return Points(mean, error, float(np.max(shift)))
-        deadline = min(deadline, time.monotonic() + moves.steady_timeout_s)
+        if deadline == math.inf:
+            deadline = time.monotonic() + moves.steady_timeout_s
 
 
 def _frame_noise(points: np.ndarray) -> float:
