@@ -528,3 +528,16 @@ def test_a_calibration_whose_parts_slipped_is_neither_stored_nor_written(
         "feeder vision: error: the parts slipped during the moves: nothing stored or written"
     ), err
     assert not out.exists() and not (tmp_path / "feeder.sqlite").exists()
+
+
+def test_a_pixel_size_far_from_the_located_one_is_warned_of() -> None:
+    """A stack gain 20 % high: the moves' pixel size 1.143 × the 2.1 µm the parts were located
+    with (the daemon's report too: the warning is the library's); 10 % high (1.048 ×) is not."""
+    _, report = _measure(OffsetPlate(), stack_gain_m_per_v=0.084e-6)
+    assert report["pixel_size_m"] == pytest.approx(2.4e-6, rel=1e-9)
+    assert report["warnings"] == [
+        "the moves' pixel size is 1.143 × the 2.1e-06 m the parts were located with: check the stack "
+        "gain (--stack-gain); a camera later than the whole ramp shows no move"
+    ]
+    _, near = _measure(OffsetPlate(), stack_gain_m_per_v=0.077e-6)
+    assert near["warnings"] == []

@@ -30,9 +30,6 @@ from feeder.files import save_figure
 from feeder.vision.calibration import CameraCalibration
 from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, OffsetMoves, measure
 
-SCALE_WARNING = 0.1
-"""The moves' pixel size and the configured one differ by more than this fraction: say so."""
-
 
 def register(vision: Any) -> None:
     moves = vision.add_parser(
@@ -147,14 +144,7 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
                 report = _measure(links, moves)
         finally:
             links.close()
-        configured = config.camera.pixel_size_m
-        report["configured_pixel_size_m"] = configured
-        ratio = report["pixel_size_m"] / configured
-        if abs(ratio - 1) > SCALE_WARNING:
-            report["warnings"].append(
-                f"the moves' pixel size is {ratio:.3f} × the configured {configured:.4g} m: "
-                "check --stack-gain"
-            )
+        report["configured_pixel_size_m"] = config.camera.pixel_size_m
         located = links.configured_calibration()
         if located is not None and config.plate.planar:  # the daemon checks this at its start
             outside = config.camera.travel_outside(located.updated(report), config.part, config.loop)

@@ -52,6 +52,10 @@ GAIN_UNCERTAINTY = 0.05
 """A stack's stroke per volt (and a lever arm) is known to a few percent: O from one part, whose
 turn is assumed from them, is this fraction of the part's distance from O uncertain besides."""
 
+SCALE_WARNING = 0.1
+"""The moves' pixel size and the one the parts were located with (configured or stored) differ
+by more than this fraction: say so (a wrong stack gain, or the moves not seen)."""
+
 RADIUS_MARGIN = 1.25
 """The parts' distances from O, measured with the configured calibration, are taken this much
 larger for the θ increment (the configured O may be off)."""
@@ -149,7 +153,7 @@ def measure(
             moving = None
     finally:
         _ground(amplifiers, moving, moves.volts)
-    return _fit(images, moves)
+    return _fit(images, moves, located_with.pixel_size_m)
 
 
 def _move(
@@ -266,7 +270,9 @@ def _mean_and_error(points: np.ndarray) -> Points:
     return Points(points.mean(axis=0), np.hypot(*spread.T) / math.sqrt(len(points)))
 
 
-def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves) -> dict[str, Any]:
+def _fit(
+    images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves, located_m: float
+) -> dict[str, Any]:
     stroke = moves.stack_gain_m_per_v * moves.volts
     plate, image = [], []
     for axis, direction in (("x", (stroke, 0.0)), ("y", (0.0, stroke))):
@@ -286,6 +292,12 @@ def _fit(images: Mapping[str, tuple[Points, Points, Points]], moves: OffsetMoves
         "anisotropy": fit.anisotropy,
     }
     warnings: list[str] = []
+    ratio = fit.pixel_size_m / located_m
+    if abs(ratio - 1) > SCALE_WARNING:
+        warnings.append(
+            f"the moves' pixel size is {ratio:.3f} × the {located_m:.4g} m the parts were located with: "
+            "check the stack gain (--stack-gain); a camera later than the whole ramp shows no move"
+        )
     if "theta" in images:
         centre, move_error = _centre(
             images["theta"], stroke / moves.lever_arm_m, fit.mirrored, fit.residual_px
