@@ -248,8 +248,7 @@ def _image_points(
             log.debug("steady after %d frames, %.2f s", read, time.monotonic() - started)
             return _mean_and_error(points[-moves.frames :])
         if time.monotonic() > deadline:
-            mean, error, _ = _mean_and_error(points[-moves.frames :])
-            return Points(mean, error, float(np.max(shift)))
+            return _mean_and_error(points[-moves.frames :])._replace(unsteady_px=float(np.max(shift)))
         if deadline == math.inf:
             deadline = time.monotonic() + moves.steady_timeout_s
 
