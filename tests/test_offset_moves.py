@@ -328,6 +328,26 @@ def test_a_noisy_slowly_settling_image_is_waited_for() -> None:
     assert report["unsteady_px"] == 0.0 and report["slipped"] is False
 
 
+def test_one_frame_of_a_noisy_camera_is_not_taken_for_a_slip() -> None:
+    """``--frames 1`` with 0.02 px of noise and moves of 0.7 px (20 V): the frames' standard
+    error comes from the whole steady window, so the parts' return within the noise is no slip
+    (before: the error of one frame was 0, and 10 of 10 seeds were refused as slipped), while a
+    slip on the way up still is."""
+    for seed in range(10):
+        plate = OffsetPlate()
+        axes, _ = rig(plate)
+        camera = SettlingCamera(plate, 1e-9, 0.02)
+        camera.rng = np.random.default_rng(seed)
+        report = measure(axes, camera, CONFIGURED, dataclasses.replace(plate.moves, volts=20.0, frames=1))
+        assert report["slipped"] is False, (seed, report["returned_px"], report["warnings"])
+        assert report["pixel_size_m"] == pytest.approx(2.0e-6, rel=0.05)
+        assert 0.3 < report["origin_uncertainty_px"] / (0.02 / report["turn_rad"]) < 3  # not 0
+    plate = OffsetPlate(slip_above_v=0.07)
+    axes, _ = rig(plate)
+    moves = dataclasses.replace(plate.moves, volts=20.0, frames=1, increment_v=0.1)
+    assert measure(axes, SettlingCamera(plate, 1e-9, 0.02), CONFIGURED, moves)["slipped"] is True
+
+
 def test_an_image_that_keeps_moving_is_reported_when_the_wait_runs_out() -> None:
     """A drift of 0.05 px a frame never settles: after ``steady_timeout_s`` the last frames are
     taken, and the report says how far the image still moved (3 frames between the halves)."""

@@ -217,7 +217,8 @@ def _image_points(
     moved_from: Points | None = None,
 ) -> Points:
     """Every part's centre in the image (parts, 2) px averaged over the last ``moves.frames``
-    frames of a steady image, and that mean's standard error (px, per part; 0 from one frame).
+    frames of a steady image, and that mean's standard error (px, per part; from the noise of
+    every frame in the window, :func:`_mean_and_error`).
 
     Frames are read until the image stops moving (:data:`STEADY_FRAMES`; ``moved_from``: the
     points before the move, for :data:`STEADY_FRACTION`), at most ``moves.steady_timeout_s``
@@ -242,13 +243,15 @@ def _image_points(
         late = points[-half:].mean(axis=0)
         shift = np.hypot(*(late - points[:half].mean(axis=0)).T)
         moved = 0.0 if moved_from is None else np.hypot(*(late - moved_from.mean).T)
-        noise = STEADY_ERRORS * _frame_noise(points) * math.sqrt(2 / half)  # the shift's errors
-        allowed = np.maximum(max(STEADY_PX, noise), STEADY_FRACTION * moved)
+        noise = _frame_noise(points)
+        shift_error = noise * math.sqrt(2 / half)  # of the difference of the halves' means
+        allowed = np.maximum(max(STEADY_PX, STEADY_ERRORS * shift_error), STEADY_FRACTION * moved)
         if np.all(shift <= allowed):
             log.debug("steady after %d frames, %.2f s", read, time.monotonic() - started)
-            return _mean_and_error(points[-moves.frames :])
+            return _mean_and_error(points[-moves.frames :], noise)
         if time.monotonic() > deadline:
-            return _mean_and_error(points[-moves.frames :])._replace(unsteady_px=float(np.max(shift)))
+            unsteady = float(np.max(shift))
+            return _mean_and_error(points[-moves.frames :], noise)._replace(unsteady_px=unsteady)
         if deadline == math.inf:
             deadline = time.monotonic() + moves.steady_timeout_s
 
@@ -263,10 +266,12 @@ def _frame_noise(points: np.ndarray) -> float:
     return float(min(first, second))
 
 
-def _mean_and_error(points: np.ndarray) -> Points:
-    """The mean of frames' points (frames, parts, 2) px and its standard error (parts,) px."""
-    spread = np.std(points, axis=0, ddof=1) if len(points) > 1 else np.zeros(points.shape[1:])
-    return Points(points.mean(axis=0), np.hypot(*spread.T) / math.sqrt(len(points)))
+def _mean_and_error(points: np.ndarray, noise_px: float) -> Points:
+    """The mean of frames' points (frames, parts, 2) px and its standard error (parts,) px from
+    one frame's noise ``noise_px`` in a coordinate (:func:`_frame_noise` of the whole steady
+    window: the spread of the few frames averaged, one of them with ``--frames 1``, says little)."""
+    error = math.sqrt(2 / len(points)) * noise_px  # both coordinates
+    return Points(points.mean(axis=0), np.full(points.shape[1], error))
 
 
 def _fit(
