@@ -11,6 +11,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -75,6 +76,11 @@ def test_a_part_reaches_five_random_poses_by_the_simulators_truth(
     history = [r for r in client.history(10) if r.status == "done"]
     assert [r.raw["target_pose"] for r in history] == [list(t) for t in random_targets(5, seed=16)]
     assert all(r.raw["reached_pose"] is not None for r in history)
+    deadline = time.monotonic() + 10.0  # at rest, the camera's noise is measured (15 frames/s)
+    while (status := client.request("status"))["sensor_noise_seen_m"] is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert 0.005e-6 < status["sensor_noise_seen_m"] < status["sensor_noise_m"], status["sensor_noise_seen_m"]
+    assert status["sensor_noise_warning"] is None
 
 
 @pytest.mark.parametrize("transport", ["can", "serial"])

@@ -299,6 +299,8 @@ def run_status(args: argparse.Namespace) -> int:
         )
     if reply.get("moves_refused"):
         print(f"moves refused: {reply['moves_refused']}")
+    if reply.get("sensor_noise_warning"):
+        print(f"warning: {reply['sensor_noise_warning']}")
     if len(reply.get("axes") or {}) > 1:  # a plate driven in the plane
         for line in plane_status_lines(reply):
             print(line)

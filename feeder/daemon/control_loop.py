@@ -159,6 +159,8 @@ class ControlLoop:
         commands wait meanwhile; afterwards the policy takes every axis as grounded, and the
         next job enables and applies its waveforms again."""
         with self.executor.lent() as amplifiers:
+            with self._lock:
+                self.policy.output_lent()
             try:
                 yield amplifiers
             finally:

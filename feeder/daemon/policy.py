@@ -64,6 +64,7 @@ from feeder.daemon.jobs import (
 from feeder.daemon.line_navigator import LineNavigator
 from feeder.daemon.navigator import Navigator, part_pose
 from feeder.daemon.step_estimator import StepEstimate
+from feeder.reading_noise import RestingNoise
 
 STATES = ("idle", "moving", "settling", "holding", "fault")
 
@@ -111,6 +112,8 @@ class Policy:
         self._position_saved_s = -math.inf
         self._idle_until = math.inf  # when the output is grounded if no job comes
         self._grounded = True  # every axis known grounded (the daemon grounds them at start)
+        self._lent = False  # the output driven outside the policy (offset moves)
+        self.resting_noise = RestingNoise()
         self._now = 0.0
         self._out: list[Output] = []
 
@@ -168,6 +171,10 @@ class Policy:
         reading = poses or ((position_m, 0.0, 0.0),)
         self.reading = reading
         job = self.job
+        if job is None and self.state == "idle" and self._pending is None and not self._lent:
+            self.resting_noise.add([c for x, y, _ in poses for c in (x, y)] if poses else [position_m])
+        else:
+            self.resting_noise.restart()
         if job is None:
             return
         part = part_pose(job, reading)
@@ -256,9 +263,15 @@ class Policy:
         if self.sensor_lost is None:
             self.state = "idle"
 
+    def output_lent(self) -> None:
+        """The axes are driven outside the policy from now on (a camera calibration's offset
+        moves): the parts are not at rest (:attr:`resting_noise`) until :meth:`output_taken`."""
+        self._lent = True
+
     def output_taken(self) -> None:
         """The axes were driven outside the policy (a camera calibration's offset moves) and
         left grounded: the next job enables and applies its waveforms again."""
+        self._lent = False
         self._applied = {}
         self._enabled = False
         self._grounded = True
@@ -268,6 +281,7 @@ class Policy:
         """A new sensor link: the position is uncertain until it reports."""
         self.sensor_lost = None
         self.reading = None
+        self.resting_noise = RestingNoise()  # another sensor's, perhaps
         if self.fault is None:
             self.state = "idle"
 

@@ -10,6 +10,9 @@ from typing import Any
 
 from feeder.daemon.control_loop import ControlLoop, Job, StepMode
 
+NOISE_WARNING = 2.0
+"""``status`` warns when the sensor's noise seen at rest is over this many times the configured."""
+
 
 def loop_status(loop: ControlLoop, parts_info: tuple[dict[str, Any], ...]) -> dict[str, Any]:
     """The loop's part of ``status``: state (``fault`` while the amplifier or the sensor is
@@ -38,8 +41,23 @@ def loop_status(loop: ControlLoop, parts_info: tuple[dict[str, Any], ...]) -> di
         **plane_status(loop, parts_info),
         "timing": loop.timing(),
         "sensor_latency_s": loop.policy.latency_s,
+        **sensor_noise(loop.policy.resting_noise.sigma_m, loop.settings.sensor_noise_m),
         "last_result": None if loop.last_result is None else loop.last_result.as_dict(),
     }
+
+
+def sensor_noise(seen_m: float | None, configured_m: float) -> dict[str, Any]:
+    """The sensor's noise as configured (``[loop] sensor_noise_m``) and as seen while the parts
+    were at rest (:class:`~feeder.reading_noise.RestingNoise`; None before enough readings), and
+    a warning when the one seen is over :data:`NOISE_WARNING` × the configured."""
+    warning = None
+    if seen_m is not None and seen_m > NOISE_WARNING * configured_m:
+        warning = (
+            f"the sensor's readings of parts at rest scatter {seen_m * 1e6:.3g} µm (1σ), over "
+            f"{NOISE_WARNING:g} × [loop] sensor_noise_m = {configured_m * 1e6:.3g} µm: the settle "
+            "band, the stall test and the step learning assume the configured value; set it"
+        )
+    return {"sensor_noise_m": configured_m, "sensor_noise_seen_m": seen_m, "sensor_noise_warning": warning}
 
 
 def plane_status(loop: ControlLoop, parts_info: tuple[dict[str, Any], ...]) -> dict[str, Any]:

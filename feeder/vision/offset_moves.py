@@ -37,6 +37,7 @@ import numpy as np
 from feeder.drivers.amplifier import Amplifier, AmplifierError
 from feeder.drivers.sensor import PositionSensor
 from feeder.errors import FeederError, InputError
+from feeder.reading_noise import reading_noise
 from feeder.vision.calibration import CameraCalibration, axes_from_moves, rotation_centre
 
 log = logging.getLogger(__name__)
@@ -68,7 +69,8 @@ class MovesStopped(FeederError):
 STEADY_FRAMES = 6
 """The image is steady when the two halves of the last ``max(frames, STEADY_FRAMES)`` frames
 show every part at the same place: within :data:`STEADY_ERRORS` standard errors of the
-difference of their means (from the frames' noise, :func:`_frame_noise`), ..."""
+difference of their means (from the frames' noise,
+:func:`~feeder.reading_noise.reading_noise`), ..."""
 
 STEADY_ERRORS = 3.0
 """(a still image seen as moving costs a frame; a moving one seen as still biases the move)"""
@@ -243,7 +245,7 @@ def _image_points(
         late = points[-half:].mean(axis=0)
         shift = np.hypot(*(late - points[:half].mean(axis=0)).T)
         moved = 0.0 if moved_from is None else np.hypot(*(late - moved_from.mean).T)
-        noise = _frame_noise(points)
+        noise = reading_noise(points)
         shift_error = noise * math.sqrt(2 / half)  # of the difference of the halves' means
         allowed = np.maximum(max(STEADY_PX, STEADY_ERRORS * shift_error), STEADY_FRACTION * moved)
         if np.all(shift <= allowed):
@@ -256,20 +258,11 @@ def _image_points(
             deadline = time.monotonic() + moves.steady_timeout_s
 
 
-def _frame_noise(points: np.ndarray) -> float:
-    """One frame's noise in a coordinate (px) from frames' points (frames, parts, 2): the median of
-    the frame-to-frame changes or of their changes (white noise: 0.674 √2 σ and 0.674 √6 σ),
-    the smaller.  A step in the image (a lagging camera) changes one frame-to-frame change,
-    which their median ignores; a steady drift changes every one, but none of their changes."""
-    first = np.median(np.abs(np.diff(points, axis=0))) / (0.6745 * math.sqrt(2))
-    second = np.median(np.abs(np.diff(points, n=2, axis=0))) / (0.6745 * math.sqrt(6))
-    return float(min(first, second))
-
-
 def _mean_and_error(points: np.ndarray, noise_px: float) -> Points:
     """The mean of frames' points (frames, parts, 2) px and its standard error (parts,) px from
-    one frame's noise ``noise_px`` in a coordinate (:func:`_frame_noise` of the whole steady
-    window: the spread of the few frames averaged, one of them with ``--frames 1``, says little)."""
+    one frame's noise ``noise_px`` in a coordinate (:func:`~feeder.reading_noise.reading_noise`
+    of the whole steady window: the spread of the few frames averaged, one of them with
+    ``--frames 1``, says little)."""
     error = math.sqrt(2 / len(points)) * noise_px  # both coordinates
     return Points(points.mean(axis=0), np.full(points.shape[1], error))
 
