@@ -41,11 +41,12 @@ def reading_noise(points: np.ndarray) -> float:
 
 
 class RestingNoise:
-    """σ (m) of a coordinate of the parts' readings taken while nothing moved them
-    (:meth:`add`); :meth:`restart` when something may move them, so
-    that no change spans a move.  :attr:`sigma_m` (None before :data:`MIN_CHANGES` changes at
-    rest) is a plain attribute, renewed every :data:`RENEW_EVERY` readings by the thread that
-    adds them: another may read it at any time."""
+    """σ (m) of a coordinate of the parts' readings taken while nothing moved them (:meth:`add`;
+    :meth:`restart` when something may move them, so that no change spans a move).
+
+    :attr:`sigma_m` (None before :data:`MIN_CHANGES` changes at rest) is a plain attribute,
+    renewed every :data:`RENEW_EVERY` readings by the thread that adds them: another thread may
+    read it at any time."""
 
     def __init__(self) -> None:
         self.sigma_m: float | None = None
