@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-MIN_CHANGES = 40
+MIN_CHANGES = 100
 """:class:`RestingNoise` states σ from this many changes (and changes of changes) on."""
 KEPT_CHANGES = 2000
 """... and from the last this many of each, ..."""

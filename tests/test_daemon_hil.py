@@ -26,6 +26,7 @@ from typing import Any
 
 import pytest
 
+from feeder.cli import main
 from feeder.daemon.client import Client
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.camera import StreamCamera
@@ -190,6 +191,23 @@ def test_moves_converge_and_the_step_is_learned_within_5_percent(base: Path, tra
     assert est["coarse/forward"]["step_m"] == pytest.approx(truth[0], rel=0.05)
     assert est["coarse/backward"]["step_m"] == pytest.approx(truth[1], rel=0.05)
     assert process_gone(daemon.ready["simulator_pid"])  # stopped with its daemon
+
+
+def test_a_sensor_noisier_than_configured_is_measured_at_rest_and_warned_of(
+    base: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The simulator's sensor at 0.4 µm (1σ) against the configured 0.1 µm: the daemon measures
+    it from the readings at rest within 15 %, and ``status`` and ``feeder status`` warn."""
+    daemon = DaemonProcess(base, "--sim-arg=--camera-noise-m=4e-7")
+    try:
+        status = daemon.wait_for(lambda s: s["sensor_noise_seen_m"] is not None)
+        assert main(["status", "--socket", str(daemon.socket)]) == 0
+    finally:
+        assert daemon.stop() == 0
+    assert status["sensor_noise_seen_m"] == pytest.approx(0.4e-6, rel=0.15)
+    assert status["sensor_noise_m"] == 0.1e-6
+    assert "over 2 × [loop] sensor_noise_m" in status["sensor_noise_warning"]
+    assert f"warning: {status['sensor_noise_warning']}" in capsys.readouterr().out.splitlines()
 
 
 def test_sigkill_mid_move_restarts_with_calibration_and_history(base: Path) -> None:

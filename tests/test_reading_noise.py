@@ -57,7 +57,7 @@ def test_the_policy_measures_the_noise_only_while_nothing_moves_the_parts() -> N
     change of ~100 µm), nor do those while the output is lent (a camera calibration's ramps)."""
     rig = Rig()
     rng = np.random.default_rng(7)
-    for _ in range(60):
+    for _ in range(MIN_CHANGES + 20):
         rig.position_m = rng.normal(0.0, 0.4e-6)
         rig.tick()
     idle = rig.policy.resting_noise.sigma_m
