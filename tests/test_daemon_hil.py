@@ -207,7 +207,10 @@ def test_a_sensor_noisier_than_configured_is_measured_at_rest_and_warned_of(
     assert status["sensor_noise_seen_m"] == pytest.approx(0.4e-6, rel=0.15)
     assert status["sensor_noise_m"] == 0.1e-6
     assert "over 2 × [loop] sensor_noise_m" in status["sensor_noise_warning"]
-    assert f"warning: {status['sensor_noise_warning']}" in capsys.readouterr().out.splitlines()
+    printed = capsys.readouterr().out.splitlines()
+    assert f"warning: {status['sensor_noise_warning']}" in printed
+    seen = next(line for line in printed if line.startswith("sensor noise (1σ): 0.100 µm configured, "))
+    assert seen.endswith(" µm seen at rest") and float(seen.split(", ")[1].split()[0]) > 0.3, seen
 
 
 def test_sigkill_mid_move_restarts_with_calibration_and_history(base: Path) -> None:

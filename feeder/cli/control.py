@@ -320,6 +320,12 @@ def run_status(args: argparse.Namespace) -> int:
                 f"step {name}: {_um(est.step_m)} ± {_um(est.std_m)} after {est.steps} steps"
                 + (f" (predicted {_um(predicted[mode])})" if mode in predicted else "")
             )
+    if "sensor_noise_m" in reply:
+        seen = reply.get("sensor_noise_seen_m")
+        print(
+            f"sensor noise (1σ): {_um(reply['sensor_noise_m'])} configured, "
+            + ("not measured yet (parts at rest)" if seen is None else f"{_um(seen)} seen at rest")
+        )
     t = reply.get("timing")
     if t:
         print(
