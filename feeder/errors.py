@@ -19,6 +19,18 @@ if TYPE_CHECKING:
     from feeder.daemon.replies import MoveResult
 
 
+SHOWN_CHARS = 160
+"""The longest text a one-line error quotes whole (:func:`shown`)."""
+
+
+def shown(text: str, limit: int = SHOWN_CHARS) -> str:
+    """``text`` quoted for a one-line error: whole up to ``limit`` characters, else its start and
+    its end around "…", so a long path keeps its file name and a pasted blob cannot flood the line."""
+    if len(text) > limit:
+        text = f"{text[: limit // 2 - 1]}…{text[-(limit // 2) :]}"
+    return repr(text)
+
+
 class FeederError(Exception):
     """Base of every error this package raises on purpose."""
 

@@ -71,6 +71,18 @@ class RenderedFrames(FrameSource):
         pass
 
 
+class LiveRenderedFrames(RenderedFrames):
+    """The same frames from a live camera, which then shows nothing more."""
+
+    live = True
+
+    def _grab(self) -> tuple[np.ndarray, float | None] | None:
+        grabbed = super()._grab()
+        if grabbed is None:
+            self._closed.wait()
+        return grabbed
+
+
 def samples(sensor: CameraPoseSensor, count: int) -> list:
     return [sensor.read(10.0) for _ in range(count)]
 
@@ -123,6 +135,31 @@ def test_read_raises_sensor_lost_with_the_reason() -> None:
         sensor.close()
     with pytest.raises(SensorLost, match="closed"):
         sensor.read(0.1)
+
+
+@pytest.mark.parametrize("live", [False, True])
+def test_a_slow_reader_gets_every_sample_of_a_recording_and_the_newest_of_a_live_camera(live: bool) -> None:
+    """A reader slower than the locating: a recording's samples wait to be read (none lost, as
+    its frames), a live camera's newest sample replaces the unread one (no backlog)."""
+    scenes = [[(k * 20e-6, 0.0, 0.1)] for k in range(5)]
+    source = LiveRenderedFrames(scenes) if live else RenderedFrames(scenes)
+    sensor = CameraPoseSensor(source, CALIBRATION, TEMPLATE, parts=1)
+    got = []
+    try:
+        while len(got) < len(scenes):
+            time.sleep(0.5)  # a frame is rendered and located in some 10 ms
+            try:
+                got.append(sensor.read(1.0))
+            except SensorLost:
+                break  # a live camera's frames were all located while the reader slept
+    finally:
+        sensor.close()
+    if live:
+        assert len(got) < len(scenes) and got[-1].sequence == len(scenes) - 1
+    else:
+        assert [s.sequence for s in got] == list(range(len(scenes)))
+        for sample, scene in zip(got, scenes, strict=True):
+            assert sample.poses[0][0] == pytest.approx(scene[0][0], abs=POSITION_TOLERANCE_M)
 
 
 def _truth(url: str) -> list[tuple[float, float, float]]:

@@ -15,7 +15,7 @@ from decimal import Decimal, DecimalException
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from feeder.errors import InputError
+from feeder.errors import InputError, shown
 from feeder.parts import (
     DENSITY_RANGE_KG_M3,
     PART_SIDE_RANGE_UM,
@@ -146,10 +146,10 @@ def input_path(text: str) -> Path:
     try:
         if not path.is_file():
             raise argparse.ArgumentTypeError(
-                f"no such file: {text[:80]!r}" if not path.exists() else f"not a regular file: {text!r}"
+                f"no such file: {shown(text)}" if not path.exists() else f"not a regular file: {shown(text)}"
             )
     except OSError as err:  # e.g. a name too long
-        raise argparse.ArgumentTypeError(f"cannot read {text[:40]!r}: {err.strerror}") from None
+        raise argparse.ArgumentTypeError(f"cannot read {shown(text)}: {err.strerror}") from None
     return path
 
 

@@ -6,7 +6,9 @@ recording) on its own thread, locates the parts (:func:`feeder.vision.locate.loc
 converts pixels to the plate frame (:class:`~feeder.vision.calibration.CameraCalibration`)
 and keeps the newest :class:`~feeder.drivers.sensor.PositionSample`; the caller's
 :meth:`~CameraPoseSensor.read` only waits for it, so locating never costs the
-caller's thread (a control loop's tick) any time.
+caller's thread (a control loop's tick) any time.  A live camera's newest sample
+replaces one not yet read; a recording's waits until it was read, so that, as its
+frames, none of its samples is lost however slow the reader.
 
 Per frame:
 
@@ -122,10 +124,7 @@ class CameraPoseSensor(PositionSensor):
         """The newest sample not yet returned; :class:`SensorLost` if none within ``timeout_s``."""
         with self._cond:
             fresh = self._cond.wait_for(
-                lambda: (
-                    self._closed.is_set()
-                    or (self._latest is not None and self._latest.sample.sequence > self._returned)
-                ),
+                lambda: self._closed.is_set() or self._unread(),
                 timeout_s,
             )
             if self._closed.is_set():
@@ -134,6 +133,7 @@ class CameraPoseSensor(PositionSensor):
                 why = self._error or "no frame with every part located"
                 raise SensorLost(f"{self.source.name}: no poses within {timeout_s:g} s ({why})")
             self._returned = self._latest.sample.sequence
+            self._cond.notify_all()  # a recording's next sample waits for this one to be read
             return self._latest.sample
 
     def latest_image(self) -> LocatedFrame | None:
@@ -165,9 +165,15 @@ class CameraPoseSensor(PositionSensor):
             sample = self._sample(frame, detections)
             result = LocatedFrame(frame.image, sample, detections, full, time.perf_counter() - started)
             with self._cond:
+                if not self.source.live:
+                    self._cond.wait_for(lambda: self._closed.is_set() or not self._unread())
                 self._latest = result
                 self._error = ""
                 self._cond.notify_all()
+
+    def _unread(self) -> bool:
+        """A sample is waiting to be read (call with the condition held)."""
+        return self._latest is not None and self._latest.sample.sequence > self._returned
 
     def _set_error(self, reason: str) -> None:
         with self._cond:

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from feeder.errors import InputError
+from feeder.errors import InputError, shown
 from feeder.files import read_toml, toml_number
 from feeder.waveform import Waveform
 
@@ -226,7 +226,7 @@ def limits_from_table(table: Mapping[str, Any], where: str) -> AmplifierLimits:
         # a design file names its amplifier by model or by the file it came from and lists
         # every limit; an unknown base (a typo) must not silently fill the rest with defaults
         known = ", ".join([*AMPLIFIER_MODELS, *AMPLIFIER_ALIASES])
-        raise InputError(f"{where}model", f"{str(model)[:80]!r} is not a known amplifier ({known}) to take "
+        raise InputError(f"{where}model", f"{shown(str(model))} is not a known amplifier ({known}) to take "
                          f"{', '.join(missing)} from; name one or give every limit")  # fmt: skip
     base = AMPLIFIER_MODELS.get(name, AmplifierLimits()) if name else AmplifierLimits()
     values: dict[str, float] = {}
@@ -269,7 +269,7 @@ def resolve_amplifier(spec: str, field: str = "--amplifier") -> tuple[str, Ampli
         exists = False
     if path.suffix.lower() != ".toml" and not exists:
         known = ", ".join([*AMPLIFIER_MODELS, *AMPLIFIER_ALIASES])
-        raise InputError(field, f"{spec[:80]!r} is neither a known amplifier ({known}) nor a TOML file")
+        raise InputError(field, f"{shown(spec)} is neither a known amplifier ({known}) nor a TOML file")
     return str(path), load_amplifier(path)
 
 
