@@ -20,6 +20,7 @@ import pytest
 from canopen.objectdictionary import ObjectDictionary, ODRecord, ODVariable
 
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost, DriveSettings
+from feeder.drivers.axes import open_canopen_axes
 from feeder.drivers.canopen import CanopenAmplifier
 from feeder.errors import FeederError
 from feeder.protocol.eds import object_dictionary
@@ -144,6 +145,41 @@ def test_a_node_another_master_left_stopped_is_brought_back_and_connects() -> No
                 amp.close()
         finally:
             master.disconnect()
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_a_bus_gone_is_reported_lost_and_released_without_raising(shared: bool) -> None:
+    """The adapter unplugged (python-can: ``CanOperationError``, ENETDOWN, from the receiver):
+    the link is lost, and letting it go does not raise that error again (canopen's disconnect
+    re-raises it: the daemon's release, then its reconnect, would stop there)."""
+    with sim_node() as (_, _, bus):
+        if shared:  # the daemon's path: the plate's axes on one network
+            axes = open_canopen_axes(bus, {"x": 1}, NODE_ID, heartbeat_s=HEARTBEAT_S, timeout_s=0.5)
+            amp = axes["x"]
+        else:
+            amp = connect(bus)
+        assert isinstance(amp, CanopenAmplifier)
+        network = amp.network
+        assert network.bus is not None
+        receive = network.bus._recv_internal
+        failed = threading.Event()
+
+        def gone(timeout: float | None) -> tuple[can.Message | None, bool]:
+            if not failed.is_set():
+                failed.set()
+                raise can.CanOperationError("Error receiving: Network is down", 100)
+            return receive(timeout)
+
+        network.bus._recv_internal = gone  # type: ignore[method-assign]
+        deadline = time.monotonic() + 5.0
+        while amp.lost is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert amp.lost is not None and "Network is down" in str(amp.lost)
+        if shared:
+            axes.release()
+        else:
+            amp.close()
+        assert network.bus is None  # let go all the same
 
 
 def test_nothing_at_the_node_id_is_not_answering() -> None:

@@ -21,6 +21,7 @@ grounds every axis at once and grounds them all when closed.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 from collections.abc import Mapping
 from types import TracebackType
@@ -32,6 +33,7 @@ from feeder.drivers.amplifier import Amplifier, AmplifierError
 from feeder.drivers.anc300 import Anc300Amplifier
 from feeder.drivers.anc300_link import Anc300Link
 from feeder.drivers.canopen import open_node_axes
+from feeder.drivers.canopen_link import disconnect
 from feeder.errors import InputError
 from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
 from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
@@ -152,7 +154,7 @@ def open_canopen_axes(
     network.connect(**dict(bus))
     drivers: dict[str, Amplifier] = {}
     with contextlib.ExitStack() as undo:  # a node that does not answer: release the others
-        undo.callback(network.disconnect)
+        undo.callback(disconnect, network)
         for node, members in nodes.items():
             opened = open_node_axes(
                 bus, node, members.values(), object_dictionary(node, eds), network=network, **options
@@ -161,4 +163,4 @@ def open_canopen_axes(
                 undo.callback(driver.close)
             drivers.update({name: opened[number] for name, number in members.items()})
         undo.pop_all()
-    return Axes(drivers, network.disconnect)
+    return Axes(drivers, functools.partial(disconnect, network))

@@ -165,7 +165,7 @@ class CanopenNodeLink:
         self.network.notifier.add_listener(_BusErrors(self._on_bus_error))
         with contextlib.ExitStack() as undo:  # any failure from here disconnects (our own network)
             if self._owns_network:
-                undo.callback(self.network.disconnect)
+                undo.callback(disconnect, self.network)
             self.node = canopen.RemoteNode(node_id, od)
             self.node.sdo.RESPONSE_TIMEOUT = timeout_s
             self.network.add_node(self.node)
@@ -426,11 +426,18 @@ class CanopenNodeLink:
         self._closing.set()
         if self._watchdog.is_alive():
             self._watchdog.join(timeout=1.0)
-        if not self._owns_network:
-            return
-        # the adapter may be gone already (e.g. its pty closed): nothing left to release
-        with contextlib.suppress(can.CanError, OSError):
-            self.network.disconnect()
+        if self._owns_network:
+            disconnect(self.network)
+
+
+def disconnect(network: canopen.Network) -> None:
+    """Let ``network``'s bus go.  canopen raises, once the bus is shut down, the error that
+    stopped its receiver (a bus gone: python-can's ``CanOperationError``, e.g. ENETDOWN, or a
+    closed pty): the link was reported lost for it already, so it is logged, not raised."""
+    try:
+        network.disconnect()
+    except (can.CanError, OSError) as exc:
+        log.info("CAN bus released after its error: %s", exc)
 
 
 class _BusErrors(can.Listener):
