@@ -206,6 +206,37 @@ def test_node_stopped_by_nmt_is_reported(rig: Rig) -> None:
         other.disconnect()
 
 
+def test_a_node_that_left_operational_and_drives_on_is_grounded_by_sdo(
+    rig: Rig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Another master puts the node in PRE-OPERATIONAL; unlike our simulated node, a real drive
+    may keep its axis running (CiA 301 does not stop outputs on a state change).  The link is
+    lost and refuses steps, but ``ground`` reaches the node by SDO, which it still serves."""
+    amp, axis = rig.amp, rig.firmware.axis(2)
+    amp.apply(FAST)
+    amp.enable()
+    amp.run_continuous(forward=True)
+    other = canopen.Network()
+    other.NOTIFIER_CYCLE = 0.1
+    other.connect(interface="virtual", channel=rig.channel)
+    try:
+        with monkeypatch.context() as drives_on:
+            drives_on.setattr(axis, "stop", lambda: None)  # the state change leaves it running
+            other.nmt.send_command(0x80)  # every node: PRE-OPERATIONAL
+            deadline = time.monotonic() + 5.0
+            while amp.lost is None and time.monotonic() < deadline:
+                time.sleep(0.01)
+        assert "reported NMT state PRE-OPERATIONAL" in (amp.lost or "")
+        assert axis.status().moving
+        with pytest.raises(AmplifierLinkLost):
+            amp.step(5)
+        amp.ground()
+        status = axis.status()
+        assert status.mode == "gnd" and not status.moving
+    finally:
+        other.disconnect()
+
+
 def test_a_host_that_dies_mid_move_gets_the_axis_grounded(rig: Rig) -> None:
     amp, axis = rig.amp, rig.firmware.axis(2)
     amp.apply(FAST)

@@ -15,7 +15,9 @@ node (start-up, SDO, heartbeat), shared by one :class:`CanopenAmplifier` per axi
 - node loss from the node's heartbeat: no heartbeat for
   :data:`~feeder.drivers.canopen_link.HEARTBEAT_LOSS_PERIODS`
   periods, or a heartbeat reporting anything but OPERATIONAL, marks the node lost;
-  every later call on any of its axes raises :class:`AmplifierLinkLost` without sending.
+  every later call on any of its axes raises :class:`AmplifierLinkLost` without sending,
+  but :meth:`~CanopenAmplifier.ground`, which is tried by SDO while the node still beats
+  (CiA 301: a node that left OPERATIONAL may drive on, and serves SDO in PRE-OPERATIONAL).
 
 The bus is plain python-can keyword arguments, so the transport is configuration::
 
@@ -154,9 +156,10 @@ class CanopenAmplifier(Amplifier):
 
     # -- SDO and RPDO -----------------------------------------------------------
 
-    def _sdo_write(self, name: str, value: int) -> None:
-        """Write this axis' object ``name`` (its one-axis EDS name)."""
-        self.link.sdo_write(self._names[name], value, self.who)
+    def _sdo_write(self, name: str, value: int, lost_ok: bool = False) -> None:
+        """Write this axis' object ``name`` (its one-axis EDS name); ``lost_ok``: see
+        :meth:`.CanopenNodeLink.sdo_write`."""
+        self.link.sdo_write(self._names[name], value, self.who, lost_ok=lost_ok)
 
     def _sdo_read(self, name: str) -> int:
         """Read this axis' object ``name`` (its one-axis EDS name)."""
@@ -257,11 +260,12 @@ class CanopenAmplifier(Amplifier):
             return done
 
     def ground(self) -> None:
+        """Mode = gnd; tried on a lost node too while it still beats (it may drive on)."""
         with self._lock:
-            self._sdo_write("Mode", MODES.index("gnd"))
+            self._sdo_write("Mode", MODES.index("gnd"), lost_ok=True)
             if self._offset_mode:  # grounded: a later offset mode starts from 0 V, not from it
                 self._offset_mode = False
-                self._sdo_write("Offset", 0)
+                self._sdo_write("Offset", 0, lost_ok=True)
 
     def enable(self) -> None:
         with self._lock:

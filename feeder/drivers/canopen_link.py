@@ -363,10 +363,16 @@ class CanopenNodeLink:
 
     # -- SDO ---------------------------------------------------------------------
 
-    def sdo_write(self, name: str, value: int, who: str | None = None) -> None:
+    def beating(self) -> bool:
+        """The node's heartbeat is fresh, whatever state it reports: it is there to answer."""
+        return time.monotonic() - self._last_heartbeat < HEARTBEAT_LOSS_PERIODS * self.heartbeat_s
+
+    def sdo_write(self, name: str, value: int, who: str | None = None, *, lost_ok: bool = False) -> None:
         """Write object ``name`` (its EDS name; ``Record.Sub`` for a sub-object); ``who``
-        names the axis in errors."""
-        with self._transfer(f"{name} = {value}", who):
+        names the axis in errors.  ``lost_ok``: tried even once the node is lost, while it
+        still beats (grounding: a node that left OPERATIONAL serves SDO in PRE-OPERATIONAL,
+        and CiA 301 does not make a state change stop its outputs)."""
+        with self._transfer(f"{name} = {value}", who, lost_ok=lost_ok and self.beating()):
             self.node.sdo[name].raw = value
 
     def sdo_read(self, name: str, who: str | None = None) -> int:
@@ -383,10 +389,12 @@ class CanopenNodeLink:
         return int.from_bytes(data[:size], "little")
 
     @contextlib.contextmanager
-    def _transfer(self, what: str, who: str | None) -> Iterator[None]:
+    def _transfer(self, what: str, who: str | None, lost_ok: bool = False) -> Iterator[None]:
         """One SDO transfer (``what``: the object, and the value written), serialised; its
-        failures as :class:`AmplifierError` (an abort) or :class:`AmplifierLinkLost`."""
-        self.check()
+        failures as :class:`AmplifierError` (an abort) or :class:`AmplifierLinkLost`.  Refused
+        at once on a lost node unless ``lost_ok``."""
+        if not lost_ok:
+            self.check()
         try:
             with self.sdo_lock:
                 yield
