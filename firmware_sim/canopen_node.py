@@ -144,7 +144,10 @@ class CanopenNode:
     ``od``: the object dictionary (default: the packaged one-axis EDS).
     ``start()`` boots the node (boot-up message, PRE-OPERATIONAL, heartbeat);
     ``close()`` stops it and shuts the bus down.  ``poll_s`` is how often the
-    node samples its axes for event-driven TPDOs and EMCY.
+    node samples its axes for event-driven TPDOs and EMCY.  ``operational_with_errors``
+    False: as CANopenNode with ``CO_NMT_ERR_ON_ERR_REG`` (its examples' default), the node
+    leaves OPERATIONAL for PRE-OPERATIONAL while its error register is set (its outputs
+    left as they are), so a start does not hold until the faults are cleared.
     """
 
     def __init__(
@@ -155,10 +158,12 @@ class CanopenNode:
         bus: can.BusABC,
         od: ObjectDictionary | None = None,
         poll_s: float = 0.001,
+        operational_with_errors: bool = True,
     ) -> None:
         self.firmware = firmware
         self.node_id = node_id
         self.poll_s = poll_s
+        self.operational_with_errors = operational_with_errors
         od = od if od is not None else object_dictionary(node_id)
         numbers = (axes,) if isinstance(axes, int) else tuple(axes)
         if len(numbers) != axis_count(od):
@@ -431,6 +436,9 @@ class CanopenNode:
             register = self._register(statuses)
             packed = {port.number: port.pack_tpdo(statuses[port.number], register) for port in self.ports}
         state = self.nmt_state
+        if register and state == NMT_OPERATIONAL and not self.operational_with_errors:
+            self.local.nmt.send_command(NMT_ENTER_PRE_OPERATIONAL)
+            state = NMT_PRE_OPERATIONAL
         reports = state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL)
         for port in self.ports:
             status = statuses[port.number]

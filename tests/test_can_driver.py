@@ -285,3 +285,47 @@ def test_hold_offset_is_the_offset_mode(rig: Rig) -> None:
     amp.hold_offset(0.25)  # grounding ended the offset mode: the driver selects it again
     assert (axis.status().mode, axis.status().offset_v) == ("off", 0.25)
     amp.ground()
+
+
+@pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+@pytest.mark.parametrize("latched", [Fault.HOST_WATCHDOG, Fault.OVERTEMP])
+def test_a_node_that_refuses_operational_with_a_latched_fault(latched: Fault) -> None:
+    """A node that leaves OPERATIONAL while its error register is set (CANopenNode's examples).
+    A host_watchdog latched by a host before (it fell silent mid-move) is cleared on connect,
+    the axis still grounded, and the driver drives it; any other fault is named when the
+    start does not hold, and the failed connect leaves no host heartbeat beating."""
+    channel = f"test-can-driver-{uuid.uuid4().hex}"
+    firmware = Firmware(FirmwareConfig(watchdog_s=5.0))
+    stop = threading.Event()
+    ticker = threading.Thread(target=firmware.run, args=(RealTimeClock(), stop), daemon=True)
+    ticker.start()
+    bus = can.Bus(interface="virtual", channel=channel)
+    node = CanopenNode(firmware, 2, NODE_ID, bus, operational_with_errors=False).start()
+    axis = firmware.axis(2)
+    try:
+        axis.inject_fault(latched)
+        options = {"heartbeat_s": HEARTBEAT_S, "timeout_s": 0.5, "supervise_host": True}
+        if latched is Fault.OVERTEMP:
+            with pytest.raises(
+                AmplifierLinkLost, match=r"no TPDO after start \(faults latched, axis 1: overtemp"
+            ):
+                CanopenAmplifier({"interface": "virtual", "channel": channel}, NODE_ID, **options)
+            time.sleep(3 * HEARTBEAT_S)
+            assert not [t for t in threading.enumerate() if t.name.startswith("canopen-host-heartbeat")]
+            return
+        amp = CanopenAmplifier({"interface": "virtual", "channel": channel}, NODE_ID, **options)
+        try:
+            status = amp.status()
+            assert (status.faults, status.mode) == ((), "gnd")
+            amp.apply(FAST)
+            amp.enable()
+            before = status.step_counter
+            amp.step(20)
+            assert amp.wait(10.0) and amp.status().step_counter == before + 20
+            assert amp.lost is None  # the node stayed OPERATIONAL
+        finally:
+            amp.close()
+    finally:
+        node.close()
+        stop.set()
+        ticker.join(timeout=2.0)

@@ -135,6 +135,27 @@ def test_an_error_reset_clears_the_emcy(rig: Rig, amp: CanopenAmplifier) -> None
     assert amp.wait(5.0)
 
 
+def test_an_error_reset_naming_no_axis_clears_only_once_the_register_is_clear(
+    rig: Rig, amp: CanopenAmplifier
+) -> None:
+    """CANopenNode's EMCY 0x0000 as one of several errors clears (byte 7 its own: 0): the
+    error register it carries still set keeps the axis' EMCY; a register of 0 clears it."""
+    amp.apply(FAST)
+    amp.enable()
+    rig.firmware.axis(1).inject_fault(Fault.OVERTEMP)
+    wait_until(lambda: amp.emcy is not None)
+    with can.Bus(interface="virtual", channel=rig.channel) as other:
+        other.send(
+            can.Message(
+                arbitration_id=0x80 + NODE_ID, data=bytes([0, 0, 0x09, 0, 0, 0, 0, 0]), is_extended_id=False
+            )
+        )
+        time.sleep(0.3)
+        assert "EMCY 0x4200 over-temperature on axis 1" in str(amp.emcy)
+        other.send(can.Message(arbitration_id=0x80 + NODE_ID, data=bytes(8), is_extended_id=False))
+        wait_until(lambda: amp.emcy is None)
+
+
 def test_the_executor_ends_the_burst_as_a_refused_command(rig: Rig, amp: CanopenAmplifier) -> None:
     """The daemon's side: confirm_end completes with the EMCY as its error, not a lost link."""
     mode = StepMode("coarse", FAST, 1e-6, (0.5e-6, 1.5e-6))

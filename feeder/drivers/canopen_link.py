@@ -30,9 +30,13 @@ from feeder import stall
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost
 from feeder.drivers.canopen_heartbeat import HOST_SILENCE_PERIODS, HostHeartbeat
 from feeder.errors import InputError
+from feeder.protocol import anc300
 from feeder.protocol.eds import axis_count, axis_object, object_dictionary
 
 log = logging.getLogger(__name__)
+
+HOST_WATCHDOG = anc300.FAULT_BITS["host_watchdog"]
+"""The fault word of an axis whose only fault is a host that fell silent."""
 
 DEFAULT_HOST_ID = 127
 """The node id the host beats as (``[amplifier.can] host_id``)."""
@@ -171,6 +175,7 @@ class CanopenNodeLink:
             self.network.add_node(self.node)
             self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
             self.node.emcy.add_callback(self._on_emcy)
+            undo.callback(self._stop_beating)  # a failed start leaves no host heartbeat behind
             self._start()
             undo.pop_all()
         stall.watch()
@@ -184,7 +189,8 @@ class CanopenNodeLink:
     def _start(self) -> None:
         """Bring the node to PRE-OPERATIONAL, probe it by SDO (its product code, which must be
         the EDS's), check its PDO mappings against the EDS, enable its heartbeat (0x1017) and
-        wait for a beat, start it and wait for every axis' first TPDO.
+        wait for a beat, clear a host_watchdog latched before this host (supervising),
+        start it and wait for every axis' first TPDO.
 
         The heartbeat is enabled before it is awaited: a node may ship with 0x1017 = 0
         (CiA 301: no heartbeat), and a booted node's only unasked frame, its boot-up
@@ -218,6 +224,7 @@ class CanopenNodeLink:
                 CONSUMER_HEARTBEAT, self.host_id << 16 | round(HOST_SILENCE_PERIODS * self.heartbeat_s * 1000)
             )
             self.host_heartbeat = HostHeartbeat(self.network, self.host_id, self.heartbeat_s)
+            self._clear_host_watchdog()
         for axis, feedback in self.feedback.items():
             self.sdo_write(tpdo_type(axis), 255)  # event-driven: on change and on its timer
             self.node.tpdo[axis].add_callback(functools.partial(self._on_tpdo, axis))
@@ -228,9 +235,37 @@ class CanopenNodeLink:
                 lambda: all(f.seen for f in self.feedback.values()), self.timeout_s + 0.2
             )
             if not all_seen:
-                raise AmplifierLinkLost(f"CANopen node {self.node_id}: no TPDO after start")
+                raise AmplifierLinkLost(f"CANopen node {self.node_id}: no TPDO after start{self._latched()}")
             # TPDOs flow only in OPERATIONAL: from here on any other state is a loss.
             self._started = True
+
+    def _stop_beating(self) -> None:
+        if self.host_heartbeat is not None:
+            self.host_heartbeat.stop()
+
+    def _latched(self) -> str:
+        """Why a node may not stay OPERATIONAL: its latched faults, as a clause ("" if none)."""
+        named = []
+        with contextlib.suppress(AmplifierError):
+            for axis in self.feedback:
+                word = self.sdo_read(self.name(axis, "Fault word"))
+                if word:
+                    named.append(f"axis {axis}: {', '.join(anc300.fault_names(word)) or hex(word)}")
+        if not named:
+            return ""
+        return f" (faults latched, {'; '.join(named)}: a node may leave OPERATIONAL while they are)"
+
+    def _clear_host_watchdog(self) -> None:
+        """Clear a ``host_watchdog`` that a host before this one latched (it fell silent
+        mid-move): a host supervises the node again, and the axis stays grounded.  Needed, not
+        only tidy: a node that leaves OPERATIONAL while its error register is set (CANopenNode's
+        ``CO_NMT_ERR_ON_ERR_REG``, in its examples' defaults) would refuse the start below."""
+        if not self.sdo_read("Error register"):
+            return
+        for axis in self.feedback:
+            if self.sdo_read(self.name(axis, "Fault word")) == HOST_WATCHDOG:
+                log.warning("%s axis %d: clearing the host_watchdog latched before this host", self.who, axis)
+                self.sdo_write(self.name(axis, "Fault reset"), 1)
 
     def _check_mapping(self, label: str, pdo: canopen.pdo.PdoMap) -> None:
         """Refuse a node that maps ``pdo`` (named ``label``) otherwise than the EDS does: the
@@ -300,11 +335,17 @@ class CanopenNodeLink:
 
     def _on_emcy(self, entry: canopen.emcy.EmcyError) -> None:
         """An EMCY from the node (receive thread): log it, remember it for the axis its byte 7
-        names (every axis when it names none of them), wake waits; an error reset clears it."""
+        names (every axis when it names none of them), wake waits; an error reset clears it.
+        A reset naming no axis clears every axis only once the error register it carries is
+        0: CANopenNode resets each error as it clears, with byte 7 its own (usually 0)."""
         data = bytes(entry.data)
         named = data[4] if len(data) >= 5 else 0  # byte 7 of the frame: the axis in its node
         axes = [named] if named in self.feedback else list(self.feedback)
-        if entry.code & 0xFF00 == 0:  # error reset / no error (CiA 301)
+        reset = entry.code & 0xFF00 == 0  # error reset / no error (CiA 301)
+        if reset and named not in self.feedback and entry.register:
+            log.info("%s: EMCY error reset on no axis, errors left (0x%02X)", self.who, entry.register)
+            return
+        if reset:
             log.info("%s: EMCY 0x%04X error reset on axis %s", self.who, entry.code, named or "all")
             with self.changed:
                 for axis in axes:
@@ -426,11 +467,10 @@ class CanopenNodeLink:
         """Release the node; outputs are left alone (the node stops watching us first)."""
         if self._closing.is_set():
             return
-        if self.host_heartbeat is not None:
-            if self._lost is None:
-                with contextlib.suppress(AmplifierError):
-                    self.sdo_write(CONSUMER_HEARTBEAT, 0)
-            self.host_heartbeat.stop()
+        if self.host_heartbeat is not None and self._lost is None:
+            with contextlib.suppress(AmplifierError):
+                self.sdo_write(CONSUMER_HEARTBEAT, 0)
+        self._stop_beating()
         self._closing.set()
         if self._watchdog.is_alive():
             self._watchdog.join(timeout=1.0)
