@@ -75,7 +75,8 @@ class ConsoleSession:
         and a wait would hold a serial console, its only session, until then).
     dialect: ``anc300`` answers only a real ANC300's verbs (every extension gets
         its error reply, ``Unknown command``) and, like the unit, runs whole hertz
-        (``setf`` rounds to the nearest); ``extended`` adds the extensions
+        (``setf`` rounds to the nearest) and ends ``getf``'s line with an extra LF;
+        ``extended`` adds the extensions
         (:data:`feeder.protocol.anc300.VERBS`) and takes fractional hertz.
     throttle, source: password tries are paced by ``throttle`` under the name
         ``source`` (the peer's address); ``None`` = unpaced (tests).
@@ -94,7 +95,7 @@ class ConsoleSession:
     ) -> None:
         self.firmware = firmware
         self.verbs = verbs_of(dialect)
-        self.whole_hertz = dialect == "anc300"
+        self.as_the_unit = dialect == "anc300"
         self.password = password
         self.true_step = true_step
         self.max_line = max_line
@@ -238,12 +239,15 @@ class ConsoleSession:
     def _setf(self, axis: Axis, args: list[str]) -> list[str]:
         _arity(args, 1)
         hz = _number(args[0], "frequency")
-        axis.set_frequency(float(round(hz)) if self.whole_hertz else hz)
+        axis.set_frequency(float(round(hz)) if self.as_the_unit else hz)
         return []
 
     def _getf(self, axis: Axis, args: list[str]) -> list[str]:
         _arity(args, 0)
-        return [f"frequency = {frequency_text(axis.status().frequency_hz)} Hz"]
+        line = f"frequency = {frequency_text(axis.status().frequency_hz)} Hz"
+        # the unit ends this one line with an extra LF before its CRLF (pymeasure's recorded
+        # exchange; qcodes: "Response for getf is terminated with '\n'")
+        return [line + "\n"] if self.as_the_unit else [line]
 
     def _setv(self, axis: Axis, args: list[str]) -> list[str]:
         _arity(args, 1)

@@ -239,7 +239,7 @@ def test_the_pty_keeps_the_session_and_unread_replies_when_closed_like_a_real_un
     time.sleep(0.4)
     port = RawPort(pty.path)
     late = port.read(0.2)
-    assert late == (b"frequency = 100 Hz\r\nOK\r\n" if keep_session else b"")
+    assert late == (b"frequency = 100 Hz\n\r\nOK\r\n" if keep_session else b"")  # the unit's getf LF
     port.send("getm 1")  # a new session echoes and prompts; the kept one had echo off
     reply = port.read(0.3)
     port.close()

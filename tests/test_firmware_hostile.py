@@ -34,7 +34,8 @@ def session(fw: Firmware, dialect: str = "anc300") -> ConsoleSession:
 
 
 def lines(s: ConsoleSession, text: str) -> list[str]:
-    return s.feed(text.encode() + b"\r\n").decode("ascii").split("\r\n")[:-1]
+    """The reply's lines (the real unit's getf line ends with an extra LF: dropped)."""
+    return [line.rstrip("\n") for line in s.feed(text.encode() + b"\r\n").decode("ascii").split("\r\n")[:-1]]
 
 
 # -- stepw ----------------------------------------------------------------------------
