@@ -22,6 +22,7 @@ from feeder.drivers.video_camera import (
     open_camera,
     prefer_grey_free_running,
     request_frame_size,
+    request_genicam_size,
 )
 from firmware_sim.camera_http import CameraFeed, CameraHttpServer, Snapshot, free_port
 from firmware_sim.camera_render import CameraModel, FrameRenderer, PartInImage
@@ -219,7 +220,7 @@ def test_genicam_components_become_grey_images() -> None:
 
 
 class _Node:
-    def __init__(self, value: str, symbolics: tuple[str, ...] = ()) -> None:
+    def __init__(self, value: str | int, symbolics: tuple[str, ...] = ()) -> None:
         self.value = value
         self.symbolics = symbolics
 
@@ -239,6 +240,55 @@ def test_genicam_camera_set_to_grey_and_free_running() -> None:
 
     prefer_grey_free_running(Mono12NoTrigger, (AttributeError,))
     assert Mono12NoTrigger.PixelFormat.value == "Mono12"
+
+
+class _Side:
+    """A GenICam Width or Height whose largest value shrinks as its offset grows."""
+
+    def __init__(self, value: int, largest: int, offset: _Node) -> None:
+        self._value, self.largest, self.offset = value, largest, offset
+
+    @property
+    def value(self) -> int:
+        return self._value
+
+    @value.setter
+    def value(self, value: int) -> None:
+        if value + int(self.offset.value) > self.largest:
+            raise ValueError(f"{value} out of range with offset {self.offset.value}")
+        self._value = value
+
+
+def test_genicam_camera_asked_for_the_frame_size_moves_its_roi_to_0_only_if_needed() -> None:
+    class NodeMap:
+        OffsetX = _Node(100)
+        OffsetY = _Node(8)
+        Width = _Side(640, 2048, OffsetX)
+        Height = _Side(480, 1536, OffsetY)
+
+    request_genicam_size(NodeMap, (2048, 480), (AttributeError, ValueError))
+    assert (NodeMap.Width.value, NodeMap.OffsetX.value) == (2048, 0)  # 2048 needed OffsetX 0
+    assert (NodeMap.Height.value, NodeMap.OffsetY.value) == (480, 8)  # already so: left alone
+    request_genicam_size(NodeMap, (1024, 1000), (AttributeError, ValueError))
+    assert (NodeMap.Width.value, NodeMap.Height.value, NodeMap.OffsetY.value) == (1024, 1000, 8)
+
+    class NoRoi:  # a camera without the features is left as it is
+        pass
+
+    request_genicam_size(NoRoi, (2048, 2048), (AttributeError, ValueError))
+
+
+def test_a_genicam_camera_is_asked_for_the_frame_size() -> None:
+    """viky's cameras start at 400 × 400 px: asked for 320 × 240, they give it (before, every
+    frame was refused as of another size)."""
+    genicam = pytest.importorskip("genicam")
+    pytest.importorskip("harvesters.core")
+    producer = Path(genicam.__file__).parent / "viky.cti"
+    if not producer.is_file():
+        pytest.skip("no viky.cti in the genicam package")
+    with open_camera(f"genicam:{producer}", size_px=(320, 240)) as camera:
+        frame = camera.read(timeout_s=20)
+    assert frame.image.shape == (240, 320)
 
 
 def test_genicam_colour_camera_gives_grey_frames() -> None:

@@ -10,8 +10,8 @@
   through its GenTL producer (the optional ``harvesters`` package: ``pip install feeder[genicam]``),
   set to grey pixels and free running where it offers them.
 
-With ``size_px`` a device camera is asked for that frame size, and any source whose frames
-have another size stops passing them on: :meth:`FrameSource.read` raises
+With ``size_px`` a device camera (USB or GenICam) is asked for that frame size, and any source
+whose frames have another size stops passing them on: :meth:`FrameSource.read` raises
 :class:`CameraSizeError` (the pose sensor would place the plate origin wrongly).
 
 A reader thread per source keeps ONE frame: live sources (cameras, streams)
@@ -350,7 +350,23 @@ def component_image(component: Any) -> np.ndarray:
     return cv2.cvtColor(image, codes[layout, int(components)])
 
 
-def _set_node(node_map: Any, name: str, value: str, errors: tuple[type[Exception], ...]) -> bool:
+def request_genicam_size(
+    node_map: Any, size_px: tuple[int, int], errors: tuple[type[Exception], ...]
+) -> None:
+    """Ask a GenICam camera for ``size_px`` frames (``Width``, ``Height``), its offsets set to 0
+    first where the size needs them (the largest size allowed shrinks as the offset grows)."""
+    for offset, side, value in (("OffsetX", "Width", size_px[0]), ("OffsetY", "Height", size_px[1])):
+        try:
+            if int(getattr(node_map, side).value) == value:
+                continue
+        except errors as exc:
+            log.debug("GenICam %s not readable: %s", side, exc)
+            continue
+        if not _set_node(node_map, side, value, errors) and _set_node(node_map, offset, 0, errors):
+            _set_node(node_map, side, value, errors)
+
+
+def _set_node(node_map: Any, name: str, value: str | int, errors: tuple[type[Exception], ...]) -> bool:
     """Set a GenICam feature where the camera has it and lets it be set; whether it was set."""
     try:
         getattr(node_map, name).value = value
@@ -420,7 +436,10 @@ class GenICamSource(FrameSource):
             self._acquirer = self._harvester.create(key)
         except (ValueError, IndexError) as exc:
             raise CameraError(f"no GenICam camera {key!r}: {exc}") from exc
-        prefer_grey_free_running(self._acquirer.remote_device.node_map, self._node_errors)
+        node_map = self._acquirer.remote_device.node_map
+        prefer_grey_free_running(node_map, self._node_errors)
+        if self.size_px is not None:
+            request_genicam_size(node_map, self.size_px, self._node_errors)
         self._acquirer.start()
 
     def _grab(self) -> tuple[np.ndarray, float | None] | None:
