@@ -234,10 +234,10 @@ class CanopenNodeLink:
             all_seen = self.changed.wait_for(
                 lambda: all(f.seen for f in self.feedback.values()), self.timeout_s + 0.2
             )
-            if not all_seen:
-                raise AmplifierLinkLost(f"CANopen node {self.node_id}: no TPDO after start{self._latched()}")
             # TPDOs flow only in OPERATIONAL: from here on any other state is a loss.
-            self._started = True
+            self._started = all_seen
+        if not all_seen:  # asked outside the lock: the receive thread's callbacks take it
+            raise AmplifierLinkLost(f"CANopen node {self.node_id}: no TPDO after start{self._latched()}")
 
     def _stop_beating(self) -> None:
         if self.host_heartbeat is not None:
