@@ -51,9 +51,8 @@ from feeder.drivers.amplifier import (
     DriveSettings,
 )
 from feeder.drivers.canopen_heartbeat import HostHeartbeat
-from feeder.drivers.canopen_link import DEFAULT_HOST_ID, CanopenNodeLink
+from feeder.drivers.canopen_link import DEFAULT_HOST_ID, CanopenNodeLink, fault_names
 from feeder.errors import InputError
-from feeder.protocol import anc300
 from feeder.protocol.eds import MODES, bit_mask
 
 SETTINGS = ("Flyback shape", "Frequency", "Flyback time", "Amplitude")
@@ -72,13 +71,6 @@ STATE_OBJECTS = (
     "Command acknowledge",
 )
 """The axis' objects besides :data:`SETTINGS` the driver uses (one-axis EDS names)."""
-
-
-def fault_names(word: int) -> tuple[str, ...]:
-    """Names of the bits set in a fault word: the protocol's, then ``fault<bit>`` for
-    bits it does not name (a real drive may set more)."""
-    unknown = word & ~sum(anc300.FAULT_BITS.values())
-    return anc300.fault_names(word) + tuple(f"fault{bit}" for bit in range(32) if unknown >> bit & 1)
 
 
 class CanopenAmplifier(Amplifier):

@@ -38,6 +38,14 @@ log = logging.getLogger(__name__)
 HOST_WATCHDOG = anc300.FAULT_BITS["host_watchdog"]
 """The fault word of an axis whose only fault is a host that fell silent."""
 
+
+def fault_names(word: int) -> tuple[str, ...]:
+    """Names of the bits set in a fault word: the protocol's, then ``fault<bit>`` for
+    bits it does not name (a real drive may set more)."""
+    unknown = word & ~sum(anc300.FAULT_BITS.values())
+    return anc300.fault_names(word) + tuple(f"fault{bit}" for bit in range(32) if unknown >> bit & 1)
+
+
 DEFAULT_HOST_ID = 127
 """The node id the host beats as (``[amplifier.can] host_id``)."""
 
@@ -250,7 +258,7 @@ class CanopenNodeLink:
             for axis in self.feedback:
                 word = self.sdo_read(self.name(axis, "Fault word"))
                 if word:
-                    named.append(f"axis {axis}: {', '.join(anc300.fault_names(word)) or hex(word)}")
+                    named.append(f"axis {axis}: {', '.join(fault_names(word))}")
         if not named:
             return ""
         return f" (faults latched, {'; '.join(named)}: a node may leave OPERATIONAL while they are)"
