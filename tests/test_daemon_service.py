@@ -39,6 +39,7 @@ class FakeLinks:
         self.sensors: list[FakeSensor] = []
         self.configured: CameraCalibration | None = None  # a camera's, as DriverLinks makes it
         self.calibrations: list[CameraCalibration | None] = []  # what each sensor locates with
+        self.frames_paused = False  # sensors opened (a reconnect's too) deliver no frame
 
     def open_amplifier(self) -> FakeAmplifier:
         if not self.amplifier_up:
@@ -49,6 +50,7 @@ class FakeLinks:
 
     def open_sensor(self, calibration: CameraCalibration | None = None) -> FakeSensor:
         sensor = FakeSensor(self.world)
+        sensor.paused = self.frames_paused
         self.sensors.append(sensor)
         self.calibrations.append(calibration)
         return sensor
@@ -201,15 +203,18 @@ def test_killed_mid_move_restarts_uncertain_until_the_sensor_confirms(short_dir:
     store.close()
     world = FakeWorld(TRUE, position_m=51e-6)
     links = FakeLinks(world)
+    links.frames_paused = True  # the camera has not delivered a frame yet
     daemon = Daemon(links, setup)
-    links.sensors[0].paused = True  # the camera has not delivered a frame yet
     daemon.start()
     try:
+        time.sleep(1.5)  # past the sensor's timeout: a reconnect's camera gives no frame either
         status = daemon.status()
         assert status["position_state"] == "uncertain" and status["position_m"] is None
         assert status["last_known_position_m"] == 42e-6
         assert status["interrupted_moves"] == [running]
-        links.sensors[0].paused = False
+        links.frames_paused = False
+        for sensor in links.sensors:
+            sensor.paused = False
         wait_for(lambda: daemon.status()["position_state"] == "confirmed")
         assert daemon.status()["position_m"] == pytest.approx(51e-6)
         history = daemon.handle({"cmd": "history"})["moves"]
