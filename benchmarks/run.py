@@ -34,6 +34,7 @@ BENCHMARKS: tuple[str, ...] = (
     "vision_locate",
     "vision_render",
     "pose_camera",
+    "http_camera",
     "pose_daemon",
     "cli_start",
     "sweep_scaling",

@@ -21,9 +21,10 @@ from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import DriveSettings
 from feeder.drivers.anc300_link import Anc300Link
 from feeder.drivers.axes import open_anc300_axes
+from feeder.drivers.frame_source import FrameSource
 from feeder.drivers.pose_camera import CameraPoseSensor, part_template
 from feeder.drivers.sensor import SensorLost
-from feeder.drivers.video_camera import FrameSource, open_camera
+from feeder.drivers.video_camera import open_camera
 from feeder.pose import pose_error
 from feeder.vision.calibration import CameraCalibration
 from firmware_sim.camera_render import CameraModel, FrameRenderer, PartInImage

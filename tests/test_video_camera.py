@@ -11,10 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
+from feeder.drivers.frame_source import CameraLost, CameraSizeError
 from feeder.drivers.video_camera import (
     CameraError,
-    CameraLost,
-    CameraSizeError,
     CaptureOpening,
     GenICamSource,
     capture_opening,
@@ -307,7 +306,7 @@ def test_genicam_colour_camera_gives_grey_frames() -> None:
 def test_a_stream_that_stays_down_is_logged_once_until_frames_flow(caplog: pytest.LogCaptureFixture) -> None:
     """Each retry of an unreachable stream logged "cannot open" at INFO (45 lines in 21 s during a
     camera outage); now the first, repeats at DEBUG, and again once frames have flowed."""
-    caplog.set_level(logging.DEBUG, logger="feeder.drivers.video_camera")
+    caplog.set_level(logging.DEBUG, logger="feeder.drivers.frame_source")
     port = free_port()
     camera = open_camera(f"http://127.0.0.1:{port}/video.mjpg")
     try:

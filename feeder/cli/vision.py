@@ -268,7 +268,8 @@ def _plot(image: np.ndarray, result: LocateResult, path: Path) -> None:
 def run_grab(args: argparse.Namespace) -> int:
     import cv2
 
-    from feeder.drivers.video_camera import CameraError, CameraLost, open_camera
+    from feeder.drivers.frame_source import CameraLost
+    from feeder.drivers.video_camera import CameraError, open_camera
 
     check_target(args.out, "--out")
     try:

@@ -41,8 +41,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from feeder.drivers.frame_source import Frame, FrameSource
 from feeder.drivers.sensor import PositionSample, PositionSensor, SensorLost
-from feeder.drivers.video_camera import Frame, FrameSource
 from feeder.vision.calibration import CameraCalibration
 from feeder.vision.locate import locate, to_gray
 from feeder.vision.model import Detection, PartTemplate, angle_difference

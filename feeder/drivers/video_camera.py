@@ -1,26 +1,20 @@
-"""Camera sources on the host: one interface over ``cv2.VideoCapture`` and GenICam (harvesters).
+"""Camera sources on the host: one interface over ``cv2.VideoCapture``, HTTP and GenICam (harvesters).
 
 :func:`open_camera` takes what a user types:
 
 - ``0``, ``1``: a USB (UVC) camera by index; ``/dev/video0``, ``/dev/v4l/by-id/...``: by device
   path (stable across reboots); both through OpenCV's V4L2 back end on Linux, opened at once;
-- ``http://127.0.0.1:8080/video.mjpg``, ``rtsp://...``: a network camera (OpenCV's FFmpeg back end);
+- ``http://127.0.0.1:8080/video.mjpg`` (an MJPEG stream) or ``http://HOST/snapshot.jpg`` (a still
+  image, fetched again for each frame): a network camera over HTTP (feeder/drivers/http_camera.py);
+- ``rtsp://...`` and other URLs: a network camera through OpenCV's FFmpeg back end;
 - ``run.avi``: a video file; ``frames/``: a folder of images (read in name order);
 - ``genicam:/opt/producer.cti`` or ``genicam:/opt/producer.cti#SERIAL``: a GenICam camera
   through its GenTL producer (the optional ``harvesters`` package: ``pip install feeder[genicam]``),
   set to grey pixels and free running where it offers them.
 
 With ``size_px`` a device camera (USB or GenICam) is asked for that frame size, and any source
-whose frames have another size stops passing them on: :meth:`FrameSource.read` raises
-:class:`CameraSizeError` (the pose sensor would place the plate origin wrongly).
-
-A reader thread per source keeps ONE frame: live sources (cameras, streams)
-overwrite it, so :meth:`FrameSource.read` always returns the newest frame and
-the backlog never grows (skipped frames show as gaps in ``sequence``);
-recorded sources (files, folders) wait for it to be taken, so none is lost.
-A live source that fails is reopened (back-off up to ``max_backoff_s``) until
-closed; :meth:`FrameSource.read` raises :class:`CameraLost` while no frame
-comes.
+whose frames have another size stops passing them on (feeder/drivers/frame_source.py: one
+frame kept per source, the newest of a live one, reopened with back-off when it fails).
 """
 
 from __future__ import annotations
@@ -29,18 +23,16 @@ import contextlib
 import logging
 import os
 import sys
-import threading
-import time
-from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import cv2
 import numpy as np
 
-from feeder.drivers.sensor import CameraError, SensorLost
+from feeder.drivers.frame_source import FrameSource
+from feeder.drivers.http_camera import HttpCameraSource
+from feeder.drivers.sensor import CameraError
 
 # OpenCV's and FFmpeg's own warnings go to stderr beside this module's errors on every failed
 # open (a camera that stays down: every reconnect); the failures come back as those errors
@@ -49,153 +41,6 @@ os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # read when its back end 
 
 log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".pgm")
-
-
-class CameraLost(SensorLost):
-    """No frame within the timeout: the camera is gone (reconnecting) or the recording ended."""
-
-
-class CameraSizeError(CameraError, CameraLost):
-    """Frames of another size than asked for: a setup error, and no frames to whoever waits for them."""
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One image (as the camera delivers it: grey or BGR, 8 or 16 bit).
-
-    time_s: host ``time.monotonic()`` when the frame arrived.
-    source_time_s: the source's own timestamp (stream/file position, camera clock), if any.
-    sequence: frames delivered by the source so far, from 0 (gaps = frames skipped for newer ones).
-    """
-
-    image: np.ndarray
-    time_s: float
-    source_time_s: float | None
-    sequence: int
-
-
-class FrameSource(ABC):
-    """A camera: a reader thread fills a one-frame slot (see the module doc)."""
-
-    live = True
-
-    def __init__(self, name: str, max_backoff_s: float = 2.0, size_px: tuple[int, int] | None = None) -> None:
-        self.name = name
-        self.max_backoff_s = max_backoff_s
-        self.size_px = size_px
-        self._cond = threading.Condition()
-        self._slot: Frame | None = None
-        self._returned = -1
-        self._ended = False
-        self._closed = threading.Event()
-        self.error = ""
-        self._lost: type[CameraLost] = CameraLost
-        self._logged = ""  # the failure last logged at INFO (repeats go to DEBUG)
-        self._thread = threading.Thread(target=self._run, name=f"camera-{name}", daemon=True)
-
-    def _start(self) -> None:
-        self._thread.start()
-
-    @abstractmethod
-    def _open(self) -> None:
-        """Open the device; raise CameraError/OSError if it cannot be."""
-
-    @abstractmethod
-    def _grab(self) -> tuple[np.ndarray, float | None] | None:
-        """The next image and its source timestamp; None at the end (recorded) or on loss (live)."""
-
-    @abstractmethod
-    def _release(self) -> None:
-        """Close the device (may be called when not open)."""
-
-    def _run(self) -> None:
-        sequence, backoff = 0, 0.05
-        while not self._closed.is_set():
-            try:
-                self._open()
-            except (CameraError, OSError, cv2.error) as exc:
-                self._fail(f"cannot open: {exc}")
-            else:
-                first = sequence
-                sequence, wrong_size = self._pass_frames(sequence)
-                self._release()
-                if sequence > first:
-                    backoff, self._logged = 0.05, ""
-                if wrong_size:
-                    self._fail(wrong_size, CameraSizeError)
-                elif self.live:
-                    self._fail("stream lost, reconnecting")
-            if not self.live or self._closed.wait(backoff):
-                break
-            backoff = min(2 * backoff, self.max_backoff_s)
-        with self._cond:
-            self._ended = True
-            self._cond.notify_all()
-
-    def _pass_frames(self, sequence: int) -> tuple[int, str]:
-        """Pass the open source's frames on until it ends or fails: the next sequence number, and
-        why it was left if a frame is not of ``size_px`` (else "")."""
-        while not self._closed.is_set():
-            try:
-                grabbed = self._grab()
-            except (CameraError, OSError, cv2.error) as exc:
-                log.warning("camera %s: %s", self.name, exc)
-                grabbed = None
-            if grabbed is None:
-                break
-            image, source_time = grabbed
-            height, width = image.shape[:2]
-            if self.size_px is not None and (width, height) != self.size_px:
-                asked_w, asked_h = self.size_px
-                return sequence, f"frames are {width}x{height} px, not the {asked_w}x{asked_h} px asked for"
-            frame = Frame(image, time.monotonic(), source_time, sequence)
-            sequence += 1
-            with self._cond:
-                if not self.live:
-                    self._cond.wait_for(lambda: self._slot is None or self._closed.is_set())
-                self._slot = frame
-                self._cond.notify_all()
-        return sequence, ""
-
-    def _fail(self, reason: str, lost: type[CameraLost] = CameraLost) -> None:
-        """Record why the source failed; logged once (INFO) until frames flow again, then at DEBUG
-        (a camera that stays down was retried, and logged, about twice a second)."""
-        with self._cond:
-            self.error = reason
-            self._lost = lost
-        log.log(logging.DEBUG if reason == self._logged else logging.INFO, "camera %s: %s", self.name, reason)
-        self._logged = reason
-
-    def read(self, timeout_s: float = 1.0) -> Frame:
-        """The newest frame not yet returned; CameraLost if none comes within ``timeout_s``."""
-        with self._cond:
-            fresh = self._cond.wait_for(
-                lambda: (self._slot is not None and self._slot.sequence > self._returned) or self._ended,
-                timeout_s,
-            )
-            if not fresh or self._slot is None or self._slot.sequence <= self._returned:
-                why = self.error or ("the recording ended" if self._ended and not self.live else "no frame")
-                raise self._lost(f"{self.name}: no frame within {timeout_s:g} s ({why})")
-            frame = self._slot
-            self._returned = frame.sequence
-            if not self.live:
-                self._slot = None
-                self._cond.notify_all()
-            return frame
-
-    def close(self) -> None:
-        self._closed.set()
-        with self._cond:
-            self._cond.notify_all()
-        self._thread.join(timeout=5.0)
-
-    def __enter__(self) -> FrameSource:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
 
 
 @dataclass(frozen=True)
@@ -479,6 +324,8 @@ def open_camera(spec: str, size_px: tuple[int, int] | None = None) -> FrameSourc
         return GenICamSource(Path(producer), serial or None, size_px=size_px)
     if spec.isdigit():
         return VideoCaptureSource(int(spec), size_px=size_px)
+    if spec.startswith(("http://", "https://")):
+        return HttpCameraSource(spec, size_px=size_px)
     path = Path(spec)
     if path.is_dir():
         return ImageFolderSource(path, size_px)

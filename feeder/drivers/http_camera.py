@@ -1,0 +1,218 @@
+"""A network camera over HTTP: an MJPEG stream, or a still image fetched again for each frame.
+
+An MJPEG stream (``multipart/x-mixed-replace``: what IP and microscope cameras, mjpg-streamer,
+ustreamer, motion and firmware_sim serve) is read here part by part, not through FFmpeg.
+FFmpeg's MJPEG demuxer refuses every part not labelled exactly ``Content-Type: image/jpeg``
+(``image/jpg``, or no type at all, which cameras also send) and OpenCV silences its reason, so
+such a camera opened and then gave no frame, reconnecting for ever. Here a part is whatever
+lies between two boundary lines: its ``Content-Length`` when it gives one, else up to the next
+boundary; its type is not checked, its bytes are decoded by OpenCV (JPEG, PNG, ...), and one
+that cannot be decoded is an error naming its size and type.
+
+A URL that serves an image (``image/*``: a camera's snapshot URL) is fetched again for each frame.
+
+Credentials in the URL (``http://user:password@host/...``) are sent by HTTP basic or digest
+authentication, as the camera asks; the source's name (in logs and errors) hides the password.
+Proxies from the environment are not used: a lab camera is reached directly.
+"""
+
+from __future__ import annotations
+
+import http.client
+import logging
+import urllib.error
+import urllib.request
+from email.message import Message
+from typing import Any
+from urllib.parse import SplitResult, unquote, urlsplit, urlunsplit
+
+import cv2
+import numpy as np
+
+from feeder.drivers.frame_source import FrameSource
+from feeder.drivers.sensor import CameraError
+
+log = logging.getLogger(__name__)
+
+MAX_HEADER_LINE = 8192
+"""Bytes: a longer header line is not a header (a stream gone wrong)."""
+MAX_IMAGE_BYTES = 64 * 2**20
+"""Bytes: a larger part or image is not a frame."""
+_BODY_LINE = 65536  # bytes read at most at once while looking for the boundary after a body
+_JPEG_START = b"\xff\xd8"
+
+
+def shown_url(parts: SplitResult) -> str:
+    """The URL as logs and errors show it: the password, if any, replaced by ``***``."""
+    if parts.password is None:
+        return urlunsplit(parts)
+    host = parts.netloc.rpartition("@")[2]
+    return urlunsplit(parts._replace(netloc=f"{parts.username}:***@{host}"))
+
+
+def decode_image(data: bytes, content_type: str) -> np.ndarray:
+    """An image from its encoded bytes (grey stays grey, colour is BGR, 16 bits stay 16)."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH)
+    if image is None:
+        stated = content_type or "no stated type"
+        raise CameraError(f"{len(data)} bytes of {stated} that OpenCV cannot decode")
+    return image
+
+
+def _opener(url: str, user: str | None, password: str | None) -> urllib.request.OpenerDirector:
+    handlers: list[urllib.request.BaseHandler] = [urllib.request.ProxyHandler({})]
+    if user is not None:
+        manager = urllib.request.HTTPPasswordMgrWithDefaultRealm()
+        manager.add_password(None, url, unquote(user), unquote(password or ""))
+        handlers += [
+            urllib.request.HTTPDigestAuthHandler(manager),
+            urllib.request.HTTPBasicAuthHandler(manager),
+        ]
+    return urllib.request.build_opener(*handlers)
+
+
+class HttpCameraSource(FrameSource):
+    """A live camera at an ``http://`` or ``https://`` URL (see the module doc).
+
+    timeout_s: for connecting and for each read (a camera silent that long is reopened).
+    """
+
+    def __init__(
+        self,
+        url: str,
+        timeout_s: float = 5.0,
+        max_backoff_s: float = 2.0,
+        size_px: tuple[int, int] | None = None,
+    ) -> None:
+        parts = urlsplit(url)
+        if parts.scheme not in ("http", "https") or not parts.hostname:
+            raise CameraError(f"{shown_url(parts)}: not an http:// or https:// URL with a host")
+        super().__init__(shown_url(parts), max_backoff_s, size_px)
+        self.url = urlunsplit(parts._replace(netloc=parts.netloc.rpartition("@")[2]))
+        self.timeout_s = timeout_s
+        self._credentials = parts.username is not None
+        self._opener = _opener(self.url, parts.username, parts.password)
+        self._response: Any = None  # urllib's response (an http.client.HTTPResponse)
+        self._boundary: bytes | None = None  # a stream's boundary ("" if it names none); None: an image
+        self._at_headers = False  # a part's body was read up to the next boundary line
+        self._start()
+
+    def _request(self) -> Any:
+        """The camera's response, its type checked; CameraError saying what is wrong."""
+        try:
+            response = self._opener.open(self.url, timeout=self.timeout_s)
+        except urllib.error.HTTPError as exc:
+            exc.close()
+            hint = ""
+            if exc.code == 401:
+                hint = (
+                    ": the user name or password in the URL is refused"
+                    if self._credentials
+                    else ": give them in the URL (http://user:password@host/...)"
+                )
+            raise CameraError(f"HTTP {exc.code} {exc.reason}{hint}") from exc
+        except urllib.error.URLError as exc:
+            raise CameraError(str(exc.reason)) from exc
+        except http.client.HTTPException as exc:
+            raise CameraError(f"not an HTTP answer: {exc!r}") from exc
+        headers: Message = response.headers
+        content_type = headers.get_content_type()
+        if content_type.startswith("multipart/"):
+            boundary = headers.get_param("boundary")  # quotes removed; some name it with its "--"
+            self._boundary = boundary.strip().strip("-").encode() if isinstance(boundary, str) else b""
+        elif content_type.startswith("image/"):
+            self._boundary = None
+        else:
+            response.close()
+            raise CameraError(
+                f"serves {content_type}: neither an MJPEG stream (multipart/x-mixed-replace) nor an image"
+            )
+        self._at_headers = False
+        return response
+
+    def _open(self) -> None:
+        self._response = self._request()
+
+    def _grab(self) -> tuple[np.ndarray, float | None] | None:
+        try:
+            if self._response is None:  # a still image: fetched again
+                self._response = self._request()
+            if self._boundary is None:
+                body, content_type, stamp = self._image(), self._response.headers.get_content_type(), None
+                self._release()
+            else:
+                part = self._next_part(self._response)
+                if part is None:
+                    return None
+                body, content_type, stamp = part
+        except http.client.HTTPException as exc:  # a broken chunk or connection mid-read
+            raise CameraError(f"stream broken: {exc!r}") from exc
+        return decode_image(body, content_type), stamp
+
+    def _image(self) -> bytes:
+        body: bytes = self._response.read(MAX_IMAGE_BYTES + 1)
+        if len(body) > MAX_IMAGE_BYTES:
+            raise CameraError(f"an image of over {MAX_IMAGE_BYTES} bytes")
+        return body
+
+    def _is_boundary(self, line: bytes) -> bool:
+        """A boundary line: ``--`` and the boundary (the closing one ends in ``--`` too); with no
+        boundary named, any short line that starts with ``--``."""
+        text = line.strip()
+        if not text.startswith(b"--"):
+            return False
+        return text.strip(b"-") == self._boundary if self._boundary else len(text) <= 72
+
+    def _next_part(self, stream: Any) -> tuple[bytes, str, float | None] | None:
+        """The next part's body, type and ``X-Timestamp`` (s); None where the stream ends."""
+        if not self._at_headers:  # skip to a boundary line (the preamble, the last body's CRLF)
+            while not self._is_boundary(line := stream.readline(MAX_HEADER_LINE)):
+                if not line:
+                    return None
+        self._at_headers = False
+        length, content_type, stamp, first = None, "", None, b""
+        while (line := stream.readline(MAX_HEADER_LINE)) not in (b"\r\n", b"\n"):
+            if not line:
+                return None
+            if line.startswith(_JPEG_START):  # a body without headers
+                first = line
+                break
+            name, _, value = line.decode("latin-1").partition(":")
+            name = name.strip().lower()
+            if name == "content-length":
+                length = _header_number(value, int, MAX_IMAGE_BYTES)
+            elif name == "content-type":
+                content_type = value.strip()
+            elif name == "x-timestamp":
+                stamp = _header_number(value, float, None)
+        if length is not None and not first:
+            body: bytes = stream.read(length)
+            return (body, content_type, stamp) if len(body) == length else None
+        chunks = [first]
+        size = len(first)
+        while not self._is_boundary(line := stream.readline(_BODY_LINE)):
+            if not line:
+                return None
+            chunks.append(line)
+            size += len(line)
+            if size > MAX_IMAGE_BYTES:
+                raise CameraError(f"a part of over {MAX_IMAGE_BYTES} bytes without a boundary")
+        self._at_headers = True
+        body = b"".join(chunks)
+        return body.removesuffix(b"\n").removesuffix(b"\r"), content_type, stamp
+
+    def _release(self) -> None:
+        if self._response is not None:
+            self._response.close()
+            self._response = None
+
+
+def _header_number(value: str, kind: type[Any], largest: int | None) -> Any:
+    """A part header's number (Content-Length, X-Timestamp); CameraError if it is not one."""
+    try:
+        number = kind(value.strip())
+    except ValueError:
+        raise CameraError(f"a part's header {value.strip()[:40]!r} is not a number") from None
+    if largest is not None and not 0 <= number <= largest:
+        raise CameraError(f"a part's Content-Length {number} is not 0 to {largest} bytes")
+    return number

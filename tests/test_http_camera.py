@@ -1,0 +1,192 @@
+"""Network cameras over HTTP as real ones serve them: MJPEG parts labelled ``image/jpg`` or not
+at all, without lengths, PNG parts, still-image URLs, passwords, and pages that are no camera."""
+
+from __future__ import annotations
+
+import base64
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import cv2
+import numpy as np
+import pytest
+
+from feeder.drivers.frame_source import CameraLost
+from feeder.drivers.http_camera import HttpCameraSource
+from feeder.drivers.sensor import CameraError
+from feeder.drivers.video_camera import open_camera
+
+pytestmark = pytest.mark.timeout(60)
+
+Part = Callable[[int], bytes]
+"""The bytes a server sends for its k-th frame (a whole multipart part or a whole image)."""
+
+
+def frame(k: int) -> np.ndarray:
+    """Frame k: a grey gradient whose brightness tells k."""
+    image = np.tile(np.arange(64, dtype=np.uint8), (48, 1))
+    return np.clip(image + 20 * (k % 8), 0, 255).astype(np.uint8)
+
+
+def jpeg(k: int) -> bytes:
+    return bytes(cv2.imencode(".jpg", frame(k), [cv2.IMWRITE_JPEG_QUALITY, 95])[1])
+
+
+class Camera(BaseHTTPRequestHandler):
+    """One server's behaviour: the response's type, each frame's bytes, an optional password."""
+
+    content_type = "multipart/x-mixed-replace; boundary=frame"
+    part: Part = staticmethod(lambda k: b"")
+    stream = True
+    password: str | None = None
+    requests = 0
+
+    def do_GET(self) -> None:
+        type(self).requests += 1
+        if self.password is not None:
+            expected = "Basic " + base64.b64encode(f"lab:{self.password}".encode()).decode()
+            if self.headers.get("Authorization") != expected:
+                self.send_response(401)
+                self.send_header("WWW-Authenticate", 'Basic realm="camera"')
+                self.send_header("Content-Length", "0")
+                self.end_headers()
+                return
+        self.send_response(200)
+        self.send_header("Content-Type", self.content_type)
+        if not self.stream:
+            body = self.part(type(self).requests)
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+            return
+        self.end_headers()
+        try:
+            for k in range(10_000):
+                self.wfile.write(self.part(k))
+                self.wfile.flush()
+                time.sleep(0.01)
+        except (BrokenPipeError, ConnectionResetError):
+            pass
+
+    def log_message(self, format: str, *args: object) -> None:
+        pass
+
+
+@contextmanager
+def camera_server(**behaviour: object) -> Iterator[tuple[str, type[Camera]]]:
+    """A camera at http://127.0.0.1:PORT/video with that behaviour (class attributes of Camera)."""
+    attributes = {k: staticmethod(v) if k == "part" else v for k, v in behaviour.items()}
+    handler = type("ThisCamera", (Camera,), attributes)
+    server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    server.daemon_threads = True
+    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}/video", handler
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def read_frames(url: str, count: int, **options: object) -> list[np.ndarray]:
+    with open_camera(url, **options) as camera:  # type: ignore[arg-type]
+        return [camera.read(timeout_s=10).image for _ in range(count)]
+
+
+def brightness(image: np.ndarray) -> int:
+    """k % 8 of the frame it shows (see ``frame``)."""
+    return round((float(image.mean()) - 31.5) / 20)
+
+
+def test_parts_labelled_image_jpg_are_frames() -> None:
+    """FFmpeg's MJPEG demuxer refuses a part not labelled exactly image/jpeg: such a camera
+    opened and gave no frame, reconnecting for ever."""
+
+    def part(k: int) -> bytes:
+        body = jpeg(k)
+        return b"--frame\r\nContent-Type: image/jpg\r\nContent-Length: %d\r\n\r\n%b\r\n" % (len(body), body)
+
+    with camera_server(part=part) as (url, _):
+        images = read_frames(url, 3)
+    assert all(image.shape == (48, 64) and image.dtype == np.uint8 for image in images)
+    assert np.abs(images[0].astype(int) - frame(brightness(images[0]))).max() <= 3
+
+
+def test_parts_without_type_or_length_and_a_boundary_named_with_its_dashes() -> None:
+    def part(k: int) -> bytes:
+        return b"----myboundary\r\n\r\n" + jpeg(k) + b"\r\n"
+
+    named = 'multipart/x-mixed-replace;boundary="--myboundary"'
+    with camera_server(content_type=named, part=part) as (url, _):
+        images = read_frames(url, 4)
+    shown = [brightness(image) for image in images]
+    assert all(0 <= k < 8 for k in shown) and len(set(shown)) > 1  # frames that change, decoded whole
+    for image, k in zip(images, shown, strict=True):
+        assert np.abs(image.astype(int) - frame(k)).max() <= 3
+
+
+def test_a_stream_of_16_bit_png_parts_keeps_its_depth_and_the_camera_timestamps() -> None:
+    def part(k: int) -> bytes:
+        body = bytes(cv2.imencode(".png", frame(k).astype(np.uint16) * 257)[1])
+        return b"--frame\r\nContent-Type: image/png\r\nX-Timestamp: %d.250\r\n\r\n%b\r\n" % (k, body)
+
+    with camera_server(part=part) as (url, _), open_camera(url) as camera:
+        first = camera.read(timeout_s=10)
+    assert first.image.dtype == np.uint16
+    assert np.array_equal(first.image, frame(brightness(first.image // 257)).astype(np.uint16) * 257)
+    assert first.source_time_s is not None and first.source_time_s % 1 == pytest.approx(0.25)
+
+
+def test_a_still_image_url_is_fetched_again_for_each_frame() -> None:
+    with (
+        camera_server(content_type="image/jpeg", stream=False, part=jpeg) as (url, server),
+        open_camera(url) as camera,
+    ):
+        frames = [camera.read(timeout_s=10) for _ in range(3)]
+        assert server.requests >= 3
+    assert frames[0].sequence < frames[1].sequence < frames[2].sequence
+    assert len({brightness(f.image) for f in frames}) > 1  # new images, not the first one again
+
+
+def test_a_password_is_sent_when_given_and_never_shown() -> None:
+    def part(k: int) -> bytes:
+        body = jpeg(k)
+        return b"--frame\r\nContent-Type: image/jpeg\r\n\r\n%b\r\n" % body
+
+    with camera_server(part=part, password="s3cret") as (url, _):
+        address = url.removeprefix("http://")
+        assert read_frames(f"http://lab:s3cret@{address}", 1)[0].shape == (48, 64)
+        with open_camera(url) as camera, pytest.raises(CameraLost, match=r"HTTP 401.*give them in the URL"):
+            camera.read(timeout_s=1)
+        with open_camera(f"http://lab:wrong@{address}") as camera:
+            assert camera.name == f"http://lab:***@{address}"
+            with pytest.raises(CameraLost, match=r"HTTP 401.*refused") as refused:
+                camera.read(timeout_s=1)
+        assert "wrong" not in str(refused.value)
+
+
+def test_a_page_that_is_no_camera_and_a_part_that_is_no_image_are_named() -> None:
+    page = camera_server(content_type="text/html", part=lambda k: b"<html></html>")
+    not_a_camera = pytest.raises(CameraLost, match=r"serves text/html: neither an MJPEG stream")
+    with page as (url, _), open_camera(url) as camera, not_a_camera:
+        camera.read(timeout_s=1)
+
+    def part(k: int) -> bytes:
+        body = b"not an image at all" if k == 2 else jpeg(k)
+        return b"--frame\r\nContent-Type: image/jpeg\r\n\r\n%b\r\n" % body
+
+    with camera_server(part=part) as (url, server), open_camera(url) as camera:
+        # each connection's third part is garbage: it costs a reconnect, frames come again
+        deadline = time.monotonic() + 10
+        while server.requests < 3 and time.monotonic() < deadline:
+            camera.read(timeout_s=5)
+        assert server.requests >= 3
+        assert camera.error == "stream lost (19 bytes of image/jpeg that OpenCV cannot decode), reconnecting"
+
+
+def test_urls_that_are_not_http_cameras() -> None:
+    with pytest.raises(CameraError, match="not an http:// or https:// URL with a host"):
+        HttpCameraSource("http:///video")
