@@ -14,3 +14,5 @@ DEFAULT_AXIS_MAP: Mapping[str, int] = MappingProxyType({"x": 1, "y": 2, "theta":
 """Plate axis → amplifier axis: ANC300 axes 1–3, or CANopen amplifier axes (node node_id + n − 1
 with the one-axis EDS, axis n of node node_id with the three-axis EDS); ``[plate] axis_map``
 overrides it."""
+MAX_AXIS = 7
+"""Amplifier axes are numbered 1..MAX_AXIS: an ANC300 rack has 7 slots; firmware_sim has as many."""

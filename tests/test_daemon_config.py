@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -97,7 +98,11 @@ def test_full_file(tmp_path: Path) -> None:
         ("[control]\nspeed = 3", "control.speed"),
         ("[control]\naverage_samples = 2.5", "average_samples"),
         ("[control]\nmin_position_m = 1e-3\nmax_position_m = 0.0", "min_position_m"),
-        ("[part]\nsize = '300x300'", "--part"),
+        ("[part]\nsize = '300x300'", "part.size: expected LxWxT"),
+        ("[part]\nsupport = 'bumpy'", "part.support: expected one of"),
+        ("[part]\nsurface = 'does_not_exist.toml'", "part.surface: "),
+        ("[amplifier]\nport = 5", "amplifier.port must be a string"),
+        ("[amplifier]\nlimits = 5", "[amplifier.limits] must be a table"),
         ("not toml [", "not valid TOML"),
     ],
 )
@@ -160,6 +165,45 @@ def test_feeder_daemon_with_a_bad_config_exits_2_in_one_line(tmp_path: Path, bod
     assert done.stderr.count("\n") == 1 and words in done.stderr
 
 
+def test_half_named_hardware_is_refused_naming_the_file_before_anything_is_written(tmp_path: Path) -> None:
+    """The pairing was checked after the log had been opened: the state folder was left with it."""
+    path = tmp_path / "half.toml"
+    path.write_text('[amplifier]\nport = "/dev/ttyUSB7"\n')
+    state = tmp_path / "state"
+    done = subprocess.run(
+        [sys.executable, "-m", "feeder", "daemon", "--config", str(path), "--state-dir", str(state)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert f"{path}: name both the amplifier" in done.stderr
+    assert not state.exists()
+
+
+def test_simulator_arguments_it_refuses_are_bad_input(tmp_path: Path) -> None:
+    """firmware_sim's own exit 2 (an argument it refuses) was reported as a launch failure, exit 1."""
+    path = tmp_path / "sim.toml"
+    path.write_text('[simulator]\nargs = ["--bogus-flag"]\n')
+    done = subprocess.run(
+        [sys.executable, "-m", "feeder", "daemon", "--config", str(path), "--state-dir", str(tmp_path / "s")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    assert done.returncode == 2, done.stderr
+    assert "firmware_sim: refused its arguments:" in done.stderr and "--bogus-flag" in done.stderr
+
+
+def test_a_multiple_of_the_rated_frequency_step_narrows_it(tmp_path: Path) -> None:
+    path = tmp_path / "step.toml"
+    path.write_text("[amplifier.limits]\nfrequency_step_hz = 2.0\ncurrent_limit_a = 0.9\n")
+    limits = load_config(path).amplifier.limits
+    assert (limits.frequency_step_hz, limits.current_limit_a) == (2.0, 0.9)  # the unit's own current
+
+
 @pytest.mark.parametrize(
     ("text", "words"),
     [
@@ -190,6 +234,23 @@ def test_feeder_daemon_with_a_bad_config_exits_2_in_one_line(tmp_path: Path, bod
         ('[plate]\nparts = "0,0"\n', "plate.parts: expected X,Y,PSI"),
         ("[control]\nmin_y_m = 1e-3\nmax_y_m = -1e-3\n", "control.min_y_m must be below"),
         ("[control]\ntolerance_rad = 2.0\n", "control.tolerance_rad = 2 is outside"),
+        (  # refused only once the daemon had started, leaving a database behind
+            '[plate]\naxes = ["x", "y", "theta"]\naxis_map = { x = 1, y = 2, theta = 99 }\n',
+            "plate.axis_map.theta = 99 is outside [1, 7]",
+        ),
+        (
+            '[amplifier]\ntransport = "can"\n[amplifier.can]\nnode_id = 126\nhost_id = 1\n'
+            '[plate]\naxes = ["x", "y", "theta"]\n',
+            "amplifier.can.node_id = 126: the plate's axes need nodes 126..128, beyond CANopen's 127",
+        ),
+        # an empty path was the configuration's own folder; an empty port, a file named ''
+        ('[state]\ndir = ""\n', "state.dir is empty"),
+        ('[state]\nsocket = " "\n', "state.socket is empty"),
+        ('[amplifier]\nport = ""\n', "amplifier.port is empty"),
+        ('[camera]\naddress = ""\n', "camera.address is empty"),
+        # an ANC300 sets whole hertz: 0 ("any frequency") or a fraction is not what it can do
+        ("[amplifier.limits]\nfrequency_step_hz = 0.0\n", "steps of 1 Hz"),
+        ("[amplifier.limits]\nfrequency_step_hz = 2.5\n", "frequency_step_hz: 2.5 Hz"),
     ],
 )
 def test_misspelt_or_out_of_range_keys_are_refused_by_name(tmp_path: Path, text: str, words: str) -> None:
@@ -278,3 +339,15 @@ def test_fuzzed_configurations_load_or_fail_in_one_line(doc: dict[str, Any]) -> 
             assert "\n" not in str(err)
         else:
             assert isinstance(config, DaemonConfig)
+
+
+@pytest.mark.parametrize("doc", ["docs/daemon.md", "docs/canopen.md", "docs/console.md"])
+def test_every_configuration_in_the_docs_loads(tmp_path: Path, doc: str) -> None:
+    """docs/canopen.md's example was refused (a CAN drive must name its model)."""
+    (tmp_path / "surface.toml").write_text("")  # the one file an example names beside itself
+    blocks = re.findall(r"```toml\n(.*?)```", (ROOT / doc).read_text(), re.S)
+    assert blocks
+    for k, block in enumerate(blocks):
+        path = tmp_path / f"example{k}.toml"
+        path.write_text(block)
+        load_config(path)

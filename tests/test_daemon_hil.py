@@ -206,7 +206,7 @@ def test_a_sensor_noisier_than_configured_is_measured_at_rest_and_warned_of(
         assert daemon.stop() == 0
     assert status["sensor_noise_seen_m"] == pytest.approx(0.4e-6, rel=0.15)
     assert status["sensor_noise_m"] == 0.1e-6
-    assert "over 2 × [loop] sensor_noise_m" in status["sensor_noise_warning"]
+    assert "over 2 × [control] sensor_noise_m" in status["sensor_noise_warning"]
     printed = capsys.readouterr().out.splitlines()
     assert f"warning: {status['sensor_noise_warning']}" in printed
     seen = next(line for line in printed if line.startswith("sensor noise (1σ): 0.100 µm configured, "))

@@ -18,7 +18,7 @@ from feeder.cli.output import print_json
 from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, embedded_plane, uses_camera
 from feeder.daemon.config_file import load_config
 from feeder.daemon.launcher import LaunchError
-from feeder.daemon.links import spawn_simulator
+from feeder.daemon.links import hardware_sensor, spawn_simulator
 from feeder.daemon.store import StoreError, check_state_file, move_aside
 from feeder.drivers.amplifier import AmplifierError
 from feeder.drivers.sensor import CameraError, SensorLost
@@ -127,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
         config = dataclasses.replace(
             config, http=(config.http or HttpConfig()).listening_on(args.http, "--http")
         )
+    hardware_sensor(config, str(args.config or "config"))  # refused before anything is written
     setup_logging(args.log_level, config.state_dir / "daemon.log")
     if args.reset_state:
         moved = move_aside(config.database_path)

@@ -54,11 +54,11 @@ RANGES: dict[str, tuple[float, float]] = {
 """Accepted ranges of numeric keys (a value outside is refused, not clipped)."""
 
 
-def subtable(doc: dict[str, Any], name: str, where: str) -> dict[str, Any]:
-    """``doc[name]``, a table (empty when absent)."""
+def subtable(doc: dict[str, Any], name: str, where: str, section: str = "") -> dict[str, Any]:
+    """``doc[name]``, a table (empty when absent); errors name ``[section + name]``."""
     value = doc.get(name, {})
     if not isinstance(value, dict):
-        raise InputError(where, f"[{name}] must be a table")
+        raise InputError(where, f"[{section}{name}] must be a table")
     return value
 
 
@@ -105,11 +105,16 @@ def integer(table: dict[str, Any], key: str, where: str, default: int, section: 
     return value
 
 
-def string(table: dict[str, Any], key: str, where: str, default: str | None) -> str | None:
-    """``table[key]`` as a string (``default`` when absent)."""
+def string(
+    table: dict[str, Any], key: str, where: str, default: str | None, section: str = "", empty: bool = False
+) -> str | None:
+    """``table[key]`` as a string (``default`` when absent), not empty unless ``empty``; errors
+    name ``section + key``."""
     value = table.get(key, default)
     if value is not None and not isinstance(value, str):
-        raise InputError(where, f"{key} must be a string, got {value!r}")
+        raise InputError(where, f"{section}{key} must be a string, got {value!r}")
+    if value is not None and not empty and not value.strip():
+        raise InputError(where, f"{section}{key} is empty: give a value, or leave the key out")
     return value
 
 

@@ -85,11 +85,11 @@ from feeder.daemon.config import (
 )
 from feeder.daemon.config_fields import check_keys, expanded_path, flag, integer, number, string, subtable
 from feeder.daemon.control_loop import LoopSettings
-from feeder.errors import InputError
+from feeder.errors import InputError, shown
 from feeder.files import read_toml
 from feeder.parts import Part, Support
 from feeder.plant.amplifier import AmplifierLimits, amplifier_model, within_rating
-from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
+from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP, MAX_AXIS
 from feeder.pose import parse_poses
 
 SECTIONS: dict[str, frozenset[str]] = {
@@ -135,6 +135,9 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
         raise InputError(where, "plate.axis_map must be a table, e.g. { x = 1, y = 2, theta = 3 }")
     check_keys(axis_map, set(AXES), where, "plate.axis_map.")
     numbers = {str(k): integer(axis_map, k, where, 1, "plate.axis_map.") for k in axis_map}
+    for name, axis in numbers.items():
+        if axis > MAX_AXIS:
+            raise InputError(where, f"plate.axis_map.{name} = {axis} is outside [1, {MAX_AXIS}]")
     mapped = {**DEFAULT_AXIS_MAP, **numbers}
     if len({mapped[a] for a in axes}) != len(axes):
         raise InputError(where, "plate.axis_map gives two axes the same number")
@@ -184,10 +187,10 @@ def load_config(path: Path | None) -> DaemonConfig:
         check_keys(subtable(doc, name, where), SECTIONS[name], where, f"{name}.")
 
     amp = subtable(doc, "amplifier", where)
-    transport = string(amp, "transport", where, "serial")
+    transport = string(amp, "transport", where, "serial", "amplifier.")
     if transport not in TRANSPORTS:
         raise InputError(where, f"amplifier.transport must be one of {', '.join(TRANSPORTS)}")
-    can = subtable(amp, "can", where)
+    can = subtable(amp, "can", where, "amplifier.")
     axis = integer(amp, "axis", where, 1, "amplifier.")
     if "node_id" in can:
         integer(can, "node_id", where, 1, "amplifier.can.")
@@ -220,17 +223,17 @@ def load_config(path: Path | None) -> DaemonConfig:
             f"amplifier.can.bitrate: a {interface} adapter takes the bus's bit rate from the host; "
             "set bitrate (e.g. 500000), or btr or timing",
         )
-    if transport == "can" and "channel" in can and "model" not in amp and not subtable(amp, "limits", where):
+    limits_t = subtable(amp, "limits", where, "amplifier.")
+    if transport == "can" and "channel" in can and "model" not in amp and not limits_t:
         # a CAN drive is hardware of unknown rating: only the simulator may default to its own
         raise InputError(
             where, "amplifier.model: a CAN drive needs its rating: model = ... or [amplifier.limits]"
         )
-    model = str(string(amp, "model", where, DEFAULT_MODELS[str(transport)]))
+    model = str(string(amp, "model", where, DEFAULT_MODELS[str(transport)], "amplifier."))
     try:
         rating = amplifier_model(model)
     except InputError as err:
         raise InputError(where, f"amplifier.model: {err.message}") from None
-    limits_t = subtable(amp, "limits", where)
     check_keys(limits_t, {f.name for f in dataclasses.fields(AmplifierLimits)}, where, "amplifier.limits.")
     for key in limits_t:
         number(limits_t, key, where, 0.0, section="amplifier.limits.")
@@ -242,17 +245,17 @@ def load_config(path: Path | None) -> DaemonConfig:
     amplifier = AmplifierConfig(
         transport=str(transport),
         model=model,
-        port=string(amp, "port", where, None),
+        port=string(amp, "port", where, None, "amplifier."),
         axis=axis,
         timeout_s=number(amp, "timeout_s", where, 1.0, positive=True, section="amplifier."),
-        password=str(string(amp, "password", where, "123456")),
+        password=str(string(amp, "password", where, "123456", "amplifier.", empty=True)),
         baudrate=integer(amp, "baudrate", where, AmplifierConfig.baudrate, "amplifier."),
         limits=limits,
         can=dict(can),
     )
 
     sensor = subtable(doc, "sensor", where)
-    sensor_address = string(sensor, "address", where, None)
+    sensor_address = string(sensor, "address", where, None, "sensor.")
     if sensor_address is not None and not sensor_address.startswith("socket://"):
         raise InputError(
             where,
@@ -265,8 +268,19 @@ def load_config(path: Path | None) -> DaemonConfig:
         raise InputError(where, "simulator.args must be a list of strings")
 
     part_t = subtable(doc, "part", where)
-    part = Part.parse(str(string(part_t, "size", where, DEFAULT_PART)))
-    support = Support.parse(str(string(part_t, "support", where, "flat")))
+    size_text = str(string(part_t, "size", where, DEFAULT_PART, "part."))
+    support_text = str(string(part_t, "support", where, "flat", "part."))
+    try:
+        part = Part.parse(size_text)
+    except InputError as err:
+        raise InputError(where, f"part.size: {err.message}") from None
+    try:
+        support = Support.parse(support_text)
+    except InputError as err:
+        raise InputError(where, f"part.support: {err.message}") from None
+    surface_path = expanded_path(string(part_t, "surface", where, None, "part."), path.parent.absolute())
+    if surface_path is not None and not surface_path.is_file():
+        raise InputError(where, f"part.surface: {shown(str(surface_path))}: no such file")
     tau = part_t.get("tau_pa")
     tau_pa = None if tau is None else number(part_t, "tau_pa", where, 0.0, positive=True, section="part.")
 
@@ -284,12 +298,12 @@ def load_config(path: Path | None) -> DaemonConfig:
                 )
     loop = dataclasses.replace(defaults, **loop_fields)
     plate = _plate(subtable(doc, "plate", where), where)
-    if transport == "can" and can.get("supervise_host", True):
-        _check_host_id(can, plate, where)
+    if transport == "can":
+        _check_node_ids(can, plate, where)
     camera_t = subtable(doc, "camera", where)
     cam = CameraConfig()
     camera = CameraConfig(
-        address=string(camera_t, "address", where, None),
+        address=string(camera_t, "address", where, None, "camera."),
         timeout_s=number(camera_t, "timeout_s", where, cam.timeout_s, positive=True, section="camera."),
         pixel_size_m=number(
             camera_t, "pixel_size_m", where, cam.pixel_size_m, positive=True, section="camera."
@@ -317,21 +331,21 @@ def load_config(path: Path | None) -> DaemonConfig:
         simulator_args=tuple(sim_args),
         part=part,
         support=support,
-        surface_path=expanded_path(string(part_t, "surface", where, None), folder),
+        surface_path=surface_path,
         tau_pa=tau_pa,
         loop=loop,
         plate=plate,
         camera=camera,
-        state_dir=expanded_path(string(state, "dir", where, None), folder) or base.state_dir,
-        socket_path=expanded_path(string(state, "socket", where, None), folder) or base.socket_path,
+        state_dir=expanded_path(string(state, "dir", where, None, "state."), folder) or base.state_dir,
+        socket_path=expanded_path(string(state, "socket", where, None, "state."), folder) or base.socket_path,
         http=http,
     )
 
 
-def _check_host_id(can: dict[str, Any], plate: PlateConfig, where: str) -> None:
-    """Refuse an ``amplifier.can.host_id`` (default 127) that is one of the amplifier's node ids:
-    the host's heartbeat would be that node's (COB-ID 0x700 + id)."""
-    host_id = int(can.get("host_id", 127))
+def _check_node_ids(can: dict[str, Any], plate: PlateConfig, where: str) -> None:
+    """Refuse node ids beyond CANopen's 1..127 for the plate's axes, and an
+    ``amplifier.can.host_id`` (default 127, when the host is supervised) that is one of the
+    amplifier's node ids: the host's heartbeat would be that node's (COB-ID 0x700 + id)."""
     node_id = int(can.get("node_id", 1))
     last = node_id
     if plate.planar:  # amplifier axis n: node node_id + (n - 1) div (axes per node)
@@ -341,8 +355,13 @@ def _check_host_id(can: dict[str, Any], plate: PlateConfig, where: str) -> None:
 
             per_node = axis_count(object_dictionary(1, str(can["eds"])))
         last = node_id + (max(plate.axis_map[a] for a in plate.axes) - 1) // per_node
-    if node_id <= host_id <= last:
-        nodes = f"node {node_id}" if last == node_id else f"nodes {node_id}..{last}"
+    nodes = f"node {node_id}" if last == node_id else f"nodes {node_id}..{last}"
+    if last > 127:
+        raise InputError(
+            where, f"amplifier.can.node_id = {node_id}: the plate's axes need {nodes}, beyond CANopen's 127"
+        )
+    host_id = int(can.get("host_id", 127))
+    if can.get("supervise_host", True) and node_id <= host_id <= last:
         raise InputError(
             where, f"amplifier.can.host_id = {host_id} is the amplifier's (it uses {nodes}): pick another id"
         )
@@ -385,11 +404,11 @@ def _http_config(table: dict[str, Any], where: str) -> HttpConfig:
     http = HttpConfig(
         allow_remote=allow_remote,
         origins=tuple(o.rstrip("/") for o in origins),
-        camera=string(table, "camera", where, None),
+        camera=string(table, "camera", where, None, "http."),
         moves_per_s=number(table, "moves_per_s", where, 2.0, positive=True, section="http."),
         move_burst=integer(table, "move_burst", where, 5, "http."),
     )
-    listen = str(string(table, "listen", where, DEFAULT_HTTP_LISTEN))
+    listen = str(string(table, "listen", where, DEFAULT_HTTP_LISTEN, "http."))
     try:
         return http.listening_on(listen, "http.listen")
     except InputError as err:

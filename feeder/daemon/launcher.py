@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from feeder.errors import FeederError
+from feeder.errors import FeederError, InputError
 
 PR_SET_PDEATHSIG = 1
 READY_TIMEOUT_S = 30.0
@@ -124,6 +124,8 @@ class Simulator:
                 if not line:
                     err = self._stderr_tail()
                     self.stop()
+                    if self.process.returncode == 2:  # its bad input: the arguments it was given
+                        raise InputError("firmware_sim", f"refused its arguments: {err}")
                     raise LaunchError(f"firmware_sim exited before it was ready: {err}")
                 try:
                     obj = json.loads(line)

@@ -234,7 +234,7 @@ def simulator_args(config: DaemonConfig) -> list[str]:
 def spawn_simulator(config: DaemonConfig) -> Simulator | None:
     """firmware_sim started for ``config`` (not yet ready: it loads while the daemon imports and
     plans), or None when the configuration names hardware."""
-    if _hardware_sensor(config) is not None:
+    if hardware_sensor(config) is not None:
         return None
     config.state_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     return Simulator(simulator_args(config), log_path=config.simulator_log_path, timeout_s=None)
@@ -244,7 +244,7 @@ def open_links(config: DaemonConfig, simulator: Simulator | None = None) -> Driv
     """The links for ``config``; starts firmware_sim when no hardware is named (or takes the
     one :func:`spawn_simulator` started)."""
     amp = config.amplifier
-    sensor = _hardware_sensor(config)
+    sensor = hardware_sensor(config)
     if sensor is not None:
         address: str | dict[str, Any] = dict(amp.can) if amp.transport == "can" else str(amp.port)
         return DriverLinks(config, address, sensor)
@@ -259,15 +259,15 @@ def open_links(config: DaemonConfig, simulator: Simulator | None = None) -> Driv
     return DriverLinks(config, address, sensor, sim, config.simulator_log_path)
 
 
-def _hardware_sensor(config: DaemonConfig) -> str | None:
+def hardware_sensor(config: DaemonConfig, where: str = "config") -> str | None:
     """The sensor's address when ``config`` names hardware, None for the simulator;
-    :class:`~feeder.errors.InputError` unless it names both the amplifier and the sensor or
-    neither."""
+    :class:`~feeder.errors.InputError` (naming ``where``, the file) unless it names both the
+    amplifier and the sensor or neither."""
     amp = config.amplifier
     sensor = config.sensor_address or config.camera.address
     if amp.simulated != (sensor is None):
         raise InputError(
-            "config",
+            where,
             "name both the amplifier (port or can.channel) and the sensor (camera.address, or "
             "sensor.address for a position stream) for hardware, or neither for the simulator",
         )

@@ -47,14 +47,14 @@ def loop_status(loop: ControlLoop, parts_info: tuple[dict[str, Any], ...]) -> di
 
 
 def sensor_noise(seen_m: float | None, configured_m: float) -> dict[str, Any]:
-    """The sensor's noise as configured (``[loop] sensor_noise_m``) and as seen while the parts
+    """The sensor's noise as configured (``[control] sensor_noise_m``) and as seen while the parts
     were at rest (:class:`~feeder.reading_noise.RestingNoise`; None before enough readings), and
     a warning when the one seen is over :data:`NOISE_WARNING` × the configured."""
     warning = None
     if seen_m is not None and seen_m > NOISE_WARNING * configured_m:
         warning = (
             f"the sensor's readings of parts at rest scatter {seen_m * 1e6:.3g} µm (1σ), over "
-            f"{NOISE_WARNING:g} × [loop] sensor_noise_m = {configured_m * 1e6:.3g} µm: the settle "
+            f"{NOISE_WARNING:g} × [control] sensor_noise_m = {configured_m * 1e6:.3g} µm: the settle "
             "band, the stall test and the step learning assume the configured value; set it"
         )
     return {"sensor_noise_m": configured_m, "sensor_noise_seen_m": seen_m, "sensor_noise_warning": warning}

@@ -35,13 +35,10 @@ from feeder.drivers.anc300_link import Anc300Link
 from feeder.drivers.canopen import open_node_axes
 from feeder.drivers.canopen_link import disconnect
 from feeder.errors import InputError
-from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
+from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP, MAX_AXIS
 from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
 
 log = logging.getLogger(__name__)
-
-MAX_AXIS = 7
-"""An ANC300 rack has 7 slots; firmware_sim has as many."""
 
 
 def check_axis_map(axis_map: Mapping[str, int], field: str = "axis_map") -> dict[str, int]:

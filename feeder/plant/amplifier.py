@@ -183,7 +183,9 @@ def amplifier_model(name: str, field: str = "model") -> AmplifierLimits:
 
 
 def within_rating(limits: AmplifierLimits, rating: AmplifierLimits, model: str) -> None:
-    """Refuse ``limits`` that ask more of the amplifier than its model's ``rating`` gives."""
+    """Refuse ``limits`` that ask more of the amplifier than its model's ``rating`` gives: rails
+    and frequencies beyond it, a frequency step that is not a multiple of its own.  The current
+    limit and slew rate are the unit's own figures (a model's are mid-range defaults)."""
     checks = (
         ("v_max_v", limits.v_max_v > rating.v_max_v, rating.v_max_v, "V"),
         ("v_min_v", limits.v_min_v < rating.v_min_v, rating.v_min_v, "V"),
@@ -205,6 +207,12 @@ def within_rating(limits: AmplifierLimits, rating: AmplifierLimits, model: str) 
             raise InputError(
                 name, f"{getattr(limits, name):g} {unit} is beyond the {model}'s rating ({value:g} {unit})"
             )
+    step, rated = limits.frequency_step_hz, rating.frequency_step_hz
+    if rated > 0 and not (step >= rated and math.isclose(step / rated, round(step / rated))):
+        raise InputError(
+            "frequency_step_hz",
+            f"{step:g} Hz: the {model} sets its frequency in steps of {rated:g} Hz (or a multiple of it)",
+        )
 
 
 AMPLIFIER_ALIASES: dict[str, str] = {"paper": "firmware_sim"}
