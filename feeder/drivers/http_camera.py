@@ -9,17 +9,26 @@ lies between two boundary lines: its ``Content-Length`` when it gives one, else 
 boundary; its type is not checked, its bytes are decoded by OpenCV (JPEG, PNG, ...), and one
 that cannot be decoded is an error naming its size and type.
 
-A URL that serves an image (``image/*``: a camera's snapshot URL) is fetched again for each frame.
+A URL that serves an image (``image/*``: a camera's snapshot URL) is fetched again for each
+frame, at most :data:`STILL_RATE_HZ` times a second.  A response without a ``Content-Type`` is
+taken for a stream if its body starts with ``--``, else for an image.  A part header that does
+not parse is ignored (an ``X-Timestamp`` with a decimal comma; a ``Content-Length`` of -1: the
+part then runs to the next boundary), as FFmpeg ignored them.
 
 Credentials in the URL (``http://user:password@host/...``) are sent by HTTP basic or digest
-authentication, as the camera asks; the source's name (in logs and errors) hides the password.
-Proxies from the environment are not used: a lab camera is reached directly.
+authentication, as the camera asks (urllib's digest: MD5 and SHA-1; a camera asking only for
+another is refused by name); the source's name (in logs and errors) hides the password.
+Proxies from the environment are not used: a lab camera is reached directly.  An ``https://``
+camera's certificate is not checked, as FFmpeg did not: a lab camera's is self-signed.
 """
 
 from __future__ import annotations
 
 import http.client
 import logging
+import math
+import ssl
+import time
 import urllib.error
 import urllib.request
 from email.message import Message
@@ -38,6 +47,8 @@ MAX_HEADER_LINE = 8192
 """Bytes: a longer header line is not a header (a stream gone wrong)."""
 MAX_IMAGE_BYTES = 64 * 2**20
 """Bytes: a larger part or image is not a frame."""
+STILL_RATE_HZ = 30.0
+"""Most fetches a second of a still-image URL (a camera answering at once is not hammered)."""
 _BODY_LINE = 65536  # bytes read at most at once while looking for the boundary after a body
 _JPEG_START = b"\xff\xd8"
 
@@ -60,7 +71,12 @@ def decode_image(data: bytes, content_type: str) -> np.ndarray:
 
 
 def _opener(url: str, user: str | None, password: str | None) -> urllib.request.OpenerDirector:
-    handlers: list[urllib.request.BaseHandler] = [urllib.request.ProxyHandler({})]
+    unchecked = ssl.create_default_context()
+    unchecked.check_hostname, unchecked.verify_mode = False, ssl.CERT_NONE
+    handlers: list[urllib.request.BaseHandler] = [
+        urllib.request.ProxyHandler({}),
+        urllib.request.HTTPSHandler(context=unchecked),
+    ]
     if user is not None:
         manager = urllib.request.HTTPPasswordMgrWithDefaultRealm()
         manager.add_password(None, url, unquote(user), unquote(password or ""))
@@ -95,6 +111,7 @@ class HttpCameraSource(FrameSource):
         self._response: Any = None  # urllib's response (an http.client.HTTPResponse)
         self._boundary: bytes | None = None  # a stream's boundary ("" if it names none); None: an image
         self._at_headers = False  # a part's body was read up to the next boundary line
+        self._fetched = -math.inf  # time.monotonic() of the last still image's request
         self._start()
 
     def _request(self) -> Any:
@@ -115,8 +132,12 @@ class HttpCameraSource(FrameSource):
             raise CameraError(str(exc.reason)) from exc
         except http.client.HTTPException as exc:
             raise CameraError(f"not an HTTP answer: {exc!r}") from exc
+        except ValueError as exc:  # urllib's auth handlers: a scheme or digest algorithm it lacks
+            raise CameraError(f"cannot log in: {exc}") from exc
         headers: Message = response.headers
         content_type = headers.get_content_type()
+        if headers.get("Content-Type") is None:  # what the body starts with tells
+            content_type = "multipart/x-mixed-replace" if response.peek(2)[:2] == b"--" else "image/*"
         if content_type.startswith("multipart/"):
             boundary = headers.get_param("boundary")  # quotes removed; some name it with its "--"
             self._boundary = boundary.strip().strip("-").encode() if isinstance(boundary, str) else b""
@@ -136,6 +157,10 @@ class HttpCameraSource(FrameSource):
     def _grab(self) -> tuple[np.ndarray, float | None] | None:
         try:
             if self._response is None:  # a still image: fetched again
+                pause = self._fetched + 1.0 / STILL_RATE_HZ - time.monotonic()
+                if pause > 0:
+                    time.sleep(pause)
+                self._fetched = time.monotonic()
                 self._response = self._request()
             if self._boundary is None:
                 body, content_type, stamp = self._image(), self._response.headers.get_content_type(), None
@@ -180,11 +205,13 @@ class HttpCameraSource(FrameSource):
             name, _, value = line.decode("latin-1").partition(":")
             name = name.strip().lower()
             if name == "content-length":
-                length = _header_number(value, int, MAX_IMAGE_BYTES)
+                length = _header_number(value, int)
+                if length is not None and not 0 <= length <= MAX_IMAGE_BYTES:
+                    length = None  # read to the next boundary, as FFmpeg does
             elif name == "content-type":
                 content_type = value.strip()
             elif name == "x-timestamp":
-                stamp = _header_number(value, float, None)
+                stamp = _header_number(value, float)
         if length is not None and not first:
             body: bytes = stream.read(length)
             return (body, content_type, stamp) if len(body) == length else None
@@ -207,12 +234,11 @@ class HttpCameraSource(FrameSource):
             self._response = None
 
 
-def _header_number(value: str, kind: type[Any], largest: int | None) -> Any:
-    """A part header's number (Content-Length, X-Timestamp); CameraError if it is not one."""
+def _header_number(value: str, kind: type[Any]) -> Any:
+    """A part header's number (Content-Length, X-Timestamp); None if it is not one."""
     try:
         number = kind(value.strip())
     except ValueError:
-        raise CameraError(f"a part's header {value.strip()[:40]!r} is not a number") from None
-    if largest is not None and not 0 <= number <= largest:
-        raise CameraError(f"a part's Content-Length {number} is not 0 to {largest} bytes")
-    return number
+        log.debug("part header %r ignored: not a number", value.strip()[:40])
+        return None
+    return number if math.isfinite(number) else None
