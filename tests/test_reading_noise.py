@@ -82,6 +82,7 @@ def test_status_warns_when_the_sensor_is_noisier_than_configured() -> None:
     warned = sensor_noise(0.31e-6, 0.1e-6)
     assert warned["sensor_noise_seen_m"] == 0.31e-6 and warned["sensor_noise_m"] == 0.1e-6
     assert warned["sensor_noise_warning"].startswith(
-        "the sensor's readings of parts at rest scatter 0.31 µm (1σ), over 2 × [control] sensor_noise_m = 0.1 µm"
+        "the sensor's readings of parts at rest scatter 0.31 µm (1σ), "
+        "over 2 × [control] sensor_noise_m = 0.1 µm"
     )
     assert sensor_noise(1e-9, 0.0)["sensor_noise_warning"] is not None  # configured 0: any noise
