@@ -248,6 +248,10 @@ def test_a_multiple_of_the_rated_frequency_step_narrows_it(tmp_path: Path) -> No
         ('[state]\nsocket = " "\n', "state.socket is empty"),
         ('[amplifier]\nport = ""\n', "amplifier.port is empty"),
         ('[camera]\naddress = ""\n', "camera.address is empty"),
+        (  # the camera was ignored without a word
+            '[sensor]\naddress = "socket://127.0.0.1:7240"\n[camera]\naddress = "0"\n',
+            "sensor.address and camera.address both name the sensor",
+        ),
         # an ANC300 sets whole hertz: 0 ("any frequency") or a fraction is not what it can do
         ("[amplifier.limits]\nfrequency_step_hz = 0.0\n", "steps of 1 Hz"),
         ("[amplifier.limits]\nfrequency_step_hz = 2.5\n", "frequency_step_hz: 2.5 Hz"),

@@ -25,7 +25,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from feeder.daemon.launcher import LaunchError, Simulator
+from feeder.daemon.launcher import Simulator
+from feeder.errors import InputError
 from firmware_sim import __main__ as program
 from firmware_sim.console import ConsoleSession
 from firmware_sim.firmware import Firmware
@@ -401,10 +402,12 @@ def test_sigint_ends_the_virtual_clock_within_1_s(tmp_path: Path) -> None:
 
 
 def test_launcher_says_why_the_child_did_not_start() -> None:
-    with pytest.raises(LaunchError) as caught:
+    """An argument the child refuses (its exit code 2) is bad input, not a failed launch."""
+    with pytest.raises(InputError) as caught:
         Simulator(["--tick-hz", "0"])  # no log file: the launcher keeps the stderr's tail
     message = str(caught.value)
-    assert "--tick-hz" in message and "exit code 2" in message, message
+    assert message.startswith("firmware_sim: refused its arguments: argument --tick-hz"), message
+    assert "exit code 2" in message, message
 
 
 # -- console logins ----------------------------------------------------------------

@@ -313,6 +313,12 @@ def load_config(path: Path | None) -> DaemonConfig:
         fps=number(camera_t, "fps", where, cam.fps, positive=True, section="camera."),
         aligned=flag(camera_t, "aligned", where, "camera."),
     )
+    if sensor_address is not None and camera.address is not None:
+        raise InputError(
+            where,
+            "sensor.address and camera.address both name the sensor: keep one (camera.address: a "
+            "camera the daemon locates parts in; sensor.address: a stream of positions)",
+        )
     if sensor_address is None and (plate.planar or camera.address is not None):  # the camera locates
         loop = _camera_travel(loop, control, camera, part, where, in_y=plate.planar)
     if not loop.min_position_m < loop.max_position_m:

@@ -125,7 +125,8 @@ class Simulator:
                     err = self._stderr_tail()
                     self.stop()
                     if self.process.returncode == 2:  # its bad input: the arguments it was given
-                        raise InputError("firmware_sim", f"refused its arguments: {err}")
+                        reason = err.removeprefix("firmware_sim: error: ")
+                        raise InputError("firmware_sim", f"refused its arguments: {reason}")
                     raise LaunchError(f"firmware_sim exited before it was ready: {err}")
                 try:
                     obj = json.loads(line)
