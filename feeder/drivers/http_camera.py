@@ -49,7 +49,8 @@ MAX_IMAGE_BYTES = 64 * 2**20
 """Bytes: a larger part or image is not a frame."""
 STILL_RATE_HZ = 30.0
 """Most fetches a second of a still-image URL (a camera answering at once is not hammered)."""
-_BODY_LINE = 65536  # bytes read at most at once while looking for the boundary after a body
+_BODY_LINE = 65536  # bytes of a body taken at once while looking for a boundary line
+_BLOCK = 65536  # bytes asked of the response at once
 _JPEG_START = b"\xff\xd8"
 
 
@@ -87,6 +88,70 @@ def _opener(url: str, user: str | None, password: str | None) -> urllib.request.
     return urllib.request.build_opener(*handlers)
 
 
+class _Buffered:
+    """A response's bytes read in blocks (``read1``: as they come, chunked or not), for lines,
+    exact lengths and the search for the next boundary; ``readline`` on the response itself
+    costs several Python calls a line, and a JPEG has a line break every ~256 bytes."""
+
+    def __init__(self, response: Any) -> None:
+        self._response = response
+        self._buffer = bytearray()
+
+    def _fill(self) -> bool:
+        data = self._response.read1(_BLOCK)
+        self._buffer += data
+        return bool(data)
+
+    def _take(self, size: int) -> bytes:
+        data = bytes(self._buffer[:size])
+        del self._buffer[:size]
+        return data
+
+    def readline(self, limit: int) -> bytes:
+        """A line with its end, at most ``limit`` bytes (b"" at the end of the stream)."""
+        searched = 0
+        while True:
+            end = self._buffer.find(b"\n", searched, limit)
+            if end >= 0:
+                return self._take(end + 1)
+            if len(self._buffer) >= limit:
+                return self._take(limit)
+            searched = len(self._buffer)
+            if not self._fill():
+                return self._take(len(self._buffer))
+
+    def read(self, size: int) -> bytes:
+        """``size`` bytes, fewer at the end of the stream."""
+        while len(self._buffer) < size and self._fill():
+            pass
+        return self._take(size)
+
+    def read_to_boundary(self, token: bytes, largest: int) -> bytes | None:
+        """The bytes before the next line of two or more dashes and ``token``, that line consumed
+        up to the token; None at the end of the stream."""
+        searched = 0
+        while True:
+            at = self._buffer.find(token, searched)
+            if at >= 0:
+                end = self._buffer.find(b"\n", at)
+                if end < 0 and self._fill():  # the rest of the line, to see that it ends there
+                    continue
+                start = self._buffer.rfind(b"\n", 0, at) + 1
+                dashes = self._buffer[start:at]
+                tail = self._buffer[at + len(token) : end if end >= 0 else len(self._buffer)]
+                if start > 0 and len(dashes) >= 2 and not dashes.strip(b"-") and not tail.strip(b"- \t\r"):
+                    body = self._take(start)
+                    del self._buffer[: at + len(token) - start]
+                    return body
+                searched = at + 1
+                continue
+            if len(self._buffer) > largest:
+                raise CameraError(f"a part of over {largest} bytes without a boundary")
+            searched = max(searched, len(self._buffer) - len(token) + 1)
+            if not self._fill():
+                return None
+
+
 class HttpCameraSource(FrameSource):
     """A live camera at an ``http://`` or ``https://`` URL (see the module doc).
 
@@ -109,6 +174,7 @@ class HttpCameraSource(FrameSource):
         self._credentials = parts.username is not None
         self._opener = _opener(self.url, parts.username, parts.password)
         self._response: Any = None  # urllib's response (an http.client.HTTPResponse)
+        self._stream = _Buffered(None)  # a stream's response, read through
         self._boundary: bytes | None = None  # a stream's boundary ("" if it names none); None: an image
         self._at_headers = False  # a part's body was read up to the next boundary line
         self._fetched = -math.inf  # time.monotonic() of the last still image's request
@@ -153,6 +219,7 @@ class HttpCameraSource(FrameSource):
 
     def _open(self) -> None:
         self._response = self._request()
+        self._stream = _Buffered(self._response)
 
     def _grab(self) -> tuple[np.ndarray, float | None] | None:
         try:
@@ -166,7 +233,7 @@ class HttpCameraSource(FrameSource):
                 body, content_type, stamp = self._image(), self._response.headers.get_content_type(), None
                 self._release()
             else:
-                part = self._next_part(self._response)
+                part = self._next_part(self._stream)
                 if part is None:
                     return None
                 body, content_type, stamp = part
@@ -188,7 +255,7 @@ class HttpCameraSource(FrameSource):
             return False
         return text.strip(b"-") == self._boundary if self._boundary else len(text) <= 72
 
-    def _next_part(self, stream: Any) -> tuple[bytes, str, float | None] | None:
+    def _next_part(self, stream: _Buffered) -> tuple[bytes, str, float | None] | None:
         """The next part's body, type and ``X-Timestamp`` (s); None where the stream ends."""
         if not self._at_headers:  # skip to a boundary line (the preamble, the last body's CRLF)
             while not self._is_boundary(line := stream.readline(MAX_HEADER_LINE)):
@@ -213,8 +280,15 @@ class HttpCameraSource(FrameSource):
             elif name == "x-timestamp":
                 stamp = _header_number(value, float)
         if length is not None and not first:
-            body: bytes = stream.read(length)
-            return (body, content_type, stamp) if len(body) == length else None
+            body: bytes | None = stream.read(length)
+            return (body, content_type, stamp) if body is not None and len(body) == length else None
+        if self._boundary:  # the body runs to the next boundary line
+            body = stream.read_to_boundary(self._boundary, MAX_IMAGE_BYTES)
+            if body is None:
+                return None
+            stream.readline(MAX_HEADER_LINE)  # the rest of the boundary line
+            self._at_headers = True
+            return (first + body).removesuffix(b"\n").removesuffix(b"\r"), content_type, stamp
         chunks = [first]
         size = len(first)
         while not self._is_boundary(line := stream.readline(_BODY_LINE)):
