@@ -94,7 +94,7 @@ def test_a_bad_host_id_is_refused_by_name(tmp_path: Path, value: str, words: str
 def test_the_default_host_id_must_not_be_one_of_the_planes_nodes(tmp_path: Path) -> None:
     """One node per axis from 125: axes 1..3 are nodes 125..127, the default host id's."""
     path = can_config(tmp_path, 'interface = "socketcan"\nchannel = "can0"\nnode_id = 125\n')
-    path.write_text(path.read_text() + '[plate]\naxes = ["x", "y", "theta"]\n[camera]\naddress = "0"\n')
+    path.write_text(path.read_text() + '[plate]\naxes = ["x", "y", "theta"]\n')  # located by the stream
     assert "amplifier.can.host_id = 127 is the amplifier's (it uses nodes 125..127)" in refusal(path)
     path.write_text(path.read_text().replace("node_id = 125\n", "node_id = 125\nhost_id = 100\n"))
     assert load_config(path).amplifier.can["host_id"] == 100
