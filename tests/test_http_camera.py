@@ -301,3 +301,15 @@ def test_a_chunked_stream_without_lengths_is_split_at_its_boundary_lines_only() 
         images = read_frames(url, 4)
     for image in images:
         assert np.abs(image.astype(int) - frame(brightness(image))).max() <= 3
+
+
+def test_a_stream_delimited_otherwise_than_declared_is_split_at_its_own_boundary() -> None:
+    """Declared boundary=frame, parts delimited by --myboundary: no frame and no reason, for ever
+    (FFmpeg takes any line of dashes)."""
+
+    def part(k: int) -> bytes:
+        body = jpeg(k)
+        return b"--myboundary\r\nContent-Length: %d\r\n\r\n%b\r\n" % (len(body), body)
+
+    with camera_server(part=part) as (url, _):
+        assert len(read_frames(url, 3)) == 3

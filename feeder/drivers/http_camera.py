@@ -11,9 +11,10 @@ that cannot be decoded is an error naming its size and type.
 
 A URL that serves an image (``image/*``: a camera's snapshot URL) is fetched again for each
 frame, at most :data:`STILL_RATE_HZ` times a second.  A response without a ``Content-Type`` is
-taken for a stream if its body starts with ``--``, else for an image.  A part header that does
-not parse is ignored (an ``X-Timestamp`` with a decimal comma; a ``Content-Length`` of -1: the
-part then runs to the next boundary), as FFmpeg ignored them.
+taken for a stream if its body starts with ``--``, else for an image; a stream whose first
+boundary line is not the declared one is split at its own (FFmpeg took any line of dashes).
+A part header that does not parse is ignored (an ``X-Timestamp`` with a decimal comma; a
+``Content-Length`` of -1: the part then runs to the next boundary), as FFmpeg ignored them.
 
 Credentials in the URL (``http://user:password@host/...``) are sent by HTTP basic or digest
 authentication, as the camera asks (urllib's digest: MD5 and SHA-1; a camera asking only for
@@ -177,6 +178,7 @@ class HttpCameraSource(FrameSource):
         self._stream = _Buffered(None)  # a stream's response, read through
         self._boundary: bytes | None = None  # a stream's boundary ("" if it names none); None: an image
         self._at_headers = False  # a part's body was read up to the next boundary line
+        self._first_part = True
         self._fetched = -math.inf  # time.monotonic() of the last still image's request
         self._start()
 
@@ -215,6 +217,7 @@ class HttpCameraSource(FrameSource):
                 f"serves {content_type}: neither an MJPEG stream (multipart/x-mixed-replace) nor an image"
             )
         self._at_headers = False
+        self._first_part = True  # a declared boundary the parts do not use is replaced by theirs
         return response
 
     def _open(self) -> None:
@@ -258,10 +261,21 @@ class HttpCameraSource(FrameSource):
     def _next_part(self, stream: _Buffered) -> tuple[bytes, str, float | None] | None:
         """The next part's body, type and ``X-Timestamp`` (s); None where the stream ends."""
         if not self._at_headers:  # skip to a boundary line (the preamble, the last body's CRLF)
+            skipped = 0
             while not self._is_boundary(line := stream.readline(MAX_HEADER_LINE)):
                 if not line:
                     return None
+                text = line.strip()
+                if self._first_part and text.startswith(b"--") and 2 < len(text) <= 72:
+                    self._boundary = text.strip(b"-")  # the parts' own, as FFmpeg takes any
+                    log.info("camera %s: its parts are delimited by %r, not as declared", self.name, text)
+                    break
+                skipped += len(line)
+                if skipped > MAX_IMAGE_BYTES:
+                    boundary = (self._boundary or b"").decode("latin-1")
+                    raise CameraError(f"no boundary line --{boundary} in {MAX_IMAGE_BYTES} bytes")
         self._at_headers = False
+        self._first_part = False
         length, content_type, stamp, first = None, "", None, b""
         while (line := stream.readline(MAX_HEADER_LINE)) not in (b"\r\n", b"\n"):
             if not line:
