@@ -16,3 +16,9 @@ with the one-axis EDS, axis n of node node_id with the three-axis EDS); ``[plate
 overrides it."""
 MAX_AXIS = 7
 """Amplifier axes are numbered 1..MAX_AXIS: an ANC300 rack has 7 slots; firmware_sim has as many."""
+
+
+def amplifier_node(node_id: int, axis: int, axes_per_node: int) -> tuple[int, int]:
+    """CANopen wiring of amplifier axis ``axis`` (1-based) when the amplifier's first node is
+    ``node_id`` and each node drives ``axes_per_node`` axes: (its node, its axis on that node)."""
+    return node_id + (axis - 1) // axes_per_node, (axis - 1) % axes_per_node + 1

@@ -89,7 +89,7 @@ from feeder.errors import InputError, shown
 from feeder.files import read_toml
 from feeder.parts import Part, Support
 from feeder.plant.amplifier import AmplifierLimits, amplifier_model, within_rating
-from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP, MAX_AXIS
+from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP, MAX_AXIS, amplifier_node
 from feeder.pose import parse_poses
 
 SECTIONS: dict[str, frozenset[str]] = {
@@ -354,13 +354,13 @@ def _check_node_ids(can: dict[str, Any], plate: PlateConfig, where: str) -> None
     amplifier's node ids: the host's heartbeat would be that node's (COB-ID 0x700 + id)."""
     node_id = int(can.get("node_id", 1))
     last = node_id
-    if plate.planar:  # amplifier axis n: node node_id + (n - 1) div (axes per node)
+    if plate.planar:
         per_node = 1
         if "eds" in can:
             from feeder.protocol.eds import axis_count, object_dictionary  # canopen only for CAN
 
             per_node = axis_count(object_dictionary(1, str(can["eds"])))
-        last = node_id + (max(plate.axis_map[a] for a in plate.axes) - 1) // per_node
+        last, _ = amplifier_node(node_id, max(plate.axis_map[a] for a in plate.axes), per_node)
     nodes = f"node {node_id}" if last == node_id else f"nodes {node_id}..{last}"
     if last > 127:
         raise InputError(

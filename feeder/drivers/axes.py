@@ -35,7 +35,7 @@ from feeder.drivers.anc300_link import Anc300Link
 from feeder.drivers.canopen import open_node_axes
 from feeder.drivers.canopen_link import disconnect
 from feeder.errors import InputError
-from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP, MAX_AXIS
+from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP, MAX_AXIS, amplifier_node
 from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
 
 log = logging.getLogger(__name__)
@@ -140,12 +140,13 @@ def open_canopen_axes(
     """
     axes = check_axis_map(axis_map)
     per_node = axis_count(object_dictionary(node_id, eds))
-    last_node = node_id + (max(axes.values()) - 1) // per_node
+    last_node, _ = amplifier_node(node_id, max(axes.values()), per_node)
     if not 1 <= node_id <= last_node <= 127:
         raise InputError("node_id", f"node ids {node_id}..{last_node} for axes {axes} leave CANopen's 1..127")
     nodes: dict[int, dict[str, int]] = {}
     for name, number in axes.items():
-        nodes.setdefault(node_id + (number - 1) // per_node, {})[name] = (number - 1) % per_node + 1
+        node, axis = amplifier_node(node_id, number, per_node)
+        nodes.setdefault(node, {})[name] = axis
     network = canopen.Network()
     network.NOTIFIER_CYCLE = 0.1  # close() waits at most this long for the receiver
     network.connect(**dict(bus))
