@@ -84,9 +84,22 @@ def _opener(url: str, user: str | None, password: str | None) -> urllib.request.
         manager.add_password(None, url, unquote(user), unquote(password or ""))
         handlers += [
             urllib.request.HTTPDigestAuthHandler(manager),
-            urllib.request.HTTPBasicAuthHandler(manager),
+            _BasicAuthAnyRealm(manager),
         ]
     return urllib.request.build_opener(*handlers)
+
+
+class _BasicAuthAnyRealm(urllib.request.HTTPBasicAuthHandler):
+    """urllib's basic authentication, also answering a challenge that names no realm
+    (``WWW-Authenticate: Basic``: RFC 7617 asks for one, some small servers leave it out, and
+    urllib then sent nothing, the camera's 401 read as a refused password)."""
+
+    def http_error_401(self, req: Any, fp: Any, code: int, msg: str, headers: http.client.HTTPMessage) -> Any:
+        answer = super().http_error_401(req, fp, code, msg, headers)
+        challenges = headers.get_all("WWW-Authenticate") or []
+        if answer is None and any(challenge.strip().lower() == "basic" for challenge in challenges):
+            return self.retry_http_basic_auth(req.full_url, req, "")  # any realm: the URL's user
+        return answer
 
 
 class _Buffered:
