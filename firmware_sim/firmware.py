@@ -9,6 +9,12 @@ less than the buffer depth costs nothing; a later one makes the DAC repeat its
 last sample for the gap (an underrun, counted).  Commands act from the next
 sample the DAC plays: the unplayed part of the buffer is regenerated.
 
+The world's physics (the sinks) is instantaneous in a real lab but takes CPU time here: when
+a tick's sinks take more than :data:`WORLD_SHARE` of a tick period (the planar plant's slips
+on a loaded machine), the device's time stands still for the excess, so that nothing the
+amplifier reports (step counter, moving) runs ahead of the plant a camera sees: the whole
+simulated device then runs slower than the wall clock, but consistently.
+
 Each axis (:class:`~firmware_sim.axis.Axis`) has a DDS and an output chain that
 enforces the amplifier's limits on the DAC codes; faults and refusals:
 :mod:`firmware_sim.faults`.
@@ -41,6 +47,9 @@ DEFAULT_LOAD_CAPACITANCE_F = StackParameters().capacitance_f
 DEFAULT_DAC_BUFFER_S = 0.100
 """Deep enough for a busy shared machine; it costs no command latency, because
 commands regenerate the buffer from the sample the DAC plays when they arrive."""
+WORLD_SHARE = 0.5
+"""Fraction of a tick period the world's physics may take per tick (wall time) before the
+device's time waits for it."""
 
 
 @dataclass(frozen=True)
@@ -146,6 +155,8 @@ class Firmware:
         self._tick_index = 0
         self._epoch_s: float | None = None  # clock time of the first tick: the DAC starts there
         self._clock: Clock | None = None  # the tick loop's clock, once it runs
+        self._paused_s = 0.0  # clock time the device stood still while the world caught up
+        self._world_since: float | None = None  # clock time the running sinks started
 
     def axis(self, number: int) -> Axis:
         """Axis ``number`` (1-based); empty or non-existent slots raise FirmwareError."""
@@ -191,7 +202,16 @@ class Firmware:
         """
         if self._clock is None or self._epoch_s is None:
             return self.samples_played
-        return max(self.samples_played, self._sample_at(self._clock.now_s() - self._epoch_s))
+        return max(self.samples_played, self._sample_at(self._device_time_s()))
+
+    def _device_time_s(self) -> float:
+        """The device's time now (s since its first tick, lock held): the clock's, less the time
+        it stood still while the world's physics took more than its share of a tick."""
+        assert self._clock is not None and self._epoch_s is not None
+        now = self._clock.now_s()
+        if self._world_since is not None:  # the sinks run: the device waits beyond the share
+            now = min(now, self._world_since + WORLD_SHARE / self.config.tick_hz)
+        return now - self._epoch_s - self._paused_s
 
     def _sample_at(self, t_s: float) -> int:
         """Index of the sample the DAC plays at ``t_s`` (s since its start)."""
@@ -232,11 +252,21 @@ class Firmware:
                     axis._fill(n)
             self.lock.notify_all()  # waiters on played samples (wait_idle)
             sinks, listeners = list(self._sinks), list(self._tick_listeners)
+            clock = self._clock if self._clock is not None and self._clock.realtime else None
+            if clock is not None:
+                self._world_since = clock.now_s()
         for number, first, volts in blocks:
             for sink in sinks:
                 sink(number, first, volts)
         for listener in listeners:
             listener(now_s)
+        if clock is not None:
+            with self.lock:
+                assert self._world_since is not None
+                self._paused_s += max(
+                    0.0, clock.now_s() - self._world_since - WORLD_SHARE / self.config.tick_hz
+                )
+                self._world_since = None
 
     def volts(self, code: int) -> float:
         """Output voltage of a DAC code."""
@@ -248,14 +278,16 @@ class Firmware:
         Call again with the same clock to continue.  Jitter (wake − deadline) is
         recorded per tick; a tick more than one period late is a late tick, and
         deadlines it slept through are skipped (the DAC buffer covers them).  A
-        wake later than ``watchdog_s`` latches WATCHDOG on every axis.
+        wake later than ``watchdog_s`` latches WATCHDOG on every axis.  Deadlines and
+        the DAC's time are the device's: the clock's, less the time it stood still
+        for the world (module docstring).
         """
         period = 1.0 / self.config.tick_hz
         done = 0
         with self.lock:
             self._clock = clock
         while not (stop is not None and stop.is_set()) and (max_ticks is None or done < max_ticks):
-            deadline = self._tick_index * period
+            deadline = self._tick_index * period + self._paused_s
             now = clock.sleep_until(deadline)
             late = now - deadline
             with self.lock:
@@ -268,11 +300,11 @@ class Firmware:
                         axis._latch(Fault.WATCHDOG)
             if self._epoch_s is None:
                 self._epoch_s = now
-            self.tick(now - self._epoch_s)
+            self.tick(now - self._epoch_s - self._paused_s)
             with self.lock:
                 self._tick_index += 1
-                if clock.realtime and now >= self._tick_index * period:
-                    skipped = math.floor(now / period) + 1 - self._tick_index
+                if clock.realtime and now - self._paused_s >= self._tick_index * period:
+                    skipped = math.floor((now - self._paused_s) / period) + 1 - self._tick_index
                     self.stats.missed_deadlines += skipped
                     self._tick_index += skipped
             done += 1

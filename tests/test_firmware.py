@@ -210,6 +210,50 @@ def test_late_tick_within_buffer_is_no_underrun_and_longer_one_holds_the_dac() -
     assert axis.status().fault_word == 0
 
 
+class WorldWorkClock(VirtualClock):
+    """Virtual time that runs on while the world's sinks compute (``spend``), as wall time does."""
+
+    realtime = True
+
+    def spend(self, seconds: float) -> None:
+        self._now += seconds
+
+
+def test_a_slow_world_makes_the_device_wait_and_nothing_it_reports_runs_ahead_of_the_world() -> None:
+    """The world's physics takes 5 ms of wall time per 1 ms tick (a planar plant slipping on a
+    loaded machine): the device's time stands still for it, so ticks stay on time, each hands the
+    world one tick of samples, and the step counter the host reads while the world computes
+    counts only samples the world has had, or half a tick more.  (Until 2026-11-28 the DAC
+    played on by the wall clock: the host read a burst done ~1 s before the camera showed it.)"""
+    fw = Firmware(FirmwareConfig(watchdog_s=1.0))
+    clock = WorldWorkClock()
+    axis = fw.axis(1)
+    axis.set_frequency(1000.0)
+    axis.set_amplitude(50.0)
+    axis.set_mode("stp")
+    axis.run_continuous(up=True)
+    blocks: list[int] = []
+    ahead: list[int] = []
+
+    def slow_world(number: int, first: int, volts: np.ndarray) -> None:
+        if number != 1:
+            return
+        blocks.append(volts.size)
+        clock.spend(5e-3)
+        ahead.append(fw.command_sample() - (first + volts.size))
+
+    fw.add_sink(slow_world)
+    fw.run(clock, max_ticks=200)
+    summary = fw.tick_summary()
+    assert summary["late_ticks"] == 0 and summary["missed_deadlines"] == 0 and summary["underruns"] == 0
+    assert set(blocks[1:]) == {fw.config.samples_per_tick}
+    assert max(ahead) <= fw.config.samples_per_tick // 2
+    # the device ran 200 ticks of its time, 1 ms of steps each; the clock 5.5 ms each: the
+    # world's 5 ms, of which the device waited 4.5, and the tick's other 0.5 ms
+    assert axis.status().step_counter == pytest.approx(200, abs=2)
+    assert clock.now_s() == pytest.approx(200 * 5.5e-3, rel=0.01)
+
+
 def test_watchdog_grounds_every_axis() -> None:
     fw, _, _ = make(watchdog_s=0.05)
     axis = fw.axis(1)

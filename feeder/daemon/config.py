@@ -289,8 +289,10 @@ PLANE_TICK_WATCHDOG_S = 2.0
 planar plant runs in the firmware's tick (its slowest 1 ms tick: ~1 ms for one axis, 5.3 ms
 over 50 random drives of up to three axes; seconds before the near-miss fix), and a machine
 loaded by a browser starting, the camera's encoding and decoding and the daemon delays it by
-up to a second (a 1 s grace ended a move "did not finish the burst in time" once); a real
-amplifier's tick never waits for physics.  The simulated amplifier's link timeout is as long."""
+up to a second (a 1 s grace ended a move "did not finish the burst in time" once); the
+simulated device's time waits for its world (``firmware_sim.firmware.WORLD_SHARE``), so a slow
+plant stretches a burst in wall time; a real amplifier's tick never waits for physics.  The
+simulated amplifier's link timeout is as long."""
 PLANE_HEARTBEAT_S = 0.5
 """The simulated CANopen nodes' heartbeat in the plane (lost after 2.5 periods)."""
 
