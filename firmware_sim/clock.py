@@ -26,6 +26,10 @@ class Clock(Protocol):
         """Wait until ``deadline_s`` (seconds since start); return the time on waking."""
         ...
 
+    def work_s(self) -> float:
+        """The calling thread's work so far, seconds: what the world's physics costs a tick."""
+        ...
+
 
 class RealTimeClock:
     """Wall time from ``time.monotonic``; ``sleep_until`` may wake late."""
@@ -44,6 +48,10 @@ class RealTimeClock:
             time.sleep(remaining)
         return self.now_s()
 
+    def work_s(self) -> float:
+        """The thread's CPU time (time spent waiting for the CPU is not the world's)."""
+        return time.thread_time()
+
 
 class VirtualClock:
     """Simulated time: ``sleep_until`` returns at once, exactly on the deadline."""
@@ -58,4 +66,8 @@ class VirtualClock:
 
     def sleep_until(self, deadline_s: float) -> float:
         self._now = max(self._now, deadline_s)
+        return self._now
+
+    def work_s(self) -> float:
+        """Simulated time: work costs none unless a subclass spends it."""
         return self._now

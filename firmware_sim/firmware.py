@@ -9,11 +9,12 @@ less than the buffer depth costs nothing; a later one makes the DAC repeat its
 last sample for the gap (an underrun, counted).  Commands act from the next
 sample the DAC plays: the unplayed part of the buffer is regenerated.
 
-The world's physics (the sinks) is instantaneous in a real lab but takes CPU time here: when
-a tick's sinks take more than :data:`WORLD_SHARE` of a tick period (the planar plant's slips
-on a loaded machine), the device's time stands still for the excess, so that nothing the
-amplifier reports (step counter, moving) runs ahead of the plant a camera sees: the whole
-simulated device then runs slower than the wall clock, but consistently.
+The world's physics (the sinks) is instantaneous in a real lab but takes CPU time here: while
+a tick's sinks run, the device's time stands still beyond :data:`WORLD_SHARE` of a tick, and
+the CPU time they took beyond that share is time the device did not live (the planar plant's
+slips of several parts): nothing the amplifier reports (step counter, moving) runs ahead of
+the plant a camera sees.  The whole simulated device then runs slower than the wall clock,
+but consistently; time the tick thread waited for the CPU the DAC plays through, as it would.
 
 Each axis (:class:`~firmware_sim.axis.Axis`) has a DDS and an output chain that
 enforces the amplifier's limits on the DAC codes; faults and refusals:
@@ -48,8 +49,8 @@ DEFAULT_DAC_BUFFER_S = 0.100
 """Deep enough for a busy shared machine; it costs no command latency, because
 commands regenerate the buffer from the sample the DAC plays when they arrive."""
 WORLD_SHARE = 0.5
-"""Fraction of a tick period the world's physics may take per tick (wall time) before the
-device's time waits for it."""
+"""Fraction of a tick period the world's physics may take per tick (CPU time, and wall time
+while it runs) before the device's time waits for it."""
 
 
 @dataclass(frozen=True)
@@ -254,7 +255,7 @@ class Firmware:
             sinks, listeners = list(self._sinks), list(self._tick_listeners)
             clock = self._clock if self._clock is not None and self._clock.realtime else None
             if clock is not None:
-                self._world_since = clock.now_s()
+                self._world_since, work_from = clock.now_s(), clock.work_s()
         for number, first, volts in blocks:
             for sink in sinks:
                 sink(number, first, volts)
@@ -262,10 +263,7 @@ class Firmware:
             listener(now_s)
         if clock is not None:
             with self.lock:
-                assert self._world_since is not None
-                self._paused_s += max(
-                    0.0, clock.now_s() - self._world_since - WORLD_SHARE / self.config.tick_hz
-                )
+                self._paused_s += max(0.0, clock.work_s() - work_from - WORLD_SHARE / self.config.tick_hz)
                 self._world_since = None
 
     def volts(self, code: int) -> float:

@@ -211,17 +211,29 @@ def test_late_tick_within_buffer_is_no_underrun_and_longer_one_holds_the_dac() -
 
 
 class WorldWorkClock(VirtualClock):
-    """Virtual time that runs on while the world's sinks compute (``spend``), as wall time does."""
+    """Virtual time that runs on while the world's sinks compute (``spend``: CPU time) or wait
+    for the CPU (``wait``), as wall time does."""
 
     realtime = True
 
+    def __init__(self) -> None:
+        super().__init__()
+        self._work = 0.0
+
     def spend(self, seconds: float) -> None:
         self._now += seconds
+        self._work += seconds
+
+    def wait(self, seconds: float) -> None:
+        self._now += seconds
+
+    def work_s(self) -> float:
+        return self._work
 
 
 def test_a_slow_world_makes_the_device_wait_and_nothing_it_reports_runs_ahead_of_the_world() -> None:
-    """The world's physics takes 5 ms of wall time per 1 ms tick (a planar plant slipping on a
-    loaded machine): the device's time stands still for it, so ticks stay on time, each hands the
+    """The world's physics takes 5 ms of CPU time per 1 ms tick (a planar plant slipping two
+    parts on a loaded machine): the device's time stands still for it, so ticks stay on time, each hands the
     world one tick of samples, and the step counter the host reads while the world computes
     counts only samples the world has had, or half a tick more.  (Until 2026-11-28 the DAC
     played on by the wall clock: the host read a burst done ~1 s before the camera showed it.)"""
@@ -252,6 +264,23 @@ def test_a_slow_world_makes_the_device_wait_and_nothing_it_reports_runs_ahead_of
     # world's 5 ms, of which the device waited 4.5, and the tick's other 0.5 ms
     assert axis.status().step_counter == pytest.approx(200, abs=2)
     assert clock.now_s() == pytest.approx(200 * 5.5e-3, rel=0.01)
+
+
+def test_time_the_tick_thread_waits_for_the_cpu_is_played_through() -> None:
+    """A world that waits 5 ms for the CPU each tick but computes nothing: the DAC plays on by
+    the clock, as a real one would while its firmware is late (missed deadlines, one tick's
+    worth of samples and more per tick), and the device's time is the clock's."""
+    fw = Firmware(FirmwareConfig(watchdog_s=1.0))
+    clock = WorldWorkClock()
+    axis = fw.axis(1)
+    axis.set_frequency(1000.0)
+    axis.set_amplitude(50.0)
+    axis.set_mode("stp")
+    axis.run_continuous(up=True)
+    fw.add_sink(lambda number, first, volts: clock.wait(5e-3) if number == 1 else None)
+    fw.run(clock, max_ticks=40)
+    assert fw.tick_summary()["missed_deadlines"] >= 150
+    assert axis.status().step_counter == pytest.approx(1e3 * clock.now_s(), abs=2)
 
 
 def test_watchdog_grounds_every_axis() -> None:
