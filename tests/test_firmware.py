@@ -231,19 +231,24 @@ class WorldWorkClock(VirtualClock):
         return self._work
 
 
-def test_a_slow_world_makes_the_device_wait_and_nothing_it_reports_runs_ahead_of_the_world() -> None:
-    """The world's physics takes 5 ms of CPU time per 1 ms tick (a planar plant slipping two
-    parts on a loaded machine): the device's time stands still for it, so ticks stay on time, each hands the
-    world one tick of samples, and the step counter the host reads while the world computes
-    counts only samples the world has had, or half a tick more.  (Until 2026-11-28 the DAC
-    played on by the wall clock: the host read a burst done ~1 s before the camera showed it.)"""
+def stepping_on_world_work_clock() -> tuple[Firmware, WorldWorkClock, Axis]:
+    """Axis 1 stepping on at 1 kHz, the firmware to run on a :class:`WorldWorkClock`."""
     fw = Firmware(FirmwareConfig(watchdog_s=1.0))
-    clock = WorldWorkClock()
     axis = fw.axis(1)
     axis.set_frequency(1000.0)
     axis.set_amplitude(50.0)
     axis.set_mode("stp")
     axis.run_continuous(up=True)
+    return fw, WorldWorkClock(), axis
+
+
+def test_a_slow_world_makes_the_device_wait_and_nothing_it_reports_runs_ahead_of_the_world() -> None:
+    """The world's physics takes 5 ms of CPU time per 1 ms tick (a planar plant slipping two
+    parts on a loaded machine): the device's time stands still for it, so ticks stay on time,
+    each hands the world one tick of samples, and the step counter the host reads while the world computes
+    counts only samples the world has had, or half a tick more.  (Until 2026-11-28 the DAC
+    played on by the wall clock: the host read a burst done ~1 s before the camera showed it.)"""
+    fw, clock, axis = stepping_on_world_work_clock()
     blocks: list[int] = []
     ahead: list[int] = []
 
@@ -270,13 +275,7 @@ def test_time_the_tick_thread_waits_for_the_cpu_is_played_through() -> None:
     """A world that waits 5 ms for the CPU each tick but computes nothing: the DAC plays on by
     the clock, as a real one would while its firmware is late (missed deadlines, one tick's
     worth of samples and more per tick), and the device's time is the clock's."""
-    fw = Firmware(FirmwareConfig(watchdog_s=1.0))
-    clock = WorldWorkClock()
-    axis = fw.axis(1)
-    axis.set_frequency(1000.0)
-    axis.set_amplitude(50.0)
-    axis.set_mode("stp")
-    axis.run_continuous(up=True)
+    fw, clock, axis = stepping_on_world_work_clock()
     fw.add_sink(lambda number, first, volts: clock.wait(5e-3) if number == 1 else None)
     fw.run(clock, max_ticks=40)
     assert fw.tick_summary()["missed_deadlines"] >= 150
