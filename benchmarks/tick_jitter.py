@@ -63,6 +63,7 @@ def run(quick: bool) -> dict[str, object]:
         "late_ticks": summary["late_ticks"],
         "missed_deadlines": summary["missed_deadlines"],
         "underruns": summary["underruns"],
+        "world_wait_ms": 1e3 * float(summary["world_wait_s"]),
         "steps": axis.status().step_counter,
         "baseline_p50_us": 1e6 * float(np.percentile(baseline, 50)),
         "baseline_p99_us": 1e6 * base_p99,

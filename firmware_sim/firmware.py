@@ -308,9 +308,10 @@ class Firmware:
             done += 1
 
     def tick_summary(self) -> dict[str, float | int]:
-        """The tick loop's statistics (see :class:`TickStats`)."""
+        """The tick loop's statistics (see :class:`TickStats`), and ``world_wait_s``: how long
+        the device's time stood still for its world (module docstring)."""
         with self.lock:
-            return self.stats.summary()
+            return {**self.stats.summary(), "world_wait_s": self._paused_s}
 
     def shutdown(self) -> None:
         """Ground every axis and wake anyone waiting for an axis."""
