@@ -318,6 +318,26 @@ def test_help_and_status_import_nothing_heavy(short_dir: Path) -> None:
     assert out.splitlines()[-1] == "light"
 
 
+DESIGN_HELP = """
+import sys
+from feeder.cli import main
+for command in ("waveform", "simulate", "plan"):
+    try:
+        main([command, "--help"])
+    except SystemExit as done:
+        assert done.code == 0
+import firmware_sim.options
+print(" ".join(m for m in ("control", "scipy.signal", "matplotlib") if m in sys.modules) or "light")
+"""
+
+
+def test_the_design_commands_help_loads_no_lti_toolbox() -> None:
+    """``feeder waveform|simulate|plan --help`` and firmware_sim's options name a stack but build
+    no model: python-control and scipy.signal (~2 s of the 3 s these took) stay unloaded."""
+    out = subprocess.run([sys.executable, "-c", DESIGN_HELP], capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines()[-1] == "light"
+
+
 def test_the_lazy_parser_is_the_full_parser() -> None:
     """Placeholders carry the real help lines; loading one command leaves the others' alone."""
     full = build_parser()

@@ -23,12 +23,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
-from scipy.signal import lfilter, lfilter_zi
 
 from feeder.errors import InputError
+
+if TYPE_CHECKING:
+    import control
+
+# python-control and scipy.signal (~2 s to import, matplotlib with them) are imported where a
+# model is built or filtered: the commands that only name a stack (``feeder simulate --help``,
+# firmware_sim's option checks) start without them.
 
 
 @dataclass(frozen=True)
@@ -51,6 +57,8 @@ class StackParameters:
 
     def position_model(self) -> control.TransferFunction:
         """X(s)/V(s) in m/V."""
+        import control
+
         w_n = 2 * math.pi * self.resonance_hz
         plant = control.tf([self.gain_m_per_v * w_n**2], [1.0, 2 * self.damping_ratio * w_n, w_n**2])
         if self.output_resistance_ohm > 0:
@@ -60,6 +68,8 @@ class StackParameters:
 
     def state_space(self) -> control.StateSpace:
         """Continuous model with outputs [position (m), velocity (m/s)]."""
+        import control
+
         position = control.ss(self.position_model())
         a, b, c, d = position.A, position.B, position.C, position.D
         # velocity = d/dt (C x) = C A x + C B u (D = 0: the model's relative degree is ≥ 2)
@@ -67,11 +77,15 @@ class StackParameters:
 
     def discrete(self, sample_rate_hz: float) -> control.StateSpace:
         """First-order-hold discretisation at ``sample_rate_hz``."""
+        import control
+
         return control.sample_system(self.state_space(), 1.0 / sample_rate_hz, method="foh")
 
 
 def _transfer_rows(system: control.StateSpace) -> list[tuple[np.ndarray, np.ndarray]]:
     """(b, a) of each output of a single-input discrete system, for lfilter."""
+    import control
+
     rows = []
     for k in range(system.noutputs):
         tf = control.ss2tf(system[k, 0])
@@ -113,6 +127,8 @@ class StackFilter:
 
     def advance(self, voltage_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(position, velocity) at each voltage sample."""
+        from scipy.signal import lfilter
+
         outputs = []
         for k, (b, a) in enumerate(self._rows):
             y, self._states[k] = lfilter(b, a, voltage_v, zi=self._states[k])
@@ -139,6 +155,8 @@ def _filter_design(
 
 def _unit_steady_state(b: np.ndarray, a: np.ndarray) -> np.ndarray:
     """lfilter state of a filter that has seen the constant input 1 forever."""
+    from scipy.signal import lfilter_zi
+
     n = max(len(a), len(b)) - 1
     if n == 0:
         return np.zeros(0)
