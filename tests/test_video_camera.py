@@ -290,6 +290,30 @@ def test_a_genicam_camera_is_asked_for_the_frame_size() -> None:
     assert frame.image.shape == (240, 320)
 
 
+def test_a_genicam_camera_slower_than_one_fetch_gives_its_frames() -> None:
+    """viky at 1 frame/s read with 0.3 s fetches (an exposure or trigger longer than a fetch):
+    the timeouts are waited through; each reopened the camera before, and no frame ever came
+    ("fetch failed: ", the timeout's empty message)."""
+    genicam = pytest.importorskip("genicam")
+    pytest.importorskip("harvesters.core")
+    producer = Path(genicam.__file__).parent / "viky.cti"
+    if not producer.is_file():
+        pytest.skip("no viky.cti in the genicam package")
+
+    class OneFrameASecond(GenICamSource):
+        def _open(self) -> None:
+            super()._open()
+            self._acquirer.stop()
+            self._acquirer.remote_device.node_map.AcquisitionFrameRate.value = 1.0
+            self._acquirer.start()
+
+    with OneFrameASecond(producer, fetch_timeout_s=0.3) as camera:
+        frames = [camera.read(timeout_s=4) for _ in range(2)]
+        assert not camera.error
+    assert frames[1].sequence == frames[0].sequence + 1
+    assert frames[1].time_s - frames[0].time_s == pytest.approx(1.0, abs=0.3)
+
+
 def test_genicam_colour_camera_gives_grey_frames() -> None:
     genicam = pytest.importorskip("genicam")
     pytest.importorskip("harvesters.core")

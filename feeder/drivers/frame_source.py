@@ -101,6 +101,8 @@ class FrameSource(ABC):
                 self._release()
                 if sequence > first:
                     backoff, self._logged = 0.05, ""
+                if self._closed.is_set():  # closed: nothing was lost
+                    break
                 if lost is CameraSizeError or (why and not self.live):
                     self._fail(why, lost)
                 elif self.live:

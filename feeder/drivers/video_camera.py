@@ -23,6 +23,7 @@ import contextlib
 import logging
 import os
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -248,10 +249,11 @@ class GenICamSource(FrameSource):
         fetch_timeout_s: float = 1.0,
         max_backoff_s: float = 2.0,
         size_px: tuple[int, int] | None = None,
+        silent_s: float = 5.0,
     ) -> None:
         try:
             from genicam.genapi import GenericException as NodeException  # harvesters' dependency
-            from genicam.gentl import GenericException
+            from genicam.gentl import GenericException, TimeoutException
             from harvesters.core import Harvester
         except ImportError as exc:
             raise CameraError(
@@ -261,8 +263,10 @@ class GenICamSource(FrameSource):
             raise CameraError(f"{producer}: no such GenTL producer (.cti) file")
         name = f"genicam:{producer}" + (f"#{serial}" if serial else "")
         super().__init__(name, max_backoff_s, size_px)
-        self.fetch_timeout_s = fetch_timeout_s
+        self.fetch_timeout_s = fetch_timeout_s  # one wait for a buffer: close() waits at most this
+        self.silent_s = silent_s  # no frame for this long: the camera is reopened
         self.serial = serial
+        self._fetch_timeout: type[Exception] = TimeoutException
         # GenTL's own errors (timeouts, lost device, what the producer does not give)
         self._gentl_error: type[Exception] = GenericException
         # ... and a buffer of the wrong size
@@ -288,18 +292,27 @@ class GenICamSource(FrameSource):
         self._acquirer.start()
 
     def _grab(self) -> tuple[np.ndarray, float | None] | None:
+        """The next buffer's image and timestamp; a fetch that times out is waited through up to
+        ``silent_s`` (an exposure or a trigger longer than ``fetch_timeout_s``: until 2026-11-28
+        each timeout reopened the camera, which then never gave a frame)."""
         if self._acquirer is None:
             return None
-        try:
-            with self._acquirer.fetch(timeout=self.fetch_timeout_s) as buffer:
-                image = component_image(buffer.payload.components[0])
-                try:
-                    stamp = buffer.timestamp_ns
-                except self._gentl_error:  # a producer without timestamps
-                    stamp = None
-        except self._fetch_errors as exc:
-            raise CameraError(f"fetch failed: {exc}") from exc
-        return image, (stamp * 1e-9 if stamp else None)
+        waiting_since = time.monotonic()
+        while not self._closed.is_set():
+            try:
+                with self._acquirer.fetch(timeout=self.fetch_timeout_s) as buffer:
+                    image = component_image(buffer.payload.components[0])
+                    try:
+                        stamp = buffer.timestamp_ns
+                    except self._gentl_error:  # a producer without timestamps
+                        stamp = None
+                    return image, (stamp * 1e-9 if stamp else None)
+            except self._fetch_timeout as exc:
+                if time.monotonic() - waiting_since >= self.silent_s:
+                    raise CameraError(f"no frame in {self.silent_s:g} s") from exc
+            except self._fetch_errors as exc:
+                raise CameraError(f"fetch failed: {exc}") from exc
+        return None
 
     def _release(self) -> None:
         if self._acquirer is not None:
