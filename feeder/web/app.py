@@ -16,8 +16,9 @@ CLI and scripts share one vocabulary:
   ``stack_gain_m_per_v``, ``increment_v``, ``frames``, ``save``): answered when the plate moves
   end (a closed page does not stop them: STOP does) |
 | ``POST /api/release`` | ``{"cmd": "release", ...body}`` (``part``; none: every held part) |
-| ``WS /api/live`` | pushes the status (JSON text, ``time_s`` = wall clock of the snapshot) at
-  :data:`LIVE_PERIOD_S` and the newest camera frame (binary JPEG) when there is a camera |
+| ``WS /api/live`` | pushes each new status (JSON text, ``time_s`` = wall clock of the snapshot),
+  one per :data:`~feeder.web.live_feed.LIVE_PERIOD_S`, and the newest camera frame (binary JPEG)
+  when there is a camera |
 
 Who may call it: :mod:`feeder.web.security`.  Bad requests get ``{"ok": false, "error": ...}``
 with a 4xx code; a refusal by the daemon is 409; more than
@@ -31,8 +32,6 @@ import asyncio
 import contextlib
 import json
 import logging
-import math
-import time
 from collections.abc import Awaitable, Callable
 from importlib import resources
 from typing import Any, Protocol
@@ -50,15 +49,12 @@ from feeder.daemon.config import HttpConfig
 from feeder.daemon.quiet_window import QuietWindow
 from feeder.web.camera import CameraFeed
 from feeder.web.lanes import MoveLane, UrgentLane
+from feeder.web.live_feed import LiveFeed
 from feeder.web.requests import ApiError, checked, error_response, jog_request, json_body
 from feeder.web.security import ApiGuard, RateLimit, own_origins, websocket_admitted
 
 log = logging.getLogger(__name__)
 
-LIVE_PERIOD_S = 1 / 30
-"""Status pushes to each live client: 30 per second."""
-STATUS_MAX_AGE_S = 0.025
-"""A status snapshot is shared by the requests within this time of it."""
 MAX_LIMIT_DIGITS = 9
 """``/api/history?limit=``: longer is refused (400) before the daemon sees it."""
 STATIC = ("console.html", "plate_view.js", "console.js")
@@ -75,39 +71,6 @@ class Handler(Protocol):
     def quiet(self) -> QuietWindow: ...
 
 
-class LiveFeed:
-    """The newest status, shared by every live client and ``/api/status``: at most one
-    ``status`` request reaches the daemon per :data:`STATUS_MAX_AGE_S` however many pages
-    and scripts ask (a burst of requests costs the daemon one)."""
-
-    def __init__(self, daemon: Handler, lane: UrgentLane) -> None:
-        self.daemon = daemon
-        self._lane = lane
-        self._lock = asyncio.Lock()
-        self._status: dict[str, Any] = {}
-        self._message = ""
-        self._taken_s = -math.inf
-
-    async def _refresh(self) -> None:
-        async with self._lock:
-            if time.monotonic() - self._taken_s >= STATUS_MAX_AGE_S:
-                wall = time.time()
-                self._status = await self._lane.run(self.daemon.handle, {"cmd": "status"})
-                self._taken_s = time.monotonic()
-                self._message = json.dumps(
-                    {"type": "status", "time_s": wall, "status": self._status}, allow_nan=False, default=str
-                )
-
-    async def status(self) -> dict[str, Any]:
-        await self._refresh()
-        return self._status
-
-    async def message(self) -> str:
-        """The status as the live socket's text message (``time_s``: wall clock before it was taken)."""
-        await self._refresh()
-        return self._message
-
-
 def console_app(
     daemon: Handler, token: str, settings: HttpConfig, port: int, camera: CameraFeed | None = None
 ) -> Starlette:
@@ -116,7 +79,7 @@ def console_app(
     moves = RateLimit(settings.moves_per_s, settings.move_burst)
     urgent = UrgentLane()  # stop and status
     waiting = MoveLane()  # moves, jogs, calibrations (the camera's too)
-    live = LiveFeed(daemon, urgent)
+    live = LiveFeed(daemon.handle, urgent)
     pages = {name: resources.files("feeder.web.static").joinpath(name).read_bytes() for name in STATIC}
 
     async def ask(request: dict[str, Any]) -> dict[str, Any]:
@@ -212,33 +175,32 @@ def console_app(
     async def live_socket(ws: WebSocket) -> None:
         if not await websocket_admitted(ws, token, origins):
             return
-        closed = asyncio.Event()
 
-        async def drain() -> None:  # the client sends nothing more: notice when it leaves
+        async def drain() -> None:  # the client sends nothing more: ends when it leaves
             with contextlib.suppress(WebSocketDisconnect, RuntimeError, OSError):
                 while (await ws.receive())["type"] != "websocket.disconnect":
                     pass
-            closed.set()
 
         reader = asyncio.create_task(drain())
         sent_frame = 0
-        deadline = time.monotonic()
         watching = camera.watching() if camera is not None else contextlib.nullcontext()
         try:
-            with watching:  # the camera's frames are encoded only while a page watches them
-                while not closed.is_set() and ws.application_state == WebSocketState.CONNECTED:
-                    deadline = max(deadline + LIVE_PERIOD_S, time.monotonic())  # a fixed rate, never a burst
-                    await ws.send_text(await live.message())
-                    jpeg = None if camera is None else camera.jpeg
-                    if camera is not None and jpeg is not None and camera.sequence != sent_frame:
-                        sent_frame = camera.sequence
-                        width, height = camera.size_px
-                        await ws.send_text(
-                            json.dumps({"type": "frame", "width_px": width, "height_px": height})
-                        )
-                        await ws.send_bytes(jpeg)
-                    with contextlib.suppress(TimeoutError):
-                        await asyncio.wait_for(closed.wait(), max(0.0, deadline - time.monotonic()))
+            async with live.watched() as seen:
+                with watching:  # the camera's frames are encoded only while a page watches them
+                    while ws.application_state == WebSocketState.CONNECTED:
+                        news = await live.next_message(seen, unless=reader)
+                        if news is None:
+                            break
+                        seen, message = news
+                        await ws.send_text(message)
+                        jpeg = None if camera is None else camera.jpeg
+                        if camera is not None and jpeg is not None and camera.sequence != sent_frame:
+                            sent_frame = camera.sequence
+                            width, height = camera.size_px
+                            await ws.send_text(
+                                json.dumps({"type": "frame", "width_px": width, "height_px": height})
+                            )
+                            await ws.send_bytes(jpeg)
         except (WebSocketDisconnect, RuntimeError, OSError):
             pass
         finally:

@@ -16,8 +16,8 @@ function takeToken() {
 }
 const token = takeToken();
 
-// what the tests read: live view redraws, camera frames, pose overlay lag (ms)
-window.consoleStats = { draws: 0, frames: 0, lagsMs: [] };
+// what the tests read: live view redraws, camera frames, new statuses received, pose overlay lag (ms)
+window.consoleStats = { draws: 0, frames: 0, statuses: 0, lagsMs: [] };
 
 let status = null;          // the newest status
 let statusTime = 0;         // its snapshot's wall time (s)
@@ -81,6 +81,7 @@ function connect() {
     else if (message.type === "frame") camera = { ...camera, width_px: message.width_px, height_px: message.height_px };
     else if (message.type === "status") {
       status = message.status;
+      if (message.time_s !== statusTime) window.consoleStats.statuses += 1;
       statusTime = message.time_s;
       onStatus();
       schedule();
