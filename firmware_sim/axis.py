@@ -303,16 +303,16 @@ class Axis:
         that command's sample)."""
         return self._remaining != 0 or self._mode == "cap" or now < self._active_until
 
-    def _rewrite(self, resume: bool) -> None:
-        """Regenerate the DAC buffer from the current state, from the sample the DAC plays
-        when the command arrives (``Firmware.command_sample``): every command acts from
-        there, the samples before it play as they were generated.
+    def _rewrite(self, resume: bool, at: int | None = None) -> None:
+        """Regenerate the DAC buffer from the current state, from the sample ``at`` (default:
+        the one the DAC plays when the command arrives, ``Firmware.command_sample``): every
+        command acts from there, the samples before it play as they were generated.
 
         The DDS restarts from the phase of the first regenerated sample; with ``resume``
         a burst in progress keeps the steps it has not played yet.
         """
         # buffered samples the DAC plays before the command acts
-        kept = self._played_since_tick(self._fw.command_sample())
+        kept = self._played_since_tick(self._fw.command_sample() if at is None else at)
         start = self._fw.samples_played + kept
         n = self._written - start
         if n <= 0:
@@ -361,11 +361,14 @@ class Axis:
             raise FirmwareError("Axis in wrong mode")
         if self._fault_word:
             raise FirmwareError("Axis in fault state")
+        # both regenerations act from the sample of the command's arrival: the first one's
+        # work (~3 ms of 100 ms of samples) must not delay the burst
+        at = self._fw.command_sample()
         self._remaining = 0
-        self._rewrite(resume=False)  # the phase where the DAC is now
+        self._rewrite(resume=False, at=at)  # the phase where the DAC is then
         self._up = up
         self._remaining = remaining
-        self._rewrite(resume=False)
+        self._rewrite(resume=False, at=at)
 
     def _latch(self, bit: Fault) -> None:
         self._fault_word |= int(bit)

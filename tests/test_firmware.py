@@ -472,3 +472,27 @@ def test_status_is_one_instant_even_when_the_dac_plays_on_while_it_is_taken() ->
     clock.creep_s = 1.0 / fw.sample_rate
     status = axis.status()
     assert (status.step_counter, status.moving) in ((2, True), (3, False))
+
+
+def test_a_burst_starts_at_its_commands_arrival_however_long_the_firmware_works_on_it() -> None:
+    """``stepu`` regenerates the DAC buffer twice (to stop what plays, then for the burst): ~3 ms
+    each here.  The burst starts at the sample the DAC played when the command arrived, not
+    after the first regeneration (it did until 2026-11-28: a burst cut by ``stop`` then played
+    fewer steps than the time between the two commands, and the ANC300 driver's estimate,
+    right about the commands, counted more steps than the plant had made)."""
+    clock = CreepingClock()
+    fw, rec, _ = make(dac_buffer_s=0.010)
+    axis = fw.axis(1)
+    axis.set_frequency(1000.0)
+    axis.set_amplitude(50.0)
+    axis.set_mode("stp")
+    fw.run(clock, max_ticks=1)  # the DAC starts at 0
+    clock.advance_to(0.0003)
+    clock.creep_s = 0.002  # each reading of the clock: 2 ms of the firmware's work
+    axis.step(3)
+    clock.creep_s = 0.0
+    arrived = round(0.0023 * fw.sample_rate)  # the first reading: the command's arrival
+    fw.run(clock, max_ticks=9)
+    v = rec.volts()
+    first_move = int(np.flatnonzero(v != v[0])[0])
+    assert first_move == pytest.approx(arrived, abs=2)
