@@ -1,4 +1,5 @@
-"""What the ANC300 driver sends: the amplitude's resolution, and no ``stepw`` it cannot finish.
+"""What the ANC300 driver sends: the amplitude's resolution, no ``stepw`` it cannot finish, and
+a cut burst's steps counted from when the unit acted.
 
 Over a pty to firmware_sim's ANC300-dialect console, which keeps every line it was sent
 (docs/anc300-protocol.md: ``setv AXIS V`` takes the amplitude; ``stepw`` holds the serial
@@ -8,6 +9,7 @@ console, its only session, until the burst is over).
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -31,10 +33,25 @@ class Unit:
     lines: list[str] = field(default_factory=list)
 
 
-def open_unit(firmware: Firmware) -> Iterator[Unit]:
+WORK_S = 0.040
+"""How long :class:`AnswersAfterWork` works after acting on ``stepu`` before it answers."""
+
+
+class AnswersAfterWork(RecordingSession):
+    """A unit that acts on ``stepu`` as the line arrives and answers :data:`WORK_S` later
+    (firmware_sim regenerates 100 ms of waveform first: 6-10 ms; ``stop`` answers in ~1 ms)."""
+
+    def feed(self, data: bytes) -> bytes:
+        reply = super().feed(data)
+        if b"stepu" in data:
+            time.sleep(WORK_S)
+        return reply
+
+
+def open_unit(firmware: Firmware, session: type[RecordingSession] = RecordingSession) -> Iterator[Unit]:
     lines: list[str] = []
     # a stepw the test did not expect gives up after 0.5 s instead of holding the pty
-    pty = PtyConsole(lambda _source: RecordingSession(firmware, lines, wait_timeout_s=0.5))
+    pty = PtyConsole(lambda _source: session(firmware, lines, wait_timeout_s=0.5))
     link = Anc300Link(pty.path, timeout_s=1.0)
     try:
         yield Unit(firmware, link, lines)
@@ -50,8 +67,7 @@ def unit() -> Iterator[Unit]:
     yield from open_unit(Firmware())
 
 
-@pytest.fixture
-def ticking_unit() -> Iterator[Unit]:
+def open_ticking_unit(session: type[RecordingSession]) -> Iterator[Unit]:
     """A console on a firmware ticking in real time (its watchdog relaxed to 5 s: a loaded
     machine's stall must not ground the burst under test)."""
     firmware = Firmware(FirmwareConfig(watchdog_s=5.0))
@@ -59,10 +75,20 @@ def ticking_unit() -> Iterator[Unit]:
     thread = threading.Thread(target=firmware.run, args=(RealTimeClock(), stop), daemon=True)
     thread.start()
     try:
-        yield from open_unit(firmware)
+        yield from open_unit(firmware, session)
     finally:
         stop.set()
         thread.join(timeout=5)
+
+
+@pytest.fixture
+def ticking_unit() -> Iterator[Unit]:
+    yield from open_ticking_unit(RecordingSession)
+
+
+@pytest.fixture
+def slow_answering_unit() -> Iterator[Unit]:
+    yield from open_ticking_unit(AnswersAfterWork)
 
 
 def test_the_amplitude_reaches_the_unit_with_microvolt_resolution(unit: Unit) -> None:
@@ -103,3 +129,28 @@ def test_wait_longer_than_the_burst_confirms_its_end_with_stepw(ticking_unit: Un
     assert amp.steps_played() == (3, False)
     assert ticking_unit.firmware.axis(1).status().step_counter == 3
     amp.ground()
+
+
+def test_a_cut_burst_counts_from_when_the_unit_acted_not_from_its_late_answer(
+    slow_answering_unit: Unit,
+) -> None:
+    """The unit starts the burst as ``stepu`` arrives and answers 40 ms later; ``stop`` answers
+    at once.  The midpoints of the two round trips (the driver before 2026-11-28) put the start
+    20 ms late: 20 steps short at 1 kHz.  The line's arrival (its sending plus half the link's
+    shortest round trip) counts them within the machine's scheduling noise."""
+    unit = slow_answering_unit
+    amp = Anc300Amplifier(unit.link, axis=1)
+    amp.apply(DriveSettings(frequency_hz=1000.0, amplitude_v=20.0))
+    amp.enable()
+    errors = []
+    for _ in range(3):
+        before, true_before = amp.steps_played()[0], unit.firmware.axis(1).status().step_counter
+        amp.step(3000)
+        time.sleep(0.15)
+        amp.stop()
+        time.sleep(0.02)  # the ticks count what the DAC played
+        played, estimated = amp.steps_played()
+        assert estimated
+        errors.append((played - before) - (unit.firmware.axis(1).status().step_counter - true_before))
+    amp.ground()
+    assert max(abs(e) for e in errors) <= 6, errors  # steps = ms at 1 kHz

@@ -10,7 +10,8 @@ and firmware_sim alike: the flyback goes up as 256-point ``setpu``/``setpd``
 tables (:meth:`feeder.waveform.Waveform.anc300_tables`, uploaded when they
 change); the frequency goes out in whole hertz (what an ANC300 takes) and f is
 the unit's own ``getf`` answer; the end of a burst is N/f after the step
-command was acknowledged, confirmed with ``stepw``; the step counter is the
+command reached the unit (:meth:`~feeder.drivers.anc300_link.Anc300Link.act`),
+confirmed with ``stepw``; the step counter is the
 driver's own count of the steps it commanded, and after a ``stop`` mid-burst
 the steps played are *estimated* from the time the burst ran
 (``AmplifierStatus.counted_by`` says so): the ANC300 reports neither a counter
@@ -106,13 +107,12 @@ class Anc300Amplifier(Amplifier):
         if count == 0:
             raise AmplifierError("step count 0 refused (stepu 0 runs forever on an ANC300)")
         verb = "stepu" if count > 0 else "stepd"
-        sent = self._clock()
-        self.link.query(f"{verb} {self.axis} {abs(count)}")
+        ago = self.link.act(f"{verb} {self.axis} {abs(count)}")
+        started = self._clock() - ago
         with self._lock:
             self._settle_burst()
             self._continuous = False
-            # the unit started between sending and its OK: the midpoint halves the error
-            self._burst = (0.5 * (sent + self._clock()), count)
+            self._burst = (started, count)
             self._counter += count
             self._estimated = False
 
@@ -123,10 +123,10 @@ class Anc300Amplifier(Amplifier):
             self._continuous = True
 
     def stop(self) -> None:
-        sent = self._clock()
-        self.link.query(f"stop {self.axis}")
+        ago = self.link.act(f"stop {self.axis}")
+        stopped = self._clock() - ago
         with self._lock:
-            self._cut_burst(0.5 * (sent + self._clock()))
+            self._cut_burst(stopped)
 
     def wait(self, timeout_s: float) -> bool:
         """Sleep until N/f after the burst started, then confirm with ``stepw``."""

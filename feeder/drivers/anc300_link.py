@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import re
 import threading
 import time
@@ -118,6 +119,7 @@ class Anc300Link:
         self._in_sync = False  # False: the next command resynchronises first
         self._stop_pending = False  # a reply was lost: stop every attached axis after resyncing
         self._axes: dict[int, list[Callable[[], None]]] = {}
+        self._shortest_s = math.inf  # the shortest round trip of this connection's commands
 
     # -- public ---------------------------------------------------------------
 
@@ -130,19 +132,37 @@ class Anc300Link:
         timeout (:class:`ReplyTimeout`) or the link broke; the next query then
         resynchronises (and reconnects, if the port was closed).
         """
+        return self._exchange(command, timeout_s)[0]
+
+    def act(self, command: str) -> float:
+        """Send a command that changes what the unit does (``stepu``, ``stop``) as :meth:`query`
+        does; return how long ago the unit received it (s): half the link's shortest round trip
+        after the line was written.  A unit acts on a command as it arrives and may answer
+        only after work of its own (firmware_sim's ``stepu`` regenerates 100 ms of waveform
+        first: a 6-10 ms round trip where ``stop`` takes 1 ms), which the midpoint of the
+        command's own round trip would count as time before it acted."""
+        _, written_s, replied_s = self._exchange(command, None)
+        return time.monotonic() - min(written_s + 0.5 * self._shortest_s, replied_s)
+
+    def _exchange(self, command: str, timeout_s: float | None) -> tuple[list[str], float, float]:
+        """:meth:`query`'s lines, and the clock (``time.monotonic``) when the line was written
+        and when its reply was complete."""
         with self.lock:
             try:
                 port = self._ready()
                 port.reset_input_buffer()  # stray bytes from before are not our reply
                 port.write(command.encode("ascii") + b"\r\n")
+                written_s = time.monotonic()
                 lines, error = self._read_reply(port, timeout_s or self.timeout_s, command)
+                replied_s = time.monotonic()
             except QUERY_ERRORS as exc:
                 self._lost(exc)
                 lost = ReplyTimeout if isinstance(exc, ReplyTimeout) else AmplifierLinkLost
                 raise lost(f"{self.url}: {command.split()[0]}: {exc}") from exc
+            self._shortest_s = min(self._shortest_s, replied_s - written_s)
             if error is not None:
                 raise AmplifierError(f"{self.url}: {command.split()[0]}: {error}")
-            return lines
+            return lines, written_s, replied_s
 
     def value(self, command: str, name: str) -> str:
         """The value of the ``name = value [unit]`` line of ``command``'s reply."""
@@ -179,6 +199,7 @@ class Anc300Link:
 
     def _drop(self) -> None:
         self._in_sync = False
+        self._shortest_s = math.inf  # the next connection may take another path
         if self._port is not None:
             with contextlib.suppress(*LINK_ERRORS):
                 self._port.close()
