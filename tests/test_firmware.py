@@ -425,15 +425,21 @@ def test_commands_between_ticks_act_when_they_arrive_not_at_the_last_tick() -> N
     assert np.all(np.abs(v[261:] - 1.0) <= lsb)
 
 
-def three_steps_at_1khz(clock: HandClock) -> tuple[Firmware, Axis]:
-    """Axis 1 stepping 3 times at 1 kHz from 0 s; ``clock`` stands at the tick at 2 ms (200
-    samples played, 2 steps counted), the burst ends at 3 ms."""
-    fw, _, _ = make(dac_buffer_s=0.010)
+def ready_at_1khz(clock: HandClock) -> tuple[Firmware, Recorder, Axis]:
+    """Axis 1 set to step at 1 kHz, 50 V; one tick at 0 s run on ``clock`` (the DAC starts)."""
+    fw, rec, _ = make(dac_buffer_s=0.010)
     axis = fw.axis(1)
     axis.set_frequency(1000.0)
     axis.set_amplitude(50.0)
     axis.set_mode("stp")
-    fw.run(clock, max_ticks=1)  # the DAC starts at 0
+    fw.run(clock, max_ticks=1)
+    return fw, rec, axis
+
+
+def three_steps_at_1khz(clock: HandClock) -> tuple[Firmware, Axis]:
+    """Axis 1 stepping 3 times at 1 kHz from 0 s; ``clock`` stands at the tick at 2 ms (200
+    samples played, 2 steps counted), the burst ends at 3 ms."""
+    fw, _, axis = ready_at_1khz(clock)
     axis.step(3)
     fw.run(clock, max_ticks=2)  # ticks at 1 and 2 ms
     return fw, axis
@@ -481,12 +487,7 @@ def test_a_burst_starts_at_its_commands_arrival_however_long_the_firmware_works_
     fewer steps than the time between the two commands, and the ANC300 driver's estimate,
     right about the commands, counted more steps than the plant had made)."""
     clock = CreepingClock()
-    fw, rec, _ = make(dac_buffer_s=0.010)
-    axis = fw.axis(1)
-    axis.set_frequency(1000.0)
-    axis.set_amplitude(50.0)
-    axis.set_mode("stp")
-    fw.run(clock, max_ticks=1)  # the DAC starts at 0
+    fw, rec, axis = ready_at_1khz(clock)
     clock.advance_to(0.0003)
     clock.creep_s = 0.002  # each reading of the clock: 2 ms of the firmware's work
     axis.step(3)
