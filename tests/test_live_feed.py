@@ -7,6 +7,7 @@ import asyncio
 import json
 import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -51,14 +52,20 @@ def run(coroutine: Any) -> Any:
     return asyncio.run(coroutine)
 
 
-def test_a_slow_status_and_a_slow_page_overlap_at_the_period_s_rate() -> None:
-    daemon, lane = SlowDaemon(), UrgentLane()
+@pytest.fixture
+def lane() -> Iterator[UrgentLane]:
+    lane = UrgentLane()
+    yield lane
+    lane.close()
+
+
+def test_a_slow_status_and_a_slow_page_overlap_at_the_period_s_rate(lane: UrgentLane) -> None:
+    daemon = SlowDaemon()
     received: list[dict[str, Any]] = []
     feed = LiveFeed(daemon.handle, lane)
     start = time.monotonic()
     run(watch(feed, 1.5, SLOW_S, received))
     seconds = time.monotonic() - start  # a loaded machine wakes the watch's end late
-    lane.close()
     rate = len(received) / seconds
     assert rate >= 24, rate  # one after the other: at most 16.7 a second
     assert rate <= 1 / LIVE_PERIOD_S + 1  # never faster than the period
@@ -67,8 +74,8 @@ def test_a_slow_status_and_a_slow_page_overlap_at_the_period_s_rate() -> None:
     assert all(m["type"] == "status" and m["time_s"] > 0 for m in received)
 
 
-def test_two_pages_share_one_snapshot_per_period() -> None:
-    daemon, lane = SlowDaemon(), UrgentLane()
+def test_two_pages_share_one_snapshot_per_period(lane: UrgentLane) -> None:
+    daemon = SlowDaemon()
     feed = LiveFeed(daemon.handle, lane)
     first: list[dict[str, Any]] = []
     second: list[dict[str, Any]] = []
@@ -79,14 +86,13 @@ def test_two_pages_share_one_snapshot_per_period() -> None:
     start = time.monotonic()
     run(both())
     seconds = time.monotonic() - start
-    lane.close()
     assert daemon.calls <= seconds / LIVE_PERIOD_S + 2  # one status a period, not one per page
     assert len(first) >= 20 and len(second) >= 20
     assert {m["status"]["call"] for m in first} & {m["status"]["call"] for m in second}
 
 
-def test_snapshots_stop_when_the_last_page_leaves_and_start_again_with_the_next() -> None:
-    daemon, lane = SlowDaemon(), UrgentLane()
+def test_snapshots_stop_when_the_last_page_leaves_and_start_again_with_the_next(lane: UrgentLane) -> None:
+    daemon = SlowDaemon()
     feed = LiveFeed(daemon.handle, lane)
 
     async def leave_and_come_back() -> tuple[int, int, list[dict[str, Any]]]:
@@ -100,21 +106,17 @@ def test_snapshots_stop_when_the_last_page_leaves_and_start_again_with_the_next(
         return left, idle, again
 
     left, idle, again = run(leave_and_come_back())
-    lane.close()
     assert left >= 3 and idle == 0
     assert len(again) >= 3 and again[0]["status"]["call"] > left
 
 
-def test_a_failing_status_reaches_the_page() -> None:
-    lane = UrgentLane()
+def test_a_failing_status_reaches_the_page(lane: UrgentLane) -> None:
     feed = LiveFeed(SlowDaemon(error=OSError("daemon gone")).handle, lane)
     with pytest.raises(OSError, match="daemon gone"):
         run(watch(feed, 1.0, 0.0, []))
-    lane.close()
 
 
-def test_next_message_outside_watched_is_refused() -> None:
-    lane = UrgentLane()
+def test_next_message_outside_watched_is_refused(lane: UrgentLane) -> None:
     feed = LiveFeed(SlowDaemon().handle, lane)
 
     async def outside() -> None:
@@ -122,4 +124,3 @@ def test_next_message_outside_watched_is_refused() -> None:
 
     with pytest.raises(RuntimeError, match="outside watched"):
         run(outside())
-    lane.close()

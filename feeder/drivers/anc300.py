@@ -107,8 +107,7 @@ class Anc300Amplifier(Amplifier):
         if count == 0:
             raise AmplifierError("step count 0 refused (stepu 0 runs forever on an ANC300)")
         verb = "stepu" if count > 0 else "stepd"
-        ago = self.link.act(f"{verb} {self.axis} {abs(count)}")
-        started = self._clock() - ago
+        started = self._acted_at(f"{verb} {self.axis} {abs(count)}")
         with self._lock:
             self._settle_burst()
             self._continuous = False
@@ -123,8 +122,7 @@ class Anc300Amplifier(Amplifier):
             self._continuous = True
 
     def stop(self) -> None:
-        ago = self.link.act(f"stop {self.axis}")
-        stopped = self._clock() - ago
+        stopped = self._acted_at(f"stop {self.axis}")
         with self._lock:
             self._cut_burst(stopped)
 
@@ -192,6 +190,11 @@ class Anc300Amplifier(Amplifier):
 
     def close(self) -> None:
         self.link.close()
+
+    def _acted_at(self, command: str) -> float:
+        """Send ``command`` (:meth:`Anc300Link.act`); when the unit acted on it, by ``clock``."""
+        ago = self.link.act(command)
+        return self._clock() - ago
 
     def _number(self, command: str, name: str) -> float:
         """The finite number of ``command``'s ``name = value [unit]`` line."""
