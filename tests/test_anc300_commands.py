@@ -34,7 +34,7 @@ class Unit:
     lines: list[str] = field(default_factory=list)
 
 
-WORK_S = 0.040
+WORK_S = 0.200
 """How long :class:`AnswersAfterWork` works after acting on ``stepu`` before it answers."""
 
 
@@ -135,12 +135,13 @@ def test_wait_longer_than_the_burst_confirms_its_end_with_stepw(ticking_unit: Un
 def test_a_cut_burst_counts_from_when_the_unit_acted_not_from_its_late_answer(
     slow_answering_unit: Unit,
 ) -> None:
-    """The unit starts the burst as ``stepu`` arrives and answers 40 ms later; ``stop`` answers
-    at once.  The midpoints of the two round trips (the driver before 2026-11-28) put the start
-    20 ms late: 20 steps short at 1 kHz (-21..-23 measured).  The line's arrival (its sending
-    plus half the link's shortest round trip) counts them within the machine's scheduling
-    noise: the unit here is a thread of the test's process, and a loaded parallel run once
-    made it act on one ``stop`` 39 ms late, so the median of five bursts is judged."""
+    """The unit starts the burst as ``stepu`` arrives and answers 200 ms later; ``stop``
+    answers at once.  The midpoints of the two round trips (the driver before 2026-11-28) put
+    the start 100 ms late: 100 steps short at 1 kHz.  The line's arrival (its sending plus half
+    the link's shortest round trip) counts them within the machine's scheduling noise: the
+    unit here is a thread of the test's process, and loaded parallel runs made it act on a
+    ``stop`` 39 and 78 ms late (errors 8, -2, -39; 1, -4, -21, -78, -9), so the median of
+    five bursts is judged, against a bound well inside the old driver's error."""
     unit = slow_answering_unit
     amp = Anc300Amplifier(unit.link, axis=1)
     amp.apply(DriveSettings(frequency_hz=1000.0, amplitude_v=20.0))
@@ -149,11 +150,11 @@ def test_a_cut_burst_counts_from_when_the_unit_acted_not_from_its_late_answer(
     for _ in range(5):
         before, true_before = amp.steps_played()[0], unit.firmware.axis(1).status().step_counter
         amp.step(3000)
-        time.sleep(0.15)
+        time.sleep(0.1)
         amp.stop()
         time.sleep(0.02)  # the ticks count what the DAC played
         played, estimated = amp.steps_played()
         assert estimated
         errors.append((played - before) - (unit.firmware.axis(1).status().step_counter - true_before))
     amp.ground()
-    assert abs(statistics.median(errors)) <= 6, errors  # steps = ms at 1 kHz
+    assert abs(statistics.median(errors)) <= 30, errors  # steps = ms at 1 kHz
