@@ -303,11 +303,17 @@ def _tell(process: subprocess.Popen[str], line: str) -> None:
     process.stdin.flush()
 
 
-def _reply(process: subprocess.Popen[str]) -> Any:
+def _used_s(usage: resource.struct_rusage) -> float:
+    return usage.ru_utime + usage.ru_stime
+
+
+def _reply(process: subprocess.Popen[str]) -> tuple[Any, float]:
+    """The helper's last line, and the CPU seconds it used in its life."""
     assert process.stdout is not None
     reply = json.loads(process.stdout.readline())
+    before = _used_s(resource.getrusage(resource.RUSAGE_CHILDREN))
     assert process.wait(10) == 0
-    return reply
+    return reply, _used_s(resource.getrusage(resource.RUSAGE_CHILDREN)) - before
 
 
 FOREIGN_CORES = 0.25
@@ -317,15 +323,16 @@ tick waits for, while the witness at real-time priority does not notice them."""
 
 
 def _cpu_s() -> tuple[float, float]:
-    """(CPU seconds the whole machine spent busy, those of this process and its waited children)."""
+    """(CPU seconds the whole machine spent busy, those of this process's own threads).
+
+    The burst's helper processes are counted as each is waited for (:func:`_reply`), not by
+    ``RUSAGE_CHILDREN`` over the burst: that also takes in the whole life of any earlier test's
+    child reaped meanwhile (``subprocess`` reaps finished orphans whenever a process starts),
+    which had read other programs' use as 0.00 cores in a loaded CI run."""
     with open("/proc/stat") as stat:
         ticks = [int(v) for v in stat.readline().split()[1:9]]
     busy = sum(ticks) - ticks[3] - ticks[4]  # all but idle and iowait
-    ours = sum(
-        usage.ru_utime + usage.ru_stime
-        for usage in (resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN))
-    )
-    return busy / os.sysconf("SC_CLK_TCK"), ours
+    return busy / os.sysconf("SC_CLK_TCK"), _used_s(resource.getrusage(resource.RUSAGE_SELF))
 
 
 def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float, float]:
@@ -344,11 +351,13 @@ def _burst(console: Console) -> tuple[np.ndarray, np.ndarray, list[str], float, 
     ticks = daemon.loop.ticks
     _tell(witness, "go")
     _tell(clients, "go")
-    replies, took_s = _reply(clients)
+    (replies, took_s), clients_s = _reply(clients)
     during = daemon.loop.lateness.last(daemon.loop.ticks - ticks)
     _tell(witness, "stop")
-    machine = np.array(_reply(witness))
+    late, witness_s = _reply(witness)
+    machine = np.array(late)
     busy, ours = _cpu_s()
+    ours += clients_s + witness_s
     foreign = max(0.0, (busy - busy_before) - (ours - ours_before)) / (time.monotonic() - began)
     assert console.call("POST", "/api/stop")[0] == 200
     wait_for(lambda: daemon.status()["state"] == "idle", 30)
