@@ -317,3 +317,19 @@ def test_a_handler_sees_its_client_hang_up_but_not_a_client_done_sending(served:
     time.sleep(0.3)
     assert served.connect().ask({"cmd": "stop"}) == {"ok": True, "stopped": True, "dequeued": 0}
     assert half.read() == {"ok": True, "hung_up": False}
+
+
+def test_close_ends_the_accepting_thread(short_dir: Path) -> None:  # noqa: F811
+    """Closing the listening socket does not wake a thread blocked in accept(); the server
+    shuts it down first, so no thread (nor its socket) outlives the server."""
+
+    def accepting() -> int:
+        return sum(thread.name == "accept" for thread in threading.enumerate())
+
+    before = accepting()
+    served = Served(short_dir, ScriptedDaemon())
+    assert served.connect().ask({"cmd": "status"}) is not None
+    time.sleep(0.1)  # the thread is back in accept()
+    assert accepting() == before + 1
+    served.close()
+    assert accepting() == before

@@ -163,12 +163,17 @@ class SocketServer:
         self._lock = threading.Lock()
         self._full: set[_Client] = set()
         self._doorway: set[_Client] = set()
-        threading.Thread(target=self._accept, name="accept", daemon=True).start()
+        self._acceptor = threading.Thread(target=self._accept, name="accept", daemon=True)
+        self._acceptor.start()
 
     def close(self) -> None:
         """Stop accepting and remove the socket (connected clients end with their next line)."""
         self._closing.set()
+        # closing alone leaves the thread blocked in accept() for good (Linux wakes it on shutdown)
+        with contextlib.suppress(OSError):
+            self._socket.shutdown(socket.SHUT_RDWR)
         self._socket.close()
+        self._acceptor.join(timeout=1.0)
         with contextlib.suppress(FileNotFoundError):
             self.socket_path.unlink()
 
