@@ -29,6 +29,7 @@ import numpy as np
 
 from feeder.protocol.anc300 import MODES, PATTERN_MAX, PATTERN_POINTS, STEPPING_MODES, fault_names
 from feeder.waveform import FLYBACK_SHAPES, Waveform
+from firmware_sim.dac_buffer import DacBuffer
 from firmware_sim.faults import REARMABLE_FAULTS, Fault, FirmwareError, LimitError
 
 if TYPE_CHECKING:
@@ -102,9 +103,7 @@ class Axis:
         self._code = 0  # last DAC code generated (the slew limiter's state)
         self._played_code = 0  # last DAC code played
         self._written = 0  # index of the next sample to generate
-        self._pending_codes = np.zeros(0, dtype=np.int64)  # generated, not yet played
-        self._pending_steps = np.zeros(0, dtype=np.int64)  # ±1 where a period completes
-        self._pending_phases = np.zeros(0, dtype=np.uint64)  # DDS phase of each sample
+        self._pending = DacBuffer()  # generated, not yet played
         self._cap_done_sample = 0  # capacitance measurement ends at this sample
         self._active_until = 0  # the last burst's final sample plays before this one
         self._capacitance_f = firmware.config.load_capacitance_f
@@ -276,7 +275,7 @@ class Axis:
         with self._fw.lock:
             now = self._fw.command_sample()  # one instant: the DAC plays on while this is taken
             played = self._played_since_tick(now)
-            code = int(self._pending_codes[played - 1]) if played else self._played_code
+            code = int(self._pending.codes[played - 1]) if played else self._played_code
             return AxisStatus(
                 axis=self.number,
                 mode=self._mode,
@@ -285,7 +284,7 @@ class Axis:
                 offset_v=self._offset_v,
                 flyback_shape=self._flyback_shape,
                 flyback_s=self._flyback_s,
-                step_counter=self._step_counter + int(self._pending_steps[:played].sum()),
+                step_counter=self._step_counter + int(self._pending.steps[:played].sum()),
                 moving=self._busy(now) and self._mode != "cap",
                 fault_word=self._fault_word,
                 output_v=self._fw.volts(code),
@@ -317,43 +316,35 @@ class Axis:
         n = self._written - start
         if n <= 0:
             return
-        self._phase = int(self._pending_phases[kept])
+        self._phase = int(self._pending.phases[kept])
         if resume and self._remaining >= 0 and self._active_until > start:
-            self._remaining += int(np.abs(self._pending_steps[kept:]).sum())
+            self._remaining += int(np.abs(self._pending.steps[kept:]).sum())
         self._active_until = min(self._active_until, start)
-        self._code = int(self._pending_codes[kept - 1]) if kept else self._played_code
+        self._code = int(self._pending.codes[kept - 1]) if kept else self._played_code
         self._written = start
-        self._pending_codes = self._pending_codes[:kept]
-        self._pending_steps = self._pending_steps[:kept]
-        self._pending_phases = self._pending_phases[:kept]
+        self._pending.keep(kept)
         self._fill(n)
         self._fw.lock.notify_all()
 
     def _fill(self, n: int) -> None:
         """Generate the next ``n`` samples into the DAC buffer."""
-        codes, steps, phases = self._generate(self._written, n)
-        self._pending_codes = np.concatenate((self._pending_codes, codes))
-        self._pending_steps = np.concatenate((self._pending_steps, steps))
-        self._pending_phases = np.concatenate((self._pending_phases, phases))
+        self._pending.append(*self._generate(self._written, n))
         self._written += n
 
     def _hold(self, n: int) -> None:
         """The DAC ran dry for ``n`` samples: it repeated its last code."""
-        self._pending_codes = np.concatenate((self._pending_codes, np.full(n, self._code, dtype=np.int64)))
-        self._pending_steps = np.concatenate((self._pending_steps, np.zeros(n, dtype=np.int64)))
-        self._pending_phases = np.concatenate(
-            (self._pending_phases, np.full(n, self._phase, dtype=np.uint64))
+        self._pending.append(
+            np.full(n, self._code, dtype=np.int64),
+            np.zeros(n, dtype=np.int64),
+            np.full(n, self._phase, dtype=np.uint64),
         )
         self._written += n
 
     def _play(self, n: int) -> np.ndarray:
         """The next ``n`` buffered codes leave for the DAC; the step counter follows."""
-        codes = self._pending_codes[:n]
-        self._step_counter += int(self._pending_steps[:n].sum())
+        codes, steps = self._pending.take(n)
+        self._step_counter += int(steps.sum())
         self._played_code = int(codes[-1])
-        self._pending_codes = self._pending_codes[n:]
-        self._pending_steps = self._pending_steps[n:]
-        self._pending_phases = self._pending_phases[n:]
         return codes
 
     def _start(self, up: bool, remaining: int) -> None:
