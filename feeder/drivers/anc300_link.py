@@ -141,8 +141,8 @@ class Anc300Link:
         only after work of its own (firmware_sim's ``stepu`` regenerates 100 ms of waveform
         first: a 6-10 ms round trip where ``stop`` takes 1 ms), which the midpoint of the
         command's own round trip would count as time before it acted."""
-        _, written_s, replied_s = self._exchange(command, None)
-        return time.monotonic() - min(written_s + 0.5 * self._shortest_s, replied_s)
+        _, written_s, _ = self._exchange(command, None)  # which takes this round trip into the shortest
+        return time.monotonic() - (written_s + 0.5 * self._shortest_s)
 
     def _exchange(self, command: str, timeout_s: float | None) -> tuple[list[str], float, float]:
         """:meth:`query`'s lines, and the clock (``time.monotonic``) when the line was written
