@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 import serial
+from listener import Listener
 from serial.urlhandler.protocol_socket import Serial as SocketSerial
 
 import feeder.drivers.anc300 as anc300
@@ -117,15 +118,11 @@ class SlowGreetingServer:
     def __init__(self, delay_s: float | None) -> None:
         self.delay_s = delay_s
         self.sessions: list[ConsoleSession] = []
-        self.server = socket.create_server(("127.0.0.1", 0))
-        self.url = f"socket://127.0.0.1:{self.server.getsockname()[1]}"
-        threading.Thread(target=self._accept, daemon=True).start()
+        self._listener = Listener(socket.create_server(("127.0.0.1", 0)), self._accepted)
+        self.url = f"socket://127.0.0.1:{self._listener.port}"
 
-    def _accept(self) -> None:
-        with contextlib.suppress(OSError):
-            while True:
-                conn, _ = self.server.accept()
-                threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
+    def _accepted(self, conn: socket.socket) -> None:
+        threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
 
     def _serve(self, conn: socket.socket) -> None:
         session = ConsoleSession(Firmware(), password="secret", dialect="anc300")
@@ -141,7 +138,7 @@ class SlowGreetingServer:
                 conn.sendall(session.feed(data))
 
     def close(self) -> None:
-        self.server.close()
+        self._listener.close()
 
 
 def test_a_tcp_console_that_greets_late_is_logged_in_without_a_failed_try() -> None:

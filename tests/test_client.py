@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from listener import Listener
 from test_daemon_service import start, wait_for
 
 from feeder import Client
@@ -44,22 +45,15 @@ class ScriptedServer:
     def __init__(self, path: Path, answer: Answer) -> None:
         self.answer = answer
         self.requests: list[tuple[int, str]] = []
-        self._server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self._server.bind(str(path))
-        self._server.listen(8)
+        server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        server.bind(str(path))
+        server.listen(8)
         self._conns: list[socket.socket] = []
-        threading.Thread(target=self._accept, daemon=True).start()
+        self._listener = Listener(server, self._accepted)
 
-    def _accept(self) -> None:
-        index = 0
-        while True:
-            try:
-                conn, _ = self._server.accept()
-            except OSError:
-                return
-            self._conns.append(conn)
-            threading.Thread(target=self._serve, args=(conn, index), daemon=True).start()
-            index += 1
+    def _accepted(self, conn: socket.socket) -> None:
+        threading.Thread(target=self._serve, args=(conn, len(self._conns)), daemon=True).start()
+        self._conns.append(conn)
 
     def _serve(self, conn: socket.socket, index: int) -> None:
         with conn, conn.makefile("rb") as reader:
@@ -71,7 +65,7 @@ class ScriptedServer:
                     conn.sendall(json.dumps(reply).encode() + b"\n")
 
     def close(self) -> None:
-        self._server.close()
+        self._listener.close()
         for conn in self._conns:
             conn.close()
 

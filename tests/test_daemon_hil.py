@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from listener import Listener
 
 from feeder.cli import main
 from feeder.daemon.client import Client
@@ -415,24 +416,18 @@ class CameraRelay:
 
     def __init__(self, upstream: str) -> None:
         self.upstream = upstream.removeprefix("socket://").rsplit(":", 1)
-        self.server = socket.create_server(("127.0.0.1", 0))
-        self.url = f"socket://127.0.0.1:{self.server.getsockname()[1]}"
         self.up = True
         self.pairs: list[tuple[socket.socket, socket.socket]] = []
-        threading.Thread(target=self._accept, daemon=True).start()
+        self._listener = Listener(socket.create_server(("127.0.0.1", 0)), self._accepted)
+        self.url = f"socket://127.0.0.1:{self._listener.port}"
 
-    def _accept(self) -> None:
-        while True:
-            try:
-                client, _ = self.server.accept()
-            except OSError:
-                return
-            if not self.up:
-                client.close()
-                continue
-            source = socket.create_connection((self.upstream[0], int(self.upstream[1])))
-            self.pairs.append((client, source))
-            threading.Thread(target=self._pipe, args=(source, client), daemon=True).start()
+    def _accepted(self, client: socket.socket) -> None:
+        if not self.up:
+            client.close()
+            return
+        source = socket.create_connection((self.upstream[0], int(self.upstream[1])))
+        self.pairs.append((client, source))
+        threading.Thread(target=self._pipe, args=(source, client), daemon=True).start()
 
     @staticmethod
     def _pipe(source: socket.socket, sink: socket.socket) -> None:
@@ -453,7 +448,7 @@ class CameraRelay:
 
     def close(self) -> None:
         self.cut()
-        self.server.close()
+        self._listener.close()
 
 
 def test_sensor_loss_stops_the_part_and_reconnects(base: Path) -> None:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 import serial
+from listener import Listener
 from test_daemon_hil import (  # noqa: F401
     TRANSPORTS,
     DaemonProcess,
@@ -43,21 +44,17 @@ class Anc300Proxy:
     def __init__(self, upstream_url: str) -> None:
         host, _, port = upstream_url.removeprefix("socket://").rpartition(":")
         self.upstream = (host, int(port))
-        self.server = socket.create_server(("127.0.0.1", 0))
-        self.url = f"socket://127.0.0.1:{self.server.getsockname()[1]}"
         self.forwarded: dict[str, int] = {}
         self.refused: list[str] = []
         self._lock = threading.Lock()
-        threading.Thread(target=self._accept, daemon=True).start()
+        self._listener = Listener(socket.create_server(("127.0.0.1", 0)), self._accepted)
+        self.url = f"socket://127.0.0.1:{self._listener.port}"
 
-    def _accept(self) -> None:
-        with contextlib.suppress(OSError):
-            while True:
-                client, _ = self.server.accept()
-                up = socket.create_connection(self.upstream)
-                logged_in = threading.Event()
-                threading.Thread(target=self._down, args=(up, client, logged_in), daemon=True).start()
-                threading.Thread(target=self._up, args=(client, up, logged_in), daemon=True).start()
+    def _accepted(self, client: socket.socket) -> None:
+        up = socket.create_connection(self.upstream)
+        logged_in = threading.Event()
+        threading.Thread(target=self._down, args=(up, client, logged_in), daemon=True).start()
+        threading.Thread(target=self._up, args=(client, up, logged_in), daemon=True).start()
 
     @staticmethod
     def _down(up: socket.socket, client: socket.socket, logged_in: threading.Event) -> None:
@@ -102,7 +99,7 @@ class Anc300Proxy:
             client.sendall(f"{UNKNOWN_COMMAND}\r\nERROR\r\n".encode())
 
     def close(self) -> None:
-        self.server.close()
+        self._listener.close()
 
 
 def test_three_moves_through_a_proxy_that_passes_only_real_anc300_verbs(base: Path) -> None:  # noqa: F811

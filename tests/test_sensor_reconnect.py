@@ -7,20 +7,19 @@ flipped ``fault`` → ``idle`` → ``fault`` every ~2 s and "restored" was logge
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import logging
 import math
 import shutil
 import socket
 import tempfile
-import threading
 import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import pytest
+from listener import Listener
 from test_daemon_doubles import FakeSensor, FakeWorld
 from test_daemon_service import TRUE, FakeLinks, make_setup, short_dir, wait_for  # noqa: F401
 from test_policy import Rig
@@ -197,18 +196,12 @@ class SilentCamera:
     """A TCP port on 127.0.0.1 that accepts connections and never sends a byte."""
 
     def __init__(self) -> None:
-        self.server = socket.create_server(("127.0.0.1", 0))
-        self.port = self.server.getsockname()[1]
         self.held: list[socket.socket] = []
-        threading.Thread(target=self._accept, daemon=True).start()
-
-    def _accept(self) -> None:
-        with contextlib.suppress(OSError):
-            while True:
-                self.held.append(self.server.accept()[0])
+        self._listener = Listener(socket.create_server(("127.0.0.1", 0)), self.held.append)
+        self.port = self._listener.port
 
     def close(self) -> None:
-        self.server.close()
+        self._listener.close()
         for s in self.held:
             s.close()
 
