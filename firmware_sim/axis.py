@@ -328,16 +328,16 @@ class Axis:
 
     def _fill(self, n: int) -> None:
         """Generate the next ``n`` samples into the DAC buffer."""
-        self._pending.append(*self._generate(self._written, n))
+        generated = self._generate(self._written, n)
+        if generated is None:
+            self._pending.hold(n, self._code, self._phase)
+        else:
+            self._pending.append(*generated)
         self._written += n
 
     def _hold(self, n: int) -> None:
         """The DAC ran dry for ``n`` samples: it repeated its last code."""
-        self._pending.append(
-            np.full(n, self._code, dtype=np.int64),
-            np.zeros(n, dtype=np.int64),
-            np.full(n, self._phase, dtype=np.uint64),
-        )
+        self._pending.hold(n, self._code, self._phase)
         self._written += n
 
     def _play(self, n: int) -> np.ndarray:
@@ -389,8 +389,9 @@ class Axis:
             for forward in (True, False)
         }
 
-    def _generate(self, first_sample: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The next ``n`` DAC codes, signed step marks and DDS phases."""
+    def _generate(self, first_sample: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The next ``n`` DAC codes, signed step marks and DDS phases; None when the axis rests
+        at its code (the DDS phase held, no steps)."""
         fw = self._fw
         amp = fw.config.amplifier
         if self._mode == "cap" and first_sample >= self._cap_done_sample:
@@ -405,14 +406,14 @@ class Axis:
             else:
                 volts = self._offset_v - self._amplitude_v * wave
         else:
-            steps = np.zeros(n, dtype=np.int64)
-            phases = np.full(n, self._phase, dtype=np.uint64)
             # off: the offset alone (ANC300 offset mode); gnd, cap: 0 V; inp: the AC-IN/DC-IN
             # inputs only, which nothing drives here: 0 V
             level = self._offset_v if self._mode == "off" else 0.0
             code = round((min(max(level, amp.v_min_v), amp.v_max_v) - amp.v_min_v) / fw.lsb_v)
             if code == self._code:  # at rest: nothing to limit
-                return np.full(n, code, dtype=np.int64), steps, phases
+                return None
+            steps = np.zeros(n, dtype=np.int64)
+            phases = np.full(n, self._phase, dtype=np.uint64)
             volts = np.full(n, level)
         target = np.rint((np.clip(volts, amp.v_min_v, amp.v_max_v) - amp.v_min_v) / fw.lsb_v).astype(np.int64)
         codes = _slew_limit(target, self._code, fw.max_codes_per_sample)

@@ -2,7 +2,8 @@
 ring.  Each tick appends ~0.1 k samples and takes as many from the front of ~10 k held
 (100 ms at 100 kS/s); the arrays grow to twice what they hold and are compacted only when full,
 so a tick costs what it adds, not what the buffer holds (concatenating the held arrays three
-times a tick per axis was ~15 µs of each axis' idle tick).
+times a tick per axis was ~15 µs of each axis' idle tick).  An axis at rest writes its code and
+phase into the ring as they are (:meth:`DacBuffer.hold`), with no arrays made for them.
 """
 
 from __future__ import annotations
@@ -42,7 +43,15 @@ class DacBuffer:
 
     def append(self, codes: np.ndarray, steps: np.ndarray, phases: np.ndarray) -> None:
         """Add samples at the end (the three arrays of equal length)."""
-        n = len(codes)
+        self._write(len(codes), codes, steps, phases)
+
+    def hold(self, n: int, code: int, phase: int) -> None:
+        """Add ``n`` samples of one code and DDS phase, no step marks (an axis at rest)."""
+        self._write(n, code, 0, phase)
+
+    def _write(
+        self, n: int, codes: np.ndarray | int, steps: np.ndarray | int, phases: np.ndarray | int
+    ) -> None:
         if self._end + n > len(self._codes):
             self._compact(len(self) + n)
         end = self._end + n

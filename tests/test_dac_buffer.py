@@ -8,7 +8,7 @@ from firmware_sim.dac_buffer import MIN_CAPACITY, DacBuffer
 
 
 def test_appends_takes_and_keeps_match_concatenated_arrays() -> None:
-    """Random ticks (append, take), commands (keep) and a burst of appends past the capacity:
+    """Random ticks (append or hold, take), commands (keep) and a burst of appends past the capacity:
     the buffer holds what concatenating and slicing the arrays would, and what it handed out
     is unchanged by later appends and compactions."""
     rng = np.random.default_rng(3)
@@ -26,7 +26,11 @@ def test_appends_takes_and_keeps_match_concatenated_arrays() -> None:
             rng.integers(0, 1 << 60, n, dtype=np.uint64),
         )
         before = buffer._codes
-        buffer.append(*new)
+        if rng.random() < 0.3:  # an axis at rest: one code and phase
+            new = (np.full(n, new[0][0]), np.zeros(n, dtype=np.int64), np.full(n, new[2][0]))
+            buffer.hold(n, int(new[0][0]), int(new[2][0]))
+        else:
+            buffer.append(*new)
         compacted += buffer._codes is not before
         codes, steps, phases = (
             np.concatenate(pair) for pair in zip((codes, steps, phases), new, strict=True)
