@@ -34,6 +34,7 @@ from types import FrameType
 
 from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
+from feeder.plant.stack import StackParameters
 from feeder.pose import parse_poses
 from feeder.protocol.eds import EDS_FILE, axis_count, object_dictionary
 from firmware_sim.axis import Axis
@@ -209,6 +210,13 @@ def build(args: argparse.Namespace) -> tuple[Firmware, World, TrueStep]:
             poses=parse_poses(args.parts, "--parts"),
             lever_arm_m=args.lever_arm_m,
             camera=CameraConfig(args.camera_rate_hz, args.camera_noise_m, args.camera_latency_s),
+            stack=StackParameters(
+                gain_m_per_v=args.stack_gain_m_per_v,
+                capacitance_f=args.load_capacitance_f,
+                output_resistance_ohm=args.stack_output_resistance_ohm,
+                resonance_hz=args.stack_resonance_hz,
+                damping_ratio=args.stack_damping_ratio,
+            ),
         ),
         config,
     )

@@ -16,6 +16,7 @@ from typing import NoReturn
 from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
+from feeder.plant.stack import STACK_RANGES, StackParameters
 from feeder.protocol.anc300 import DEFAULT_PASSWORD, DIALECTS
 from feeder.protocol.eds import EDS_3AXIS_FILE, EDS_FILE, axis_count, object_dictionary
 from firmware_sim.firmware import DEFAULT_DAC_BUFFER_S, DEFAULT_LOAD_CAPACITANCE_F, FirmwareConfig
@@ -236,10 +237,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_number(
         fw,
         "--load-capacitance-f",
-        1e-12,
-        1e-3,
+        *STACK_RANGES["capacitance_f"],
         default=DEFAULT_LOAD_CAPACITANCE_F,
-        help="stack capacitance the current limit is enforced for, F",
+        help="stack capacitance, F: the current limit is enforced for it, and the world's stacks have it",
     )
 
     world = parser.add_argument_group("world (the plant's true parameters)")
@@ -293,6 +293,20 @@ def build_parser() -> argparse.ArgumentParser:
         default=DEFAULT_LEVER_ARM_M,
         help="planar: radius about O at which the θ stack turns the plate, m",
     )
+    stack = StackParameters()
+    for field, unit, what in (
+        ("gain_m_per_v", "m/V", "the stacks' free stroke per volt"),
+        ("resonance_hz", "Hz", "the stacks' first axial resonance, loaded by the plate"),
+        ("damping_ratio", "", "the damping ratio of that resonance"),
+        ("output_resistance_ohm", "Ω", "the amplifier's output resistance into the stack"),
+    ):
+        add_number(
+            world,
+            "--stack-" + field.replace("_", "-"),
+            *STACK_RANGES[field],
+            default=getattr(stack, field),
+            help=what + (f", {unit}" if unit else ""),
+        )
     add_number(
         world, "--camera-rate-hz", 0.1, MAX_CAMERA_RATE_HZ, default=100.0, help="camera frame rate, Hz"
     )

@@ -4,6 +4,7 @@ to a second reader, the request's fields are checked, and a stop ends the moves 
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable
@@ -82,15 +83,20 @@ def test_the_feed_hands_its_next_sample_to_a_second_reader_and_the_loop_still_ta
         feed.next_sample(0.05)
 
 
-PLATE = PlateMoves(0.0, 150.0, 1e-3, (2048, 2048), gain_required=True, travel_outside=lambda _: None)
+PLATE = PlateMoves(0.0, 150.0, 1e-3, (2048, 2048), stack_gain_m_per_v=None, travel_outside=lambda _: None)
 
 
 def test_the_requests_moves_are_checked_field_by_field() -> None:
     moves = PLATE.moves({"volts": 60, "stack_gain_m_per_v": 8e-8, "increment_v": 0.02, "frames": 3})
     assert (moves.volts, moves.stack_gain_m_per_v, moves.increment_v, moves.frames) == (60, 8e-8, 0.02, 3)
     assert moves.lever_arm_m == 1e-3
-    simulated = PlateMoves(0.0, 200.0, 1e-3, (2048, 2048), False, lambda _: None).moves({})
+    simulated = PlateMoves(0.0, 200.0, 1e-3, (2048, 2048), FIRMWARE_SIM_GAIN_M_PER_V, lambda _: None).moves(
+        {}
+    )
     assert (simulated.volts, simulated.stack_gain_m_per_v) == (100.0, FIRMWARE_SIM_GAIN_M_PER_V)
+    stated = dataclasses.replace(PLATE, stack_gain_m_per_v=5e-8)  # hardware with [stack] gain_m_per_v
+    assert stated.moves({}).stack_gain_m_per_v == 5e-8
+    assert stated.moves({"stack_gain_m_per_v": 8e-8}).stack_gain_m_per_v == 8e-8  # the request's wins
     for request, named in [
         ({"stack_gain_m_per_v": 8e-8, "volts": 151}, "volts must be in [1, 150]"),
         ({"stack_gain_m_per_v": 8e-8, "volts": "100"}, "volts must be a finite number of volts"),

@@ -113,7 +113,7 @@ def closed_loop(
     for key in translation:
         translation[key] /= xy_gain[MODES.index(key[1])]
     part = PlanarPart.from_part(config.part, Friction(static_accel(config)))
-    modes = ideal_modes(every, config.amplifier.limits, config.plate.lever_arm_m)
+    modes = ideal_modes(every, config.amplifier.limits, config.plate.lever_arm_m, config.planning_stack)
     world = World(list(config.plate.parts), part, tuple(modes))
     reversals, last = 0, 0
     for _ in range(200):

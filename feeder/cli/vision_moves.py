@@ -66,7 +66,8 @@ def register(vision: Any) -> None:
         type=float_in(1e-12, 1e-3),
         metavar="M_PER_V",
         help="the plate's static move per volt of offset, m/V (the stacks' stroke per volt, "
-        f"e.g. 7e-8); required on hardware, firmware_sim's is {FIRMWARE_SIM_GAIN_M_PER_V:g}",
+        f"e.g. 7e-8); default the configuration's [stack] gain_m_per_v, else firmware_sim's "
+        f"{FIRMWARE_SIM_GAIN_M_PER_V:g} on the simulator; required on hardware without [stack]",
     )
     moves.add_argument(
         "--increment",
@@ -119,9 +120,12 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
     config = config.with_simulator_args(args.sim_arg)
     if not {"x", "y"} <= set(config.plate.axes):
         raise InputError("plate.axes", "the plate moves need the x and y axes")
-    hardware = not config.amplifier.simulated
-    if hardware and args.stack_gain is None:
-        raise InputError("--stack-gain", "required on hardware: the plate's move per volt of offset (m/V)")
+    gain = args.stack_gain or config.stack_gain_m_per_v
+    if gain is None:
+        raise InputError(
+            "--stack-gain",
+            "required on hardware without [stack] gain_m_per_v: the plate's move per volt of offset (m/V)",
+        )
     limits = config.amplifier.limits
     if not limits.v_min_v <= args.volts <= limits.v_max_v:
         raise InputError(
@@ -131,7 +135,7 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
         )
     moves = OffsetMoves(
         volts=args.volts,
-        stack_gain_m_per_v=args.stack_gain or FIRMWARE_SIM_GAIN_M_PER_V,
+        stack_gain_m_per_v=gain,
         lever_arm_m=config.plate.lever_arm_m,
         increment_v=args.increment,
         frames=args.frames,

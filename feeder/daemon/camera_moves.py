@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 from feeder.daemon.request_fields import RequestFieldError, finite, integer
 from feeder.drivers.sensor import PositionSample, PositionSensor
 from feeder.vision.calibration import CameraCalibration
-from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, OffsetMoves
+from feeder.vision.offset_moves import OffsetMoves
 
 if TYPE_CHECKING:
     from feeder.daemon.control_loop import ControlLoop
@@ -34,15 +34,16 @@ HANG_UP_POLL_S = 0.2
 @dataclass(frozen=True)
 class PlateMoves:
     """What the moves need of the daemon's configuration: the amplifier's output range (V), the
-    θ stack's lever arm (m), the camera's image (width, height px), whether the stacks' static
-    gain must be given (hardware: True; the simulator's is known), and why a calibration would
-    not show the whole travel (:meth:`~feeder.daemon.config.CameraConfig.travel_outside`)."""
+    θ stack's lever arm (m), the camera's image (width, height px), the stacks' static gain
+    where it is known (:attr:`~feeder.daemon.config.DaemonConfig.stack_gain_m_per_v`; None:
+    each request must give it), and why a calibration would not show the whole travel
+    (:meth:`~feeder.daemon.config.CameraConfig.travel_outside`)."""
 
     v_min_v: float
     v_max_v: float
     lever_arm_m: float
     image_px: tuple[int, int]
-    gain_required: bool
+    stack_gain_m_per_v: float | None
     travel_outside: Callable[[CameraCalibration], str | None]
 
     def moves(self, request: dict[str, Any]) -> OffsetMoves:
@@ -51,13 +52,18 @@ class PlateMoves:
         defaults = OffsetMoves()
         volts = _within(request, "volts", defaults.volts, max(1.0, self.v_min_v), self.v_max_v)
         gain = finite(request, "stack_gain_m_per_v")
-        if gain is None and self.gain_required:
-            raise RequestFieldError("stack_gain_m_per_v is required on hardware: the plate's move per volt")
-        if gain is not None and not 1e-12 <= gain <= 1e-3:
+        if gain is None:
+            gain = self.stack_gain_m_per_v
+        if gain is None:
+            raise RequestFieldError(
+                "stack_gain_m_per_v is required on hardware without [stack] gain_m_per_v: "
+                "the plate's move per volt"
+            )
+        if not 1e-12 <= gain <= 1e-3:
             raise RequestFieldError(f"stack_gain_m_per_v must be in [1e-12, 1e-3] m/V, got {gain!r}")
         return OffsetMoves(
             volts=volts,
-            stack_gain_m_per_v=FIRMWARE_SIM_GAIN_M_PER_V if gain is None else gain,
+            stack_gain_m_per_v=gain,
             lever_arm_m=self.lever_arm_m,
             increment_v=_within(request, "increment_v", defaults.increment_v, 1e-4, 1.0),
             frames=integer(request, "frames", defaults.frames, 1, 1000),

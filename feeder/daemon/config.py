@@ -22,6 +22,7 @@ from feeder.daemon.control_loop import LoopSettings
 from feeder.errors import InputError
 from feeder.parts import Part, Support
 from feeder.plant.amplifier import AMPLIFIER_MODELS, AmplifierLimits
+from feeder.plant.stack import StackParameters
 from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP
 
 if TYPE_CHECKING:
@@ -242,6 +243,33 @@ class DaemonConfig:
     socket_path: Path = field(default_factory=default_socket_path)
     http: HttpConfig | None = None
     """The browser console; None: off."""
+    stack: StackParameters | None = None
+    """The piezo stacks and plate (``[stack]``); None: not stated, firmware_sim's are assumed."""
+
+    @property
+    def planning_stack(self) -> StackParameters:
+        """The stacks the waveforms are planned for: ``[stack]``'s, else firmware_sim's."""
+        return self.stack or StackParameters()
+
+    @property
+    def stack_warning(self) -> str | None:
+        """Why the waveforms may not suit the hardware (no ``[stack]`` on hardware), or None."""
+        if self.stack is not None or self.amplifier.simulated:
+            return None
+        s = self.planning_stack
+        return (
+            f"no [stack] in the configuration: the waveforms are planned for firmware_sim's stacks "
+            f"({s.gain_m_per_v * 1e6:g} µm/V, {s.capacitance_f * 1e6:g} µF, {s.resonance_hz / 1e3:g} kHz); "
+            "the capacitance sets the current-limited flyback, so state yours"
+        )
+
+    @property
+    def stack_gain_m_per_v(self) -> float | None:
+        """The stacks' static gain (m/V) where it is known: ``[stack]``'s, or the simulator's
+        (which is given ``[stack]`` too); None on hardware without ``[stack]``."""
+        if self.stack is None and not self.amplifier.simulated:
+            return None
+        return self.planning_stack.gain_m_per_v
 
     @property
     def database_path(self) -> Path:

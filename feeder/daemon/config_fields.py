@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from feeder.errors import InputError
+from feeder.plant.stack import STACK_RANGES
 
 RANGES: dict[str, tuple[float, float]] = {
     "rate_hz": (1.0, 1000.0),
@@ -50,6 +51,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "width_px": (16, 8192),
     "height_px": (16, 8192),
     "fps": (0.1, 1000.0),
+    **STACK_RANGES,
 }
 """Accepted ranges of numeric keys (a value outside is refused, not clipped)."""
 

@@ -42,6 +42,13 @@ support = "flat"
 surface = "surface.toml"      # optional, relative to this file's folder; default: the paper's surface
 tau_pa = 22.18e9              # optional; default: the contact model's τ
 
+[stack]                       # the piezo stacks and plate (StackParameters; the waveforms are planned
+gain_m_per_v = 0.07e-6        # for them): free stroke per volt; the capacitance sets the current-
+capacitance_f = 1.0e-6        # limited flyback; default: firmware_sim's, with a warning on hardware
+resonance_hz = 30.0e3         # loaded first axial resonance
+damping_ratio = 0.1
+output_resistance_ohm = 8.0   # the amplifier's output resistance into the capacitance
+
 [control]
 rate_hz = 100.0
 tolerance_m = 1e-6
@@ -89,6 +96,7 @@ from feeder.errors import InputError, shown
 from feeder.files import read_toml
 from feeder.parts import Part, Support
 from feeder.plant.amplifier import AmplifierLimits, amplifier_model, within_rating
+from feeder.plant.stack import StackParameters
 from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP, MAX_AXIS, amplifier_node
 from feeder.pose import parse_poses
 
@@ -104,6 +112,7 @@ SECTIONS: dict[str, frozenset[str]] = {
     "http": frozenset({"listen", "allow_remote", "origins", "camera", "moves_per_s", "move_burst"}),
     "plate": frozenset({"axes", "axis_map", "lever_arm_m", "parts"}),
     "camera": frozenset({"address", "timeout_s", "pixel_size_m", "width_px", "height_px", "fps", "aligned"}),
+    "stack": frozenset(f.name for f in dataclasses.fields(StackParameters)),
 }
 """The schema's sections and their keys (``[amplifier.limits]``: AmplifierLimits' fields;
 ``[amplifier.can]``: python-can keyword arguments plus :data:`CAN_DRIVER_KEYS`)."""
@@ -345,7 +354,17 @@ def load_config(path: Path | None) -> DaemonConfig:
         state_dir=expanded_path(string(state, "dir", where, None, "state."), folder) or base.state_dir,
         socket_path=expanded_path(string(state, "socket", where, None, "state."), folder) or base.socket_path,
         http=http,
+        stack=_stack(subtable(doc, "stack", where), where) if "stack" in doc else None,
     )
+
+
+def _stack(table: dict[str, Any], where: str) -> StackParameters:
+    """``[stack]``: the fields of :class:`StackParameters` it gives, the others its defaults."""
+    values = {
+        key: number(table, key, where, 0.0, positive=key != "output_resistance_ohm", section="stack.")
+        for key in table
+    }
+    return StackParameters(**values)
 
 
 def _check_node_ids(can: dict[str, Any], plate: PlateConfig, where: str) -> None:

@@ -200,6 +200,20 @@ def simulator_args(config: DaemonConfig) -> list[str]:
         "--max-frequency-hz",
         repr(limits.max_frequency_hz),
     ]
+    if config.stack is not None:  # the simulated rig has the stacks the configuration states
+        stack = config.stack
+        args += [
+            "--load-capacitance-f",
+            repr(stack.capacitance_f),
+            "--stack-gain-m-per-v",
+            repr(stack.gain_m_per_v),
+            "--stack-resonance-hz",
+            repr(stack.resonance_hz),
+            "--stack-damping-ratio",
+            repr(stack.damping_ratio),
+            "--stack-output-resistance-ohm",
+            repr(stack.output_resistance_ohm),
+        ]
     if config.amplifier.transport == "can":
         args += ["--can", "slcan-pty"]
         if "eds" in config.amplifier.can:  # the simulated nodes have the configured axes per node

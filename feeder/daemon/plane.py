@@ -65,12 +65,12 @@ def anchor_modes(
     theta_modes: dict[str, StepMode],
     static_accel_m_s2: float,
     lever_arm_m: float,
-    stack: StackParameters | None = None,
+    stack: StackParameters,
 ) -> dict[str, StepMode]:
     """θ's waveforms with a dead zone, named :data:`~feeder.pose_response.ANCHOR_MODES` (coarse
     first): each of ``theta_modes`` (coarse, fine) with a half-cosine flyback
     (:func:`anchor_flyback_s` at :data:`ANCHOR_BREAK_RADIUS_M`)."""
-    gain = (stack or StackParameters()).gain_m_per_v
+    gain = stack.gain_m_per_v
     out = {}
     for name, anchor in zip(MODES, ANCHOR_MODES, strict=True):
         mode = theta_modes[name]
@@ -95,7 +95,7 @@ def plan_theta_modes(
     modes = plan_step_modes(config, surface, THETA_FREQUENCY_HZ)
     if len(config.plate.parts) > 1 and config.amplifier.transport == "can":
         slow = plan_step_modes(config, surface, ANCHOR_THETA_FREQUENCY_HZ)
-        modes |= anchor_modes(slow, static_accel_m_s2, config.plate.lever_arm_m)
+        modes |= anchor_modes(slow, static_accel_m_s2, config.plate.lever_arm_m, config.planning_stack)
     return modes
 
 
@@ -120,11 +120,10 @@ def ideal_modes(
     modes: dict[str, dict[str, StepMode]],
     limits: AmplifierLimits,
     lever_arm_m: float,
-    stack: StackParameters | None = None,
+    stack: StackParameters,
 ) -> list[AxisMode]:
     """The ideal sawtooth each axis' waveform makes: stroke (m; θ: rad), frequency, and the
     current-limited flyback into the stack's capacitance."""
-    stack = stack or StackParameters()
     out = []
     for axis, axis_modes in modes.items():
         for name, mode in axis_modes.items():
@@ -150,7 +149,7 @@ def pose_navigator_factory(
     travel = Travel((loop.min_position_m, loop.max_position_m), (loop.min_y_m, loop.max_y_m))
     far = max(math.hypot(x, y) for x in travel.x_m for y in travel.y_m)
     radii = tuple(float(r) for r in np.linspace(0.0, far, SEED_RADII))
-    ideal = ideal_modes(modes, config.amplifier.limits, config.plate.lever_arm_m)
+    ideal = ideal_modes(modes, config.amplifier.limits, config.plate.lever_arm_m, config.planning_stack)
 
     def build(restored: dict[str, Any] | None) -> PoseNavigator:
         model = seed_response(part, ideal, radii)

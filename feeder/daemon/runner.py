@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import logging
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,6 +19,8 @@ from feeder.daemon.step_modes import calibration_key, plan_step_modes
 from feeder.daemon.store import Store
 from feeder.errors import InputError
 from feeder.surface.parameters import DEFAULT_SURFACE, load_surface
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -50,6 +54,8 @@ def start_daemon(config: DaemonConfig, simulator: Simulator | None = None) -> Ru
             pair = tau_pair(surface, config.tau_pa)
         except InputError as err:
             raise InputError("part.tau_pa", err.message) from None
+        if config.stack_warning is not None:
+            log.warning("%s", config.stack_warning)
         modes = plan_step_modes(config, surface)
         plane: dict[str, Any] = {}
         key = calibration_key(config.part, config.support, modes)
@@ -73,7 +79,7 @@ def start_daemon(config: DaemonConfig, simulator: Simulator | None = None) -> Ru
                     v_max_v=limits.v_max_v,
                     lever_arm_m=config.plate.lever_arm_m,
                     image_px=(config.camera.width_px, config.camera.height_px),
-                    gain_required=not config.amplifier.simulated,
+                    stack_gain_m_per_v=config.stack_gain_m_per_v,
                     travel_outside=lambda c: config.camera.travel_outside(c, config.part, config.loop),
                 )
         links = open_links(config, simulator)
@@ -90,6 +96,8 @@ def start_daemon(config: DaemonConfig, simulator: Simulator | None = None) -> Ru
                 "tau_nominal_pa": pair.tau_pa,
                 "tau_source": pair.source,
                 "adhesion_work_j_m2": pair.adhesion_work_j_m2,
+                "stack": dataclasses.asdict(config.planning_stack),
+                "stack_warning": config.stack_warning,
                 **links.describe(),
             },
             sensor_timeout_s=config.camera.timeout_s if uses_camera(config) else config.sensor_timeout_s,

@@ -31,16 +31,25 @@ def _mode(name: str, p: Plan) -> StepMode:
 def plan_step_modes(
     config: DaemonConfig, surface: SurfaceParameters, frequency_hz: float | None = None
 ) -> dict[str, StepMode]:
-    """Coarse and fine :class:`StepMode` for the configuration's part, support, τ, amplifier and
+    """Coarse and fine :class:`StepMode` for the configuration's part, support, τ, amplifier, stack and
     tolerance (at ``frequency_hz``, else the planner's fastest); :class:`~feeder.errors.InputError`
     if unplannable."""
     part, support, tau_pa, amplifier = config.part, config.support, config.tau_pa, config.amplifier.limits
+    stack = config.planning_stack
     coarse = plan(
-        part, support, surface, tau_pa, amplifier, COARSE_PLAN_DISTANCE_M, frequency_hz=frequency_hz
+        part,
+        support,
+        surface,
+        tau_pa,
+        amplifier,
+        COARSE_PLAN_DISTANCE_M,
+        stack=stack,
+        frequency_hz=frequency_hz,
     )
     fine = plan(
-        part, support, surface, tau_pa, amplifier, config.loop.tolerance_m, frequency_hz=coarse.frequency_hz
-    )
+        part, support, surface, tau_pa, amplifier, config.loop.tolerance_m, stack=stack,
+        frequency_hz=coarse.frequency_hz,
+    )  # fmt: skip
     return {COARSE: _mode(COARSE, coarse), FINE: _mode(FINE, fine)}
 
 

@@ -37,6 +37,17 @@ if TYPE_CHECKING:
 # firmware_sim's option checks) start without them.
 
 
+STACK_RANGES: dict[str, tuple[float, float]] = {
+    "gain_m_per_v": (1e-12, 1e-3),
+    "capacitance_f": (1e-12, 1e-3),
+    "output_resistance_ohm": (0.0, 1e6),
+    "resonance_hz": (100.0, 1e7),
+    "damping_ratio": (1e-3, 10.0),
+}
+"""Accepted values of each :class:`StackParameters` field where a user states a stack (the
+daemon's ``[stack]``, firmware_sim's ``--stack-*`` options)."""
+
+
 @dataclass(frozen=True)
 class StackParameters:
     """Stack and plate: gain (m/V), capacitance (F), output resistance (Ω), resonance (Hz), ζ."""
