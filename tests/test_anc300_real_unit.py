@@ -16,9 +16,10 @@ from serial.urlhandler.protocol_socket import Serial as SocketSerial
 
 import feeder.drivers.anc300 as anc300
 import feeder.drivers.anc300_link as anc300_link
-from feeder.drivers.amplifier import AmplifierLinkLost, DriveSettings
+from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost, DriveSettings
 from feeder.drivers.anc300 import Anc300Amplifier
 from feeder.drivers.anc300_link import Anc300Link
+from feeder.protocol.anc300 import MOVE_PATH
 from firmware_sim.console import ConsoleSession
 from firmware_sim.firmware import Firmware
 from firmware_sim.transports import PtyConsole
@@ -268,3 +269,51 @@ def test_stepw_without_an_answer_is_a_slow_burst_but_a_broken_link_is_lost(break
         amp.link.close()
         if not breaks:
             ptys[0].close()
+
+
+def test_every_verb_the_driver_sends_is_on_the_move_path(recorded: tuple[Anc300Link, list[str]]) -> None:
+    """What the daemon may send a real unit (MOVE_PATH, all real verbs): every driver call,
+    the camera calibration's offsets included (``seta`` was missing)."""
+    link, lines = recorded
+    amp = Anc300Amplifier(link, axis=1)
+    amp.apply(DriveSettings(frequency_hz=1000.0, amplitude_v=20.0))
+    amp.enable()
+    amp.step(3)  # the firmware does not tick here: the burst plays until stopped (stepw: below)
+    amp.stop()
+    amp.run_continuous(forward=False)
+    amp.stop()
+    assert amp.wait(1.0)
+    amp.status()
+    amp.steps_played()
+    amp.hold_offset(5.0)
+    amp.hold_offset(6.0)
+    amp.ground()
+    sent = {line.split()[0] for line in lines if line}
+    assert {"setf", "getf", "setv", "stepu", "stepd", "stepw", "stop", "seta", "setm", "getm"} <= sent
+    assert sent <= MOVE_PATH
+
+
+class NoOffsetSession(RecordingSession):
+    """A unit whose axis 1 has no offset mode (as an ANM150 module): ``setm 1 off`` is refused."""
+
+    def feed(self, data: bytes) -> bytes:
+        if b"setm 1 off" in data:
+            return b"Error: mode not available on this module\r\nERROR\r\n"
+        return super().feed(data)
+
+
+def test_a_module_without_offset_mode_is_named_with_the_way_around_it() -> None:
+    pty = PtyConsole(lambda _source: NoOffsetSession(Firmware(), []))
+    link = Anc300Link(pty.path, timeout_s=1.0)
+    try:
+        amp = Anc300Amplifier(link, axis=1)
+        with pytest.raises(AmplifierError) as err:
+            amp.hold_offset(10.0)
+        assert not isinstance(err.value, AmplifierLinkLost)  # the link stays: nothing reconnects
+        message = str(err.value)
+        assert "mode not available on this module" in message and "holds no offset" in message
+        assert "--x-move" in message and "[camera] aligned" in message and "\n" not in message
+        amp.ground()  # the link still answers
+    finally:
+        link.close()
+        pty.close()

@@ -34,6 +34,7 @@ from collections.abc import Callable
 from feeder.drivers.amplifier import (
     Amplifier,
     AmplifierError,
+    AmplifierLinkLost,
     AmplifierStatus,
     DriveSettings,
 )
@@ -160,7 +161,16 @@ class Anc300Amplifier(Amplifier):
         from ``gnd`` at 0 V that changes nothing the plate feels."""
         self.link.query(f"seta {self.axis} {volts:.6f}")
         if not self._offset_mode:
-            self.link.query(f"setm {self.axis} off")
+            try:
+                self.link.query(f"setm {self.axis} off")
+            except AmplifierLinkLost:
+                raise
+            except AmplifierError as err:  # the unit refused the mode: its module has none
+                raise AmplifierError(
+                    f"{err}: axis {self.axis} holds no offset (offset mode; an ANM150 module has none), "
+                    "so the plate cannot be moved by offsets: calibrate the camera from moves you "
+                    "measure (feeder vision calibrate --x-move ... --y-move ...) or set [camera] aligned"
+                ) from err
             self._offset_mode = True
 
     def steps_played(self) -> tuple[int, bool]:

@@ -98,6 +98,7 @@ MOVE_PATH: frozenset[str] = frozenset(
         "getf",
         "setv",
         "getv",
+        "seta",
         "stepu",
         "stepd",
         "stop",
@@ -106,7 +107,8 @@ MOVE_PATH: frozenset[str] = frozenset(
         "setpd",
     }
 )
-"""The verbs the host's move path sends (apply, step, wait, stop, ground, read state)."""
+"""The verbs the host's move path sends (apply, step, wait, stop, ground, hold an offset for the
+camera calibration, read state)."""
 assert MOVE_PATH <= REAL_VERBS
 
 
