@@ -95,6 +95,9 @@ def test_simulate_with_scatter_or_on_theta_does_not_judge_the_steady_state(
     out = json.loads(capsys.readouterr().out)
     assert out["steady"] is None and out["transient_periods"] == 1
     assert out["step_mean_m"] == pytest.approx(np.mean(out["steps_m"][1:]), rel=1e-12)
+    assert main(args[:-1]) == 0  # the text says the same: no steady state claimed
+    (step,) = [line for line in capsys.readouterr().out.splitlines() if line.lstrip().startswith("step")]
+    assert "steadiness not judged" in step and "steady state" not in step
 
 
 def test_an_ideal_sweep_runs_a_sliding_drive_until_it_settles(tmp_path: Path) -> None:

@@ -203,3 +203,8 @@ def test_grab_cli_writes_a_png(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert (report["width"], report["height"], report["dtype"]) == (30, 20, "uint16")
     assert int(cv2.imread(str(out), cv2.IMREAD_UNCHANGED)[0, 0]) == 77
     assert main(["vision", "grab", str(tmp_path / "nope"), "--out", str(out)]) == 2
+    capsys.readouterr()
+    assert main(["vision", "grab", "/dev/null", "--out", str(tmp_path / "null.png")]) == 2
+    error = capsys.readouterr().err.strip()  # the camera named once, not "/dev/null: /dev/null: ..."
+    assert error.count("/dev/null") == 1 and "not a camera or stream OpenCV" in error
+    assert not (tmp_path / "null.png").exists()

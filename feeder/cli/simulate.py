@@ -267,8 +267,12 @@ def _spread(out: dict[str, Any]) -> str:
 
 
 def _steady_label(transient: int, settled: bool | None) -> str:
+    """What ``step`` averages: the steady state, the last period (not settled), or, not judged
+    (θ, scatter: ``steady`` null), the periods after the first."""
     if settled is False:
         return "NOT settled: the last period"
+    if settled is None:
+        return "after the first period, steadiness not judged"
     return "steady state" + (f" from period {transient + 1}" if transient > 1 else "")
 
 

@@ -275,8 +275,8 @@ def run_grab(args: argparse.Namespace) -> int:
     try:
         with open_camera(args.camera) as camera:
             frame = camera.read(timeout_s=args.timeout_s)
-    except (CameraError, CameraLost) as err:
-        raise InputError(args.camera, str(err)) from None
+    except (CameraError, CameraLost) as err:  # the camera's messages start with its name
+        raise InputError(args.camera, str(err).removeprefix(f"{args.camera}: ")) from None
     ok, data = cv2.imencode(".png", frame.image)
     if not ok:
         raise InputError(args.camera, "the frame cannot be encoded as PNG")
