@@ -355,3 +355,21 @@ def test_every_configuration_in_the_docs_loads(tmp_path: Path, doc: str) -> None
         path = tmp_path / f"example{k}.toml"
         path.write_text(block)
         load_config(path)
+
+
+def test_a_relative_eds_path_is_the_configurations_folder_s_wherever_the_daemon_runs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """It was kept relative to the working directory, and re-read there at every (re)connect."""
+    from importlib import resources
+
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    packaged = resources.files("feeder.protocol").joinpath("feeder_amplifier.eds").read_bytes()
+    (folder / "mine.eds").write_bytes(packaged)
+    (folder / "feeder.toml").write_text('[amplifier]\ntransport = "can"\n[amplifier.can]\neds = "mine.eds"\n')
+    monkeypatch.chdir(tmp_path)
+    eds = load_config(Path("rig/feeder.toml")).amplifier.can["eds"]
+    assert Path(eds).is_absolute() and Path(eds) == folder / "mine.eds"
+    monkeypatch.chdir(folder.parent.parent)
+    assert Path(eds).is_file()

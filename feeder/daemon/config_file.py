@@ -208,7 +208,7 @@ def load_config(path: Path | None) -> DaemonConfig:
     if "host_id" in can:
         integer(can, "host_id", where, 127, "amplifier.can.")
     if "eds" in can:
-        can["eds"] = _eds(can["eds"], where, path.parent)
+        can["eds"] = _eds(can["eds"], where, path.parent.absolute())
     supervise = can.get("supervise_host", True)
     if not isinstance(supervise, bool):
         raise InputError(where, f"amplifier.can.supervise_host must be true or false, got {supervise!r}")
