@@ -16,6 +16,7 @@ from feeder.cli.arguments import (
     positive_float,
 )
 from feeder.cli.output import print_json
+from feeder.cli.stack_options import add_stack_arguments, stack_from
 from feeder.planner import DEFAULT_MARGIN, StepPrediction, plan
 from feeder.plant.amplifier import AmplifierLimits, resolve_amplifier
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
@@ -71,6 +72,7 @@ def register(sub: Any) -> None:
         help=f"amplifier's highest frequency, 1 mHz–1 MHz "
         f"(default {_DEFAULT_AMPLIFIER.max_frequency_hz:g} Hz)",
     )
+    add_stack_arguments(p)
     p.add_argument(
         "--out",
         type=output_path,
@@ -91,16 +93,17 @@ def run(args: argparse.Namespace) -> int:
                  if value is not None}  # fmt: skip
     if overrides:
         model, amplifier = f"{model} (modified)", replace(amplifier, **overrides)
+    stack = stack_from(args)
     result = plan(part, support, surface, args.tau, amplifier, args.distance_m,
                   tau_band_pa=args.tau_band, kinetic_ratio=args.kinetic_ratio,
-                  tau_adhesion_work_j_m2=args.tau_adhesion_work, margin=args.margin,
+                  tau_adhesion_work_j_m2=args.tau_adhesion_work, stack=stack, margin=args.margin,
                   frequency_hz=args.frequency_hz)  # fmt: skip
     out = {"part": part.label, "support": support.kind, **result.to_json()}
     if args.out:
         from feeder.design import DesignProblem, write_design
 
         problem = DesignProblem(part, support, surface, str(args.surface or "embedded"), args.tau,
-                                args.tau_band, args.kinetic_ratio, model, amplifier,
+                                args.tau_band, args.kinetic_ratio, model, amplifier, stack,
                                 tau_adhesion_work_j_m2=args.tau_adhesion_work)  # fmt: skip
         prediction = StepPrediction(result.predicted_step_m, result.predicted_step_band_m)
         moves = {"distance_m": result.distance_m, "steps": result.steps, "duration_s": result.duration_s,

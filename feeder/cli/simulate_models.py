@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from feeder.cli.waveform import file_amplifier, load_checked
+from feeder.cli.waveform import file_amplifier, file_stack, load_checked
 from feeder.errors import InputError, check_memory_budget
 from feeder.files import save_figure
 from feeder.parts import Part
@@ -20,7 +20,6 @@ from feeder.plant.ideal_plate import linear_flyback_step, sawtooth_motion
 from feeder.plant.planar import PlanarPart, simulate
 from feeder.plant.plant import BYTES_PER_SAMPLE, DEFAULT_SAMPLE_RATE_HZ, run_waveform
 from feeder.plant.plate_motion import sawtooth
-from feeder.plant.stack import StackParameters
 from feeder.plant.stick_slip import Friction, StickSlip
 from feeder.plate_axes import AXES
 from feeder.waveform import Waveform, read_waveform_tables
@@ -36,7 +35,7 @@ def _sawtooth_parameters(args: argparse.Namespace, stroke: float | None) -> tupl
     """
     stroke_flag = "--stroke-rad" if args.axis == "theta" else "--stroke-m"
     if args.waveform is not None:
-        amplifier, stack = AmplifierLimits(), StackParameters()
+        amplifier, stack = file_amplifier(args.waveform), file_stack(args.waveform)
         waveform = load_checked(args.waveform, amplifier)
         full = stroke if stroke is not None else stack.gain_m_per_v * waveform.amplitude_vpp
         frequency, direction = waveform.frequency_hz, waveform.direction
@@ -100,8 +99,8 @@ def plant(args: argparse.Namespace, friction: Friction) -> tuple[
     if not args.json:
         finer = f", {oversample} steps per sample" if oversample > 1 else ""
         print(f"simulating {args.periods} periods at 100 kS/s{finer} ...", file=sys.stderr)
-    run_ = run_waveform(friction, waveform, args.periods, amplifier, scatter=args.scatter,
-                        seed=args.seed, oversample=oversample)  # fmt: skip
+    run_ = run_waveform(friction, waveform, args.periods, amplifier, file_stack(args.waveform),
+                        scatter=args.scatter, seed=args.seed, oversample=oversample)  # fmt: skip
     extra = {"model": "plant", "waveform": str(args.waveform), "oversample": oversample}
     return run_.steps_m, run_.slip_fraction, run_.time_s, run_.part_position_m, run_.plate_position_m, extra
 
@@ -114,7 +113,7 @@ def _strokes(args: argparse.Namespace) -> tuple[tuple[float, float, float], floa
     given = args.stroke_rad if args.axis == "theta" else args.stroke_m
     if given is None and args.axis == "theta":  # the stack's full stroke (m) at the lever arm → rad
         _, waveform, lever_arm_m = _planar_plant_drive(args)
-        given = StackParameters().gain_m_per_v * waveform.amplitude_vpp / lever_arm_m
+        given = file_stack(args.waveform).gain_m_per_v * waveform.amplitude_vpp / lever_arm_m
     stroke, frequency, flyback, shape, direction = _sawtooth_parameters(args, given)
     signed = stroke if direction == "forward" else -stroke
     strokes = [0.0, 0.0, 0.0]
@@ -160,7 +159,8 @@ def theta_plant(args: argparse.Namespace, part: Part, friction: Friction) -> tup
         raise InputError("--scatter", "the planar plant has no scatter (--axis theta)")
     amplifier, waveform, lever_arm_m = _planar_plant_drive(args)
     planar = PlanarPart.from_part(part, friction, args.pose, args.part_shape)
-    run_ = run_axis_waveform(planar, waveform, "theta", args.periods, amplifier, lever_arm_m=lever_arm_m)
+    run_ = run_axis_waveform(planar, waveform, "theta", args.periods, amplifier, file_stack(args.waveform),
+                             lever_arm_m=lever_arm_m)  # fmt: skip
     extra = {"model": "planar-plant", "waveform": str(args.waveform), "part_shape": args.part_shape,
              "lever_arm_m": lever_arm_m}  # fmt: skip
     return run_.steps_m, run_.slip_fraction, run_.poses[1:], extra

@@ -24,12 +24,13 @@ from feeder.cli.arguments import (
     positive_length_m,
 )
 from feeder.cli.output import print_json
+from feeder.cli.stack_options import add_stack_arguments, stack_from
 from feeder.daemon.config import PlateConfig
 from feeder.errors import InputError
 from feeder.files import save_figure, write_text
 from feeder.plant.amplifier import AmplifierLimits, OutputStage, limits_from_table
 from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
-from feeder.plant.stack import StackParameters
+from feeder.plant.stack import StackParameters, stack_from_table
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
 from feeder.plate_axes import AXES
 from feeder.waveform import (
@@ -133,6 +134,7 @@ def register(sub: Any) -> None:
                              f"(default {DEFAULT_LEVER_ARM_M:g} m, firmware_sim's plate; give "
                              f"the daemon's [plate] lever_arm_m, {PlateConfig.lever_arm_m:g} m "
                              f"unless configured)")  # fmt: skip
+    add_stack_arguments(design)
     design.add_argument("--out", type=output_path, required=True, help="design file (TOML) to write")
     design.add_argument("--json", action="store_true", help="print one JSON object")
     design.set_defaults(handler=run_design)
@@ -142,6 +144,12 @@ def file_amplifier(path: Path) -> AmplifierLimits:
     """The ``[amplifier]`` a design file was made for, else the default amplifier."""
     table = read_waveform_tables(path).get("amplifier")
     return AmplifierLimits() if table is None else limits_from_table(table, f"{path}: [amplifier].")
+
+
+def file_stack(path: Path) -> StackParameters:
+    """The ``[stack]`` a design file was made for, else the default stacks."""
+    table = read_waveform_tables(path).get("stack")
+    return StackParameters() if table is None else stack_from_table(table, f"{path}: [stack].")
 
 
 def load_checked(path: Path, amplifier: AmplifierLimits | None = None) -> Waveform:
@@ -161,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _show(args: argparse.Namespace, waveform: Waveform, amplifier: AmplifierLimits) -> int:
-    stack = StackParameters()
+    stack = file_stack(args.file)
     if waveform.flyback_shape == "current-limited":
         flyback, fraction = amplifier.current_limited_flyback(
             waveform.amplitude_vpp, waveform.frequency_hz, stack.capacitance_f
@@ -302,7 +310,7 @@ def run_design(args: argparse.Namespace) -> int:
         raise InputError("--radius-m", f"must not be negative, got {args.radius_m}")
     where = args.pose or ((args.radius_m, 0.0, 0.0) if args.radius_m is not None else (0.0, 0.0, 0.0))
     problem = DesignProblem(part, support, surface, str(args.surface or "embedded"), args.tau,
-                            args.tau_band, args.kinetic_ratio, model, limits,
+                            args.tau_band, args.kinetic_ratio, model, limits, stack_from(args),
                             tau_adhesion_work_j_m2=args.tau_adhesion_work)  # fmt: skip
 
     def progress(message: str) -> None:

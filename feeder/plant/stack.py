@@ -21,13 +21,15 @@ between samples) as two ``scipy.signal.lfilter`` calls with carried state.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from feeder.errors import InputError
+from feeder.files import toml_number
 
 if TYPE_CHECKING:
     import control
@@ -91,6 +93,21 @@ class StackParameters:
         import control
 
         return control.sample_system(self.state_space(), 1.0 / sample_rate_hz, method="foh")
+
+
+def stack_from_table(table: Mapping[str, Any], where: str) -> StackParameters:
+    """StackParameters from a TOML table of its fields (a design file's ``[stack]``; missing
+    fields: the defaults), each within :data:`STACK_RANGES`; ``where`` prefixes the errors' field."""
+    values: dict[str, float] = {}
+    for key, value in table.items():
+        if key not in STACK_RANGES:
+            raise InputError(f"{where}{key}", f"unknown field; known: {', '.join(STACK_RANGES)}")
+        number = toml_number(f"{where}{key}", value)
+        low, high = STACK_RANGES[key]
+        if not (math.isfinite(number) and low <= number <= high):
+            raise InputError(f"{where}{key}", f"{number:g} is outside [{low:g}, {high:g}]")
+        values[key] = number
+    return StackParameters(**values)
 
 
 def _transfer_rows(system: control.StateSpace) -> list[tuple[np.ndarray, np.ndarray]]:
