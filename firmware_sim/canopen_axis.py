@@ -39,6 +39,10 @@ LIVE_OBJECTS = (
 )
 """An axis' objects whose value is the axis' present state, read when asked."""
 
+MOTION_OBJECTS = ("Step command", "Continuous")
+"""An axis' objects whose non-zero value starts motion (the node refuses that by SDO
+outside OPERATIONAL); 0 stops, in any state."""
+
 NODE_REGISTER = "Error register"
 """The node's object every TPDO carries besides the axis' own."""
 

@@ -24,20 +24,25 @@ What this module adds to ``LocalNode``:
   high) / 0x06090032 (too low); values the firmware refuses abort with the same
   codes when the firmware's own limit is tighter (e.g. a lower amplitude rating),
   0x06040043 when they conflict with another setting (flyback longer than half
-  a period), 0x08000022 when the axis' state forbids them (stepping while
-  grounded or in fault).  A refused write changes nothing.  Unknown objects
+  a period), 0x08000022 when the axis' or the node's state forbids them (stepping
+  while grounded or in fault; starting motion, ``Step command`` or ``Continuous``
+  not 0, outside OPERATIONAL).  A refused write changes nothing.  Unknown objects
   (0x06020000), sub-indices (0x06090011), read-only (0x06010002) and write-only
   (0x06010001) objects and client aborts follow CiA 301
   (:mod:`firmware_sim.sdo_server`).
-- NMT: SDO served in PRE-OPERATIONAL and OPERATIONAL only; PDOs in OPERATIONAL
-  only; any state but OPERATIONAL stops every axis; reset node / reset
+- Frames: CiA 301's only, 11-bit data frames; 29-bit, remote and error frames are
+  ignored (:func:`is_canopen_frame`), whichever identifier they carry.
+- NMT: the five commands of CiA 301 (others are ignored); SDO served in
+  PRE-OPERATIONAL and OPERATIONAL only; PDOs, and motion started by SDO, in
+  OPERATIONAL only; any state but OPERATIONAL stops every axis; reset node / reset
   communication restore the EDS defaults (reset node also grounds every axis),
   send the boot-up message and enter PRE-OPERATIONAL.
 - TPDOn of axis n (step counter, status word, command acknowledge, the node's
   error register): transmission type 254/255 sends on change (no faster than
-  the inhibit time) and at least every event-timer period; type 1..240 sends on
-  every n-th SYNC.  The step counter (I32, in the TPDO and by SDO) wraps in two's
-  complement past ±2³¹, as a drive's counter does.
+  the inhibit time) and at least every event-timer period, and once on entering
+  OPERATIONAL (unless ``tpdo_on_start`` is False: CiA 301 does not require it);
+  type 1..240 sends on every n-th SYNC.  The step counter (I32, in the TPDO and by
+  SDO) wraps in two's complement past ±2³¹, as a drive's counter does.
 - RPDOn of axis n (step command, command sequence): ``+N``/``-N`` starts a burst,
   0 stops; the sequence is echoed in TPDOn's command acknowledge, with status
   bit 3 set when the firmware refused the command.  A too-short RPDO raises EMCY
@@ -74,7 +79,7 @@ from feeder.errors import InputError
 from feeder.protocol.eds import axis_count, object_dictionary
 from firmware_sim.axis import AxisStatus
 from firmware_sim.can_wire import WireBus
-from firmware_sim.canopen_axis import AxisPort
+from firmware_sim.canopen_axis import MOTION_OBJECTS, AxisPort
 from firmware_sim.faults import Fault, FirmwareError, LimitError
 from firmware_sim.firmware import Firmware
 from firmware_sim.sdo_server import SdoServer
@@ -86,6 +91,9 @@ NMT_PRE_OPERATIONAL = 127
 NMT_RESET_NODE = 0x81
 NMT_RESET_COMMUNICATION = 0x82
 NMT_ENTER_PRE_OPERATIONAL = 0x80
+NMT_COMMANDS = (0x01, 0x02, NMT_ENTER_PRE_OPERATIONAL, NMT_RESET_NODE, NMT_RESET_COMMUNICATION)
+"""CiA 301's NMT commands (start, stop, enter PRE-OPERATIONAL, reset node, reset
+communication); the node ignores any other."""
 SYNC_COB_ID = 0x80
 
 ABORT_RANGE = 0x06090030
@@ -115,6 +123,21 @@ IDLE_POLL_S = 0.01
 SYNC) samples its axes for EMCY and the heartbeat consumer."""
 
 CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
+
+
+def is_canopen_frame(msg: can.Message) -> bool:
+    """A frame for the node: CiA 301 uses 11-bit data frames only (no 29-bit identifiers;
+    no remote frames: no RTR-requested PDOs, no node guarding)."""
+    return not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame)
+
+
+class CanopenFrames(canopen.network.MessageListener):
+    """``canopen``'s listener, passing on only :func:`is_canopen_frame`'s frames (it drops
+    remote and error frames, not 29-bit ones)."""
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if is_canopen_frame(msg):
+            super().on_message_received(msg)
 
 
 def error_register(fault_word: int) -> int:
@@ -148,6 +171,8 @@ class CanopenNode:
     False: as CANopenNode with ``CO_NMT_ERR_ON_ERR_REG`` (its examples' default), the node
     leaves OPERATIONAL for PRE-OPERATIONAL while its error register is set (its outputs
     left as they are), so a start does not hold until the faults are cleared.
+    ``tpdo_on_start`` False: entering OPERATIONAL sends no TPDO (CiA 301 does not ask for
+    one); event-driven TPDOs then go out on a change or when their event timer expires.
     """
 
     def __init__(
@@ -159,11 +184,13 @@ class CanopenNode:
         od: ObjectDictionary | None = None,
         poll_s: float = 0.001,
         operational_with_errors: bool = True,
+        tpdo_on_start: bool = True,
     ) -> None:
         self.firmware = firmware
         self.node_id = node_id
         self.poll_s = poll_s
         self.operational_with_errors = operational_with_errors
+        self.tpdo_on_start = tpdo_on_start
         od = od if od is not None else object_dictionary(node_id)
         numbers = (axes,) if isinstance(axes, int) else tuple(axes)
         if len(numbers) != axis_count(od):
@@ -223,8 +250,9 @@ class CanopenNode:
             local.rpdo[port.number].add_callback(functools.partial(self._on_rpdo, port))
         bus = network.bus
         if isinstance(bus, WireBus):  # frames handled in the sender's thread, as they arrive
-            bus.receiver = lambda m: network.notify(m.arbitration_id, m.data, m.timestamp)
+            bus.receiver = self._receive
         else:
+            network.listeners = [CanopenFrames(network)]
             network.connect()
         self._boot(reset_application=False)
         self._thread.start()
@@ -259,6 +287,11 @@ class CanopenNode:
 
     # -- CAN services (each handled whole under the firmware's lock) -------------
 
+    def _receive(self, msg: can.Message) -> None:
+        """A frame from the wire, in the sender's thread."""
+        if is_canopen_frame(msg):
+            self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+
     def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if self.nmt_state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL) and len(data) == 8:
             with self.firmware.lock:
@@ -267,7 +300,7 @@ class CanopenNode:
             self._wake.set()
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if len(data) < 2 or data[1] not in (0, self.node_id) or data[0] not in canopen.nmt.COMMAND_TO_STATE:
+        if len(data) < 2 or data[1] not in (0, self.node_id) or data[0] not in NMT_COMMANDS:
             return
         with self.firmware.lock:
             if canopen.nmt.COMMAND_TO_STATE[data[0]] != NMT_OPERATIONAL:
@@ -346,6 +379,8 @@ class CanopenNode:
         if writer is None:
             return
         base = port.base.get(od.qualname, od.qualname) if port is not None else od.qualname
+        if value and base in MOTION_OBJECTS and self.nmt_state != NMT_OPERATIONAL:
+            raise SdoAbortedError(ABORT_DEVICE_STATE)
         try:
             writer(value)
         except LimitError as exc:
@@ -450,6 +485,8 @@ class CanopenNode:
             now = time.monotonic()
             with self._tpdo_lock:
                 data = packed[port.number]
+                if port.last_data is None and not self.tpdo_on_start:  # OPERATIONAL, event-driven anew
+                    port.last_data, port.last_sent = data, now
                 changed = data != port.last_data and now - port.last_sent >= port.inhibit_s
                 timer_due = port.event_timer_s > 0 and now - port.last_sent >= port.event_timer_s
                 if changed or timer_due:

@@ -210,10 +210,10 @@ def test_stepping_axis_2_moves_only_axis_2(node_rig: NodeRig) -> None:
 
 def test_stop_and_ground_act_on_one_axis(node_rig: NodeRig) -> None:
     sdo = node_rig.master.sdo
+    node_rig.master.nmt.state = "OPERATIONAL"  # motion starts in OPERATIONAL only
     for axis in (1, 3):
         sdo[f"Axis {axis} Mode"].raw = MODES.index("stp")
         sdo[f"Axis {axis} Continuous"].raw = 1
-    node_rig.master.nmt.state = "OPERATIONAL"
     node_rig.run(0.05)
     node_rig.command(1, 0, 1)  # RPDO1 0: axis 1 stops
     node_rig.run(0.05)
@@ -274,6 +274,7 @@ def test_emcy_names_the_axis_and_the_error_register_is_the_nodes(node_rig: NodeR
 
 def test_leaving_operational_stops_every_axis(node_rig: NodeRig) -> None:
     sdo = node_rig.master.sdo
+    node_rig.master.nmt.state = "OPERATIONAL"
     for axis in AXES:
         sdo[f"Axis {axis} Mode"].raw = MODES.index("stp")
         sdo[f"Axis {axis} Continuous"].raw = -1

@@ -149,12 +149,12 @@ def test_steps_by_sdo_and_rpdo_advance_the_counter_exactly(rig: Rig) -> None:
     sdo["Frequency"].raw = 1_000_000
     sdo["Amplitude"].raw = 30_000
     sdo["Mode"].raw = MODES.index("stp")
+    rig.master.nmt.state = "OPERATIONAL"  # motion starts in OPERATIONAL only
     sdo["Step command"].raw = 37
     rig.run(0.2)
     assert rig.firmware.axis(1).status().step_counter == 37
     assert sdo["Step counter"].raw == 37
 
-    rig.master.nmt.state = "OPERATIONAL"
     rpdo = rig.master.rpdo[1]
     rpdo["Step command"].raw = -120
     rpdo["Command sequence"].raw = 9
@@ -259,6 +259,7 @@ def test_unknown_objects_and_access_errors(rig: Rig) -> None:
 
 def test_nmt_stopped_node_is_silent_but_beats(rig: Rig) -> None:
     rig.master.sdo["Mode"].raw = MODES.index("stp")
+    rig.master.nmt.state = "OPERATIONAL"
     rig.master.sdo["Continuous"].raw = 1
     rig.run(0.05)
     assert rig.firmware.axis(1).status().moving

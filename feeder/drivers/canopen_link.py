@@ -81,9 +81,15 @@ ABORT_MESSAGES = {
 }
 
 
-def tpdo_type(axis: int) -> str:
-    """The transmission type of axis ``axis``' TPDO (axis n sends TPDOn)."""
-    return f"TPDO{axis} communication parameter.Transmission type"
+TPDO_EVENT_TIMER_MS = 100
+"""The event timer the driver gives every TPDO (ms): the node sends it at least this often,
+so its first TPDO after the start comes within the wait for it (``timeout_s`` + 0.2 s), even
+from a drive that sends none on entering OPERATIONAL."""
+
+
+def tpdo_parameter(axis: int, name: str) -> str:
+    """Sub-object ``name`` of axis ``axis``' TPDO communication parameter (axis n sends TPDOn)."""
+    return f"TPDO{axis} communication parameter.{name}"
 
 
 @dataclass
@@ -124,7 +130,9 @@ class CanopenNodeLink:
         ``[amplifier.can] host_id``).
     network: a connected :class:`canopen.Network` to share with other nodes'
         drivers (one bus, several nodes; ``bus`` is then ignored); the caller
-        disconnects it.  Default: the link connects its own.
+        disconnects it.  Default: the link connects its own.  Either way the link makes
+        it ignore 29-bit frames (:func:`standard_frames_only`); ``bus``'s own
+        ``can_filters`` go to python-can as given.
 
     EMCY: each is logged (WARNING) and remembered for the axis its byte 7 names (every
     axis of the node when it names none of them); the axis' next step or continuous run, or a wait in
@@ -174,6 +182,7 @@ class CanopenNodeLink:
             network.connect(**dict(bus))
         self.network = network
         assert self.network.notifier is not None
+        standard_frames_only(self.network)
         self.network.notifier.add_listener(_BusErrors(self._on_bus_error))
         with contextlib.ExitStack() as undo:  # any failure from here disconnects (our own network)
             if self._owns_network:
@@ -234,7 +243,8 @@ class CanopenNodeLink:
             self.host_heartbeat = HostHeartbeat(self.network, self.host_id, self.heartbeat_s)
             self._clear_host_watchdog()
         for axis, feedback in self.feedback.items():
-            self.sdo_write(tpdo_type(axis), 255)  # event-driven: on change and on its timer
+            self.sdo_write(tpdo_parameter(axis, "Transmission type"), 255)  # on change and on its timer
+            self.sdo_write(tpdo_parameter(axis, "Event timer"), TPDO_EVENT_TIMER_MS)
             self.node.tpdo[axis].add_callback(functools.partial(self._on_tpdo, axis))
             feedback.sequence = self.sdo_read(self.name(axis, "Command acknowledge"))
         self.node.nmt.state = "OPERATIONAL"
@@ -484,6 +494,29 @@ class CanopenNodeLink:
             self._watchdog.join(timeout=1.0)
         if self._owns_network:
             disconnect(self.network)
+
+
+class _StandardFrames(canopen.network.MessageListener):
+    """``canopen``'s listener for 11-bit frames only (it drops remote and error frames, not
+    29-bit ones): CiA 301 uses no 29-bit identifiers, and a 29-bit frame whose low bits are a
+    TPDO's, an EMCY's or a heartbeat's identifier is not from the node."""
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if not msg.is_extended_id:
+            super().on_message_received(msg)
+
+
+def standard_frames_only(network: canopen.Network) -> None:
+    """Make connected ``network`` ignore 29-bit frames (once; a network shared by several links).
+
+    In its listener, not by python-can's ``can_filters``: those stay the user's, and some
+    interfaces apply a filter's ``extended`` key in hardware to one frame format only (kvaser:
+    29-bit frames pass a filter set for 11-bit ones)."""
+    assert network.notifier is not None
+    for listeners in (network.listeners, network.notifier.listeners):
+        for index, listener in enumerate(listeners):
+            if type(listener) is canopen.network.MessageListener:
+                listeners[index] = _StandardFrames(network)  # one assignment: the receiver sees either
 
 
 def disconnect(network: canopen.Network) -> None:
