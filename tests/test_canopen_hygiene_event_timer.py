@@ -38,23 +38,29 @@ def timerless_od(eds: str) -> ObjectDictionary:
 
 
 @contextlib.contextmanager
-def quiet_node(eds: str) -> Iterator[tuple[CanopenNode, dict[str, Any]]]:
-    """Node :data:`NODE_ID` with its TPDOs' event timers 0 that sends no TPDO on entering
-    OPERATIONAL, on a fresh virtual channel; yields it and the host's bus arguments."""
-    od = timerless_od(eds)
+def ticking_firmware() -> Iterator[tuple[Firmware, str]]:
+    """A firmware ticking in real time and a fresh virtual CAN channel's name."""
     firmware = Firmware(FirmwareConfig(watchdog_s=5.0))  # generous: the test machine is shared
     stop = threading.Event()
     ticker = threading.Thread(target=firmware.run, args=(RealTimeClock(), stop), daemon=True)
     ticker.start()
-    channel = f"test-canopen-hygiene-{uuid.uuid4().hex}"
-    axes = list(range(1, axis_count(od) + 1))
-    bus = can.Bus(interface="virtual", channel=channel)
     try:
-        with CanopenNode(firmware, axes, NODE_ID, bus, od=od, tpdo_on_start=False) as node:
-            yield node, {"interface": "virtual", "channel": channel}
+        yield firmware, f"test-canopen-hygiene-{uuid.uuid4().hex}"
     finally:
         stop.set()
         ticker.join(timeout=2.0)
+
+
+@contextlib.contextmanager
+def quiet_node(eds: str) -> Iterator[tuple[CanopenNode, dict[str, Any]]]:
+    """Node :data:`NODE_ID` with its TPDOs' event timers 0 that sends no TPDO on entering
+    OPERATIONAL, on a fresh virtual channel; yields it and the host's bus arguments."""
+    od = timerless_od(eds)
+    axes = list(range(1, axis_count(od) + 1))
+    with ticking_firmware() as (firmware, channel):
+        bus = can.Bus(interface="virtual", channel=channel)
+        with CanopenNode(firmware, axes, NODE_ID, bus, od=od, tpdo_on_start=False) as node:
+            yield node, {"interface": "virtual", "channel": channel}
 
 
 def test_the_quiet_node_sends_no_tpdo_after_a_plain_start() -> None:

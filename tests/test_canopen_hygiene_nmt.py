@@ -11,9 +11,7 @@
 
 from __future__ import annotations
 
-import threading
 import time
-import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -21,13 +19,13 @@ import can
 import canopen
 import pytest
 from canopen.sdo.exceptions import SdoAbortedError
+from test_canopen_hygiene_event_timer import ticking_firmware
 
 from feeder.drivers.canopen import open_node_axes
 from feeder.protocol.eds import EDS_3AXIS_FILE, MODES, axis_count, object_dictionary
 from firmware_sim.canopen_node import EMCY_CODES, CanopenNode
-from firmware_sim.clock import RealTimeClock
 from firmware_sim.faults import Fault
-from firmware_sim.firmware import Firmware, FirmwareConfig
+from firmware_sim.firmware import Firmware
 
 pytestmark = pytest.mark.timeout(60)
 NODE_ID = 3
@@ -58,27 +56,21 @@ def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
     """A ticking firmware's axes as node :data:`NODE_ID` (one- or three-axis EDS) on a
     virtual bus, with a plain canopen master; the axes' settings allow stepping."""
     od = object_dictionary(NODE_ID, request.param)
-    firmware = Firmware(FirmwareConfig(watchdog_s=5.0))  # generous: the test machine is shared
-    stop = threading.Event()
-    ticker = threading.Thread(target=firmware.run, args=(RealTimeClock(), stop), daemon=True)
-    ticker.start()
-    channel = f"test-canopen-hygiene-{uuid.uuid4().hex}"
     axes = list(range(1, axis_count(od) + 1))
-    node = CanopenNode(firmware, axes, NODE_ID, can.Bus(interface="virtual", channel=channel), od=od)
-    network = canopen.Network()
-    network.NOTIFIER_CYCLE = 0.1
-    network.connect(interface="virtual", channel=channel)
-    master = canopen.RemoteNode(NODE_ID, object_dictionary(NODE_ID, request.param))
-    master.sdo.RESPONSE_TIMEOUT = 1.0
-    network.add_node(master)
-    node.start()
-    try:
-        yield Rig(firmware, node, master, network, channel, request.param)
-    finally:
-        network.disconnect()
-        node.close()
-        stop.set()
-        ticker.join(timeout=2.0)
+    with ticking_firmware() as (firmware, channel):
+        node = CanopenNode(firmware, axes, NODE_ID, can.Bus(interface="virtual", channel=channel), od=od)
+        network = canopen.Network()
+        network.NOTIFIER_CYCLE = 0.1
+        network.connect(interface="virtual", channel=channel)
+        master = canopen.RemoteNode(NODE_ID, object_dictionary(NODE_ID, request.param))
+        master.sdo.RESPONSE_TIMEOUT = 1.0
+        network.add_node(master)
+        node.start()
+        try:
+            yield Rig(firmware, node, master, network, channel, request.param)
+        finally:
+            network.disconnect()
+            node.close()
 
 
 def axis_name(rig: Rig, name: str, axis: int = 1) -> str:
