@@ -376,3 +376,18 @@ def test_pose_moves_no_wait_one_turn_and_release(short_dir: Path, capsys) -> Non
         assert json.loads(capsys.readouterr().out) == {"released": []} and asked[-1]["part"] == 3
     finally:
         server.close()
+
+
+def test_status_prints_the_daemons_warnings(daemon, short_dir: Path, capsys) -> None:
+    """``stack_warning`` (hardware without ``[stack]``) is printed as the noise warning is."""
+    _, socket_path = daemon
+    with Client(socket_path) as client:
+        reply = dict(client.status().raw)
+    reply["stack_warning"] = "no [stack] in the configuration: state yours"
+    path = short_dir / "w.sock"
+    server = ScriptedServer(path, lambda request, conn: reply)
+    try:
+        assert main(["status", "--socket", str(path)]) == 0
+        assert "warning: no [stack] in the configuration: state yours\n" in capsys.readouterr().out
+    finally:
+        server.close()

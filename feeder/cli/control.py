@@ -299,8 +299,9 @@ def run_status(args: argparse.Namespace) -> int:
         )
     if reply.get("moves_refused"):
         print(f"moves refused: {reply['moves_refused']}")
-    if reply.get("sensor_noise_warning"):
-        print(f"warning: {reply['sensor_noise_warning']}")
+    for key in ("sensor_noise_warning", "stack_warning"):
+        if reply.get(key):
+            print(f"warning: {reply[key]}")
     if len(reply.get("axes") or {}) > 1:  # a plate driven in the plane
         for line in plane_status_lines(reply):
             print(line)

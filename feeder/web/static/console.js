@@ -369,6 +369,7 @@ function updateFaults() {
   if (status.store_unwritable) current.push("state store unwritable: " + status.store_unwritable);
   if (status.moves_refused) current.push("moves refused: " + status.moves_refused);
   if (status.sensor_noise_warning) current.push(status.sensor_noise_warning);
+  if (status.stack_warning) current.push(status.stack_warning);
   for (const text of current) items.push([text, true]);
   for (const f of (status.faults || []).slice(-5).reverse()) {
     const back = f.reconnected_after_attempts ? ` (back after ${f.reconnected_after_attempts} attempts)` : f.last_error ? ` (retrying: ${f.last_error})` : "";
