@@ -7,7 +7,9 @@ whose message is the reply's ``error``: it names the field and what arrived
 
 from __future__ import annotations
 
+import difflib
 import math
+from collections.abc import Collection
 from typing import Any
 
 from feeder.errors import FeederError
@@ -73,3 +75,23 @@ def integer(request: dict[str, Any], key: str, default: int, low: int, high: int
         bounds = f">= {low}" if high is None else f"in [{low}, {high}]"
         raise RequestFieldError(f"{key} must be an integer {bounds}, got {brief(value)}")
     return value
+
+
+def flag(request: dict[str, Any], key: str, default: bool) -> bool:
+    """``request[key]`` as true or false (``"false"``, 0 or null are refused); ``default`` when absent."""
+    value = request.get(key, default)
+    if not isinstance(value, bool):
+        raise RequestFieldError(f"{key} must be true or false, got {brief(value)}")
+    return value
+
+
+def check_known(request: dict[str, Any], known: Collection[str]) -> None:
+    """Refuse the request's first field not in ``known``, naming it (and the nearest known one,
+    if one is close): a misspelt ``wait`` or ``part`` must not fall back to its default."""
+    unknown = next((key for key in request if key not in known), None)
+    if unknown is None:
+        return
+    names = sorted(known)
+    near = difflib.get_close_matches(unknown, names, n=1)
+    hint = f"; did you mean {near[0]!r}?" if near else ""
+    raise RequestFieldError(f"unknown field {brief(unknown)}; known: {', '.join(names)}{hint}")

@@ -3,11 +3,13 @@
 :func:`answer` takes one request object (see :mod:`feeder.daemon.client`) and answers it
 through the :class:`~feeder.daemon.service.Daemon`'s public methods, which run, queue and
 stop the jobs; nothing here takes a daemon lock.  A refused request is answered
-``{"ok": false, "error": reason}``.
+``{"ok": false, "error": reason}``, and so is, before anything starts, a field its ``cmd`` does
+not know (:data:`FIELDS`) or a flag that is not true or false.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -15,12 +17,14 @@ from typing import TYPE_CHECKING, Any
 
 from feeder.daemon.calibration import CALIBRATION_STEPS, calibration_bursts, calibration_room, fine_steps_for
 from feeder.daemon.control_loop import COARSE, Burst, Job
-from feeder.daemon.request_fields import RequestFieldError, brief, finite, integer
+from feeder.daemon.request_fields import RequestFieldError, check_known, finite, flag, integer
 from feeder.daemon.step_estimator import FORWARD
 from feeder.errors import FeederError
 
 if TYPE_CHECKING:
     from feeder.daemon.service import Daemon
+
+log = logging.getLogger(__name__)
 
 PLANE_CALIBRATE = (
     "calibrate is the one-axis daemon's job (--line): on the plane every burst of a move "
@@ -29,6 +33,20 @@ PLANE_CALIBRATE = (
 
 POSE_KEYS = ("x_m", "y_m", "angle_rad")
 """A pose move's target, any subset (m, m, rad; plate frame)."""
+JOB_FLAGS = ("queue", "wait", "trace")
+"""A move's and a calibration's flags (:func:`_job_flags`)."""
+FIELDS: dict[str, frozenset[str]] = {
+    "move": frozenset({"cmd", "target_m", "by_m", *POSE_KEYS, "part", *JOB_FLAGS}),
+    "calibrate": frozenset({"cmd", "steps", *JOB_FLAGS}),
+    "calibrate_camera": frozenset({"cmd", "volts", "stack_gain_m_per_v", "increment_v", "frames", "save"}),
+    "stop": frozenset({"cmd"}),
+    "status": frozenset({"cmd"}),
+    "history": frozenset({"cmd", "limit"}),
+    "release": frozenset({"cmd", "part"}),
+    "shutdown": frozenset({"cmd"}),
+}
+"""Each ``cmd``'s fields; any other is refused (a misspelt ``wait`` ran a waiting move, a
+misspelt ``part`` moved part 1), except by ``stop``, which stops all the same (and logs it)."""
 
 
 def answer(daemon: Daemon, request: Any, hung_up: Callable[[], bool] = lambda: False) -> dict[str, Any]:
@@ -39,6 +57,12 @@ def answer(daemon: Daemon, request: Any, hung_up: Callable[[], bool] = lambda: F
     cmd = request.get("cmd")
     if not isinstance(cmd, str) or cmd not in COMMANDS:
         return {"ok": False, "error": f"unknown cmd {cmd!r}; known: {', '.join(COMMANDS)}"}
+    try:
+        check_known(request, FIELDS[cmd])
+    except RequestFieldError as err:
+        if cmd != "stop":  # a stop acts whatever else it carries: nothing may keep it from the daemon
+            return {"ok": False, "error": str(err)}
+        log.warning("stop: %s (stopped all the same)", err)
     if cmd in _UNTIL_HANG_UP:
         return _UNTIL_HANG_UP[cmd](daemon, request, hung_up)
     return _COMMANDS[cmd](daemon, request)
@@ -62,17 +86,23 @@ def _new_job(
     return job
 
 
-def _run_job(daemon: Daemon, job: Job, request: dict[str, Any]) -> dict[str, Any]:
-    """Run ``job`` (queued with ``"queue": true``); its result, or only that it was accepted
-    with ``"wait": false``."""
-    position, reason = daemon.run(job, queue=request.get("queue") is True)
+def _job_flags(request: dict[str, Any]) -> tuple[bool, bool, bool]:
+    """The request's ``queue``, ``wait`` and ``trace`` (:func:`_run_job`), each true or false."""
+    return flag(request, "queue", False), flag(request, "wait", True), flag(request, "trace", False)
+
+
+def _run_job(daemon: Daemon, job: Job, flags: tuple[bool, bool, bool]) -> dict[str, Any]:
+    """Run ``job`` (queued with ``queue``); its result (with its ``trace``), or with ``wait``
+    false only that it was accepted."""
+    queue, wait, trace = flags
+    position, reason = daemon.run(job, queue=queue)
     if reason is not None:
         return {"ok": False, "error": reason}
-    if request.get("wait", True) is False:
+    if not wait:
         return {"ok": True, "accepted": True, "queue_position": position}
     job.done.wait()
     assert job.result is not None
-    result = job.result.as_dict(with_trace=request.get("trace") is True)
+    result = job.result.as_dict(with_trace=trace)
     result["move_id"] = job.record_id
     ok = job.result.status == "done"
     return {"ok": ok, "result": result, **({} if ok else {"error": job.result.reason})}
@@ -84,15 +114,14 @@ def _move(daemon: Daemon, request: dict[str, Any]) -> dict[str, Any]:
         by = finite(request, "by_m")
         pose = {k: v for k in POSE_KEYS if (v := finite(request, k)) is not None}
         part = integer(request, "part", 1, 1)
+        flags = _job_flags(request)
     except RequestFieldError as err:
         return {"ok": False, "error": str(err)}
     if pose:
         if target is not None or by is not None:
             return {"ok": False, "error": "give a pose (x_m, y_m, angle_rad) or target_m/by_m, not both"}
         if daemon.setup.pose_navigator is not None:
-            return _run_job(
-                daemon, _new_job(daemon, "move", None, None, pose_target=pose, part=part), request
-            )
+            return _run_job(daemon, _new_job(daemon, "move", None, None, pose_target=pose, part=part), flags)
         if set(pose) != {"x_m"}:
             return {"ok": False, "error": "this configuration drives one axis (x): give x_m or target_m"}
         target = pose["x_m"]
@@ -101,7 +130,7 @@ def _move(daemon: Daemon, request: dict[str, Any]) -> dict[str, Any]:
             "ok": False,
             "error": "give exactly one of target_m and by_m, or a pose (x_m, y_m, angle_rad)",
         }
-    return _run_job(daemon, _new_job(daemon, "move", target, by, part=part), request)
+    return _run_job(daemon, _new_job(daemon, "move", target, by, part=part), flags)
 
 
 def _calibrate(daemon: Daemon, request: dict[str, Any]) -> dict[str, Any]:
@@ -109,6 +138,7 @@ def _calibrate(daemon: Daemon, request: dict[str, Any]) -> dict[str, Any]:
         return {"ok": False, "error": PLANE_CALIBRATE}
     try:
         steps = integer(request, "steps", CALIBRATION_STEPS, 2, 10_000)
+        flags = _job_flags(request)
     except RequestFieldError as err:
         return {"ok": False, "error": str(err)}
     allowed = _calibration_room(daemon)
@@ -118,7 +148,7 @@ def _calibrate(daemon: Daemon, request: dict[str, Any]) -> dict[str, Any]:
     steps = min(steps, allowed)
     fine_steps = fine_steps_for(steps, daemon.setup.modes)
     reply = _run_job(
-        daemon, _new_job(daemon, "calibrate", None, None, calibration_bursts(steps, fine_steps)), request
+        daemon, _new_job(daemon, "calibrate", None, None, calibration_bursts(steps, fine_steps)), flags
     )
     if limited:
         reply["note"] = (
@@ -142,9 +172,6 @@ def _calibration_room(daemon: Daemon) -> int | str:
     return calibration_room(x, daemon.loop.settings, estimate, daemon.setup.modes[COARSE].predicted_band_m[1])
 
 
-CAMERA_MOVES_FIELDS = frozenset({"cmd", "volts", "stack_gain_m_per_v", "increment_v", "frames", "save"})
-
-
 def _calibrate_camera(daemon: Daemon, request: dict[str, Any], hung_up: Callable[[], bool]) -> dict[str, Any]:
     """The camera's calibration from plate moves (:mod:`~feeder.daemon.camera_moves`): the
     report, stored with ``"save": true``; answered when the moves end (~1 min), stopped
@@ -152,14 +179,8 @@ def _calibrate_camera(daemon: Daemon, request: dict[str, Any], hung_up: Callable
     plate = daemon.setup.plate_moves
     if plate is None:
         return {"ok": False, "error": "the plate moves calibrate the camera of a plane (x, y, θ; a camera)"}
-    unknown = sorted(set(request) - CAMERA_MOVES_FIELDS)
-    if unknown:  # a typo must not leave the volts at their default
-        known = ", ".join(sorted(CAMERA_MOVES_FIELDS))
-        return {"ok": False, "error": f"unknown field {brief(unknown[0])}; known: {known}"}
-    save = request.get("save", False)
-    if not isinstance(save, bool):
-        return {"ok": False, "error": f"save must be true or false, got {brief(save)}"}
     try:
+        save = flag(request, "save", False)
         moves = plate.moves(request)
         report = daemon.camera_moves(moves, save, hung_up)
     except FeederError as err:  # a refused field, a refusal, a stop or a device's error

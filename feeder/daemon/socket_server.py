@@ -16,7 +16,11 @@ can hold the socket against ``stop``:
 - beyond :data:`MAX_CLIENTS`, up to :data:`MAX_DOORWAY` more connections are read: ``stop`` and
   ``status`` (:data:`ALWAYS_SERVED`) are answered on them, anything else gets the one-line
   refusal and the connection is closed; each request line must arrive within
-  :data:`DOORWAY_TIMEOUT_S`.  Such a connection is served in full once a slot frees.
+  :data:`DOORWAY_TIMEOUT_S`.  Such a connection is served in full once a slot frees;
+- when the process runs out of descriptors (or memory, or threads) to accept a connection with,
+  the server keeps accepting: it closes the client silent longest, if silent for
+  :data:`DOORWAY_TIMEOUT_S`, so that a waiting ``stop`` gets its descriptor, and tries again
+  every :data:`ACCEPT_RETRY_S` (logged once a minute at most).
 
 A handler gets, beside the request, a ``hung_up()`` check: whether the client has closed its
 connection (gone, not merely done sending) while its request is answered, so that a long
@@ -26,6 +30,7 @@ request nobody will read the reply of can stop (:func:`peer_closed`).
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import os
@@ -40,6 +45,7 @@ from pathlib import Path
 from typing import Any
 
 from feeder.daemon.client_connection import MAX_LINE_BYTES, check_owned_by_me
+from feeder.daemon.log_throttle import LogThrottle
 from feeder.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -59,6 +65,10 @@ request as it connects; a waiting move's heartbeat every 0.25 s)."""
 LISTEN_BACKLOG = 128
 """Connections the kernel holds before accept: bursts of short-lived clients must not find
 the socket full (a client's non-blocking connect then fails at once)."""
+ACCEPT_RETRY_S = 0.1
+"""The wait before accepting again after an accept (or a client's thread) failed."""
+OUT_OF_RESOURCES = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
+"""accept()'s errors for a process or system out of descriptors or memory."""
 
 
 def prepare_socket_dir(socket_path: Path) -> None:
@@ -163,6 +173,7 @@ class SocketServer:
         self._lock = threading.Lock()
         self._full: set[_Client] = set()
         self._doorway: set[_Client] = set()
+        self._accept_trouble = LogThrottle(log)
         self._acceptor = threading.Thread(target=self._accept, name="accept", daemon=True)
         self._acceptor.start()
 
@@ -182,11 +193,20 @@ class SocketServer:
         return {"ok": False, "error": f"too many clients (max {MAX_CLIENTS})"}
 
     def _accept(self) -> None:
+        """Accept connections until :meth:`close` (its shutdown ends the blocked accept); any
+        other failure (out of descriptors, memory or threads) is waited out, never the end."""
         while not self._closing.is_set():
             try:
                 conn, _ = self._socket.accept()
-            except OSError:
-                return
+            except OSError as err:
+                if self._closing.is_set():
+                    return
+                if err.errno in OUT_OF_RESOURCES:
+                    with self._lock:
+                        self._reclaim_slot(DOORWAY_TIMEOUT_S)
+                self._accept_trouble.warning("cannot accept a control connection (%s); trying again", err)
+                self._closing.wait(ACCEPT_RETRY_S)
+                continue
             client = _Client(conn)
             with self._lock:
                 admitted = self._take_slot(client)
@@ -198,27 +218,35 @@ class SocketServer:
                 self._discard_unread(conn)
                 conn.close()
                 continue
-            threading.Thread(target=self._serve_client, args=(client,), name="client", daemon=True).start()
+            try:
+                threading.Thread(
+                    target=self._serve_client, args=(client,), name="client", daemon=True
+                ).start()
+            except RuntimeError as err:  # "can't start new thread"
+                with self._lock:
+                    self._full.discard(client)
+                    self._doorway.discard(client)
+                conn.close()
+                self._accept_trouble.warning("cannot serve a control connection (%s); closed it", err)
+                self._closing.wait(ACCEPT_RETRY_S)
 
     def _take_slot(self, client: _Client, reclaim: bool = True) -> bool:
         """Under the lock: serve ``client`` in full if a slot is free (or, with ``reclaim``, can
         be freed: :meth:`_reclaim_slot`)."""
         if client.full:
             return True
-        if len(self._full) >= MAX_CLIENTS and not (reclaim and self._reclaim_slot()):
+        if len(self._full) >= MAX_CLIENTS and not (reclaim and self._reclaim_slot(IDLE_TIMEOUT_S)):
             return False
         self._doorway.discard(client)
         self._full.add(client)
         client.full = True
         return True
 
-    def _reclaim_slot(self) -> bool:
+    def _reclaim_slot(self, silent_s: float) -> bool:
         """Under the lock: close the client silent longest, if it has been silent for
-        :data:`IDLE_TIMEOUT_S`, and free its slot."""
+        ``silent_s``, and free its slot (and its descriptor, once its thread has ended)."""
         now = time.monotonic()
-        silent = [
-            c for c in self._full if c.silent_since is not None and now - c.silent_since >= IDLE_TIMEOUT_S
-        ]
+        silent = [c for c in self._full if c.silent_since is not None and now - c.silent_since >= silent_s]
         if not silent:
             return False
         victim = min(silent, key=lambda c: c.silent_since or now)

@@ -7,7 +7,7 @@ import json
 import math
 from typing import Any
 
-from starlette.requests import Request
+from starlette.requests import ClientDisconnect, Request
 from starlette.responses import JSONResponse
 
 from feeder.daemon.client_connection import MAX_LINE_BYTES
@@ -33,10 +33,13 @@ def error_response(status: int, message: str, headers: dict[str, str] | None = N
 async def json_body(request: Request) -> dict[str, Any]:
     """The body as a JSON object (empty body: ``{}``); 413/400 otherwise."""
     raw = bytearray()
-    async for chunk in request.stream():
-        raw += chunk
-        if len(raw) > MAX_LINE_BYTES:
-            raise ApiError(413, f"request body longer than {MAX_LINE_BYTES} bytes")
+    try:
+        async for chunk in request.stream():
+            raw += chunk
+            if len(raw) > MAX_LINE_BYTES:
+                raise ApiError(413, f"request body longer than {MAX_LINE_BYTES} bytes")
+    except ClientDisconnect:  # closed mid-body (or cut for sending it too slowly): nothing to do
+        raise ApiError(400, "the connection closed before the whole body arrived") from None
     if not raw.strip():
         return {}
     try:
@@ -57,7 +60,6 @@ FIELDS = {
     "move": frozenset({"target_m", "by_m", "x_m", "y_m", "angle_rad", "queue", "wait", "trace", "part"}),
     "calibrate": frozenset({"queue", "wait", "trace", "steps"}),
     "calibrate_camera": frozenset({"volts", "stack_gain_m_per_v", "increment_v", "frames", "save"}),
-    "stop": frozenset(),
     "release": frozenset({"part"}),
     "jog": frozenset({"axis", "steps", "part"}),
 }

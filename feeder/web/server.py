@@ -1,23 +1,106 @@
 """Serving the console: uvicorn on its own thread in the daemon's process (never the tick's),
-with a fresh token at each start; its event loop stands back while the tick is due."""
+with a fresh token at each start; its event loop stands back while the tick is due.
+
+No client can take the daemon's descriptors: at most :data:`MAX_CONNECTIONS` connections are
+served at once (a newcomer beyond is answered 503 and closed), and a connection that has not
+sent a whole request within :data:`REQUEST_TIMEOUT_S` of the server waiting for one is closed
+(:class:`GuardedH11Protocol`).  uvicorn leaves the daemon's logging as it is: its warnings and
+errors go to the daemon's log, its access log nowhere.
+"""
 
 from __future__ import annotations
 
 import asyncio
 import functools
+import json
+import logging
 import socket
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
+import h11
 import uvicorn
+from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from feeder.daemon.config import HttpConfig
+from feeder.daemon.log_throttle import LogThrottle
 from feeder.daemon.quiet_window import quiet_event_loop
 from feeder.errors import InputError
 from feeder.web.app import Handler, console_app
 from feeder.web.camera import CameraFeed, camera_feed
 from feeder.web.security import new_token
+
+log = logging.getLogger(__name__)
+
+MAX_CONNECTIONS = 256
+"""HTTP and WebSocket connections served at once (45 waiting moves, a status and a stop take
+47; a page takes its WebSocket and a few requests)."""
+REQUEST_TIMEOUT_S = 5.0
+"""How long a connection has to send a whole request (line, headers and body), from its
+connection or the end of its last response (uvicorn has no such limit: an idle connection,
+or one sending a header byte every 2 s, stayed open)."""
+LISTEN_BACKLOG = 128
+"""Connections the kernel holds before accept, and the most the event loop accepts at once."""
+_BUSY = json.dumps({"ok": False, "error": f"too many connections (max {MAX_CONNECTIONS})"}).encode()
+BUSY_REPLY = (
+    b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\nretry-after: 1\r\n"
+    b"connection: close\r\ncontent-length: " + str(len(_BUSY)).encode() + b"\r\n\r\n" + _BUSY
+)
+"""The answer to a connection beyond :data:`MAX_CONNECTIONS`, sent as it connects."""
+_refusals = LogThrottle(log)
+
+
+class GuardedH11Protocol(H11Protocol):
+    """uvicorn's h11 protocol that refuses a connection beyond :data:`MAX_CONNECTIONS` and closes
+    one whose request is not whole within :data:`REQUEST_TIMEOUT_S`."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._deadline: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        super().connection_made(transport)
+        if len(self.connections) > MAX_CONNECTIONS:  # this one included
+            _refusals.warning("console: refused a connection beyond %d", MAX_CONNECTIONS)
+            transport.write(BUSY_REPLY)
+            transport.close()
+            return
+        self._await_request()
+
+    def handle_events(self) -> None:
+        super().handle_events()
+        if self.conn.their_state not in (h11.IDLE, h11.SEND_BODY):
+            self._cancel_deadline()  # the request is whole (answered, however long that takes)
+
+    def on_response_complete(self) -> None:
+        super().on_response_complete()
+        if not self.transport.is_closing():
+            self._await_request()
+
+    def handle_websocket_upgrade(self, event: h11.Request) -> None:
+        self._cancel_deadline()  # the WebSocket's own protocol takes the connection over
+        super().handle_websocket_upgrade(event)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._cancel_deadline()
+        super().connection_lost(exc)
+
+    def _await_request(self) -> None:
+        self._cancel_deadline()
+        self._deadline = self.loop.call_later(REQUEST_TIMEOUT_S, self._request_overdue)
+
+    def _cancel_deadline(self) -> None:
+        if self._deadline is not None:
+            self._deadline.cancel()
+            self._deadline = None
+
+    def _request_overdue(self) -> None:
+        self._deadline = None
+        if self.conn.their_state in (h11.IDLE, h11.SEND_BODY) and not self.transport.is_closing():
+            log.debug("console: closed a connection without a whole request after %g s", REQUEST_TIMEOUT_S)
+            self.transport.close()
 
 
 class ConsoleServer:
@@ -35,7 +118,7 @@ class ConsoleServer:
         try:
             self._socket.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             self._socket.bind((settings.host, settings.port))
-            self._socket.listen(128)
+            self._socket.listen(LISTEN_BACKLOG)
         except OSError as err:
             self._socket.close()
             raise InputError("--http", f"cannot listen on {settings.host}:{settings.port}: {err}") from None
@@ -47,11 +130,14 @@ class ConsoleServer:
         self._close_app = app.state.close
         config = uvicorn.Config(
             app,
+            http=GuardedH11Protocol,
+            log_config=None,  # its dictConfig closed the daemon's handlers (daemon.log reopened)
             log_level="warning",
             access_log=False,
             lifespan="off",
             ws="websockets-sansio",
             timeout_keep_alive=5,
+            backlog=LISTEN_BACKLOG,
         )
         self._server = uvicorn.Server(config)
         self._loop_factory = functools.partial(quiet_event_loop, daemon.quiet)
