@@ -67,7 +67,8 @@ def test_a_slow_status_and_a_slow_page_overlap_at_the_period_s_rate(lane: Urgent
     run(watch(feed, 1.5, SLOW_S, received))
     seconds = time.monotonic() - start  # a loaded machine wakes the watch's end late
     rate = len(received) / seconds
-    assert rate >= 24, rate  # one after the other: at most 16.7 a second
+    # overlapped: 30 a second; one after the other: at most 16.7 (a loaded CI machine gave 23.5)
+    assert rate >= 20, rate
     assert rate <= 1 / LIVE_PERIOD_S + 1  # never faster than the period
     numbers = [m["status"]["call"] for m in received]
     assert numbers == sorted(set(numbers))  # each snapshot sent once, in order

@@ -54,8 +54,6 @@ def start_daemon(config: DaemonConfig, simulator: Simulator | None = None) -> Ru
             pair = tau_pair(surface, config.tau_pa)
         except InputError as err:
             raise InputError("part.tau_pa", err.message) from None
-        if config.stack_warning is not None:
-            log.warning("%s", config.stack_warning)
         modes = plan_step_modes(config, surface)
         plane: dict[str, Any] = {}
         key = calibration_key(config.part, config.support, modes)
@@ -108,4 +106,6 @@ def start_daemon(config: DaemonConfig, simulator: Simulator | None = None) -> Ru
         undo.callback(daemon.shutdown)
         daemon.start()
         undo.pop_all()
+    if config.stack_warning is not None:  # once started: a start that fails says only why
+        log.warning("%s", config.stack_warning)
     return RunningDaemon(daemon, links)
