@@ -26,6 +26,7 @@ from feeder.drivers.amplifier import DriveSettings
 from feeder.drivers.sensor import SensorLost
 from feeder.vision.offset_moves import (
     FIRMWARE_SIM_GAIN_M_PER_V,
+    SLIP_FRACTION,
     STEADY_FRAMES,
     MovesStopped,
     OffsetMoves,
@@ -97,6 +98,8 @@ def test_the_requests_moves_are_checked_field_by_field() -> None:
     stated = dataclasses.replace(PLATE, stack_gain_m_per_v=5e-8)  # hardware with [stack] gain_m_per_v
     assert stated.moves({}).stack_gain_m_per_v == 5e-8
     assert stated.moves({"stack_gain_m_per_v": 8e-8}).stack_gain_m_per_v == 8e-8  # the request's wins
+    assert stated.moves({}).slip_fraction == SLIP_FRACTION
+    assert stated.moves({"slip_fraction": 0.03}).slip_fraction == 0.03
     for request, named in [
         ({"stack_gain_m_per_v": 8e-8, "volts": 151}, "volts must be in [1, 150]"),
         ({"stack_gain_m_per_v": 8e-8, "volts": "100"}, "volts must be a finite number of volts"),
@@ -104,6 +107,7 @@ def test_the_requests_moves_are_checked_field_by_field() -> None:
         ({"stack_gain_m_per_v": 1.0}, "stack_gain_m_per_v must be in [1e-12, 1e-3] m/V"),
         ({"stack_gain_m_per_v": 8e-8, "increment_v": 2.0}, "increment_v must be in [0.0001, 1]"),
         ({"stack_gain_m_per_v": 8e-8, "frames": 0}, "frames must be an integer in [1, 1000]"),
+        ({"stack_gain_m_per_v": 8e-8, "slip_fraction": 0.5}, "slip_fraction must be in [0.001, 0.2]"),
     ]:
         with pytest.raises(RequestFieldError, match=named.replace("[", r"\[")):
             PLATE.moves(request)

@@ -276,6 +276,38 @@ class LaggingCamera(LocatingCamera):
         return PositionSample(self.frames / 100, poses[0][0], self.frames, poses)
 
 
+class CreepingPlate(OffsetPlate):
+    """Stacks that creep: each axis runs ``creep`` × the highest offset since it was grounded
+    beyond its offset, so the plate comes back that far short of its start (the parts stay)."""
+
+    def __init__(self, creep: float) -> None:
+        super().__init__()
+        self.creep = creep
+        self.peak = {"x": 0.0, "y": 0.0, "theta": 0.0}
+
+    def offset(self, axis: str, volts: float) -> None:
+        super().offset(axis, volts)
+        self.peak[axis] = max(self.peak[axis], abs(volts))
+
+    def image_points(self) -> list[tuple[float, float]]:
+        volts = dict(self.volts)
+        self.volts = {axis: v + self.creep * self.peak[axis] for axis, v in volts.items()}
+        try:
+            return super().image_points()
+        finally:
+            self.volts = volts
+
+
+def test_a_stack_that_creeps_back_short_reads_as_a_slip_unless_allowed_for() -> None:
+    """1.5 % of creep: over the default 1 % the parts count as slipped (nothing would be stored);
+    ``slip_fraction`` 0.03 takes the moves, their pixel size within the creep of the truth."""
+    _, report = _measure(CreepingPlate(0.015))
+    assert report["slipped"] is True and "--slip-fraction" in report["warnings"][-1]
+    _, allowed = _measure(CreepingPlate(0.015), slip_fraction=0.03)
+    assert allowed["slipped"] is False
+    assert allowed["pixel_size_m"] == pytest.approx(2.0e-6, rel=0.02)
+
+
 def test_frames_are_read_until_a_lagging_camera_shows_the_plate_still() -> None:
     """A camera 2 frames behind the plate (the settle shorter than its latency): the frames
     right after a move still show the plate on its way.  They are read until the image stops

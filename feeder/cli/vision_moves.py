@@ -28,7 +28,13 @@ from feeder.daemon.client_connection import default_socket_path
 from feeder.errors import FeederError, InputError
 from feeder.files import save_figure
 from feeder.vision.calibration import CameraCalibration
-from feeder.vision.offset_moves import FIRMWARE_SIM_GAIN_M_PER_V, OffsetMoves, measure
+from feeder.vision.offset_moves import (
+    FIRMWARE_SIM_GAIN_M_PER_V,
+    SLIP_FRACTION,
+    SLIP_FRACTION_RANGE,
+    OffsetMoves,
+    measure,
+)
 
 
 def register(vision: Any) -> None:
@@ -82,6 +88,15 @@ def register(vision: Any) -> None:
         type=int_in(1, 1000),
         default=10,
         help="frames averaged per position, 1–1000 (default 10)",
+    )
+    moves.add_argument(
+        "--slip-fraction",
+        type=float_in(*SLIP_FRACTION_RANGE),
+        default=SLIP_FRACTION,
+        metavar="F",
+        help="parts that come back further than this fraction of the smallest move slipped: nothing "
+        f"is stored, {SLIP_FRACTION_RANGE[0]:g}–{SLIP_FRACTION_RANGE[1]:g} (default {SLIP_FRACTION:g}; "
+        "stacks that creep back short of their start by more need more)",
     )
     add_sim_arg(moves, "--sim-arg=--camera-mirrored")
     moves.add_argument(
@@ -139,6 +154,7 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
         lever_arm_m=config.plate.lever_arm_m,
         increment_v=args.increment,
         frames=args.frames,
+        slip_fraction=args.slip_fraction,
     )
     lock = lock_state(config.database_path)  # no daemon drives this amplifier meanwhile
     try:
@@ -194,6 +210,7 @@ def _by_the_daemon(args: argparse.Namespace) -> int:
                 stack_gain_m_per_v=args.stack_gain,
                 increment_v=args.increment,
                 frames=args.frames,
+                slip_fraction=args.slip_fraction,
                 save=args.save_state,
                 progress=lambda step: print(step, file=sys.stderr),
             )

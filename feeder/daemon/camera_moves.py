@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 from feeder.daemon.request_fields import RequestFieldError, finite, integer
 from feeder.drivers.sensor import PositionSample, PositionSensor
 from feeder.vision.calibration import CameraCalibration
-from feeder.vision.offset_moves import OffsetMoves
+from feeder.vision.offset_moves import SLIP_FRACTION_RANGE, OffsetMoves
 
 if TYPE_CHECKING:
     from feeder.daemon.control_loop import ControlLoop
@@ -47,7 +47,8 @@ class PlateMoves:
     travel_outside: Callable[[CameraCalibration], str | None]
 
     def moves(self, request: dict[str, Any]) -> OffsetMoves:
-        """The request's moves (``volts``, ``stack_gain_m_per_v``, ``increment_v``, ``frames``;
+        """The request's moves (``volts``, ``stack_gain_m_per_v``, ``increment_v``, ``frames``,
+        ``slip_fraction``;
         defaults as ``calibrate-moves``'); :class:`RequestFieldError` naming a bad field."""
         defaults = OffsetMoves()
         volts = _within(request, "volts", defaults.volts, max(1.0, self.v_min_v), self.v_max_v)
@@ -67,6 +68,7 @@ class PlateMoves:
             lever_arm_m=self.lever_arm_m,
             increment_v=_within(request, "increment_v", defaults.increment_v, 1e-4, 1.0),
             frames=integer(request, "frames", defaults.frames, 1, 1000),
+            slip_fraction=_within(request, "slip_fraction", defaults.slip_fraction, *SLIP_FRACTION_RANGE),
         )
 
 

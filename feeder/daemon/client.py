@@ -323,6 +323,7 @@ class Client:
         stack_gain_m_per_v: float | None = None,
         increment_v: float | None = None,
         frames: int | None = None,
+        slip_fraction: float | None = None,
         save: bool = False,
         timeout_s: float | None = None,
         progress: Callable[[str], None] | None = None,
@@ -334,7 +335,8 @@ class Client:
         when the moves end (about a minute), checking on the daemon by heartbeat, whose status
         hands ``progress`` each new step of the moves ("x: offset 0 → 100 V in 0.05 V steps");
         :class:`~feeder.errors.DaemonRefused` with the reason it was refused, stopped or failed."""
-        given = {"volts": volts, "stack_gain_m_per_v": stack_gain_m_per_v, "increment_v": increment_v}
+        given = {"volts": volts, "stack_gain_m_per_v": stack_gain_m_per_v, "increment_v": increment_v,
+                 "slip_fraction": slip_fraction}  # fmt: skip
         fields: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
         if frames is not None:
             fields["frames"] = frames

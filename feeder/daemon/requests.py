@@ -38,7 +38,9 @@ JOB_FLAGS = ("queue", "wait", "trace")
 FIELDS: dict[str, frozenset[str]] = {
     "move": frozenset({"cmd", "target_m", "by_m", *POSE_KEYS, "part", *JOB_FLAGS}),
     "calibrate": frozenset({"cmd", "steps", *JOB_FLAGS}),
-    "calibrate_camera": frozenset({"cmd", "volts", "stack_gain_m_per_v", "increment_v", "frames", "save"}),
+    "calibrate_camera": frozenset(
+        {"cmd", "volts", "stack_gain_m_per_v", "increment_v", "frames", "slip_fraction", "save"}
+    ),
     "stop": frozenset({"cmd"}),
     "status": frozenset({"cmd"}),
     "history": frozenset({"cmd", "limit"}),

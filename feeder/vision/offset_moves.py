@@ -46,8 +46,11 @@ FIRMWARE_SIM_GAIN_M_PER_V = 0.07e-6
 """firmware_sim's stacks: 14 µm at 200 V (:class:`feeder.plant.stack.StackParameters`)."""
 
 SLIP_FRACTION = 0.01
-"""Parts whose images came back further than this fraction of the smallest move (and beyond
-the frames' noise) slipped: the moves they gave are off by about as much."""
+"""Parts whose images came back further than this fraction of their axis' smallest move (and
+beyond the frames' noise) slipped: the moves they gave are off by about as much (the default of
+``OffsetMoves.slip_fraction``)."""
+SLIP_FRACTION_RANGE = (1e-3, 0.2)
+"""The slip fraction a user may set (``--slip-fraction``)."""
 
 GAIN_UNCERTAINTY = 0.05
 """A stack's stroke per volt (and a lever arm) is known to a few percent: O from one part, whose
@@ -96,8 +99,9 @@ class Points(NamedTuple):
 class OffsetMoves:
     """How the plate is moved: the offset (V), the stacks' static gain (m/V), the θ stack's lever
     arm (m), the ramp's increments (V) and pause after each (s), the wait before frames are
-    read (s), how many are averaged, and how long frames are read beyond those for a steady
-    image (s)."""
+    read (s), how many are averaged, how long frames are read beyond those for a steady
+    image (s), and how far (a fraction of the smallest move) the parts may come back off their
+    start before they count as slipped (a real stack's creep leaves ~1 % of its stroke)."""
 
     volts: float = 100.0
     stack_gain_m_per_v: float = FIRMWARE_SIM_GAIN_M_PER_V
@@ -108,6 +112,7 @@ class OffsetMoves:
     frames: int = 10
     frame_timeout_s: float = 2.0
     steady_timeout_s: float = 10.0
+    slip_fraction: float = SLIP_FRACTION
 
 
 def measure(
@@ -311,17 +316,21 @@ def _fit(
                 f"the parts did not turn as one (θ misfit {report['theta_residual_px']:.3f} px against "
                 f"{fit.residual_px:.3f} px in x and y): some slipped; use smaller increments (--increment)"
             )
-    moved = min(float(np.min(np.hypot(*(at.mean - a.mean).T))) for a, at, _ in images.values())
-    returned, noise = 0.0, 0.0
-    for before, _, after in images.values():
-        returned = max(returned, float(np.max(np.hypot(*(after.mean - before.mean).T))))
-        noise = max(noise, float(np.max(np.hypot(before.error, after.error))))
-    slipped = returned > max(SLIP_FRACTION * moved, 4 * noise)
+    returned, slips = 0.0, []
+    for axis, (before, at, after) in images.items():  # each axis' return against its own moves
+        moved = float(np.min(np.hypot(*(at.mean - before.mean).T)))
+        back = float(np.max(np.hypot(*(after.mean - before.mean).T)))
+        noise = float(np.max(np.hypot(before.error, after.error)))
+        returned = max(returned, back)
+        if back > max(moves.slip_fraction * moved, 4 * noise):
+            slips.append(f"{back:.3f} px after {axis}'s moves of {moved:.2f} px and more")
+    slipped = bool(slips)
     if slipped:
         warnings.append(
-            f"the parts came back {returned:.3f} px from where they were (moves of {moved:.2f} px and "
-            "more): they slipped, and the moves are off by a similar amount; use smaller increments "
-            "(--increment)"
+            f"the parts came back {', '.join(slips)} (over {moves.slip_fraction:g} of them) from where "
+            "they were: they slipped, and the moves are off by a similar amount; use smaller "
+            "increments (--increment); a stack that creeps back short of its start reads as this "
+            "too (--slip-fraction)"
         )
     unsteady = max(points.unsteady_px for seen in images.values() for points in seen)
     if unsteady:

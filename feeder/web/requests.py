@@ -52,14 +52,26 @@ async def json_body(request: Request) -> dict[str, Any]:
 
 
 NUMBERS = frozenset(
-    {"target_m", "by_m", "x_m", "y_m", "angle_rad", "volts", "stack_gain_m_per_v", "increment_v"}
+    {
+        "target_m",
+        "by_m",
+        "x_m",
+        "y_m",
+        "angle_rad",
+        "volts",
+        "stack_gain_m_per_v",
+        "increment_v",
+        "slip_fraction",
+    }
 )
 FLAGS = frozenset({"queue", "wait", "trace", "save"})
 INTEGERS = frozenset({"part", "steps", "frames"})
 FIELDS = {
     "move": frozenset({"target_m", "by_m", "x_m", "y_m", "angle_rad", "queue", "wait", "trace", "part"}),
     "calibrate": frozenset({"queue", "wait", "trace", "steps"}),
-    "calibrate_camera": frozenset({"volts", "stack_gain_m_per_v", "increment_v", "frames", "save"}),
+    "calibrate_camera": frozenset(
+        {"volts", "stack_gain_m_per_v", "increment_v", "frames", "slip_fraction", "save"}
+    ),
     "release": frozenset({"part"}),
     "jog": frozenset({"axis", "steps", "part"}),
 }
