@@ -31,7 +31,7 @@ What this module adds to ``LocalNode``:
   (0x06010001) objects and client aborts follow CiA 301
   (:mod:`firmware_sim.sdo_server`).
 - Frames: CiA 301's only, 11-bit data frames; 29-bit, remote and error frames are
-  ignored (:func:`is_canopen_frame`), whichever identifier they carry.
+  ignored (:mod:`feeder.protocol.can_frames`), whichever identifier they carry.
 - NMT: the five commands of CiA 301 (others are ignored); SDO served in
   PRE-OPERATIONAL and OPERATIONAL only; PDOs, and motion started by SDO, in
   OPERATIONAL only; any state but OPERATIONAL stops every axis; reset node / reset
@@ -76,6 +76,7 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
 
 from feeder.errors import InputError
+from feeder.protocol.can_frames import CanopenFrames, is_canopen_frame
 from feeder.protocol.eds import axis_count, object_dictionary
 from firmware_sim.axis import AxisStatus
 from firmware_sim.can_wire import WireBus
@@ -123,21 +124,6 @@ IDLE_POLL_S = 0.01
 SYNC) samples its axes for EMCY and the heartbeat consumer."""
 
 CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
-
-
-def is_canopen_frame(msg: can.Message) -> bool:
-    """A frame for the node: CiA 301 uses 11-bit data frames only (no 29-bit identifiers;
-    no remote frames: no RTR-requested PDOs, no node guarding)."""
-    return not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame)
-
-
-class CanopenFrames(canopen.network.MessageListener):
-    """``canopen``'s listener, passing on only :func:`is_canopen_frame`'s frames (it drops
-    remote and error frames, not 29-bit ones)."""
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if is_canopen_frame(msg):
-            super().on_message_received(msg)
 
 
 def error_register(fault_word: int) -> int:

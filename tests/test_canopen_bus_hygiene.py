@@ -244,6 +244,6 @@ def test_a_network_shared_by_several_nodes_ignores_29_bit_frames_once() -> None:
             assert [amp.lost for amp in amps] == [None, None]
             assert [amp.emcy for amp in amps] == [None, None]
             kinds = [type(listener).__name__ for listener in network.notifier.listeners]
-            assert kinds.count("_StandardFrames") == 1 and "MessageListener" not in kinds  # one, not two
+            assert kinds.count("CanopenFrames") == 1 and "MessageListener" not in kinds  # one, not two
         finally:
             axes.close()

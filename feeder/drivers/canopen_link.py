@@ -31,6 +31,7 @@ from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost
 from feeder.drivers.canopen_heartbeat import HOST_SILENCE_PERIODS, HostHeartbeat
 from feeder.errors import InputError
 from feeder.protocol import anc300
+from feeder.protocol.can_frames import canopen_frames_only
 from feeder.protocol.eds import axis_count, axis_object, object_dictionary
 
 log = logging.getLogger(__name__)
@@ -131,7 +132,7 @@ class CanopenNodeLink:
     network: a connected :class:`canopen.Network` to share with other nodes'
         drivers (one bus, several nodes; ``bus`` is then ignored); the caller
         disconnects it.  Default: the link connects its own.  Either way the link makes
-        it ignore 29-bit frames (:func:`standard_frames_only`); ``bus``'s own
+        it ignore 29-bit frames (:func:`~feeder.protocol.can_frames.canopen_frames_only`); ``bus``'s own
         ``can_filters`` go to python-can as given.
 
     EMCY: each is logged (WARNING) and remembered for the axis its byte 7 names (every
@@ -182,7 +183,7 @@ class CanopenNodeLink:
             network.connect(**dict(bus))
         self.network = network
         assert self.network.notifier is not None
-        standard_frames_only(self.network)
+        canopen_frames_only(self.network)
         self.network.notifier.add_listener(_BusErrors(self._on_bus_error))
         with contextlib.ExitStack() as undo:  # any failure from here disconnects (our own network)
             if self._owns_network:
@@ -494,29 +495,6 @@ class CanopenNodeLink:
             self._watchdog.join(timeout=1.0)
         if self._owns_network:
             disconnect(self.network)
-
-
-class _StandardFrames(canopen.network.MessageListener):
-    """``canopen``'s listener for 11-bit frames only (it drops remote and error frames, not
-    29-bit ones): CiA 301 uses no 29-bit identifiers, and a 29-bit frame whose low bits are a
-    TPDO's, an EMCY's or a heartbeat's identifier is not from the node."""
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if not msg.is_extended_id:
-            super().on_message_received(msg)
-
-
-def standard_frames_only(network: canopen.Network) -> None:
-    """Make connected ``network`` ignore 29-bit frames (once; a network shared by several links).
-
-    In its listener, not by python-can's ``can_filters``: those stay the user's, and some
-    interfaces apply a filter's ``extended`` key in hardware to one frame format only (kvaser:
-    29-bit frames pass a filter set for 11-bit ones)."""
-    assert network.notifier is not None
-    for listeners in (network.listeners, network.notifier.listeners):
-        for index, listener in enumerate(listeners):
-            if type(listener) is canopen.network.MessageListener:
-                listeners[index] = _StandardFrames(network)  # one assignment: the receiver sees either
 
 
 def disconnect(network: canopen.Network) -> None:
