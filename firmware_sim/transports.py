@@ -28,8 +28,9 @@ LOCALHOST = "127.0.0.1"
 MAX_CONSOLE_CLIENTS = 32
 """Logged-in console sessions at once."""
 MAX_PENDING_LOGINS = 4
-"""Console connections still at the password prompt; a new one evicts the longest-waiting
-one that is not having a password checked, or is refused if there is none."""
+"""Console connections still at the password prompt; a new one evicts the one with the most
+failed tries (a guesser), else the longest-waiting one not having a password checked, and is
+refused only if every one is having its first password checked."""
 LOGIN_TIMEOUT_S = 5.0
 """A connection at the password prompt that sends no password line for this long is closed."""
 HANGUP_POLL_S = 0.005
@@ -63,6 +64,18 @@ class _Connection:
     def evict(self) -> None:
         with contextlib.suppress(OSError):
             self.sock.shutdown(socket.SHUT_RDWR)  # its thread's recv() returns b""
+
+
+def _victim(pending: list[_Connection]) -> _Connection | None:
+    """The connection at the password prompt a newcomer replaces: the one with the most failed
+    tries (guessers, who keep every place busy with their queued tries, must not keep the
+    operator out; nor may they, reconnecting, replace an operator about to type), else the
+    longest-waiting one with no password being checked, else none."""
+    failing = [c for c in pending if c.session.failed_logins > 0]
+    if failing:
+        return max(failing, key=lambda c: (c.session.failed_logins, -c.waiting_since))
+    idle = [c for c in pending if not c.checking]
+    return min(idle, key=lambda c: c.waiting_since) if idle else None
 
 
 class TcpConsoleServer:
@@ -124,12 +137,11 @@ class TcpConsoleServer:
     def _admit(self, conn: _Connection, group: list[_Connection], cap: int, evict: bool) -> bool:
         with self._lock:
             if len(group) >= cap:
-                idle = [c for c in group if not c.checking]
-                if not (evict and idle):
+                victim = _victim(group) if evict else None
+                if victim is None:
                     return False
-                oldest = min(idle, key=lambda c: c.waiting_since)
-                group.remove(oldest)
-                oldest.evict()
+                group.remove(victim)
+                victim.evict()
             group.append(conn)
             return True
 

@@ -561,3 +561,44 @@ def test_camera_clients_are_capped_and_a_stalled_one_never_blocks_publish() -> N
             sock.close()
         server.close()
         reader.close()
+
+
+@pytest.mark.timeout(60)
+def test_guessers_holding_every_place_at_the_prompt_do_not_lock_the_operator_out(
+    console: TcpConsoleServer,
+) -> None:
+    """Four guessers, each writing three wrong passwords at once and reconnecting, kept every
+    place at the prompt busy being checked: the operator was told "Too many connections" for
+    ~9 s (50 refusals).  Now a newcomer replaces the guesser with the most failed tries."""
+    stop = threading.Event()
+
+    def guess() -> None:
+        while not stop.is_set():
+            with contextlib.suppress(OSError), connect(console.port) as sock:
+                read_until(sock, b"code: ")
+                sock.sendall(b"x\r\nx\r\nx\r\n")
+                read_until(sock, b"never", timeout_s=5.0)  # until closed
+
+    threads = [threading.Thread(target=guess, daemon=True) for _ in range(MAX_PENDING_LOGINS)]
+    for thread in threads:
+        thread.start()
+    time.sleep(1.5)  # every place taken, tries queued
+    begun, refused = time.monotonic(), 0
+    try:
+        while True:
+            sock = connect(console.port)
+            greeting = read_until(sock, b"code: ")
+            if b"Too many connections" in greeting:
+                refused += 1
+                sock.close()
+                assert time.monotonic() - begun < 10.0, refused
+                continue
+            sock.sendall(PASSWORD.encode() + b"\r\necho off\r\n")
+            assert b"Authorization success" in read_until(sock, b"OK\r\n")
+            sock.close()
+            break
+    finally:
+        stop.set()
+    # behind at most the queued tries of the guessers (1 s apart at most), not shut out
+    assert time.monotonic() - begun < (MAX_PENDING_LOGINS + 1) * MAX_LOGIN_INTERVAL_S + 1.0
+    assert refused <= 2, refused
