@@ -174,6 +174,9 @@ def run(args: argparse.Namespace) -> int:
     sys.stdout.flush()
     while not stop.is_set() and not running.daemon.wait(0.2):
         pass
+    # the moves stop and the output is grounded first: the console waits (up to 5 s) for its
+    # requests in flight, a waiting move among them, which only the daemon's shutdown ends
+    running.daemon.shutdown()
     if console is not None:
         console.stop()
     running.stop()

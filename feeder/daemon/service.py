@@ -113,6 +113,7 @@ class Daemon:
         self._lock = threading.Lock()
         self._submitting = threading.Lock()  # one submission at a time (never taken by the tick)
         self._queue: collections.deque[Job] = collections.deque()
+        self._stops = 0  # stop requests so far: a job taken before one is not handed to the loop
         self._clients = 0
         self._faults: list[dict[str, Any]] = []
         self._reconnecting: set[str] = set()
@@ -216,18 +217,30 @@ class Daemon:
                 with self._lock:
                     if not self._queue or self.loop.busy():
                         continue
-                    job = self._queue.popleft()
-                reason = self._submit(job)
+                    job, stops = self._queue.popleft(), self._stops
+                reason = self._submit(job, stops)
             if reason is not None:
                 self._refuse_queued(job, reason)
 
-    def _submit(self, job: Job) -> str | None:
-        """Hand ``job`` to the loop (holding ``_submitting``); the reason it is refused, or None."""
+    def _submit(self, job: Job, stops: int) -> str | None:
+        """Hand ``job`` to the loop (holding ``_submitting``); the reason it is refused, or None.
+
+        ``stops``: :attr:`_stops` when the job was taken.  The camera's recalibration and the
+        calibration's read take a while, and a stop meanwhile found no job to stop: the job is
+        handed over under ``_lock``, after checking that no stop (nor the shutdown) came since."""
         if not self.loop.busy() and self.camera_calibration.saved():
             reason = self._recalibrate()
             if reason is not None:
                 return reason
-        return self._uncalibrated() or self.loop.submit(job)
+        reason = self._uncalibrated()
+        if reason is not None:
+            return reason
+        with self._lock:
+            if self._stopping.is_set():
+                return "daemon shutting down"
+            if self._stops != stops:
+                return "stop requested"
+            return self.loop.submit(job)
 
     def _uncalibrated(self) -> str | None:
         """Why every move is refused until a camera calibration that measured the image's turn
@@ -374,8 +387,10 @@ class Daemon:
         its place in the queue (0: handed to the loop) and the reason it is refused, or None."""
         with self._submitting:
             with self._lock:
-                position, reason = 0, None
-                if self._camera_moves is not None:
+                position, reason, stops = 0, None, self._stops
+                if self._stopping.is_set():
+                    reason = "daemon shutting down"
+                elif self._camera_moves is not None:
                     reason = "a camera calibration is moving the plate: wait for it, or stop it (feeder stop)"
                 elif queue and (self.loop.busy() or self._queue):
                     self._queue.append(job)
@@ -383,13 +398,14 @@ class Daemon:
                 elif self._queue:
                     reason = 'moves are queued: join the queue (feeder move --queue; "queue": true)'
             if position == 0 and reason is None:
-                reason = self._submit(job)
+                reason = self._submit(job, stops)
         return position, reason
 
     def stop(self) -> tuple[bool, int]:
         """Refuse the queued moves and stop the running one, or the camera calibration's plate
         moves: whether one was running, and how many were dequeued."""
         with self._lock:
+            self._stops += 1  # a job being handed over meanwhile is refused (_submit)
             queued, self._queue = list(self._queue), collections.deque()
             camera_moves = self._camera_moves
             if camera_moves is not None:

@@ -1,0 +1,113 @@
+"""A stop, or the shutdown, that arrives while a move is being handed to the loop (found by a
+review of the daemon's threads; each test holds a thread at the critical point)."""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from test_daemon_service import start, wait_for
+
+from feeder.daemon.requests import _new_job
+from feeder.daemon.service import Daemon
+
+pytestmark = pytest.mark.timeout(60)
+
+
+@pytest.fixture
+def short_dir() -> Iterator[Path]:
+    path = Path(tempfile.mkdtemp(prefix="fr"))
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def _held_before_the_handover(daemon: Daemon, thread_name: str) -> tuple[threading.Event, threading.Event]:
+    """Hold ``thread_name`` where the daemon prepares a job for the loop (the camera's
+    recalibration and the calibration's read: a while), before it hands it over."""
+    arrived, release = threading.Event(), threading.Event()
+    prepare = daemon._uncalibrated
+
+    def held() -> str | None:
+        if threading.current_thread().name == thread_name:
+            arrived.set()
+            assert release.wait(10)
+        return prepare()
+
+    daemon._uncalibrated = held  # type: ignore[method-assign]
+    return arrived, release
+
+
+def test_a_stop_while_a_queued_move_is_handed_to_the_loop_refuses_it(short_dir: Path) -> None:
+    """The stop found the queue empty and no job in the loop, and the queued move then ran to
+    its end (37 steps)."""
+    daemon, _ = start(short_dir)
+    try:
+        wait_for(lambda: daemon.loop.position_m is not None)
+        first = _new_job(daemon, "move", 20e-6, None)
+        assert daemon.run(first, queue=False) == (0, None)
+        queued = _new_job(daemon, "move", 120e-6, None)
+        assert daemon.run(queued, queue=True) == (1, None)
+        arrived, release = _held_before_the_handover(daemon, "queue")
+        assert first.done.wait(20)
+        assert arrived.wait(10)
+        daemon.stop()
+        release.set()
+        assert queued.done.wait(10)
+        assert queued.result is not None
+        assert (queued.result.status, queued.result.reason) == ("refused", "stop requested")
+        assert queued.result.steps == 0
+    finally:
+        daemon.shutdown()
+
+
+def test_a_stop_while_a_direct_move_is_prepared_refuses_it(short_dir: Path) -> None:
+    daemon, _ = start(short_dir)
+    try:
+        wait_for(lambda: daemon.loop.position_m is not None)
+        arrived, release = _held_before_the_handover(daemon, "mover")
+        job = _new_job(daemon, "move", 120e-6, None)
+        answers: list[tuple[int, str | None]] = []
+        mover = threading.Thread(target=lambda: answers.append(daemon.run(job, queue=False)), name="mover")
+        mover.start()
+        assert arrived.wait(10)
+        daemon.stop()
+        release.set()
+        mover.join(10)
+        assert answers == [(0, "stop requested")]
+        assert not daemon.loop.busy()
+    finally:
+        daemon.shutdown()
+
+
+def test_a_move_asked_for_once_the_shutdown_has_begun_is_refused(short_dir: Path) -> None:
+    """It was handed to the loop after the shutdown's one stop and played bursts until the
+    shutdown's wait ran out."""
+    daemon, links = start(short_dir)
+    wait_for(lambda: daemon.loop.position_m is not None)
+    stopped, go_on = threading.Event(), threading.Event()
+    request_stop = daemon.loop.request_stop
+
+    def held_stop(reason: str = "stop requested") -> bool:
+        answer = request_stop(reason)
+        if reason == "daemon shutting down":
+            stopped.set()
+            assert go_on.wait(10)
+        return answer
+
+    daemon.loop.request_stop = held_stop  # type: ignore[method-assign]
+    shutting = threading.Thread(target=daemon.shutdown)
+    shutting.start()
+    try:
+        assert stopped.wait(10)
+        job = _new_job(daemon, "move", 400e-6, None)
+        steps_before = sum(1 for call in links.amplifiers[0].calls if call == "step")
+        assert daemon.run(job, queue=False) == (0, "daemon shutting down")
+        assert daemon.run(_new_job(daemon, "move", 400e-6, None), queue=True) == (0, "daemon shutting down")
+    finally:
+        go_on.set()
+        shutting.join(30)
+    assert sum(1 for call in links.amplifiers[0].calls if call == "step") == steps_before
