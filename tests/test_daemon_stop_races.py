@@ -8,6 +8,7 @@ import tempfile
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from test_daemon_service import start, wait_for
@@ -111,3 +112,36 @@ def test_a_move_asked_for_once_the_shutdown_has_begun_is_refused(short_dir: Path
         go_on.set()
         shutting.join(30)
     assert sum(1 for call in links.amplifiers[0].calls if call == "step") == steps_before
+
+
+def test_an_error_in_a_tick_is_a_lost_link_not_the_loops_end(short_dir: Path) -> None:
+    """One exception from the policy on the tick thread ended the loop for good: the move never
+    ended, a stop only set a flag, and the axis stayed enabled (grounded only by the shutdown)."""
+    daemon, links = start(short_dir)
+    try:
+        wait_for(lambda: daemon.loop.position_m is not None)
+        amplifier = links.amplifiers[0]
+        tick, failing = daemon.loop.policy.tick, threading.Event()
+
+        def failing_tick(now: float) -> Any:
+            if failing.is_set() and threading.current_thread().name == "control-loop":
+                failing.clear()
+                raise RuntimeError("a navigator bug")
+            return tick(now)
+
+        daemon.loop.policy.tick = failing_tick  # type: ignore[method-assign]
+        job = _new_job(daemon, "move", 300e-6, None)
+        assert daemon.run(job, queue=False) == (0, None)
+        wait_for(lambda: not amplifier.grounded)  # enabled: under way
+        failing.set()
+        assert job.done.wait(10)
+        assert job.result is not None and job.result.status == "fault"
+        assert "control loop error: RuntimeError: a navigator bug" in (job.result.reason or "")
+        wait_for(lambda: amplifier.grounded)  # the lost link's path grounds it
+        wait_for(lambda: daemon.loop.fault is None and len(links.amplifiers) == 2)  # reconnected
+        wait_for(lambda: daemon.loop.position_m is not None)
+        again = _new_job(daemon, "move", 120e-6, None)
+        assert daemon.run(again, queue=False) == (0, None)
+        assert again.done.wait(30) and again.result is not None and again.result.status == "done"
+    finally:
+        daemon.shutdown()

@@ -52,6 +52,7 @@ from feeder.daemon.jobs import (
     StepMode,
 )
 from feeder.daemon.line_navigator import COARSE, FINE
+from feeder.daemon.log_throttle import LogThrottle
 from feeder.daemon.navigator import Navigator, not_on_plate
 from feeder.daemon.policy import Policy
 from feeder.daemon.quiet_window import QuietWindow, guard_for
@@ -129,6 +130,7 @@ class ControlLoop:
         self.scheduling = "other"
         """The tick thread's scheduling policy: ``fifo`` (real-time) or ``other``."""
         self.overruns = 0
+        self._tick_errors = LogThrottle(log)
         self.collector = TickCollector(active=collect_in_slack)
         """Runs the interpreter's garbage collections in the tick's slack while the loop runs."""
         self.quiet = QuietWindow(guard_for(1.0 / settings.rate_hz), clock=clock)
@@ -368,7 +370,7 @@ class ControlLoop:
             if woke - deadline > stall.GAP_S:
                 log.warning("the control loop ran %.2f s late: the process stood still (SIGSTOP, a "
                             "suspended machine, swapping?)", woke - deadline)  # fmt: skip
-            self.tick(woke)
+            self._tick_guarded(woke)
             self.quiet.served()
             self.collector.collect_due()  # in the slack the tick leaves, not before a deadline
             deadline += period
@@ -376,6 +378,23 @@ class ControlLoop:
                 self.overruns += 1
                 missed = math.floor((self._clock() - deadline) / period) + 1
                 deadline += missed * period
+
+    def _tick_guarded(self, now: float) -> None:
+        """:meth:`tick`, within the tick thread's one boundary: an unexpected error in it (a bug)
+        is taken as a lost amplifier link (the job ends ``fault``, every axis is grounded, the
+        link reopened), never the loop's end: a dead tick left an axis driven and every later
+        stop unanswered."""
+        try:
+            self.tick(now)
+        except Exception as err:
+            with self._lock:
+                first = self.policy.fault is None
+                outputs = self.policy.on_internal_error(f"control loop error: {type(err).__name__}: {err}")
+            if first:
+                log.exception("control loop: a tick failed; taken as a lost amplifier link")
+            else:
+                self._tick_errors.warning("control loop: a tick failed again (%r)", err)
+            self._dispatch(outputs)
 
     def tick(self, now: float) -> None:
         """One period: move samples and completions into the policy, its outputs out."""

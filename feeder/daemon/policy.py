@@ -253,6 +253,14 @@ class Policy:
         if self.fault is None:
             self._link_lost(message)
 
+    def on_internal_error(self, message: str) -> list[Output]:
+        """An error of the loop's own (a bug), taken as a lost amplifier link: the job ends
+        ``fault`` and the daemon grounds every axis and reconnects; the outputs to dispatch."""
+        if self.fault is None:
+            self._link_lost(message)
+        out, self._out = self._out, []
+        return out
+
     def link_restored(self) -> None:
         """A new amplifier link (grounded): leave the fault state; no move resumes."""
         self.fault = None
