@@ -464,3 +464,14 @@ def test_a_stored_calibration_the_travel_does_not_fit_is_named_as_the_cause(shor
         "the stored camera calibration: travel: the travel reaches beyond what the camera sees (stored by "
         "`feeder vision calibrate[-moves] --save-state`: calibrate again, or narrow the travel in [control])"
     )
+
+
+def test_status_says_moves_are_refused_while_the_store_cannot_be_written(short_dir: Path) -> None:
+    """``moves_refused`` was null while every move was refused for an unwritable store."""
+    daemon, _ = start(short_dir)
+    try:
+        assert daemon.status()["moves_refused"] is None
+        daemon.loop.policy.store_unwritable = "state store unwritable: database or disk is full"
+        assert daemon.status()["moves_refused"] == "state store unwritable: database or disk is full"
+    finally:
+        daemon.shutdown()

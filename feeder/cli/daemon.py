@@ -94,13 +94,19 @@ start): they log warnings and worse unless ``--log-level debug``."""
 
 
 def setup_logging(level: str, log_file: Path) -> None:
-    """The daemon logs to stderr and to ``log_file`` (appended, owner-only)."""
-    log_file.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-    handlers: list[logging.Handler] = [
-        logging.StreamHandler(sys.stderr),
-        logging.FileHandler(log_file, encoding="utf-8"),
-    ]
-    log_file.chmod(0o600)
+    """The daemon logs to stderr and to ``log_file`` (appended, owner-only); :class:`InputError`
+    naming the state directory when the log cannot be written there (a file, read-only)."""
+    try:
+        log_file.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        handlers: list[logging.Handler] = [
+            logging.StreamHandler(sys.stderr),
+            logging.FileHandler(log_file, encoding="utf-8"),
+        ]
+        log_file.chmod(0o600)
+    except OSError as err:
+        raise InputError(
+            str(log_file.parent), f"the state directory cannot hold the log: {err.strerror or err}"
+        ) from None
     logging.basicConfig(level=level.upper(), format=LOG_FORMAT, handlers=handlers, force=True)
     for name in QUIET_LIBRARIES:
         logging.getLogger(name).setLevel(logging.DEBUG if level == "debug" else logging.WARNING)
@@ -130,7 +136,10 @@ def run(args: argparse.Namespace) -> int:
     hardware_sensor(config, str(args.config or "config"))  # refused before anything is written
     setup_logging(args.log_level, config.state_dir / "daemon.log")
     if args.reset_state:
-        moved = move_aside(config.database_path)
+        from feeder.daemon.service import lock_state  # the daemon's own modules load with it below
+
+        with lock_state(config.database_path):  # not a running daemon's database (exit 2)
+            moved = move_aside(config.database_path)
         if moved is not None:
             logging.getLogger(__name__).warning("state database moved aside to %s", moved)
     stop = threading.Event()

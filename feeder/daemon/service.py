@@ -119,10 +119,13 @@ class Daemon:
         self._reconnecting: set[str] = set()
         self._camera_moves: threading.Event | None = None  # a camera calibration runs; set: stop it
         self._camera_progress: str | None = None  # what its moves are doing now
-        self._server: SocketServer | None = None
         self._state_lock = lock_state(setup.database_path)
         with contextlib.ExitStack() as undo:  # on failure: release what was opened
             undo.callback(self._state_lock.close)
+            # bound before the hardware is touched: a second daemon on this socket is refused
+            # without grounding the first one's axes mid-move
+            self._server = SocketServer(setup.socket_path, self.handle, self._stopping, serving=False)
+            undo.callback(self._server.close)
             self.store = Store(setup.database_path)
             undo.callback(self.store.close)
             self.records = MoveRecords(self.store, setup.calibration_key, setup.pose_navigator is not None)
@@ -165,7 +168,7 @@ class Daemon:
     # -- life cycle --------------------------------------------------------
     def start(self) -> None:
         self.loop.start()
-        self._server = SocketServer(self.setup.socket_path, self.handle, self._stopping)
+        self._server.serve()
         threading.Thread(target=self._dispatch_queue, name="queue", daemon=True).start()
 
     def wait(self, timeout_s: float | None = None) -> bool:
@@ -200,8 +203,7 @@ class Daemon:
                 amplifier.ground()
         with contextlib.suppress(FeederError, OSError):
             _close(self.loop.amplifiers)
-        if self._server is not None:
-            self._server.close()
+        self._server.close()
         self.store.close()
         self._state_lock.close()
 
@@ -481,7 +483,7 @@ class Daemon:
             "faults": faults,
             "queued_moves": queued,
             "camera_calibration": self.camera_calibration.status(),
-            "moves_refused": self._uncalibrated(),
+            "moves_refused": self._uncalibrated() or loop.policy.store_unwritable,
             "camera_moves": camera_moves,  # a camera calibration moves the plate
             "camera_moves_progress": camera_progress,  # its axis and ramp now, or None
             "interrupted_moves": self.interrupted_moves,

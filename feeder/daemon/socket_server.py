@@ -156,37 +156,59 @@ class _Client:
         self.buffer = bytearray()
 
 
+def _identity(path: Path) -> tuple[int, int] | None:
+    """(device, inode) of what is at ``path`` now, or None."""
+    try:
+        info = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    return info.st_dev, info.st_ino
+
+
 class SocketServer:
     """Serves ``handle(request, hung_up) -> reply`` on a Unix socket (:func:`bind_socket`) until
-    :meth:`close`; once ``closing`` is set, clients get no further replies."""
+    :meth:`close`; once ``closing`` is set, clients get no further replies.  The socket is bound
+    at once (a second daemon is refused before it touches anything); ``serving`` False: the
+    connections wait in the backlog until :meth:`serve`."""
 
     def __init__(
         self,
         socket_path: Path,
         handle: Callable[[Any, Callable[[], bool]], dict[str, Any]],
         closing: threading.Event | None = None,
+        serving: bool = True,
     ) -> None:
         self.socket_path = socket_path
         self._handle = handle
         self._socket = bind_socket(socket_path)
+        self._bound = _identity(socket_path)  # close() removes this socket only, no later one's
         self._closing = closing or threading.Event()
         self._lock = threading.Lock()
         self._full: set[_Client] = set()
         self._doorway: set[_Client] = set()
         self._accept_trouble = LogThrottle(log)
         self._acceptor = threading.Thread(target=self._accept, name="accept", daemon=True)
+        if serving:
+            self.serve()
+
+    def serve(self) -> None:
+        """Start accepting connections."""
         self._acceptor.start()
 
     def close(self) -> None:
-        """Stop accepting and remove the socket (connected clients end with their next line)."""
+        """Stop accepting and remove the socket (connected clients end with their next line), if
+        the path still holds it: a daemon started meanwhile on a path taken from under this one
+        keeps its own."""
         self._closing.set()
         # closing alone leaves the thread blocked in accept() for good (Linux wakes it on shutdown)
         with contextlib.suppress(OSError):
             self._socket.shutdown(socket.SHUT_RDWR)
         self._socket.close()
-        self._acceptor.join(timeout=1.0)
-        with contextlib.suppress(FileNotFoundError):
-            self.socket_path.unlink()
+        if self._acceptor.ident is not None:
+            self._acceptor.join(timeout=1.0)
+        if _identity(self.socket_path) == self._bound:
+            with contextlib.suppress(FileNotFoundError):
+                self.socket_path.unlink()
 
     @staticmethod
     def _refusal() -> dict[str, Any]:

@@ -1,0 +1,97 @@
+"""What a daemon that is refused, or stopped, leaves of another one (found by an audit of the
+state and restarts): nothing of its hardware, socket or database."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from test_daemon_service import FakeLinks, make_setup, start, wait_for
+
+from feeder.daemon.service import Daemon, lock_state
+from feeder.errors import InputError
+
+pytestmark = pytest.mark.timeout(60)
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def short_dir() -> Iterator[Path]:
+    path = Path(tempfile.mkdtemp(prefix="fo"))
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def test_a_second_daemon_on_the_same_socket_is_refused_before_it_opens_its_amplifier(
+    short_dir: Path,
+) -> None:
+    """It opened and grounded its amplifier (the same axis over a TCP console: the first
+    daemon's move ended "Axis in wrong mode") and only then found the socket taken."""
+    first, _ = start(short_dir / "a")
+    try:
+        wait_for(lambda: first.loop.position_m is not None)
+        links = FakeLinks(first.links.world)  # type: ignore[attr-defined]
+        setup = dataclasses.replace(make_setup(short_dir / "b"), socket_path=first.setup.socket_path)
+        with pytest.raises(InputError, match="another daemon is already listening there"):
+            Daemon(links, setup)
+        assert links.amplifiers == [] and links.sensors == []  # never opened: nothing grounded
+        assert first.setup.socket_path.exists()
+        assert lock_state(setup.database_path).close() is None  # its state lock released
+    finally:
+        first.shutdown()
+
+
+def test_a_daemon_stopping_leaves_a_later_daemons_socket_in_place(short_dir: Path) -> None:
+    """Its shutdown unlinked whatever was at its socket path: a daemon started there after the
+    path was cleared lost its socket, and `feeder stop` could no longer reach it."""
+    first, _ = start(short_dir / "a")
+    path = first.setup.socket_path
+    path.unlink()  # someone clears the path; a second daemon starts on it
+    setup = dataclasses.replace(make_setup(short_dir / "b"), socket_path=path)
+    second = Daemon(FakeLinks(first.links.world), setup)  # type: ignore[attr-defined]
+    second.start()
+    try:
+        first.shutdown()
+        assert path.exists()  # the second's
+    finally:
+        second.shutdown()
+    assert not path.exists()
+
+
+def test_reset_state_while_a_daemon_uses_the_state_is_refused_and_moves_nothing(short_dir: Path) -> None:
+    """It moved the running daemon's live database aside (which then wrote into the .bak)
+    before finding the state directory locked."""
+    state = short_dir / "state"
+    lock = lock_state(state / "feeder.sqlite")  # as a running daemon holds it
+    (state / "feeder.sqlite").write_bytes(b"live")
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "feeder", "daemon", "--line", "--state-dir", str(state),
+             "--socket", str(short_dir / "s.sock"), "--reset-state"],
+            cwd=ROOT, capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+    finally:
+        lock.close()
+    assert done.returncode == 2, done.stderr
+    assert "another daemon is using this state directory" in done.stderr
+    assert (state / "feeder.sqlite").read_bytes() == b"live" and not list(state.glob("*.bak"))
+
+
+def test_a_state_dir_that_cannot_hold_the_log_is_one_line_and_exit_2(short_dir: Path) -> None:
+    """A file given as --state-dir was a FileExistsError traceback (exit 1)."""
+    not_a_dir = short_dir / "state"
+    not_a_dir.write_text("a file")
+    done = subprocess.run(
+        [sys.executable, "-m", "feeder", "daemon", "--line", "--state-dir", str(not_a_dir),
+         "--socket", str(short_dir / "s.sock")],
+        cwd=ROOT, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr and done.stderr.count("\n") == 1
+    assert str(not_a_dir) in done.stderr and "cannot hold the log" in done.stderr
