@@ -317,3 +317,24 @@ def test_a_module_without_offset_mode_is_named_with_the_way_around_it() -> None:
     finally:
         link.close()
         pty.close()
+
+
+def test_a_closed_link_refuses_commands_and_never_reopens_its_port(
+    recorded: tuple[Anc300Link, list[str]],
+) -> None:
+    """A command through a closed link reopened the port by its path: a dead simulator's pty may
+    be another program's by then, and the reopened serial port (held exclusively) refused the
+    daemon's reconnect for good."""
+    link, lines = recorded
+    amp = Anc300Amplifier(link, axis=1)
+    amp.ground()
+    sent = len(lines)
+    amp.close()
+    with pytest.raises(AmplifierLinkLost, match="the link is closed"):
+        amp.ground()
+    assert link._port is None and len(lines) == sent
+    again = Anc300Link(link.url, timeout_s=1.0)  # the reconnect's new link opens the port
+    try:
+        assert again.value("getm 1", "mode") == "gnd"
+    finally:
+        again.close()

@@ -475,3 +475,19 @@ def test_status_says_moves_are_refused_while_the_store_cannot_be_written(short_d
         assert daemon.status()["moves_refused"] == "state store unwritable: database or disk is full"
     finally:
         daemon.shutdown()
+
+
+def test_a_dead_simulators_link_is_not_reopened_to_ground_it(short_dir: Path) -> None:
+    """Its death is known (the process exited) before the respawn counts it: grounding through
+    the lost link had reopened the dead simulator's pty path, by then another program's."""
+    daemon, links = start(short_dir)
+    try:
+        dead = type("Process", (), {"pid": 4321, "returncode": -9})()
+        links.simulator = type("Simulator", (), {"alive": lambda _: False, "process": dead})()  # type: ignore[attr-defined]
+        grounds = links.amplifiers[0].calls.count("ground")
+        assert daemon._ground_lost_link().startswith("not grounded")
+        assert links.amplifiers[0].calls.count("ground") == grounds
+        links.simulator = None  # type: ignore[attr-defined]
+        assert daemon._ground_lost_link() == "output grounded"  # hardware: through the link
+    finally:
+        daemon.shutdown()

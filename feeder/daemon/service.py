@@ -287,7 +287,10 @@ class Daemon:
     def _ground_lost_link(self) -> str:
         """Ground every axis where the lost amplifier link still answers (never through a stale
         simulator pty: another program may own that path now); what became of the output."""
-        if getattr(self.links, "respawns", 0) != self._amplifier_generation:
+        # the simulator's death is known before the respawn that counts it: its pty path is
+        # already free for another program to take
+        respawned = getattr(self.links, "respawns", 0) != self._amplifier_generation
+        if respawned or self._simulator_died() is not None:
             return "not grounded (a new simulator: the old one's output died with it)"
         failed = []
         for axis, amplifier in self.loop.amplifiers.items():

@@ -120,6 +120,7 @@ class Anc300Link:
         self._stop_pending = False  # a reply was lost: stop every attached axis after resyncing
         self._axes: dict[int, list[Callable[[], None]]] = {}
         self._shortest_s = math.inf  # the shortest round trip of this connection's commands
+        self._closed = False  # close() was called: no command reopens the port
 
     # -- public ---------------------------------------------------------------
 
@@ -181,7 +182,11 @@ class Anc300Link:
             self._axes.setdefault(axis, []).append(stopped)
 
     def close(self) -> None:
+        """Close the port for good: a later command raises :class:`AmplifierLinkLost` rather than
+        reopening it (a dead simulator's pty path may be another program's by then, and a serial
+        port reopened by a stray command would be held, exclusively, from every reconnect)."""
         with self.lock:
+            self._closed = True
             self._drop()
 
     # -- internals (lock held) -------------------------------------------------
@@ -216,6 +221,8 @@ class Anc300Link:
 
     def _ready(self) -> serial.SerialBase:
         """The port, connected and in step with the console."""
+        if self._closed:
+            raise AmplifierLinkLost("the link is closed")
         if self._port is None:
             return self._connect()
         if not self._in_sync:
