@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import shutil
+import sqlite3
 import subprocess
 import sys
 import tempfile
@@ -15,6 +16,7 @@ import pytest
 from test_daemon_service import FakeLinks, make_setup, start, wait_for
 
 from feeder.daemon.service import Daemon, lock_state
+from feeder.daemon.store import Store, StoreError
 from feeder.errors import InputError
 
 pytestmark = pytest.mark.timeout(60)
@@ -95,3 +97,33 @@ def test_a_state_dir_that_cannot_hold_the_log_is_one_line_and_exit_2(short_dir: 
     assert done.returncode == 2, done.stderr
     assert "Traceback" not in done.stderr and done.stderr.count("\n") == 1
     assert str(not_a_dir) in done.stderr and "cannot hold the log" in done.stderr
+
+
+def _state_file(path: Path, script: str) -> Path:
+    conn = sqlite3.connect(path)
+    conn.executescript(script)
+    conn.close()
+    return path
+
+
+@pytest.mark.parametrize(
+    ("script", "words"),
+    [
+        (  # int('four'): a ValueError traceback
+            "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
+            "INSERT INTO meta VALUES ('schema_version', 'four');",
+            "schema version 'four' is not a number",
+        ),
+        (  # later, mid-start: sqlite3.OperationalError "no such column: reason" (exit 1)
+            "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
+            "INSERT INTO meta VALUES ('schema_version', '4');"
+            "CREATE TABLE moves (id INTEGER PRIMARY KEY, status TEXT);",
+            "table moves lacks",
+        ),
+    ],
+)
+def test_a_state_file_of_a_wrong_schema_is_refused_by_name(short_dir: Path, script: str, words: str) -> None:
+    path = _state_file(short_dir / "feeder.sqlite", script)
+    with pytest.raises(StoreError) as err:
+        Store(path)
+    assert str(path) in str(err.value) and words in str(err.value) and "\n" not in str(err.value)

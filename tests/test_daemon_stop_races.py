@@ -4,6 +4,7 @@ review of the daemon's threads; each test holds a thread at the critical point).
 from __future__ import annotations
 
 import shutil
+import sqlite3
 import tempfile
 import threading
 from collections.abc import Iterator
@@ -143,5 +144,30 @@ def test_an_error_in_a_tick_is_a_lost_link_not_the_loops_end(short_dir: Path) ->
         again = _new_job(daemon, "move", 120e-6, None)
         assert daemon.run(again, queue=False) == (0, None)
         assert again.done.wait(30) and again.result is not None and again.result.status == "done"
+    finally:
+        daemon.shutdown()
+
+
+def test_a_queued_move_that_cannot_be_handed_over_is_refused_and_the_queue_goes_on(short_dir: Path) -> None:
+    """An unforeseen error there (a raw sqlite3 error from the calibration's read) ended the queue
+    thread: the move was never answered and the moves queued behind never ran."""
+    daemon, _ = start(short_dir)
+    try:
+        wait_for(lambda: daemon.loop.position_m is not None)
+        saved, failures = daemon.camera_calibration.saved, [sqlite3.OperationalError("disk I/O error")]
+
+        def failing_saved() -> bool:
+            if threading.current_thread().name == "queue" and failures:
+                raise failures.pop()
+            return saved()
+
+        daemon.camera_calibration.saved = failing_saved  # type: ignore[method-assign]
+        running = _new_job(daemon, "move", 20e-6, None)
+        assert daemon.run(running, queue=False) == (0, None)
+        first, second = _new_job(daemon, "move", 120e-6, None), _new_job(daemon, "move", 60e-6, None)
+        assert daemon.run(first, queue=True) == (1, None) and daemon.run(second, queue=True) == (2, None)
+        assert first.done.wait(20) and first.result is not None
+        assert (first.result.status, first.result.reason) == ("refused", "OperationalError: disk I/O error")
+        assert second.done.wait(30) and second.result is not None and second.result.status == "done"
     finally:
         daemon.shutdown()

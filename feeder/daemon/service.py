@@ -220,7 +220,15 @@ class Daemon:
                     if not self._queue or self.loop.busy():
                         continue
                     job, stops = self._queue.popleft(), self._stops
-                reason = self._submit(job, stops)
+                try:
+                    reason = self._submit(job, stops)
+                except Exception as err:
+                    # the queue thread's one boundary: a move it cannot hand over (the store or
+                    # the camera failing in an unforeseen way) is refused with the reason, and
+                    # the thread, with the moves queued behind, goes on (it had died: the move
+                    # never answered, the queue never served again)
+                    log.exception("a queued move could not be handed to the loop")
+                    reason = f"{type(err).__name__}: {err}"
             if reason is not None:
                 self._refuse_queued(job, reason)
 

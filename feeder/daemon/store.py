@@ -190,6 +190,10 @@ class Store:
             self._conn.execute("PRAGMA synchronous=FULL")
             self._conn.executescript("BEGIN IMMEDIATE;" + _SCHEMA + "COMMIT;")
             version = self._meta("schema_version")
+            if version is not None and not version.isdigit():
+                raise StoreError(
+                    f"{self.path}: schema version {version!r} is not a number; not a feeder state database"
+                )
             if version is None:
                 self._set_meta("schema_version", str(SCHEMA_VERSION))
             elif int(version) > SCHEMA_VERSION:
@@ -207,9 +211,13 @@ class Store:
                     self._conn.executescript(_MIGRATE_2_TO_3.format(alter=alter))
                 if int(version) <= 3:
                     self._migrate_to_4()
+            self._check_columns()
         except sqlite3.DatabaseError as err:
             raise StoreError(f"{self.path}: {err}") from err
-        self.path.chmod(0o600)
+        try:
+            self.path.chmod(0o600)
+        except OSError as err:
+            raise StoreError(f"{self.path}: {err.strerror or err}") from None
 
     def _migrate_to_4(self) -> None:
         with self._conn:
@@ -219,6 +227,21 @@ class Store:
                 if column not in columns:
                     self._conn.execute(f"ALTER TABLE {table} ADD COLUMN {column} {kind}")
             self._conn.execute("UPDATE meta SET value = '4' WHERE key = 'schema_version'")
+
+    def _check_columns(self) -> None:
+        """Every table has the columns this schema uses (a file that says it is schema
+        :data:`SCHEMA_VERSION` but lacks them failed later, mid-start, with a traceback)."""
+        probe = sqlite3.connect(":memory:")
+        try:
+            probe.executescript(_SCHEMA)
+            for (table,) in probe.execute("SELECT name FROM sqlite_master WHERE type = 'table'").fetchall():
+                wanted = {r[1] for r in probe.execute(f"PRAGMA table_info({table})")}
+                have = {r[1] for r in self._conn.execute(f"PRAGMA table_info({table})")}
+                if wanted - have:
+                    missing = ", ".join(sorted(wanted - have))
+                    raise StoreError(f"{self.path}: table {table} lacks {missing}; not this feeder's schema")
+        finally:
+            probe.close()
 
     def _foreign(self) -> bool:
         """Tables, but no feeder schema version among them: another program's database."""
