@@ -127,3 +127,22 @@ def test_a_state_file_of_a_wrong_schema_is_refused_by_name(short_dir: Path, scri
     with pytest.raises(StoreError) as err:
         Store(path)
     assert str(path) in str(err.value) and words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_the_state_files_are_owner_only_in_a_folder_open_to_others(short_dir: Path) -> None:
+    """The WAL holds nearly everything (the main file 4 KiB, the WAL 240 KiB) and was 0644, as
+    were the SHM and lock files, in a state directory readable by others."""
+    folder = short_dir / "state"
+    folder.mkdir(mode=0o755)
+    folder.chmod(0o755)
+    lock = lock_state(folder / "feeder.sqlite")
+    store = Store(folder / "feeder.sqlite")
+    try:
+        store.save_position(1e-4)
+        names = ("feeder.sqlite", "feeder.sqlite-wal", "feeder.sqlite-shm", "feeder.sqlite.lock")
+        assert {name: oct((folder / name).stat().st_mode & 0o777) for name in names} == dict.fromkeys(
+            names, "0o600"
+        )
+    finally:
+        store.close()
+        lock.close()

@@ -21,6 +21,7 @@ import collections
 import contextlib
 import fcntl
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -93,7 +94,8 @@ def lock_state(database_path: Path) -> IO[bytes]:
     Raises :class:`InputError` when another daemon holds it.
     """
     database_path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-    handle = open(database_path.with_name(database_path.name + ".lock"), "ab")  # noqa: SIM115
+    lock_path = database_path.with_name(database_path.name + ".lock")
+    handle = os.fdopen(os.open(lock_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600), "ab")
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -130,6 +132,12 @@ class Daemon:
             undo.callback(self.store.close)
             self.records = MoveRecords(self.store, setup.calibration_key, setup.pose_navigator is not None)
             self.interrupted_moves = self.store.interrupt_running_moves()
+            if self.interrupted_moves:  # said at the start, not only in status
+                log.warning(
+                    "move(s) %s were interrupted by the daemon's end (a crash or kill): recorded "
+                    "'interrupted', their steps as commanded",
+                    ", ".join(map(str, self.interrupted_moves)),
+                )
             # a bad stored camera calibration is refused before the hardware is touched
             self.camera_calibration = LocatedCalibration(links.configured_calibration, self.store)
             amplifiers = per_axis(links.open_amplifier())

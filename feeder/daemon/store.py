@@ -8,8 +8,10 @@ socket threads can share a :class:`Store`.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import sqlite3
 import threading
 import time
@@ -173,6 +175,8 @@ class Store:
         existed = self.path.exists()
         if existed:
             check_state_file(self.path)
+        else:  # owner-only from the start: SQLite gives its WAL and SHM files the database's mode
+            os.close(os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
         try:
             self._conn = sqlite3.connect(
                 str(self.path), timeout=10.0, isolation_level=None, check_same_thread=False
@@ -215,7 +219,9 @@ class Store:
         except sqlite3.DatabaseError as err:
             raise StoreError(f"{self.path}: {err}") from err
         try:
-            self.path.chmod(0o600)
+            for path in (self.path, *(self.path.with_name(self.path.name + s) for s in ("-wal", "-shm"))):
+                with contextlib.suppress(FileNotFoundError):
+                    path.chmod(0o600)  # an older file's WAL, made with its mode
         except OSError as err:
             raise StoreError(f"{self.path}: {err.strerror or err}") from None
 
