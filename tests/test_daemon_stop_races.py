@@ -3,11 +3,8 @@ review of the daemon's threads; each test holds a thread at the critical point).
 
 from __future__ import annotations
 
-import shutil
 import sqlite3
-import tempfile
 import threading
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -18,13 +15,6 @@ from feeder.daemon.requests import _new_job
 from feeder.daemon.service import Daemon
 
 pytestmark = pytest.mark.timeout(60)
-
-
-@pytest.fixture
-def short_dir() -> Iterator[Path]:
-    path = Path(tempfile.mkdtemp(prefix="fr"))
-    yield path
-    shutil.rmtree(path, ignore_errors=True)
 
 
 def _held_before_the_handover(daemon: Daemon, thread_name: str) -> tuple[threading.Event, threading.Event]:
@@ -170,4 +160,38 @@ def test_a_queued_move_that_cannot_be_handed_over_is_refused_and_the_queue_goes_
         assert (first.result.status, first.result.reason) == ("refused", "OperationalError: disk I/O error")
         assert second.done.wait(30) and second.result is not None and second.result.status == "done"
     finally:
+        daemon.shutdown()
+
+
+def test_a_move_ended_before_the_store_failed_is_answered_during_the_outage(short_dir: Path) -> None:
+    """A write in flight when the move ended failed just after: the move's own record waited
+    behind it for as long as the store stayed unwritable, and so did its caller."""
+    daemon, _ = start(short_dir)
+    armed, in_flight, fail, broken = (threading.Event() for _ in range(4))
+    try:
+        wait_for(lambda: daemon.loop.position_m is not None)
+        save = daemon.store.save_position
+
+        def failing_save(*args: Any, **kwargs: Any) -> None:
+            if armed.is_set() and not broken.is_set():
+                in_flight.set()
+                assert fail.wait(10)  # an fsync on a failing disk
+                broken.set()
+            if broken.is_set():
+                raise sqlite3.OperationalError("disk I/O error")
+            save(*args, **kwargs)
+
+        daemon.loop.on_position = failing_save
+        job = _new_job(daemon, "move", 150e-6, None)
+        assert daemon.run(job, queue=False) == (0, None)
+        wait_for(lambda: job.recorded)
+        armed.set()
+        wait_for(lambda: daemon.loop.current_job() is None, 30)  # ended in the loop
+        assert in_flight.wait(10)
+        fail.set()
+        assert job.done.wait(5), "the caller waits while the store stays unwritable"
+        assert job.result is not None and job.result.status == "done"
+        assert daemon.loop.writer.unwritable is not None  # still failing
+    finally:
+        broken.set()
         daemon.shutdown()

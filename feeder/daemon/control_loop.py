@@ -116,6 +116,8 @@ class ControlLoop:
         self.policy = Policy(modes, settings, estimates, axis_modes=axis_modes, navigator=navigator)
         self.executor = AmplifierExecutor(amplifier, self.policy.modes, clock)
         self.decisions = DecisionWorker(self.policy.decide, self._decided)
+        self._ending: list[Job] = []  # ended, their records not yet written (_store_unwritable)
+        self._ending_lock = threading.Lock()
         self.writer = RecordWriter(on_unwritable=self._store_unwritable, on_writable=self._store_writable)
         self._feed = SensorFeed(sensor, sensor_timeout_s, clock)
         self.on_position = on_position
@@ -422,9 +424,11 @@ class ControlLoop:
             elif isinstance(out, Started):
                 self.writer.put(functools.partial(self._record_start, out.job))
             elif isinstance(out, Finished):
-                if self.writer.unwritable is not None:  # the caller learns now; the
-                    out.job.result = out.result  # record follows when it can
-                    out.job.done.set()
+                out.job.result = out.result
+                with self._ending_lock:
+                    self._ending.append(out.job)
+                if self.writer.unwritable is not None:  # the caller learns now; the record
+                    out.job.done.set()  # follows when it can (an outage later: _store_unwritable)
                 self.writer.put(functools.partial(self._record_end, out.job, out.result))
             elif isinstance(out, Progress):
                 if out.job.on_progress is not None:
@@ -440,10 +444,16 @@ class ControlLoop:
                     ).start()
 
     def _store_unwritable(self, message: str) -> None:
-        """The state store cannot be written: end the move, refuse moves until it can."""
+        """The state store cannot be written: end the move, refuse moves until it can, and answer
+        the moves that ended with their records still to write (behind the failing one: their
+        callers had waited as long as the outage lasted)."""
         with self._lock:
             self.policy.store_unwritable = f"state store unwritable: {message}"
             self.policy.request_stop(self.policy.store_unwritable)
+        with self._ending_lock:
+            ending, self._ending = self._ending, []
+        for job in ending:
+            job.done.set()
 
     def _store_writable(self) -> None:
         with self._lock:
@@ -457,11 +467,11 @@ class ControlLoop:
         finally:
             job.recorded = True
 
-    @staticmethod
-    def _record_end(job: Job, result: JobResult) -> None:
-        job.result = result
+    def _record_end(self, job: Job, result: JobResult) -> None:
         try:
             if job.on_done is not None:
                 job.on_done(result)
         finally:
             job.done.set()
+            with self._ending_lock:
+                self._ending = [each for each in self._ending if each is not job]
