@@ -4,9 +4,7 @@ timeouts against scripted socket servers."""
 from __future__ import annotations
 
 import json
-import shutil
 import socket
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -68,13 +66,6 @@ class ScriptedServer:
         self._listener.close()
         for conn in self._conns:
             conn.close()
-
-
-@pytest.fixture
-def short_dir() -> Iterator[Path]:
-    path = Path(tempfile.mkdtemp(prefix="fc"))
-    yield path
-    shutil.rmtree(path, ignore_errors=True)
 
 
 @pytest.fixture

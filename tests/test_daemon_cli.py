@@ -8,11 +8,9 @@ import argparse
 import json
 import math
 import os
-import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -31,13 +29,6 @@ from feeder.daemon.service import Daemon
 pytestmark = pytest.mark.timeout(60)
 
 TESTS = Path(__file__).resolve().parent
-
-
-@pytest.fixture
-def short_dir() -> Iterator[Path]:
-    path = Path(tempfile.mkdtemp(prefix="fd"))
-    yield path
-    shutil.rmtree(path, ignore_errors=True)
 
 
 @pytest.fixture

@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_daemon_service import short_dir  # noqa: F401  (fixture)
 from test_socket_server_limits import Line, ScriptedDaemon, Served
 
 from feeder.cli.daemon import setup_logging
@@ -103,7 +102,7 @@ class Child:
 
 
 @pytest.fixture
-def child(short_dir: Path) -> Iterator[Child]:  # noqa: F811
+def child(short_dir: Path) -> Iterator[Child]:
     running = Child(short_dir)
     yield running
     if running.process.poll() is None:
@@ -137,7 +136,7 @@ def test_an_idle_client_gives_way_to_a_stop_when_descriptors_run_out(child: Chil
 
 
 def test_a_client_thread_that_cannot_start_does_not_end_the_accepting(
-    short_dir: Path,  # noqa: F811
+    short_dir: Path,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     failed: list[str] = []

@@ -4,13 +4,10 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import socket
 import subprocess
 import sys
-import tempfile
 import time
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
@@ -57,14 +54,6 @@ class FakeLinks:
 
     def configured_calibration(self) -> CameraCalibration | None:
         return self.configured
-
-
-@pytest.fixture
-def short_dir() -> Iterator[Path]:
-    """Unix socket paths must stay under 108 bytes: a short directory under /tmp."""
-    path = Path(tempfile.mkdtemp(prefix="fd"))
-    yield path
-    shutil.rmtree(path, ignore_errors=True)
 
 
 def make_setup(base: Path) -> DaemonSetup:

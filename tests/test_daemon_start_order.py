@@ -4,12 +4,9 @@ state and restarts): nothing of its hardware, socket or database."""
 from __future__ import annotations
 
 import dataclasses
-import shutil
 import sqlite3
 import subprocess
 import sys
-import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -21,13 +18,6 @@ from feeder.errors import InputError
 
 pytestmark = pytest.mark.timeout(60)
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture
-def short_dir() -> Iterator[Path]:
-    path = Path(tempfile.mkdtemp(prefix="fo"))
-    yield path
-    shutil.rmtree(path, ignore_errors=True)
 
 
 def test_a_second_daemon_on_the_same_socket_is_refused_before_it_opens_its_amplifier(

@@ -20,7 +20,7 @@ import pytest
 pytest.importorskip("starlette")
 pytest.importorskip("uvicorn")
 
-from test_daemon_service import short_dir, start, wait_for  # noqa: F401  (short_dir: fixture)
+from test_daemon_service import start, wait_for
 
 from feeder.daemon.config import HttpConfig
 from feeder.daemon.config_file import load_config
@@ -88,7 +88,7 @@ class Console:
 
 
 @pytest.fixture
-def console(short_dir: Path) -> Iterator[Console]:  # noqa: F811
+def console(short_dir: Path) -> Iterator[Console]:
     running = Console(short_dir)
     yield running
     running.stop()
@@ -114,7 +114,7 @@ def test_the_page_loads_without_the_token_and_holds_no_data(console: Console) ->
     assert "position_m" not in html  # the state comes from /api only
 
 
-def test_the_token_file_is_owner_only_and_new_at_each_start(console: Console, short_dir: Path) -> None:  # noqa: F811
+def test_the_token_file_is_owner_only_and_new_at_each_start(console: Console, short_dir: Path) -> None:
     path = short_dir / "state" / "http-token"
     assert oct(path.stat().st_mode & 0o777) == "0o600"
     assert path.read_text().strip() == console.token and len(console.token) >= 40
@@ -196,7 +196,7 @@ def test_bad_requests_get_a_json_error_with_a_4xx_code(
     assert console.daemon.store.moves(10) == []
 
 
-def test_moves_are_rate_limited_and_stop_never_is(short_dir: Path) -> None:  # noqa: F811
+def test_moves_are_rate_limited_and_stop_never_is(short_dir: Path) -> None:
     console = Console(short_dir, moves_per_s=0.5, move_burst=3)
     try:
         codes = [console.call("POST", "/api/move", {"target_m": 300e-6, "wait": False})[0] for _ in range(3)]

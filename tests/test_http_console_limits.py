@@ -20,7 +20,6 @@ import pytest
 pytest.importorskip("starlette")
 pytest.importorskip("uvicorn")
 
-from test_daemon_service import short_dir  # noqa: F401  (fixture)
 from test_http_console import Console
 
 from feeder.daemon.config import HttpConfig
@@ -194,7 +193,7 @@ def test_a_huge_jog_is_refused_in_one_short_line(scripted: Scripted) -> None:
 
 
 def test_stop_reaches_the_daemon_past_waiting_moves_and_empties_its_queue(
-    short_dir: Path,  # noqa: F811
+    short_dir: Path,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(lanes, "MAX_WAITING_MOVES", 4)

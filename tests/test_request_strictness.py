@@ -6,9 +6,6 @@ console send only known fields."""
 from __future__ import annotations
 
 import contextlib
-import shutil
-import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -137,13 +134,6 @@ def test_the_http_console_sends_only_fields_the_daemon_knows() -> None:
     jogs += [web_requests.jog_request(plane, axis, 3, 2) for axis in ("x", "y", "theta")]
     for jog in jogs:
         assert set(jog) <= FIELDS["move"], jog
-
-
-@pytest.fixture
-def short_dir() -> Iterator[Path]:
-    path = Path(tempfile.mkdtemp(prefix="fs"))
-    yield path
-    shutil.rmtree(path, ignore_errors=True)
 
 
 def test_over_the_socket_a_misspelt_request_is_refused_and_nothing_recorded(short_dir: Path) -> None:

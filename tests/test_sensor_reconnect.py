@@ -21,7 +21,7 @@ from typing import Any
 import pytest
 from listener import Listener
 from test_daemon_doubles import FakeSensor, FakeWorld
-from test_daemon_service import TRUE, FakeLinks, make_setup, short_dir, wait_for  # noqa: F401
+from test_daemon_service import TRUE, FakeLinks, make_setup, wait_for
 from test_policy import Rig
 
 from feeder.cli.demo_plane import config_for
@@ -59,7 +59,7 @@ def restored_lines(caplog: pytest.LogCaptureFixture) -> list[str]:
 
 
 def test_a_camera_that_stays_down_keeps_the_daemon_in_fault(
-    short_dir: Path,  # noqa: F811
+    short_dir: Path,
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     caplog.set_level(logging.INFO, logger="feeder")

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_daemon_service import short_dir  # noqa: F401  (fixture)
 
 from feeder.daemon import socket_server
 from feeder.daemon.client import Client
@@ -123,7 +122,7 @@ class Served:
 
 
 @pytest.fixture
-def served(short_dir: Path) -> Iterator[Served]:  # noqa: F811
+def served(short_dir: Path) -> Iterator[Served]:
     running = Served(short_dir, ScriptedDaemon())
     yield running
     running.close()
@@ -208,7 +207,7 @@ def test_a_silent_slot_goes_to_a_newcomer_after_the_idle_timeout(
 
 
 def test_a_waiting_move_is_not_cut_by_the_idle_timeout(
-    short_dir: Path,  # noqa: F811
+    short_dir: Path,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(socket_server, "IDLE_TIMEOUT_S", 0.2)
@@ -319,7 +318,7 @@ def test_a_handler_sees_its_client_hang_up_but_not_a_client_done_sending(served:
     assert half.read() == {"ok": True, "hung_up": False}
 
 
-def test_close_ends_the_accepting_thread(short_dir: Path) -> None:  # noqa: F811
+def test_close_ends_the_accepting_thread(short_dir: Path) -> None:
     """Closing the listening socket does not wake a thread blocked in accept(); the server
     shuts it down first, so no thread (nor its socket) outlives the server."""
 
