@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from test_daemon_doubles import FakeSensor
 from test_daemon_service import start, wait_for
 
 from feeder.daemon.requests import _new_job
@@ -194,4 +195,33 @@ def test_a_move_ended_before_the_store_failed_is_answered_during_the_outage(shor
         assert daemon.loop.writer.unwritable is not None  # still failing
     finally:
         broken.set()
+        daemon.shutdown()
+
+
+def test_two_sensor_replacements_at_once_leave_no_sensor_read_for_nothing(short_dir: Path) -> None:
+    """A recalibration and a reconnect replacing the sensor together both closed the same old
+    feed, and the second orphaned the first's new sensor: read on, never closed."""
+    daemon, links = start(short_dir)
+    try:
+        wait_for(lambda: daemon.loop.position_m is not None)
+        old = daemon.loop._feed
+        other_started = threading.Event()
+        close = old.close
+
+        def slow_close() -> None:  # the first replacement closes the old feed slowly
+            other_started.wait(1.0)
+            close()
+
+        old.close = slow_close  # type: ignore[method-assign]
+        one, two = FakeSensor(links.world), FakeSensor(links.world)
+        first = threading.Thread(target=daemon.loop.replace_sensor, args=(one,))
+        first.start()
+        second = threading.Thread(target=lambda: (other_started.set(), daemon.loop.replace_sensor(two)))
+        second.start()
+        first.join(10)
+        second.join(10)
+        in_use = daemon.loop.sensor
+        assert in_use in (one, two)
+        assert (two if in_use is one else one).closed  # the one replaced is not read on
+    finally:
         daemon.shutdown()

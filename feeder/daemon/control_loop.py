@@ -118,6 +118,7 @@ class ControlLoop:
         self.decisions = DecisionWorker(self.policy.decide, self._decided)
         self._ending: list[Job] = []  # ended, their records not yet written (_store_unwritable)
         self._ending_lock = threading.Lock()
+        self._replacing = threading.Lock()  # replace_sensor's
         self.writer = RecordWriter(on_unwritable=self._store_unwritable, on_writable=self._store_writable)
         self._feed = SensorFeed(sensor, sensor_timeout_s, clock)
         self.on_position = on_position
@@ -292,12 +293,15 @@ class ControlLoop:
 
     def replace_sensor(self, sensor: PositionSensor, first: PositionSample | None = None) -> None:
         """After a reconnect: read the new sensor (``first``: the reading that showed it works);
-        the position is uncertain until it reports."""
-        self._feed.close()
-        feed = SensorFeed(sensor, self._sensor_timeout_s, self._clock, first)
-        with self._lock:
-            self._feed = feed
-            self.policy.sensor_restored()
+        the position is uncertain until it reports.  One replacement at a time: two at once (a
+        recalibration and a reconnect) both closed the same old feed, and the second orphaned
+        the first's new one, its reader never closed."""
+        with self._replacing:
+            self._feed.close()
+            feed = SensorFeed(sensor, self._sensor_timeout_s, self._clock, first)
+            with self._lock:
+                self._feed = feed
+                self.policy.sensor_restored()
 
     def estimates(self) -> dict[str, StepEstimate]:
         with self._lock:
