@@ -16,7 +16,7 @@ from typing import NoReturn
 from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
-from feeder.plant.stack import STACK_RANGES, StackParameters
+from feeder.plant.stack import STACK_FIELDS, STACK_RANGES, StackParameters
 from feeder.protocol.anc300 import DEFAULT_PASSWORD, DIALECTS
 from feeder.protocol.eds import EDS_3AXIS_FILE, EDS_FILE, axis_count, object_dictionary
 from firmware_sim.firmware import DEFAULT_DAC_BUFFER_S, DEFAULT_LOAD_CAPACITANCE_F, FirmwareConfig
@@ -294,12 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="planar: radius about O at which the θ stack turns the plate, m",
     )
     stack = StackParameters()
-    for field, unit, what in (
-        ("gain_m_per_v", "m/V", "the stacks' free stroke per volt"),
-        ("resonance_hz", "Hz", "the stacks' first axial resonance, loaded by the plate"),
-        ("damping_ratio", "", "the damping ratio of that resonance"),
-        ("output_resistance_ohm", "Ω", "the amplifier's output resistance into the stack"),
-    ):
+    for field in ("gain_m_per_v", "resonance_hz", "damping_ratio", "output_resistance_ohm"):  # C: above
+        unit, what = STACK_FIELDS[field]
         add_number(
             world,
             "--stack-" + field.replace("_", "-"),

@@ -392,7 +392,7 @@ class ControlLoop:
         stop unanswered."""
         try:
             self.tick(now)
-        except Exception as err:
+        except Exception as err:  # the tick thread's one boundary (the docstring)
             with self._lock:
                 first = self.policy.fault is None
                 outputs = self.policy.on_internal_error(f"control loop error: {type(err).__name__}: {err}")

@@ -48,6 +48,17 @@ STACK_RANGES: dict[str, tuple[float, float]] = {
 }
 """Accepted values of each :class:`StackParameters` field where a user states a stack (the
 daemon's ``[stack]``, firmware_sim's ``--stack-*`` options)."""
+STACK_FIELDS: dict[str, tuple[str, str]] = {
+    "gain_m_per_v": ("m/V", "the stacks' free stroke per volt"),
+    "capacitance_f": (
+        "F",
+        "the stacks' capacitance: with the current limit it sets the flyback, t_f ≈ C·ΔV/I_max",
+    ),
+    "resonance_hz": ("Hz", "the stacks' first axial resonance, loaded by the plate"),
+    "damping_ratio": ("", "the damping ratio of that resonance"),
+    "output_resistance_ohm": ("Ω", "the amplifier's output resistance into the stacks"),
+}
+"""Each field's unit and meaning, for the options that state it (``--stack-*``)."""
 
 
 @dataclass(frozen=True)
