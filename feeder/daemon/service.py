@@ -22,6 +22,7 @@ import contextlib
 import fcntl
 import logging
 import os
+import subprocess
 import threading
 import time
 from collections.abc import Callable
@@ -47,6 +48,10 @@ from feeder.vision.calibration import CameraCalibration
 from feeder.vision.offset_moves import MovesStopped, OffsetMoves, measure
 
 log = logging.getLogger(__name__)
+
+SIMULATOR_EXIT_S = 0.2
+"""How long a lost link waits for the embedded simulator's exit to be known, to name it as the
+cause (the camera's socket closes a moment before the process can be reaped)."""
 
 
 class Links(Protocol):
@@ -292,10 +297,17 @@ class Daemon:
         return None
 
     # -- faults ----------------------------------------------------------------
-    def _simulator_died(self) -> str | None:
-        """That the embedded simulator behind the links died, or None (alive, or hardware)."""
+    def _simulator_died(self, wait_s: float = 0.0) -> str | None:
+        """That the embedded simulator behind the links died, or None (alive, or hardware);
+        ``wait_s``: how long to wait for its exit (a dying process closes its sockets, which
+        the links notice, a moment before it can be reaped)."""
         simulator = getattr(self.links, "simulator", None)
-        if simulator is None or simulator.alive():
+        if simulator is None:
+            return None
+        if wait_s > 0 and simulator.alive():
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                simulator.process.wait(timeout=wait_s)
+        if simulator.alive():
             return None
         code = simulator.process.returncode
         return f"the embedded simulator (firmware_sim, pid {simulator.process.pid}) died (exit code {code})"
@@ -317,6 +329,9 @@ class Daemon:
         return f"the output could not be grounded ({'; '.join(failed)})" if failed else "output grounded"
 
     def _on_fault(self, kind: str, message: str) -> None:
+        cause = self._simulator_died(SIMULATOR_EXIT_S)  # on this thread, not the tick's: it waits
+        if cause is not None and not message.startswith(cause):
+            message = f"{cause}: {message}"
         if kind != "amplifier":  # the policy stops and grounds the output through the executor
             log.error("%s link lost: %s; grounding the output, reconnecting", kind, message)
         record: dict[str, Any] = {"link": kind, "message": message, "time_s": time.time()}
