@@ -16,6 +16,7 @@ import contextlib
 import http.client
 import json
 import logging
+import resource
 import socket
 import subprocess
 import sys
@@ -213,7 +214,7 @@ def _closed_within(sock: socket.socket, timeout_s: float) -> float:
 def test_the_console_refuses_connections_beyond_its_cap(
     console: web_server.ConsoleServer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(web_server, "MAX_CONNECTIONS", 4, raising=False)
+    monkeypatch.setattr(web_server, "connection_cap", lambda: 4)
     held = [socket.create_connection(("127.0.0.1", console.port)) for _ in range(4)]
     try:
         time.sleep(0.2)
@@ -221,7 +222,7 @@ def test_the_console_refuses_connections_beyond_its_cap(
         extra.settimeout(5.0)
         answer = extra.recv(4096)
         assert answer.startswith(b"HTTP/1.1 503 ") and b"retry-after: 1" in answer
-        assert b'"error": "too many connections' in answer
+        assert answer.endswith(b'{"ok": false, "error": "too many connections (max 4)"}')
         assert extra.recv(4096) == b""  # and closed
         extra.close()
         held.pop().close()
@@ -230,6 +231,18 @@ def test_the_console_refuses_connections_beyond_its_cap(
     finally:
         for sock in held:
             sock.close()
+
+
+@pytest.mark.parametrize(
+    ("soft_limit", "cap"),
+    [(1024, 256), (resource.RLIM_INFINITY, 256), (400, 100), (256, 64), (40, 16)],
+)
+def test_the_console_cap_leaves_most_descriptors_to_the_daemon(
+    soft_limit: int, cap: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A quarter of ``ulimit -n`` when that is below 256 connections, never fewer than 16."""
+    monkeypatch.setattr(resource, "getrlimit", lambda _which: (soft_limit, resource.RLIM_INFINITY))
+    assert web_server.connection_cap() == cap
 
 
 def test_the_console_closes_connections_that_send_no_whole_request(

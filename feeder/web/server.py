@@ -1,7 +1,7 @@
 """Serving the console: uvicorn on its own thread in the daemon's process (never the tick's),
 with a fresh token at each start; its event loop stands back while the tick is due.
 
-No client can take the daemon's descriptors: at most :data:`MAX_CONNECTIONS` connections are
+No client can take the daemon's descriptors: at most :func:`connection_cap` connections are
 served at once (a newcomer beyond is answered 503 and closed), and a connection that has not
 sent a whole request within :data:`REQUEST_TIMEOUT_S` of the server waiting for one is closed
 (:class:`GuardedH11Protocol`).  uvicorn leaves the daemon's logging as it is: its warnings and
@@ -14,6 +14,7 @@ import asyncio
 import functools
 import json
 import logging
+import resource
 import socket
 import threading
 import time
@@ -36,24 +37,42 @@ log = logging.getLogger(__name__)
 
 MAX_CONNECTIONS = 256
 """HTTP and WebSocket connections served at once (45 waiting moves, a status and a stop take
-47; a page takes its WebSocket and a few requests)."""
+47; a page takes its WebSocket and a few requests), unless the descriptor limit is lower:
+:func:`connection_cap`."""
+MIN_CONNECTIONS = 16
+"""The fewest connections served, however low the descriptor limit."""
 REQUEST_TIMEOUT_S = 5.0
 """How long a connection has to send a whole request (line, headers and body), from its
 connection or the end of its last response (uvicorn has no such limit: an idle connection,
 or one sending a header byte every 2 s, stayed open)."""
 LISTEN_BACKLOG = 128
 """Connections the kernel holds before accept, and the most the event loop accepts at once."""
-_BUSY = json.dumps({"ok": False, "error": f"too many connections (max {MAX_CONNECTIONS})"}).encode()
-BUSY_REPLY = (
-    b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\nretry-after: 1\r\n"
-    b"connection: close\r\ncontent-length: " + str(len(_BUSY)).encode() + b"\r\n\r\n" + _BUSY
-)
-"""The answer to a connection beyond :data:`MAX_CONNECTIONS`, sent as it connects."""
+
+
+def connection_cap() -> int:
+    """The most connections the console serves at once: :data:`MAX_CONNECTIONS`, or a quarter of
+    the process's open-file limit (``ulimit -n``) when that is lower, so that the amplifier link,
+    the camera, the state files and the control socket's clients keep the rest."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft == resource.RLIM_INFINITY:
+        return MAX_CONNECTIONS
+    return max(MIN_CONNECTIONS, min(MAX_CONNECTIONS, soft // 4))
+
+
+def busy_reply(cap: int) -> bytes:
+    """The answer to a connection beyond ``cap``, sent as it connects."""
+    body = json.dumps({"ok": False, "error": f"too many connections (max {cap})"}).encode()
+    return (
+        b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\nretry-after: 1\r\n"
+        b"connection: close\r\ncontent-length: " + str(len(body)).encode() + b"\r\n\r\n" + body
+    )
+
+
 _refusals = LogThrottle(log)
 
 
 class GuardedH11Protocol(H11Protocol):
-    """uvicorn's h11 protocol that refuses a connection beyond :data:`MAX_CONNECTIONS` and closes
+    """uvicorn's h11 protocol that refuses a connection beyond :func:`connection_cap` and closes
     one whose request is not whole within :data:`REQUEST_TIMEOUT_S`."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -62,9 +81,10 @@ class GuardedH11Protocol(H11Protocol):
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
-        if len(self.connections) > MAX_CONNECTIONS:  # this one included
-            _refusals.warning("console: refused a connection beyond %d", MAX_CONNECTIONS)
-            transport.write(BUSY_REPLY)
+        cap = connection_cap()
+        if len(self.connections) > cap:  # this one included
+            _refusals.warning("console: refused a connection beyond %d", cap)
+            transport.write(busy_reply(cap))
             transport.close()
             return
         self._await_request()
