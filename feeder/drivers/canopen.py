@@ -50,8 +50,9 @@ from feeder.drivers.amplifier import (
     AmplifierStatus,
     DriveSettings,
 )
+from feeder.drivers.canopen_codes import fault_names
 from feeder.drivers.canopen_heartbeat import HostHeartbeat
-from feeder.drivers.canopen_link import DEFAULT_HOST_ID, CanopenNodeLink, fault_names
+from feeder.drivers.canopen_link import DEFAULT_HOST_ID, CanopenNodeLink
 from feeder.errors import InputError
 from feeder.protocol.eds import MODES, bit_mask
 

@@ -28,24 +28,13 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from feeder import stall
 from feeder.drivers.amplifier import AmplifierError, AmplifierLinkLost
+from feeder.drivers.canopen_codes import ABORT_MESSAGES, EMCY_MEANINGS, HOST_WATCHDOG, fault_names
 from feeder.drivers.canopen_heartbeat import HOST_SILENCE_PERIODS, HostHeartbeat
 from feeder.errors import InputError
-from feeder.protocol import anc300
 from feeder.protocol.can_frames import canopen_frames_only
 from feeder.protocol.eds import axis_count, axis_object, object_dictionary
 
 log = logging.getLogger(__name__)
-
-HOST_WATCHDOG = anc300.FAULT_BITS["host_watchdog"]
-"""The fault word of an axis whose only fault is a host that fell silent."""
-
-
-def fault_names(word: int) -> tuple[str, ...]:
-    """Names of the bits set in a fault word: the protocol's, then ``fault<bit>`` for
-    bits it does not name (a real drive may set more)."""
-    unknown = word & ~sum(anc300.FAULT_BITS.values())
-    return anc300.fault_names(word) + tuple(f"fault{bit}" for bit in range(32) if unknown >> bit & 1)
-
 
 DEFAULT_HOST_ID = 127
 """The node id the host beats as (``[amplifier.can] host_id``)."""
@@ -58,30 +47,6 @@ CONSUMER_HEARTBEAT = "Consumer heartbeat time.Consumer heartbeat time 1"
 PRODUCT_CODE = "Identity object.Product code"
 TPDO_OBJECTS = ("Step counter", "Status word", "Command acknowledge")
 """What the driver takes from each axis' TPDO (one-axis EDS names)."""
-EMCY_MEANINGS = {
-    0x0000: "error reset",
-    0x1000: "generic error",
-    0x4200: "over-temperature",
-    0x6010: "tick watchdog",
-    0x8130: "host watchdog",
-    0x8210: "PDO length error",
-}
-"""What the amplifier's EMCY codes mean (firmware_sim's ``EMCY_CODES``, docs/canopen.md); other
-codes are named by CiA 301's class (``canopen``'s :meth:`EmcyError.get_desc`)."""
-ABORT_MESSAGES = {
-    0x05040001: "command not valid (no such transfer)",
-    0x06010001: "object is write-only",
-    0x06010002: "object is read-only",
-    0x06020000: "object does not exist",
-    0x06090011: "sub-index does not exist",
-    0x06040043: "conflicts with another setting",
-    0x06090030: "value range exceeded",
-    0x06090031: "value too high",
-    0x06090032: "value too low",
-    0x08000022: "refused in the present device state",
-}
-
-
 TPDO_EVENT_TIMER_MS = 100
 """The event timer the driver gives every TPDO (ms): the node sends it at least this often,
 so its first TPDO after the start comes within the wait for it (``timeout_s`` + 0.2 s), even
