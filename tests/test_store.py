@@ -12,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from feeder.daemon.jobs import Job
 from feeder.daemon.move_records import MoveRecords
+from feeder.daemon.step_estimator import StepEstimate
 from feeder.daemon.store import SCHEMA_VERSION, Calibration, Store, StoreError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -237,3 +239,150 @@ def test_a_stored_step_that_is_not_a_number_is_learned_again(tmp_path: Path) -> 
     store.close()
     assert set(restored) == {"coarse/backward"}
     assert restored["coarse/backward"].step_m == 3.1e-6
+
+
+def _targets(path: Path) -> list[float]:
+    """The moves' targets in the database at ``path``, read as a new daemon would find them."""
+    store = Store(path)
+    try:
+        return [m["target_m"] for m in store.moves()]
+    finally:
+        store.close()
+
+
+def _saved_beside(path: Path) -> list[Path]:
+    return sorted(path.parent.glob(f"{path.name}.*.bak"))
+
+
+def test_a_database_removed_while_open_is_written_no_more(tmp_path: Path) -> None:
+    """The old store went on writing into the unlinked file (and left its WAL at the path, for a
+    new database there to take in); every write now refuses, naming the file, and what the store
+    held is saved beside it."""
+    path = tmp_path / "state" / "feeder.sqlite"
+    store = Store(path)
+    for i in range(3):
+        store.begin_move(i * 1e-6, 0.0)
+    path.unlink()
+    with pytest.raises(StoreError, match=r"feeder\.sqlite: the state database was removed or moved away"):
+        store.begin_move(9e-6, 0.0)
+    with pytest.raises(StoreError, match="removed"):  # and every write after it
+        store.save_position(1e-6)
+    store.close()
+    assert not path.exists()  # not re-created: a new daemon starts a new one
+    (saved,) = _saved_beside(path)
+    assert oct(saved.stat().st_mode & 0o777) == "0o600"
+    assert _targets(saved) == [0.0, 1e-6, 2e-6]  # everything the store held, nothing else
+    wal = path.with_name(path.name + "-wal")
+    assert not wal.exists() or wal.stat().st_size == 0  # nothing for a new database to take in
+    assert _targets(path) == []  # the next start: a fresh database
+
+
+def test_a_database_replaced_while_open_is_never_written_into(tmp_path: Path) -> None:
+    """The old store's WAL, left at the path, was applied to the replacement when it was next
+    opened: the replacement then held the old database's moves instead of its own."""
+    path = tmp_path / "state" / "feeder.sqlite"
+    store = Store(path)
+    for i in range(3):
+        store.begin_move(i * 1e-6, 0.0)
+    replacement = Store(tmp_path / "other.sqlite")
+    replacement.begin_move(99e-6, 0.0)
+    replacement.close()
+    os.replace(tmp_path / "other.sqlite", path)
+    with pytest.raises(StoreError, match=r"feeder\.sqlite: the state database was replaced by another file"):
+        store.save_position(1e-6)
+    store.close()
+    assert _targets(path) == [99e-6]
+    (saved,) = _saved_beside(path)
+    assert _targets(saved) == [0.0, 1e-6, 2e-6]
+
+
+def test_a_database_replaced_before_the_store_closes_keeps_its_own_contents(tmp_path: Path) -> None:
+    """No write in between: closing the store (a daemon's shutdown) left its WAL at the path, and
+    the replacement's next opening took it in."""
+    path = tmp_path / "feeder.sqlite"
+    store = Store(path)
+    for i in range(3):
+        store.begin_move(i * 1e-6, 0.0)
+    replacement = Store(tmp_path / "backup.sqlite")
+    replacement.begin_move(42e-6, 0.0)
+    replacement.close()
+    os.replace(tmp_path / "backup.sqlite", path)
+    store.close()
+    assert _targets(path) == [42e-6]
+    (saved,) = _saved_beside(path)
+    assert _targets(saved) == [0.0, 1e-6, 2e-6]
+
+
+def test_a_database_moved_back_is_written_again(tmp_path: Path) -> None:
+    path = tmp_path / "feeder.sqlite"
+    store = Store(path)
+    store.begin_move(1e-6, 0.0)
+    path.rename(tmp_path / "elsewhere.sqlite")
+    with pytest.raises(StoreError, match="removed or moved away"):
+        store.save_position(1e-6)
+    (tmp_path / "elsewhere.sqlite").rename(path)
+    store.save_position(2e-6)  # the same file again: written
+    store.close()
+    kept = Store(path)
+    position = kept.position()
+    kept.close()
+    assert position is not None and position.position_m == 2e-6
+
+
+class _Loop:
+    """What MoveRecords reads of the control loop: the position and what has been learned."""
+
+    reading = None
+    position_m = 0.0
+
+    def __init__(self) -> None:
+        self.learned: dict[str, StepEstimate] = {}
+        self.response: dict[str, object] = {}
+
+    def estimates(self) -> dict[str, StepEstimate]:
+        return dict(self.learned)
+
+    def estimates_json(self) -> dict[str, object]:
+        return dict(self.response)
+
+
+def test_steps_learned_during_a_move_outlive_the_daemon_killed_before_its_end(tmp_path: Path) -> None:
+    """They were stored only at the move's end: a daemon killed mid-move lost them."""
+    path = tmp_path / "feeder.sqlite"
+    store = Store(path)
+    records = MoveRecords(store, "k", pose_control=False)
+    loop = _Loop()
+    job = Job("move", target_m=800e-6)
+    records.begin(job, loop)  # type: ignore[arg-type]
+    loop.learned = {"coarse/forward": StepEstimate(3.05e-6, 4e-16, 60, 0.2e-6, 1e-15, -1e-16),
+                    "coarse/backward": StepEstimate(2.6e-6, 1e-14, 0)}  # fmt: skip
+    job.steps, job.bursts = 120, 2
+    records.progress(job)  # the second burst commanded; then the daemon is killed
+    store.close()
+
+    again = Store(path)
+    assert again.interrupt_running_moves() == [job.record_id]
+    restored = MoveRecords(again, "k", pose_control=False).restored_estimates()
+    (move,) = again.moves()
+    again.close()
+    assert set(restored) == {"coarse/forward"}  # a step never observed is not stored
+    assert restored["coarse/forward"] == StepEstimate(3.05e-6, 4e-16, 60, 0.2e-6, 1e-15, -1e-16)
+    assert (move["status"], move["steps"], move["bursts"]) == ("interrupted", 120, 2)
+
+
+def test_the_response_learned_during_a_pose_move_outlives_the_daemon(tmp_path: Path) -> None:
+    path = tmp_path / "feeder.sqlite"
+    store = Store(path)
+    records = MoveRecords(store, "k", pose_control=True)
+    loop = _Loop()
+    job = Job("calibrate")  # no move record: what it learns is kept all the same
+    records.begin(job, loop)  # type: ignore[arg-type]
+    loop.response = {"gains": {"x/+/coarse/step": {"gain": [3.1e-6], "bursts": 4}}}
+    records.progress(job)
+    loop.response = {"gains": {"x/+/coarse/step": {"gain": [float("nan")], "bursts": 5}}}
+    records.progress(job)  # not a number: not stored, the last one stays
+    store.close()
+    again = Store(path)
+    kept = MoveRecords(again, "k", pose_control=True).restored_pose_response()
+    again.close()
+    assert kept == {"key": "k", "gains": {"x/+/coarse/step": {"gain": [3.1e-6], "bursts": 4}}}

@@ -50,6 +50,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("simulate", "simulate a part stepping on the plate"),
     "plan": ("plan", "plan a move: waveform, steps, predicted step and band"),
     "daemon": ("daemon", "run the control daemon (no config: the simulated plane, x, y and θ)"),
+    "state": ("state", "back up the daemon's state database (safe while it runs), or restore one"),
     "demo": ("demo", "closed-loop positioning on a simulated amplifier"),
     "vision": ("vision", "pose of parts from camera images, camera frames, calibration"),
     "sweep": ("sweep", "parameter sweep on Dask (local cluster or a scheduler), to Parquet"),

@@ -19,7 +19,7 @@ from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, embedded_
 from feeder.daemon.config_file import load_config
 from feeder.daemon.launcher import LaunchError
 from feeder.daemon.links import hardware_sensor, spawn_simulator
-from feeder.daemon.store import StoreError, check_state_file, move_aside
+from feeder.daemon.state_files import StoreError, check_state_file, move_aside
 from feeder.drivers.amplifier import AmplifierError
 from feeder.drivers.sensor import CameraError, SensorLost
 from feeder.errors import InputError

@@ -3,6 +3,7 @@ the learned pose response) under the calibration key, and every move from start 
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -30,6 +31,7 @@ class MoveRecords:
         self.store = store
         self.calibration_key = calibration_key
         self.pose_control = pose_control
+        self._loop: ControlLoop | None = None  # the loop the jobs run on (from :meth:`begin`)
 
     def _key(self, mode_direction: str) -> str:
         return f"{self.calibration_key}/{mode_direction}"
@@ -60,26 +62,26 @@ class MoveRecords:
         if self.pose_control:
             self.store.save_pose_response({"key": self.calibration_key, **loop.estimates_json()})
             return
+        for cal in self._learned_steps(loop, report=True):
+            self.store.save_calibration(cal)
+
+    def _learned_steps(self, loop: ControlLoop, report: bool) -> list[Calibration]:
+        """The steps learned so far (those observed at least once), as rows; one that is not a
+        number is left out (logged when ``report``)."""
         now = time.time()
+        out = []
         for name, est in loop.estimates().items():
             if not est.finite:
-                log.error("not stored: the step learned for %s is not a number (%r)", name, est)
+                if report:
+                    log.error("not stored: the step learned for %s is not a number (%r)", name, est)
             elif est.steps > 0:
-                self.store.save_calibration(
-                    Calibration(
-                        self._key(name),
-                        est.step_m,
-                        est.variance_m2,
-                        est.steps,
-                        now,
-                        est.offset_m,
-                        est.offset_variance_m2,
-                        est.covariance_m2,
-                    )
-                )
+                out.append(Calibration(self._key(name), est.step_m, est.variance_m2, est.steps, now,
+                                       est.offset_m, est.offset_variance_m2, est.covariance_m2))  # fmt: skip
+        return out
 
     def begin(self, job: Job, loop: ControlLoop) -> None:
         """A move is recorded ``running`` before its first step (a daemon killed mid-move finds it)."""
+        self._loop = loop
         if job.kind == "move" and job.target_m is not None:
             reading = loop.reading
             start = None if reading is None or job.target_pose is None else reading[job.part - 1]
@@ -92,9 +94,23 @@ class MoveRecords:
             )
 
     def progress(self, job: Job) -> None:
-        """The steps and bursts commanded so far (a move a killed daemon leaves shows them)."""
-        if job.record_id is not None:
-            self.store.progress_move(job.record_id, steps=job.steps, bursts=job.bursts)
+        """At each burst commanded, in one transaction: the steps and bursts commanded so far and
+        the steps (in the plane: the response) learned so far, so that a move or calibration a
+        killed daemon leaves behind shows what it had commanded and keeps what it had learned."""
+        loop = self._loop
+        learned: list[Calibration] = []
+        response = None
+        if loop is not None and self.pose_control:
+            response = {"key": self.calibration_key, **loop.estimates_json()}
+        elif loop is not None:
+            learned = self._learned_steps(loop, report=False)
+        save = functools.partial(self.store.save_progress, job.record_id, steps=job.steps,
+                                 bursts=job.bursts, calibrations=learned)  # fmt: skip
+        try:
+            save(pose_response=response)
+        except ValueError as err:  # a response that is not a number: the stored one stays
+            log.debug("the response learned so far is not stored: %s", err)
+            save()
 
     def finish(self, job: Job, result: JobResult, loop: ControlLoop) -> None:
         """The learned steps, and the move's end (status, reason, where it ended)."""

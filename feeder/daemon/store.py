@@ -4,141 +4,44 @@ WAL journal, ``synchronous=FULL``, every change in one transaction: a process
 killed with SIGKILL (or a power cut) leaves the database at its last committed
 transaction.  One connection guarded by a lock, so the control loop and the
 socket threads can share a :class:`Store`.
+
+The file the store opened must stay the one at its path: each write first checks
+that the path still names it (its device and inode; one ``stat``).  A database removed,
+moved away or replaced while open is written no more (:class:`StoreError`): what the
+store held is saved beside it (:func:`copy_database`), and its WAL is emptied into the
+file it has open, so neither a replacement nor a new database at that path ever takes in
+the old one's WAL.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import os
 import sqlite3
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from feeder.errors import FeederError
+from feeder.daemon.state_files import StoreError, check_state_file, copy_database, file_id, free_name
+from feeder.daemon.store_schema import (
+    ADDED_IN_4,
+    CALIBRATION_COLUMNS,
+    MIGRATE_1_TO_2,
+    MIGRATE_2_TO_3,
+    MOVE_COLUMNS,
+    POSE_COLUMNS,
+    SCHEMA,
+    SCHEMA_VERSION,
+)
 from feeder.pose import Pose
 
-SCHEMA_VERSION = 4
-
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (
-    key TEXT PRIMARY KEY,
-    value TEXT NOT NULL
-);
-CREATE TABLE IF NOT EXISTS calibration (
-    key TEXT PRIMARY KEY,
-    step_m REAL NOT NULL,
-    variance_m2 REAL NOT NULL,
-    steps INTEGER NOT NULL,
-    updated_s REAL NOT NULL,
-    offset_m REAL NOT NULL DEFAULT 0,
-    offset_variance_m2 REAL NOT NULL DEFAULT 0,
-    covariance_m2 REAL NOT NULL DEFAULT 0
-);
-CREATE TABLE IF NOT EXISTS moves (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    started_s REAL NOT NULL,
-    finished_s REAL,
-    start_m REAL,
-    target_m REAL NOT NULL,
-    reached_m REAL,
-    error_m REAL,
-    steps INTEGER NOT NULL DEFAULT 0,
-    bursts INTEGER NOT NULL DEFAULT 0,
-    status TEXT NOT NULL,
-    reason TEXT NOT NULL DEFAULT '',
-    step_forward_m REAL,
-    step_backward_m REAL,
-    steps_estimated INTEGER NOT NULL DEFAULT 0,
-    part INTEGER,
-    target_pose TEXT,
-    start_pose TEXT,
-    reached_pose TEXT,
-    error_rad REAL
-);
-CREATE TABLE IF NOT EXISTS position (
-    id INTEGER PRIMARY KEY CHECK (id = 1),
-    position_m REAL NOT NULL,
-    updated_s REAL NOT NULL,
-    poses TEXT
-);
-CREATE TABLE IF NOT EXISTS pose_response (
-    id INTEGER PRIMARY KEY CHECK (id = 1),
-    estimates TEXT NOT NULL,
-    updated_s REAL NOT NULL
-);
-CREATE TABLE IF NOT EXISTS camera_calibration (
-    id INTEGER PRIMARY KEY CHECK (id = 1),
-    calibration TEXT NOT NULL,
-    updated_s REAL NOT NULL
-);
-"""
-
-_MIGRATE_1_TO_2 = """
-BEGIN IMMEDIATE;
-ALTER TABLE calibration ADD COLUMN offset_m REAL NOT NULL DEFAULT 0;
-ALTER TABLE calibration ADD COLUMN offset_variance_m2 REAL NOT NULL DEFAULT 0;
-ALTER TABLE calibration ADD COLUMN covariance_m2 REAL NOT NULL DEFAULT 0;
-UPDATE calibration SET offset_variance_m2 = 0.25 * step_m * step_m;
-UPDATE meta SET value = '2' WHERE key = 'schema_version';
-COMMIT;
-"""
-"""Version 2 learns a per-burst offset beside the step; old rows get the seed's offset prior."""
-
-_MIGRATE_2_TO_3 = """
-BEGIN IMMEDIATE;
-{alter}
-UPDATE meta SET value = '3' WHERE key = 'schema_version';
-COMMIT;
-"""
-"""Version 3 marks moves whose step count was estimated from time (a stop cut a burst on a
-drive that counts no steps, e.g. the ANC300)."""
-
-_ADDED_IN_4 = (
-    ("moves", "part", "INTEGER"),
-    ("moves", "target_pose", "TEXT"),
-    ("moves", "start_pose", "TEXT"),
-    ("moves", "reached_pose", "TEXT"),
-    ("moves", "error_rad", "REAL"),
-    ("position", "poses", "TEXT"),
-)
-"""Version 4 records poses (x_m, y_m, psi_rad as JSON) beside the x positions, and the pose
-planner's learned response (table ``pose_response``, created by the schema)."""
-
-CALIBRATION_COLUMNS = (
-    "key, step_m, variance_m2, steps, updated_s, offset_m, offset_variance_m2, covariance_m2"
-)
-
-MOVE_COLUMNS = (
-    "id",
-    "started_s",
-    "finished_s",
-    "start_m",
-    "target_m",
-    "reached_m",
-    "error_m",
-    "steps",
-    "bursts",
-    "status",
-    "reason",
-    "step_forward_m",
-    "step_backward_m",
-    "steps_estimated",
-    "part",
-    "target_pose",
-    "start_pose",
-    "reached_pose",
-    "error_rad",
-)
-_POSE_COLUMNS = ("target_pose", "start_pose", "reached_pose")
-
-
-class StoreError(FeederError, RuntimeError):
-    """The state database is unusable (corrupt, newer schema, not a database)."""
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -172,6 +75,9 @@ class Store:
         self.path = Path(path)
         self.path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         self._lock = threading.Lock()
+        self._file_id: tuple[int, int] | None = None  # the open file's (st_dev, st_ino)
+        self._lost: str | None = None  # why writes are refused: the path names another file, or none
+        self._closed = False
         existed = self.path.exists()
         if existed:
             check_state_file(self.path)
@@ -181,6 +87,9 @@ class Store:
             self._conn = sqlite3.connect(
                 str(self.path), timeout=10.0, isolation_level=None, check_same_thread=False
             )
+            self._file_id = file_id(self.path)
+            if self._file_id is None:
+                raise StoreError(f"{self.path}: removed while it was being opened")
             ok = self._conn.execute("PRAGMA quick_check").fetchone()[0]
             if ok != "ok":
                 raise StoreError(f"{self.path}: integrity check failed: {ok}")
@@ -192,7 +101,7 @@ class Store:
                 )
             self._conn.execute("PRAGMA journal_mode=WAL")  # writes the header: ours only
             self._conn.execute("PRAGMA synchronous=FULL")
-            self._conn.executescript("BEGIN IMMEDIATE;" + _SCHEMA + "COMMIT;")
+            self._conn.executescript("BEGIN IMMEDIATE;" + SCHEMA + "COMMIT;")
             version = self._meta("schema_version")
             if version is not None and not version.isdigit():
                 raise StoreError(
@@ -204,7 +113,7 @@ class Store:
                 raise StoreError(f"{self.path}: schema version {version} is newer than this feeder")
             else:
                 if int(version) == 1:
-                    self._conn.executescript(_MIGRATE_1_TO_2)
+                    self._conn.executescript(MIGRATE_1_TO_2)
                 if int(version) <= 2:
                     columns = {r[1] for r in self._conn.execute("PRAGMA table_info(moves)")}
                     alter = (
@@ -212,12 +121,14 @@ class Store:
                         if "steps_estimated" in columns
                         else "ALTER TABLE moves ADD COLUMN steps_estimated INTEGER NOT NULL DEFAULT 0;"
                     )
-                    self._conn.executescript(_MIGRATE_2_TO_3.format(alter=alter))
+                    self._conn.executescript(MIGRATE_2_TO_3.format(alter=alter))
                 if int(version) <= 3:
                     self._migrate_to_4()
             self._check_columns()
         except sqlite3.DatabaseError as err:
             raise StoreError(f"{self.path}: {err}") from err
+        except OSError as err:  # the file gone between its creation and its stat
+            raise StoreError(f"{self.path}: {err.strerror or err}") from None
         try:
             for path in (self.path, *(self.path.with_name(self.path.name + s) for s in ("-wal", "-shm"))):
                 with contextlib.suppress(FileNotFoundError):
@@ -228,7 +139,7 @@ class Store:
     def _migrate_to_4(self) -> None:
         with self._conn:
             self._conn.execute("BEGIN IMMEDIATE")
-            for table, column, kind in _ADDED_IN_4:
+            for table, column, kind in ADDED_IN_4:
                 columns = {r[1] for r in self._conn.execute(f"PRAGMA table_info({table})")}
                 if column not in columns:
                     self._conn.execute(f"ALTER TABLE {table} ADD COLUMN {column} {kind}")
@@ -239,7 +150,7 @@ class Store:
         :data:`SCHEMA_VERSION` but lacks them failed later, mid-start, with a traceback)."""
         probe = sqlite3.connect(":memory:")
         try:
-            probe.executescript(_SCHEMA)
+            probe.executescript(SCHEMA)
             for (table,) in probe.execute("SELECT name FROM sqlite_master WHERE type = 'table'").fetchall():
                 wanted = {r[1] for r in probe.execute(f"PRAGMA table_info({table})")}
                 have = {r[1] for r in self._conn.execute(f"PRAGMA table_info({table})")}
@@ -260,10 +171,70 @@ class Store:
 
     # -- plumbing ---------------------------------------------------------
     def _write(self, sql: str, params: tuple[Any, ...] = ()) -> sqlite3.Cursor:
-        """One statement in its own IMMEDIATE transaction."""
-        with self._lock, self._conn:  # COMMIT on success, ROLLBACK on any error
-            self._conn.execute("BEGIN IMMEDIATE")
-            return self._conn.execute(sql, params)
+        """One statement in its own IMMEDIATE transaction (the file checked first)."""
+        with self._lock:
+            self._check_file()
+            with self._conn:  # COMMIT on success, ROLLBACK on any error
+                self._conn.execute("BEGIN IMMEDIATE")
+                return self._conn.execute(sql, params)
+
+    def _write_all(self, statements: Sequence[tuple[str, tuple[Any, ...]]]) -> None:
+        """Several statements in one IMMEDIATE transaction: all of them or none."""
+        with self._lock:
+            self._check_file()
+            with self._conn:
+                self._conn.execute("BEGIN IMMEDIATE")
+                for sql, params in statements:
+                    self._conn.execute(sql, params)
+
+    def _check_file(self) -> None:
+        """Raise :class:`StoreError` unless :attr:`path` still names the file this store has
+        open (caller holds the lock).  The first time it does not, what the store holds is
+        saved beside it and its WAL emptied into its own file (:meth:`_set_aside`)."""
+        if self._file_id is None:  # still opening: the file is the one just opened
+            return
+        try:
+            now = file_id(self.path)
+        except OSError as err:  # the folder unreadable: cannot tell, do not write
+            raise StoreError(f"{self.path}: {err.strerror or err}") from None
+        if now == self._file_id:
+            self._lost = None  # moved back: the same file again
+            return
+        if self._lost is None:
+            self._lost = self._set_aside(replaced=now is not None)
+        raise StoreError(self._lost)
+
+    def _set_aside(self, replaced: bool) -> str:
+        """The database at :attr:`path` is gone or another: save what the store holds to
+        ``NAME.TIMESTAMP.bak`` beside it, empty the store's WAL into the file it has open (never
+        the new one: a WAL left at the path would be applied to whatever is there at its next
+        open), and return the reason writes are refused."""
+        what = "replaced by another file" if replaced else "removed or moved away"
+        try:
+            saved = free_name(self.path.with_name(f"{self.path.name}.{time.strftime('%Y%m%dT%H%M%S')}.bak"))
+            copy_database(self._conn, saved, check=False)  # all there is
+            kept = f"what it held is saved beside it as {saved.name}"
+        except (OSError, sqlite3.Error) as err:
+            kept = f"what it held could not be saved beside it: {err}"
+        self._empty_wal()
+        reason = (
+            f"{self.path}: the state database was {what} while the daemon had it open; "
+            f"not written any more ({kept}); restart the daemon to "
+            + ("use the new file" if replaced else "start a new one")
+        )
+        log.error("%s", reason)
+        return reason
+
+    def _empty_wal(self) -> None:
+        """Checkpoint the WAL into the file this connection has open and truncate it."""
+        try:
+            busy, frames, done = self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+        except sqlite3.Error as err:
+            log.error("%s: the WAL could not be emptied into the file open here: %s", self.path, err)
+            return
+        if busy or frames != done:
+            log.error("%s: the WAL could not be emptied (a reader holds it): %d of %d frames", self.path,
+                      done, frames)  # fmt: skip
 
     def _read(self, sql: str, params: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
         with self._lock:
@@ -277,7 +248,15 @@ class Store:
         self._write("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, value))
 
     def close(self) -> None:
+        """Close the database.  Should its file have been removed or replaced meanwhile, what the
+        store held is saved beside it first and its WAL emptied into its own file
+        (:meth:`_check_file`): nothing is left for a new file at the path to take in."""
         with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            with contextlib.suppress(StoreError):  # logged where it is found
+                self._check_file()
             self._conn.close()
 
     def integrity_ok(self) -> bool:
@@ -286,19 +265,7 @@ class Store:
 
     # -- calibration ------------------------------------------------------
     def save_calibration(self, cal: Calibration) -> None:
-        self._write(
-            f"INSERT OR REPLACE INTO calibration ({CALIBRATION_COLUMNS}) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-            (
-                cal.key,
-                cal.step_m,
-                cal.variance_m2,
-                cal.steps,
-                cal.updated_s,
-                cal.offset_m,
-                cal.offset_variance_m2,
-                cal.covariance_m2,
-            ),
-        )
+        self._write(*_calibration_row(cal))
 
     def calibration(self, key: str) -> Calibration | None:
         rows = self._read(f"SELECT {CALIBRATION_COLUMNS} FROM calibration WHERE key = ?", (key,))
@@ -367,12 +334,35 @@ class Store:
 
     def progress_move(self, move_id: int, *, steps: int, bursts: int) -> None:
         """A running move's steps and bursts commanded so far."""
-        self._write("UPDATE moves SET steps = ?, bursts = ? WHERE id = ? AND status = 'running'",
-                    (steps, bursts, move_id))  # fmt: skip
+        self.save_progress(move_id, steps=steps, bursts=bursts)
+
+    def save_progress(
+        self,
+        move_id: int | None,
+        *,
+        steps: int,
+        bursts: int,
+        calibrations: Sequence[Calibration] = (),
+        pose_response: dict[str, Any] | None = None,
+    ) -> None:
+        """In one transaction: a running move's steps and bursts so far (``move_id`` None: no
+        move record, e.g. a calibration) and what was learned so far, so that a daemon killed
+        mid-move keeps both.  ``pose_response`` with a value that is not a finite number is a
+        ValueError, before anything is written."""
+        statements: list[tuple[str, tuple[Any, ...]]] = []
+        if move_id is not None:
+            statements.append(("UPDATE moves SET steps = ?, bursts = ? WHERE id = ? AND status = 'running'",
+                               (steps, bursts, move_id)))  # fmt: skip
+        statements += [_calibration_row(cal) for cal in calibrations]
+        if pose_response is not None:
+            statements.append(_pose_response_row(pose_response))
+        if statements:
+            self._write_all(statements)
 
     def interrupt_running_moves(self) -> list[int]:
         """Mark moves left ``running`` by a killed daemon as ``interrupted``; their ids."""
         with self._lock:
+            self._check_file()
             self._conn.execute("BEGIN IMMEDIATE")
             ids = [
                 int(r[0])
@@ -412,10 +402,7 @@ class Store:
 
     # -- the pose planner's learned response ---------------------------------
     def save_pose_response(self, estimates: dict[str, Any]) -> None:
-        self._write(
-            "INSERT OR REPLACE INTO pose_response (id, estimates, updated_s) VALUES (1, ?, ?)",
-            (json.dumps(estimates, allow_nan=False), time.time()),
-        )
+        self._write(*_pose_response_row(estimates))
 
     def pose_response(self) -> dict[str, Any] | None:
         rows = self._read("SELECT estimates FROM pose_response WHERE id = 1")
@@ -437,6 +424,29 @@ class Store:
         return {**json.loads(rows[0][0]), "updated_s": rows[0][1]}
 
 
+def _calibration_row(cal: Calibration) -> tuple[str, tuple[Any, ...]]:
+    return (
+        f"INSERT OR REPLACE INTO calibration ({CALIBRATION_COLUMNS}) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+        (
+            cal.key,
+            cal.step_m,
+            cal.variance_m2,
+            cal.steps,
+            cal.updated_s,
+            cal.offset_m,
+            cal.offset_variance_m2,
+            cal.covariance_m2,
+        ),
+    )
+
+
+def _pose_response_row(estimates: dict[str, Any]) -> tuple[str, tuple[Any, ...]]:
+    return (
+        "INSERT OR REPLACE INTO pose_response (id, estimates, updated_s) VALUES (1, ?, ?)",
+        (json.dumps(estimates, allow_nan=False), time.time()),
+    )
+
+
 def _pose_json(pose: Pose | None) -> str | None:
     """[x, y, angle] as JSON; a NaN angle (any angle) as null."""
     if pose is None:
@@ -447,43 +457,6 @@ def _pose_json(pose: Pose | None) -> str | None:
 def _move_row(row: tuple[Any, ...]) -> dict[str, Any]:
     out = dict(zip(MOVE_COLUMNS, row, strict=True))
     out["steps_estimated"] = bool(out["steps_estimated"])
-    for key in _POSE_COLUMNS:
+    for key in POSE_COLUMNS:
         out[key] = None if out[key] is None else json.loads(out[key])
     return out
-
-
-SQLITE_HEADER = b"SQLite format 3\x00"
-
-
-def check_state_file(path: Path) -> None:
-    """Refuse a state file that is not an SQLite database (empty, truncated, foreign), with
-    :class:`StoreError` naming it; the file is left untouched."""
-    try:
-        with open(path, "rb") as handle:
-            header = handle.read(100)
-    except OSError as err:
-        raise StoreError(f"{path}: cannot read: {err}") from None
-    if not header:
-        raise StoreError(
-            f"{path}: empty file (a truncated state database?); refusing to start "
-            "(feeder daemon --reset-state moves it aside)"
-        )
-    if not header.startswith(SQLITE_HEADER) or len(header) < 100:
-        raise StoreError(
-            f"{path}: not an SQLite database; refusing to start (feeder daemon --reset-state moves it aside)"
-        )
-
-
-def move_aside(path: Path) -> Path | None:
-    """Rename the state database (and its WAL/SHM files) to ``NAME.YYYYmmddTHHMMSS.bak``;
-    returns the new name, or None when there was nothing to move."""
-    if not path.exists():
-        return None
-    stamp = time.strftime("%Y%m%dT%H%M%S")
-    target = path.with_name(f"{path.name}.{stamp}.bak")
-    for suffix in ("-wal", "-shm"):
-        side = path.with_name(path.name + suffix)
-        if side.exists():
-            side.replace(target.with_name(target.name + suffix))
-    path.replace(target)
-    return target
