@@ -474,9 +474,9 @@ def test_a_dead_simulators_link_is_not_reopened_to_ground_it(short_dir: Path) ->
         dead = type("Process", (), {"pid": 4321, "returncode": -9})()
         links.simulator = type("Simulator", (), {"alive": lambda _: False, "process": dead})()  # type: ignore[attr-defined]
         grounds = links.amplifiers[0].calls.count("ground")
-        assert daemon._ground_lost_link().startswith("not grounded")
+        assert daemon.link_recovery.ground_lost_link().startswith("not grounded")
         assert links.amplifiers[0].calls.count("ground") == grounds
         links.simulator = None  # type: ignore[attr-defined]
-        assert daemon._ground_lost_link() == "output grounded"  # hardware: through the link
+        assert daemon.link_recovery.ground_lost_link() == "output grounded"  # hardware: through the link
     finally:
         daemon.shutdown()

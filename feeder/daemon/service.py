@@ -1,17 +1,13 @@
-"""The daemon: control loop + state database + move queue + fault recovery.
+"""The daemon: control loop + state database + move queue, its links recovered when lost.
 
 Requests come over the owner-only Unix socket of :mod:`feeder.daemon.socket_server` and are
 answered by :mod:`feeder.daemon.requests`; one move at a time (a second is refused with the
 reason, or queued with ``"queue": true``).
 
-Faults: a lost amplifier link ends the move (``fault``), the output is grounded
-where the link still allows it, and a background thread reconnects with
-exponential backoff; the new link is grounded and the daemon waits for the next
-command (no move resumes by itself).  A lost sensor stops the move and is
-reconnected the same way; it is back only once it delivers a reading
-(:mod:`~feeder.daemon.reconnect`).  Moves are recorded as ``running`` before the first
-step; a daemon killed mid-move finds them on restart and marks them
-``interrupted``, and reports the position as ``uncertain`` until the sensor
+Faults: a lost amplifier link or sensor ends the move (``fault``) and is reconnected in the
+background (:mod:`~feeder.daemon.link_recovery`); no move resumes by itself.  Moves are
+recorded as ``running`` before the first step; a daemon killed mid-move finds them on restart
+and marks them ``interrupted``, and reports the position as ``uncertain`` until the sensor
 confirms it.
 """
 
@@ -22,7 +18,6 @@ import contextlib
 import fcntl
 import logging
 import os
-import subprocess
 import threading
 import time
 from collections.abc import Callable
@@ -33,25 +28,27 @@ from typing import IO, Any, Protocol
 from feeder.daemon.camera_moves import LoopPoses, PlateMoves, stop_on_hang_up, summary
 from feeder.daemon.control_loop import ControlLoop, Job, JobResult, LoopSettings, Navigator, StepMode
 from feeder.daemon.executor import per_axis
+from feeder.daemon.jobs import Reading
+from feeder.daemon.link_recovery import LinkRecovery, release_amplifiers
 from feeder.daemon.located_calibration import STORED, LocatedCalibration
 from feeder.daemon.move_records import MoveRecords
 from feeder.daemon.quiet_window import QuietWindow
-from feeder.daemon.reconnect import Outage, first_reading
 from feeder.daemon.requests import answer
 from feeder.daemon.socket_server import SocketServer
 from feeder.daemon.status_report import loop_status, waveforms_status
 from feeder.daemon.store import Store
 from feeder.drivers.amplifier import Amplifier, AmplifierLinkLost
-from feeder.drivers.sensor import PositionSensor, SensorLost
+from feeder.drivers.sensor import PositionSensor
 from feeder.errors import FeederError, InputError
 from feeder.vision.calibration import CameraCalibration
 from feeder.vision.offset_moves import MovesStopped, OffsetMoves, measure
 
 log = logging.getLogger(__name__)
 
-SIMULATOR_EXIT_S = 0.2
-"""How long a lost link waits for the embedded simulator's exit to be known, to name it as the
-cause (the camera's socket closes a moment before the process can be reaped)."""
+CAMERA_MOVES_END_S = 5.0
+"""How long the shutdown waits for a camera calibration it stopped to end (its moves stop within
+an increment or the frames being averaged, then ground every axis; a finished one is stored)
+before it closes the links and the store under it."""
 
 
 class Links(Protocol):
@@ -122,9 +119,9 @@ class Daemon:
         self._queue: collections.deque[Job] = collections.deque()
         self._stops = 0  # stop requests so far: a job taken before one is not handed to the loop
         self._clients = 0
-        self._faults: list[dict[str, Any]] = []
-        self._reconnecting: set[str] = set()
         self._camera_moves: threading.Event | None = None  # a camera calibration runs; set: stop it
+        self._camera_moves_ended = threading.Event()  # clear while a camera calibration runs
+        self._camera_moves_ended.set()
         self._camera_progress: str | None = None  # what its moves are doing now
         self._state_lock = lock_state(setup.database_path)
         with contextlib.ExitStack() as undo:  # on failure: release what was opened
@@ -137,6 +134,8 @@ class Daemon:
             undo.callback(self.store.close)
             self.records = MoveRecords(self.store, setup.calibration_key, setup.pose_navigator is not None)
             self.interrupted_moves = self.store.interrupt_running_moves()
+            known = self.store.position()
+            self._last_known_position_m = None if known is None else known.position_m
             if self.interrupted_moves:  # said at the start, not only in status
                 log.warning(
                     "move(s) %s were interrupted by the daemon's end (a crash or kill): recorded "
@@ -146,8 +145,8 @@ class Daemon:
             # a bad stored camera calibration is refused before the hardware is touched
             self.camera_calibration = LocatedCalibration(links.configured_calibration, self.store)
             amplifiers = per_axis(links.open_amplifier())
-            self._amplifier_generation = getattr(links, "respawns", 0)
-            undo.callback(_close, amplifiers)
+            respawns_when_opened = getattr(links, "respawns", 0)  # opening the sensor may respawn
+            undo.callback(release_amplifiers, amplifiers)
             for amplifier in amplifiers.values():
                 amplifier.ground()
             try:
@@ -171,11 +170,22 @@ class Daemon:
                 estimates=self.records.restored_estimates(),
                 axis_modes=setup.axis_modes,
                 navigator=navigator,
-                on_position=self.store.save_position,
-                on_fault=self._on_fault,
-                cause_of_loss=self._simulator_died,
+                on_position=self._save_position,
                 sensor_timeout_s=setup.sensor_timeout_s,
             )
+            self.link_recovery = LinkRecovery(
+                links,
+                self.loop,
+                self.camera_calibration,
+                respawns_when_opened=respawns_when_opened,
+                sensor_timeout_s=setup.sensor_timeout_s,
+                lock=self._lock,
+                stopping=self._stopping,
+                take_queue=self._take_queue,
+                refuse=self._refuse_queued,
+            )
+            self.loop.on_fault = self.link_recovery.link_lost
+            self.loop.cause_of_loss = self.link_recovery.simulator_died
             undo.pop_all()
 
     # -- life cycle --------------------------------------------------------
@@ -207,20 +217,48 @@ class Daemon:
 
     def _shut_down(self) -> None:
         with self._lock:
-            queued, self._queue = list(self._queue), collections.deque()
+            queued = self._take_queue()
         for job in queued:
             self._refuse_queued(job, "daemon shutting down")
+        self._wait_for_camera_moves()
         self.loop.shutdown()
         for amplifier in self.loop.amplifiers.values():
             with contextlib.suppress(FeederError, OSError):  # a dead link must not stop the shutdown
                 amplifier.ground()
         with contextlib.suppress(FeederError, OSError):
-            _close(self.loop.amplifiers)
+            release_amplifiers(self.loop.amplifiers)
         self._server.close()
         self.store.close()
         self._state_lock.close()
 
+    def _wait_for_camera_moves(self) -> None:
+        """Let a camera calibration the shutdown stopped end (grounding its axes, storing what it
+        finished) before its amplifiers, camera and store are closed; at most
+        :data:`CAMERA_MOVES_END_S`."""
+        if self._camera_moves_ended.is_set():
+            return
+        log.info("shutdown: waiting up to %g s for the camera calibration's moves to end", CAMERA_MOVES_END_S)
+        if not self._camera_moves_ended.wait(CAMERA_MOVES_END_S):
+            log.warning(
+                "shutdown: the camera calibration did not end within %g s of its stop; closing its "
+                "amplifiers, camera and store under it",
+                CAMERA_MOVES_END_S,
+            )
+
     # -- jobs ----------------------------------------------------------------
+    def _save_position(self, position_m: float, poses: Reading) -> None:
+        """The loop's ``on_position`` (on its record writer's thread): stored, then kept for
+        ``status``, which reads no store: a write in flight holds the store (on a database another
+        program has locked, for SQLite's busy timeout), and ``status`` is a waiting move's
+        heartbeat (:mod:`~feeder.daemon.client`)."""
+        self.store.save_position(position_m, poses)
+        self._last_known_position_m = position_m
+
+    def _take_queue(self) -> list[Job]:
+        """Empty the queue (holding ``_lock``): the jobs that were in it, to refuse."""
+        queued, self._queue = list(self._queue), collections.deque()
+        return queued
+
     def _refuse_queued(self, job: Job, reason: str) -> None:
         log.warning("a queued %s was refused when its turn came: %s", job.kind, reason)
         job.result = JobResult(job.kind, "refused", reason, job.target_m, None, None, 0, 0, 0.0, {})
@@ -296,116 +334,6 @@ class Daemon:
             pass
         return None
 
-    # -- faults ----------------------------------------------------------------
-    def _simulator_died(self, wait_s: float = 0.0) -> str | None:
-        """That the embedded simulator behind the links died, or None (alive, or hardware);
-        ``wait_s``: how long to wait for its exit (a dying process closes its sockets, which
-        the links notice, a moment before it can be reaped)."""
-        simulator = getattr(self.links, "simulator", None)
-        if simulator is None:
-            return None
-        if wait_s > 0 and simulator.alive():
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                simulator.process.wait(timeout=wait_s)
-        if simulator.alive():
-            return None
-        code = simulator.process.returncode
-        return f"the embedded simulator (firmware_sim, pid {simulator.process.pid}) died (exit code {code})"
-
-    def _ground_lost_link(self) -> str:
-        """Ground every axis where the lost amplifier link still answers (never through a stale
-        simulator pty: another program may own that path now); what became of the output."""
-        # the simulator's death is known before the respawn that counts it: its pty path is
-        # already free for another program to take
-        respawned = getattr(self.links, "respawns", 0) != self._amplifier_generation
-        if respawned or self._simulator_died() is not None:
-            return "not grounded (a new simulator: the old one's output died with it)"
-        failed = []
-        for axis, amplifier in self.loop.amplifiers.items():
-            try:
-                amplifier.ground()
-            except (FeederError, OSError) as err:
-                failed.append(f"{axis}: {err}")
-        return f"the output could not be grounded ({'; '.join(failed)})" if failed else "output grounded"
-
-    def _on_fault(self, kind: str, message: str) -> None:
-        cause = self._simulator_died(SIMULATOR_EXIT_S)  # on this thread, not the tick's: it waits
-        if cause is not None and not message.startswith(cause):
-            message = f"{cause}: {message}"
-        if kind != "amplifier":  # the policy stops and grounds the output through the executor
-            log.error("%s link lost: %s; grounding the output, reconnecting", kind, message)
-        record: dict[str, Any] = {"link": kind, "message": message, "time_s": time.time()}
-        with self._lock:
-            self._faults.append(record)
-            del self._faults[:-20]
-            if kind in self._reconnecting or self._stopping.is_set():
-                if kind == "amplifier":
-                    log.error("amplifier link lost: %s (reconnecting already)", message)
-                return
-            self._reconnecting.add(kind)
-            queued, self._queue = list(self._queue), collections.deque()
-        for job in queued:
-            self._refuse_queued(job, f"{kind} lost: {message}")
-        if kind == "amplifier":  # ground where the link still allows it, then free the port
-            log.error("amplifier link lost: %s; %s, reconnecting", message, self._ground_lost_link())
-            with contextlib.suppress(FeederError, OSError):
-                _close(self.loop.amplifiers)
-        thread = threading.Thread(
-            target=self._reconnect, args=(kind, record), name=f"reconnect-{kind}", daemon=True
-        )
-        thread.start()
-
-    def _reconnect(self, kind: str, record: dict[str, Any]) -> None:
-        """Re-open the lost link with exponential backoff (:class:`.Outage`); progress goes into
-        ``record``."""
-        outage = Outage(kind, time.monotonic())
-        while not self._stopping.wait(outage.delay_s):
-            try:
-                if kind == "amplifier":
-                    amps = per_axis(self.links.open_amplifier())
-                    with contextlib.ExitStack() as undo:  # a link that cannot ground is closed
-                        undo.callback(_close, amps)
-                        for amp in amps.values():
-                            amp.ground()
-                        undo.pop_all()
-                    self.loop.replace_amplifier(amps)
-                    self._amplifier_generation = getattr(self.links, "respawns", 0)
-                else:
-                    self._reopen_sensor()
-            except Exception as err:
-                # this reconnect thread's one boundary: whatever stops a link from opening
-                # (drivers, python-can, the launcher) is logged now and then and retried with
-                # backoff; the thread must outlive it
-                line = outage.failed(str(err), time.monotonic())
-                if line is not None:
-                    log.log(logging.INFO if outage.attempts == 1 else logging.WARNING, "%s", line)
-                with self._lock:
-                    record["reconnect_attempts"] = outage.attempts
-                    record["last_error"] = f"{type(err).__name__}: {err}"
-                continue
-            line = outage.restored(time.monotonic())
-            with self._lock:
-                record["reconnected_after_attempts"] = outage.attempts
-            log.info("%s", line)
-            break
-        with self._lock:
-            self._reconnecting.discard(kind)
-        if getattr(self.links, "respawns", 0) != self._amplifier_generation:
-            # the simulator behind the amplifier link was restarted: that link is stale
-            self.loop.amplifier_lost("firmware_sim was restarted; reopening its new console")
-
-    def _reopen_sensor(self) -> None:
-        """Open the sensor again; it is the loop's (the fault over) only once it has delivered a
-        first reading: a link that opens but sends nothing raises :class:`SensorLost`."""
-        stored, calibration = self.camera_calibration.read()
-        sensor = self.links.open_sensor(calibration)
-        first = first_reading(sensor, self.setup.sensor_timeout_s)
-        if self._stopping.is_set():  # shut down meanwhile: the loop reads no more
-            sensor.close()
-            raise SensorLost("daemon shutting down")
-        self.loop.replace_sensor(sensor, first)
-        self.camera_calibration.use(stored, calibration)
-
     # -- requests ------------------------------------------------------------
     @property
     def quiet(self) -> QuietWindow:
@@ -442,7 +370,7 @@ class Daemon:
         moves: whether one was running, and how many were dequeued."""
         with self._lock:
             self._stops += 1  # a job being handed over meanwhile is refused (_submit)
-            queued, self._queue = list(self._queue), collections.deque()
+            queued = self._take_queue()
             camera_moves = self._camera_moves
             if camera_moves is not None:
                 camera_moves.set()
@@ -459,15 +387,26 @@ class Daemon:
         :func:`~feeder.vision.offset_moves.measure` (``saved``: whether it was stored);
         :class:`~feeder.errors.FeederError` with the reason it was refused or failed.  The
         moves stop, as on :meth:`stop`, once ``hung_up()``: the client that asked has gone
-        (:func:`~feeder.daemon.camera_moves.stop_on_hang_up`)."""
+        (:func:`~feeder.daemon.camera_moves.stop_on_hang_up`), and on :meth:`shutdown`, which
+        waits for them to end."""
         with self._submitting, self._lock:
             if self._camera_moves is not None:
                 raise FeederError("a camera calibration is running already")
             if self.loop.busy() or self._queue:
                 raise FeederError("a move is running or queued: calibrate the camera once it has ended")
-            if self._reconnecting or self._stopping.is_set():
+            if self.link_recovery.reconnecting or self._stopping.is_set():
                 raise FeederError("the daemon is reconnecting a link or shutting down")
             stop = self._camera_moves = threading.Event()
+            self._camera_moves_ended.clear()
+        try:
+            return self._calibrate_camera(moves, save, hung_up, stop)
+        finally:
+            self._camera_moves_ended.set()
+
+    def _calibrate_camera(
+        self, moves: OffsetMoves, save: bool, hung_up: Callable[[], bool], stop: threading.Event
+    ) -> dict[str, Any]:
+        """:meth:`camera_moves` once it is the one running (``stop``: set to stop its moves)."""
         try:
             configured = self.links.configured_calibration()
             assert configured is not None  # the requests check that the plane has a camera
@@ -505,14 +444,13 @@ class Daemon:
         the queue, the store, the camera's calibration and the links."""
         loop = self.loop
         with self._lock:
-            faults = [dict(f) for f in self._faults]
+            faults = [dict(f) for f in self.link_recovery.faults]
             queued = len(self._queue)
-            reconnecting = sorted(self._reconnecting)
+            reconnecting = sorted(self.link_recovery.reconnecting)
             camera_moves, camera_progress = self._camera_moves is not None, self._camera_progress
-        last_known = self.store.position()
         return {
             **loop_status(loop, self.setup.parts),
-            "last_known_position_m": None if last_known is None else last_known.position_m,
+            "last_known_position_m": self._last_known_position_m,
             "reconnecting": reconnecting,
             "faults": faults,
             "queued_moves": queued,
@@ -536,13 +474,3 @@ class Daemon:
         """What may change while running (a respawned simulator's pid and endpoints)."""
         describe = getattr(self.links, "describe", None)
         return describe() if callable(describe) else {}
-
-
-def _close(amplifiers: dict[str, Amplifier]) -> None:
-    """Release the drivers, outputs untouched (a group of axes on one link releases it once)."""
-    release = getattr(amplifiers, "release", None)
-    if callable(release):
-        release()
-        return
-    for amplifier in amplifiers.values():
-        amplifier.close()
