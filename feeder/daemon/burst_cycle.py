@@ -6,7 +6,8 @@ output last changed and the sensor's latency as seen.  After a burst (or a chang
 of the output) the part is measured once ``settle_s`` (stack ringing, sensor
 latency) or, if longer, the sensor's latency as seen
 (:class:`~feeder.daemon.sensor_latency.SensorLatency`) has passed,
-``average_samples`` fresh readings agree (the part settled in them) and, for a burst
+the last :func:`agreeing` fresh readings agree (the part settled in them; the last
+``average_samples`` of them are averaged) and, for a burst
 the navigator expects to move a part visibly, a reading showed that it moved: frames
 that lag behind the latency seen still show the part moving or not yet moved.  Up to
 :data:`~feeder.daemon.sensor_latency.MAX_SETTLE_S` more for that, then the part is
@@ -24,6 +25,17 @@ from feeder.daemon.line_navigator import mean_reading
 from feeder.daemon.navigator import Navigator, part_pose
 from feeder.daemon.sensor_latency import MAX_SETTLE_S, SensorLatency
 from feeder.daemon.step_estimator import FORWARD
+
+MIN_AGREEING = 2
+"""Fresh readings that must agree before the part is measured, however few are averaged: one
+reading cannot tell a part at rest from one still moving, and a frame exposed in a burst's tail
+can arrive after the settle time (a loaded machine delays the camera's frames beyond the
+latency seen so far): measured, it sent the next burst from where the part was passing."""
+
+
+def agreeing(settings: LoopSettings) -> int:
+    """How many of the latest fresh readings must agree before the part is measured."""
+    return max(MIN_AGREEING, settings.average_samples)
 
 
 def counter_difference(after: int, before: int) -> int:
@@ -166,16 +178,16 @@ class BurstCycle:
         """The parts' reading once they may be measured, having learned from the burst before it
         (``job``'s start when it is the first); None: wait."""
         s = self.settings
-        if now < self.settle_until or len(self.samples) < s.average_samples:
+        need = agreeing(s)
+        if now < self.settle_until or len(self.samples) < need:
             return None
         b = self.measured
         if b is not None and b.visible and not b.moved_seen and now < b.ended_s + MAX_SETTLE_S:
             return None  # the frames do not show the burst's motion yet (they lag more than seen): wait
-        recent = self.samples[-s.average_samples :]
-        steady = self.navigator.settled(recent)
+        steady = self.navigator.settled(self.samples[-need:])
         if not steady and now < self.settle_until + MAX_SETTLE_S:
             return None  # the frames still show the part moving (they lag behind the motion): wait
-        reading = mean_reading(recent)
+        reading = mean_reading(self.samples[-s.average_samples :])
         self.samples = []
         if job.start_m is None:
             job.start_pose = part_pose(job, reading)
@@ -206,10 +218,12 @@ class BurstCycle:
         return None
 
     def settled(self) -> Reading | None:
-        """The average of the last ``average_samples`` readings when they agree; None."""
-        recent = self.samples[-self.settings.average_samples :]
-        if len(recent) == self.settings.average_samples and self.navigator.settled(recent):
-            return mean_reading(recent)
+        """The average of the last ``average_samples`` readings when the last :func:`agreeing`
+        agree; None."""
+        need = agreeing(self.settings)
+        recent = self.samples[-need:]
+        if len(recent) == need and self.navigator.settled(recent):
+            return mean_reading(recent[-self.settings.average_samples :])
         return None
 
     def clear(self) -> None:

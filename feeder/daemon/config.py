@@ -311,7 +311,8 @@ waits 1.25 × the latency it sees when that is longer (:data:`~feeder.daemon.sen
 At 0.2 s and two frames averaged the demo's five poses took 37 s; at 0.1 s and one frame, 23 s."""
 PLANE_AVERAGE_FRAMES = 1
 """Frames averaged per measurement (15 frames/s; one frame's noise is ~0.015 µm as measured at
-rest (``status`` ``sensor_noise_seen_m``) and ~0.01°, far below the default tolerances)."""
+rest (``status`` ``sensor_noise_seen_m``) and ~0.01°, far below the default tolerances); two
+must agree all the same (:data:`~feeder.daemon.burst_cycle.MIN_AGREEING`)."""
 PLANE_TICK_WATCHDOG_S = 2.0
 """The simulated planar world's tick watchdog and the loop's grace for a burst's end: the
 planar plant runs in the firmware's tick (its slowest 1 ms tick: ~1 ms for one axis, 5.3 ms

@@ -17,14 +17,14 @@ States (:data:`STATES`):
 - ``moving``: a job is preparing the output or a burst is playing.
 - ``settling``: the burst is over; wait until the part may be measured
   (:mod:`feeder.daemon.burst_cycle`: ``settle_s`` or the sensor's latency as seen,
-  ``average_samples`` fresh readings that agree, the burst's motion seen), measure;
+  fresh readings that agree, at least two, the burst's motion seen), measure;
   learn, decide.  The navigator decides off the tick: the policy emits a
   :class:`~feeder.daemon.jobs.Decide`, the loop runs :meth:`Policy.decide` on a thread
   of its own, and the answer comes back through :meth:`Policy.on_decision` (one
   answered after the job ended is dropped).
 - ``holding``: the job is over early (stop, sensor or limit): the output was
   stopped and the part is watched until the sensor reads it settled (the
-  last ``average_samples`` readings agree within the tolerance); only then is
+  last readings, at least two, agree within the tolerance); only then is
   the result, with the settled position and the steps actually played, final.
 - ``fault``: the amplifier link or the sensor is lost; no job is accepted
   until the link is restored (:meth:`Policy.link_restored`, :meth:`Policy.sensor_restored`).
@@ -307,10 +307,10 @@ class Policy:
                 self._hold(job, now)
             elif self._finish_as is not None:
                 pass  # the stop is on its way; hold when it is done
+            elif self._cycle.flying is not None:  # its travel watched also while its end is confirmed
+                self._follow_burst(now)
             elif self._pending is None:
-                if self._cycle.flying is not None:
-                    self._follow_burst(now)
-                elif self._decision is not None:
+                if self._decision is not None:
                     self._decided(job, self._decision)
                 elif self._deciding is None:
                     self._measure(job, now)
