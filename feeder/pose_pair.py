@@ -187,12 +187,13 @@ def pair_refusal(planner: PosePlanner, targets: dict[int, Pose], poses: list[Pos
         if not math.isnan(tb[2]):
             return (
                 f"part {ib + 1}'s angle cannot be chosen when two parts are placed together: its turn is "
-                "tied to its orbit about O (move it without an angle; docs/pose-control.md)"
+                f"tied to its orbit about O (place it without an angle, or let it go: feeder release --part "
+                f"{ib + 1}; docs/pose-control.md)"
             )
         if not math.isnan(ta[2]) and abs(planner.turns.angle_error(poses[ia], ta)) > planner.tolerance_rad:
             return (
                 f"part {ia + 1} keeps its angle while part {ib + 1} is placed: turn it first on its own "
-                "or move it without an angle"
+                f"or move it without an angle (or let it go: feeder release --part {ia + 1})"
             )
     size = planner.part.patch.radius_m
     if math.hypot(tb[0] - ta[0], tb[1] - ta[1]) < 2 * size:

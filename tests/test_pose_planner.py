@@ -248,7 +248,7 @@ def test_unreachable_pairs_refused_with_the_reason(model_seed: ResponseModel) ->
     far = planner.check({1: (0.0, 0.0, 0.0), 2: (0.9e-3, 0.0, math.nan)}, poses)
     assert far is not None and "cannot change that much" in far  # 0.6 mm closer: beyond the dead zone
     angled = planner.check({1: (0.0, 0.0, 0.0), 2: (0.0, 1.5e-3, 0.5)}, poses)
-    assert angled is not None and "angle" in angled
+    assert angled is not None and "place it without an angle, or let it go: feeder release --part 2" in angled
     overlap = planner.check({1: (0.0, 0.0, 0.0), 2: (0.2e-3, 0.0, math.nan)}, poses)
     assert overlap is not None and "overlap" in overlap
     verdict = planner.next_burst(poses, {1: (0.0, 0.0, 0.0), 2: (0.9e-3, 0.0, math.nan)})
