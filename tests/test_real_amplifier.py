@@ -25,7 +25,7 @@ from test_daemon_hil import (  # noqa: F401
     true_coarse_steps,
 )
 
-from feeder.daemon.config import DaemonConfig
+from feeder.daemon.config import DaemonConfig, embedded_plane
 from feeder.daemon.launcher import Simulator
 from feeder.daemon.links import simulator_args
 from feeder.protocol.anc300 import MOVE_PATH, REAL_VERBS, UNKNOWN_COMMAND, VERBS
@@ -214,6 +214,14 @@ def test_strict_dialect_answers_every_extension_as_an_anc300() -> None:
             port.close()
     finally:
         sim.stop()
+
+
+def test_the_embedded_plane_streams_no_true_positions() -> None:
+    """The plane's daemon sees its parts through the simulator's camera, as on hardware: the
+    simulator is not asked for its stream of the true positions (the line's position sensor)."""
+    assert "--sensor" not in simulator_args(embedded_plane(DaemonConfig()))
+    line = simulator_args(DaemonConfig())
+    assert line[line.index("--sensor") + 1] == "tcp:127.0.0.1:0"
 
 
 def test_the_embedded_default_runs_the_strict_dialect() -> None:

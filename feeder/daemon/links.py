@@ -185,8 +185,6 @@ def simulator_args(config: DaemonConfig) -> list[str]:
         "pty",
         "--dialect",
         "anc300",
-        "--sensor",
-        "tcp:127.0.0.1:0",
         "--part",
         config.part.label,
         "--support",
@@ -214,6 +212,8 @@ def simulator_args(config: DaemonConfig) -> list[str]:
             "--stack-output-resistance-ohm",
             repr(stack.output_resistance_ohm),
         ]
+    if not config.plate.planar:  # the line's position stream; the plane's camera sees the parts
+        args += ["--sensor", "tcp:127.0.0.1:0"]
     if config.amplifier.transport == "can":
         args += ["--can", "slcan-pty"]
         if "eds" in config.amplifier.can:  # the simulated nodes have the configured axes per node
