@@ -7,19 +7,12 @@ from pathlib import Path
 
 import pytest
 from test_daemon_service import start
+from test_store import stored_targets
 
 from feeder.daemon.client import Client
 from feeder.daemon.store import Store
 
 pytestmark = pytest.mark.timeout(60)
-
-
-def _targets(path: Path) -> list[float]:
-    store = Store(path)
-    try:
-        return [m["target_m"] for m in store.moves()]
-    finally:
-        store.close()
 
 
 def test_a_state_database_removed_under_the_daemon_refuses_moves_naming_it(short_dir: Path) -> None:
@@ -40,9 +33,9 @@ def test_a_state_database_removed_under_the_daemon_refuses_moves_naming_it(short
     assert status["moves_refused"] is not None and why in status["moves_refused"]
     assert status["store_unwritable"] is not None and why in status["store_unwritable"]
     (saved,) = database.parent.glob("f.sqlite.*.bak")  # what the daemon held, for the user
-    assert _targets(saved) == [60e-6]
+    assert stored_targets(saved) == [60e-6]
     assert not database.exists()
-    assert _targets(database) == []  # the next daemon starts afresh, nothing of the old WAL in it
+    assert stored_targets(database) == []  # the next daemon starts afresh, nothing of the old WAL in it
 
 
 def test_a_state_database_replaced_under_the_daemon_is_left_as_it_was_put(short_dir: Path) -> None:
@@ -62,9 +55,9 @@ def test_a_state_database_replaced_under_the_daemon_is_left_as_it_was_put(short_
         daemon.shutdown()
     assert not moved["ok"] and "the state database was replaced by another file" in str(moved)
     assert "restart the daemon to use the new file" in status["moves_refused"]
-    assert _targets(database) == [7e-6]
+    assert stored_targets(database) == [7e-6]
     (saved,) = database.parent.glob("f.sqlite.*.bak")
-    assert _targets(saved) == [60e-6]
+    assert stored_targets(saved) == [60e-6]
 
 
 def test_steps_learned_by_a_move_outlive_a_daemon_killed_before_its_end(short_dir: Path) -> None:

@@ -241,7 +241,7 @@ def test_a_stored_step_that_is_not_a_number_is_learned_again(tmp_path: Path) -> 
     assert restored["coarse/backward"].step_m == 3.1e-6
 
 
-def _targets(path: Path) -> list[float]:
+def stored_targets(path: Path) -> list[float]:
     """The moves' targets in the database at ``path``, read as a new daemon would find them."""
     store = Store(path)
     try:
@@ -271,46 +271,48 @@ def test_a_database_removed_while_open_is_written_no_more(tmp_path: Path) -> Non
     assert not path.exists()  # not re-created: a new daemon starts a new one
     (saved,) = _saved_beside(path)
     assert oct(saved.stat().st_mode & 0o777) == "0o600"
-    assert _targets(saved) == [0.0, 1e-6, 2e-6]  # everything the store held, nothing else
+    assert stored_targets(saved) == [0.0, 1e-6, 2e-6]  # everything the store held, nothing else
     wal = path.with_name(path.name + "-wal")
     assert not wal.exists() or wal.stat().st_size == 0  # nothing for a new database to take in
-    assert _targets(path) == []  # the next start: a fresh database
+    assert stored_targets(path) == []  # the next start: a fresh database
+
+
+def _replaced_under_a_store(path: Path, target_m: float) -> Store:
+    """A store at ``path`` with three moves (targets 0, 1 and 2 µm), its file then replaced by
+    another database holding one move to ``target_m``; the store, still open."""
+    store = Store(path)
+    for i in range(3):
+        store.begin_move(i * 1e-6, 0.0)
+    other = path.with_name("other.sqlite")
+    replacement = Store(other)
+    replacement.begin_move(target_m, 0.0)
+    replacement.close()
+    os.replace(other, path)
+    return store
 
 
 def test_a_database_replaced_while_open_is_never_written_into(tmp_path: Path) -> None:
     """The old store's WAL, left at the path, was applied to the replacement when it was next
     opened: the replacement then held the old database's moves instead of its own."""
     path = tmp_path / "state" / "feeder.sqlite"
-    store = Store(path)
-    for i in range(3):
-        store.begin_move(i * 1e-6, 0.0)
-    replacement = Store(tmp_path / "other.sqlite")
-    replacement.begin_move(99e-6, 0.0)
-    replacement.close()
-    os.replace(tmp_path / "other.sqlite", path)
+    store = _replaced_under_a_store(path, 99e-6)
     with pytest.raises(StoreError, match=r"feeder\.sqlite: the state database was replaced by another file"):
         store.save_position(1e-6)
     store.close()
-    assert _targets(path) == [99e-6]
+    assert stored_targets(path) == [99e-6]
     (saved,) = _saved_beside(path)
-    assert _targets(saved) == [0.0, 1e-6, 2e-6]
+    assert stored_targets(saved) == [0.0, 1e-6, 2e-6]
 
 
 def test_a_database_replaced_before_the_store_closes_keeps_its_own_contents(tmp_path: Path) -> None:
     """No write in between: closing the store (a daemon's shutdown) left its WAL at the path, and
     the replacement's next opening took it in."""
     path = tmp_path / "feeder.sqlite"
-    store = Store(path)
-    for i in range(3):
-        store.begin_move(i * 1e-6, 0.0)
-    replacement = Store(tmp_path / "backup.sqlite")
-    replacement.begin_move(42e-6, 0.0)
-    replacement.close()
-    os.replace(tmp_path / "backup.sqlite", path)
+    store = _replaced_under_a_store(path, 42e-6)
     store.close()
-    assert _targets(path) == [42e-6]
+    assert stored_targets(path) == [42e-6]
     (saved,) = _saved_beside(path)
-    assert _targets(saved) == [0.0, 1e-6, 2e-6]
+    assert stored_targets(saved) == [0.0, 1e-6, 2e-6]
 
 
 def test_a_database_moved_back_is_written_again(tmp_path: Path) -> None:
