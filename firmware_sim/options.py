@@ -17,6 +17,7 @@ from feeder.errors import InputError
 from feeder.plant.amplifier import AmplifierLimits
 from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
 from feeder.plant.stack import STACK_FIELDS, STACK_RANGES, StackParameters
+from feeder.pose import MAX_POSE_M, part_poses
 from feeder.protocol.anc300 import DEFAULT_PASSWORD, DIALECTS
 from feeder.protocol.eds import EDS_3AXIS_FILE, EDS_FILE, axis_count, object_dictionary
 from firmware_sim.firmware import DEFAULT_DAC_BUFFER_S, DEFAULT_LOAD_CAPACITANCE_F, FirmwareConfig
@@ -280,10 +281,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     world.add_argument(
         "--parts",
+        type=part_poses_text,
         metavar="X,Y,PSI;...",
         default="0,0,0",
-        help="planar: the parts' poses in the plate frame (m, m, rad; origin at "
-        "the rotation centre O), ';' between parts (default %(default)s)",
+        help=f"planar: the parts' poses in the plate frame (m, m, rad; origin at the rotation "
+        f"centre O; |X|, |Y| ≤ {MAX_POSE_M:g} m, |PSI| ≤ 2π), ';' between parts (default %(default)s)",
     )
     add_number(
         world,
@@ -353,6 +355,16 @@ def tcp_spec(spec: str, option: str) -> tuple[str, int]:
     except ValueError as exc:
         raise InputError(option, str(exc)) from None
     return host, int(port)
+
+
+def part_poses_text(text: str) -> str:
+    """argparse type of ``--parts``: the text, once each part's pose is one on the plate
+    (:func:`~feeder.pose.part_poses`, as the daemon's ``[plate] parts``)."""
+    try:
+        part_poses(text, "--parts")
+    except InputError as err:
+        raise argparse.ArgumentTypeError(err.message) from None
+    return text
 
 
 def check_options(args: argparse.Namespace) -> None:

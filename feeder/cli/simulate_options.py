@@ -12,14 +12,15 @@ from feeder.cli.arguments import pose
 from feeder.errors import InputError
 from feeder.parts import Part, Support
 from feeder.plate_axes import AXES
+from feeder.pose import MAX_POSE_M as MAX_POSE_M  # the --pose range, for simulate.py's help
+from feeder.pose import part_pose
 from feeder.waveform import read_waveform_tables
 
 # Plate-scale ranges of the options (stated in --help).  A stack strokes ~14 µm at 200 V
-# (θ: 7 mrad over the 2 mm lever arm), a plate is a few cm across.
+# (θ: 7 mrad over the 2 mm lever arm), a plate is a few cm across.  A part's pose: the daemon
+# configuration's (feeder.pose.part_pose), the same for every pose a user gives.
 MAX_STROKE_M = 1e-3
 MAX_STROKE_RAD = 0.1
-MAX_POSE_M = 0.1
-MAX_PSI_RAD = 2 * math.pi
 MAX_MAP_EXTENT_M = 0.1
 FREQUENCY_RANGE_HZ = (1e-3, 1e6)
 MIN_FLYBACK_S = 1e-9
@@ -53,23 +54,13 @@ def flyback_s(text: str) -> float:
     return value
 
 
-def check_pose(values: tuple[float, ...], text: str) -> tuple[float, float, float]:
-    """(x, y, ψ) if three finite numbers with |x|, |y| ≤ MAX_POSE_M, |ψ| ≤ MAX_PSI_RAD; else ValueError."""
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise ValueError(f"expected three finite numbers X,Y,PSI, got {text}")
-    if not (abs(values[0]) <= MAX_POSE_M and abs(values[1]) <= MAX_POSE_M and abs(values[2]) <= MAX_PSI_RAD):
-        raise ValueError(f"needs |X|, |Y| ≤ {MAX_POSE_M:g} m and |PSI| ≤ 2π rad, got {text}")
-    return values[0], values[1], values[2]
-
-
 def plate_pose(text: str) -> tuple[float, float, float]:
-    """argparse type: ``X,Y,PSI`` (m, m, rad, or with units: ``1.5mm,0,10deg``) on the plate:
-    |X|, |Y| ≤ 0.1 m, |PSI| ≤ 2π."""
-    values = pose(text)
+    """argparse type: ``X,Y,PSI`` (m, m, rad, or with units: ``1.5mm,0,10deg``), a part's pose
+    on the plate (:func:`~feeder.pose.part_pose`: |X|, |Y| ≤ 0.1 m, |PSI| ≤ 2π)."""
     try:
-        return check_pose(values, repr(text[:40]))
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(str(err)) from None
+        return part_pose(pose(text), "X,Y,PSI", repr(text[:40]))
+    except InputError as err:
+        raise argparse.ArgumentTypeError(err.message) from None
 
 
 def design_defaults(args: argparse.Namespace) -> tuple[dict[str, Any], list[str]]:
@@ -92,10 +83,7 @@ def design_defaults(args: argparse.Namespace) -> tuple[dict[str, Any], list[str]
             isinstance(v, int | float) and not isinstance(v, bool) for v in file_pose
         ):
             raise InputError(field, f"expected [X, Y, PSI] in m, m, rad, got {file_pose!r}")
-        try:
-            file_pose = check_pose(tuple(float(v) for v in file_pose), repr(file_pose))
-        except ValueError as err:
-            raise InputError(field, str(err)) from None
+        file_pose = part_pose([float(v) for v in file_pose], field, repr(file_pose))
     warnings: list[str] = []
     args.axis_from_file = args.axis is None and file_axis is not None
     if args.axis is None:

@@ -19,11 +19,11 @@ from feeder.cli.arguments import (
     length_m,
     output_path,
     part_from,
-    pose,
     positive_float,
     positive_length_m,
 )
 from feeder.cli.output import print_json
+from feeder.cli.simulate_options import plate_pose
 from feeder.cli.stack_options import add_stack_arguments, stack_from
 from feeder.daemon.config import PlateConfig
 from feeder.errors import InputError
@@ -33,6 +33,7 @@ from feeder.plant.planar_plant import DEFAULT_LEVER_ARM_M
 from feeder.plant.stack import StackParameters, stack_from_table
 from feeder.plant.stick_slip import DEFAULT_KINETIC_RATIO
 from feeder.plate_axes import AXES
+from feeder.pose import MAX_POSE_M, part_pose
 from feeder.waveform import (
     DEFAULT_DAC_BITS,
     DEFAULT_DAC_POINTS,
@@ -113,15 +114,17 @@ def register(sub: Any) -> None:
     where = design.add_mutually_exclusive_group()
     where.add_argument(
         "--pose",
-        type=pose,
+        type=plate_pose,
         metavar="X,Y,PSI",
-        help="theta: the part's pose in the plate frame, origin at O (m, m, rad; default 0,0,0)",
+        help=f"theta: the part's pose in the plate frame, origin at O (m, m, rad; |X|, |Y| ≤ "
+        f"{MAX_POSE_M:g} m, |PSI| ≤ 2π; default 0,0,0)",
     )
     where.add_argument(
         "--radius-m",
         type=length_m,
         metavar="R",
-        help="theta: the part's distance from O (pose R,0,0; units accepted, e.g. 1.5mm)",
+        help=f"theta: the part's distance from O, at most {MAX_POSE_M:g} m (pose R,0,0; units "
+        "accepted, e.g. 1.5mm)",
     )
     design.add_argument(
         "--part-shape",
@@ -308,6 +311,8 @@ def run_design(args: argparse.Namespace) -> int:
         raise InputError("--objective", "theta designs max-step or max-speed (min-scatter is for x and y)")
     if args.radius_m is not None and args.radius_m < 0:
         raise InputError("--radius-m", f"must not be negative, got {args.radius_m}")
+    if args.radius_m is not None:  # the pose R,0,0, checked as --pose is
+        part_pose((args.radius_m, 0.0, 0.0), "--radius-m", f"R = {args.radius_m:g} m (the pose R,0,0)")
     where = args.pose or ((args.radius_m, 0.0, 0.0) if args.radius_m is not None else (0.0, 0.0, 0.0))
     problem = DesignProblem(part, support, surface, str(args.surface or "embedded"), args.tau,
                             args.tau_band, args.kinetic_ratio, model, limits, stack_from(args),

@@ -90,7 +90,15 @@ from feeder.daemon.config import (
     HttpConfig,
     PlateConfig,
 )
-from feeder.daemon.config_fields import check_keys, expanded_path, flag, integer, number, string, subtable
+from feeder.daemon.config_fields import (
+    check_keys,
+    expanded_path,
+    flag,
+    integer,
+    number,
+    string,
+    subtable,
+)
 from feeder.daemon.control_loop import LoopSettings
 from feeder.errors import InputError, shown
 from feeder.files import read_toml
@@ -98,7 +106,7 @@ from feeder.parts import Part, Support
 from feeder.plant.amplifier import AmplifierLimits, amplifier_model, within_rating
 from feeder.plant.stack import StackParameters
 from feeder.plate_axes import AXES, DEFAULT_AXIS_MAP, MAX_AXIS, amplifier_node
-from feeder.pose import parse_poses
+from feeder.pose import part_poses
 
 SECTIONS: dict[str, frozenset[str]] = {
     "amplifier": frozenset(
@@ -154,7 +162,7 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
     if not isinstance(parts_text, str):
         raise InputError(where, "plate.parts must be a string X,Y,PSI;X,Y,PSI (m, m, rad)")
     try:
-        parts = parse_poses(parts_text, "plate.parts")
+        parts = part_poses(parts_text, "plate.parts")
     except InputError as err:
         raise InputError(where, f"plate.parts: {err.message}") from None
     return PlateConfig(
@@ -330,6 +338,8 @@ def load_config(path: Path | None) -> DaemonConfig:
         )
     if sensor_address is None and (plate.planar or camera.address is not None):  # the camera locates
         loop = _camera_travel(loop, control, camera, part, where, in_y=plate.planar)
+        if plate.planar and amplifier.simulated:  # the simulator places the parts
+            _parts_in_view(plate, camera, part, where)
     if not loop.min_position_m < loop.max_position_m:
         raise InputError(where, "control.min_position_m must be below control.max_position_m")
     if not loop.min_y_m < loop.max_y_m:
@@ -400,11 +410,7 @@ def _camera_travel(
     is refused, naming the key and the field's limits.  One axis (not ``in_y``): x only, the
     part's y being wherever it lies."""
     half_x, half_y = camera.travel_m(part)
-    view = (
-        f"the camera ({camera.width_px}×{camera.height_px} px at {camera.pixel_size_m:g} m/px) sees the "
-        f"whole {part.label} part with its centre within x [{-half_x:.4g}, {half_x:.4g}] m, "
-        f"y [{-half_y:.4g}, {half_y:.4g}] m"
-    )
+    view = _view(camera, part)
     if half_x <= 0 or half_y <= 0:
         raise InputError(where, f"camera: the image is too small for the part: {view}")
     limits = {"min_position_m": -half_x, "max_position_m": half_x}
@@ -418,6 +424,30 @@ def _camera_travel(
         if key not in control:
             loop = dataclasses.replace(loop, **{key: limit})  # type: ignore[arg-type]
     return loop
+
+
+def _view(camera: CameraConfig, part: Part) -> str:
+    """What the camera sees of a whole ``part`` (:meth:`CameraConfig.travel_m`), for a message."""
+    half_x, half_y = camera.travel_m(part)
+    return (
+        f"the camera ({camera.width_px}×{camera.height_px} px at {camera.pixel_size_m:g} m/px) sees the "
+        f"whole {part.label} part with its centre within x [{-half_x:.4g}, {half_x:.4g}] m, "
+        f"y [{-half_y:.4g}, {half_y:.4g}] m"
+    )
+
+
+def _parts_in_view(plate: PlateConfig, camera: CameraConfig, part: Part, where: str) -> None:
+    """Refuse a simulated part placed where the camera does not see it whole: the daemon could
+    not locate it and stayed in fault (a part in view but outside a narrower travel is fine: it
+    blocks no move)."""
+    half_x, half_y = camera.travel_m(part)
+    for k, (x, y, _) in enumerate(plate.parts, 1):
+        if abs(x) > half_x or abs(y) > half_y:
+            raise InputError(
+                where,
+                f"plate.parts: part {k} at ({x:g}, {y:g}) m is out of view, where the daemon cannot "
+                f"locate it: {_view(camera, part)}",
+            )
 
 
 def _http_config(table: dict[str, Any], where: str) -> HttpConfig:

@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 
 from feeder.daemon.jobs import Command, Completion, StepMode
+from feeder.daemon.log_throttle import LogThrottle
 from feeder.drivers.amplifier import Amplifier, AmplifierError, AmplifierLinkLost
 from feeder.errors import FeederError
 
@@ -191,6 +192,14 @@ class RecordWriter:
     what comes after it waits in memory, in order, so nothing is lost or
     reordered.  ``on_unwritable(message)`` is called when such an outage
     starts and ``on_writable()`` when it ends.
+
+    The thread's one boundary: a write that fails in any other way (a bug in a
+    record callback) is logged with its traceback and dropped, as it would fail
+    again: the writes behind it go on (a move's end record among them, which
+    answers its caller; the thread had ended, every later move waiting for an
+    answer that never came).  :attr:`dropped` counts them, :attr:`dropped_reason`
+    says the last.  A bug in ``on_unwritable``/``on_writable`` is logged; the
+    write it followed is not dropped for it.
     """
 
     def __init__(
@@ -203,9 +212,15 @@ class RecordWriter:
         self.on_unwritable = on_unwritable
         self.on_writable = on_writable
         self.unwritable: str | None = None
+        self.dropped = 0
+        """Writes dropped for an unexpected error (a bug): their records are missing."""
+        self.dropped_reason: str | None = None
+        """The last dropped write's error (``Type: message``), or None."""
         self._cond = threading.Condition()
         self._queue: collections.deque[Callable[[], None]] = collections.deque()
         self._closing = False
+        self._writing = False  # the head's write() is running (the boundary drops it if it fails)
+        self._bug_log = LogThrottle(log)
         self._thread = threading.Thread(target=self._run, name="record-writer", daemon=True)
         self._thread.start()
 
@@ -243,24 +258,53 @@ class RecordWriter:
                     return
                 write = self._queue[0]
             try:
-                write()
-            except (FeederError, sqlite3.Error, OSError) as err:
-                self._outage(str(err))
-                with self._cond:
-                    if self._closing:
-                        self._cond.wait(self.retry_s)
-                        if self._closing and self.unwritable is not None:
-                            return  # give up at shutdown; close() logs what is left
-                    else:
-                        self._cond.wait(self.retry_s)
-                continue
+                if not self._write(write):
+                    return  # give up at shutdown; close() logs what is left
+            except Exception as err:  # the writer thread's one boundary (the class docstring)
+                self._failed(err)
+
+    def _write(self, write: Callable[[], None]) -> bool:
+        """Make ``write`` (the head of the queue) and take it off the queue, or hold it through a
+        store outage (waiting ``retry_s``); False: give up (an outage at shutdown)."""
+        self._writing = True
+        try:
+            write()
+        except (FeederError, sqlite3.Error, OSError) as err:
+            self._writing = False
+            self._outage(str(err))
             with self._cond:
-                self._queue.popleft()
-            if self.unwritable is not None:
-                log.warning("the state store is writable again")
-                self.unwritable = None
-                if self.on_writable is not None:
-                    self.on_writable()
+                if self._closing:
+                    self._cond.wait(self.retry_s)
+                    return not (self._closing and self.unwritable is not None)
+                self._cond.wait(self.retry_s)
+            return True
+        self._writing = False
+        with self._cond:
+            self._queue.popleft()
+        if self.unwritable is not None:
+            log.warning("the state store is writable again")
+            self.unwritable = None
+            if self.on_writable is not None:
+                self.on_writable()
+        return True
+
+    def _failed(self, err: Exception) -> None:
+        """An unexpected error on the writer thread (:meth:`_run`'s boundary): the write that
+        raised it is dropped (logged with the traceback; a repeat of the same error throttled)."""
+        reason = f"{type(err).__name__}: {err}"
+        if not self._writing:
+            log.exception("record writer: a store outage callback failed")
+            return
+        self._writing = False
+        with self._cond:
+            self._queue.popleft()
+            self.dropped += 1
+            repeat, self.dropped_reason = reason == self.dropped_reason, reason
+        if repeat:
+            self._bug_log.warning("record writer: a record write failed again (%s); dropped", reason)
+        else:
+            log.exception("record writer: a record write failed unexpectedly; dropped, the writes "
+                          "queued after it go on")  # fmt: skip
 
     def _outage(self, message: str) -> None:
         if self.unwritable is None:

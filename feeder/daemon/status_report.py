@@ -35,6 +35,8 @@ def loop_status(loop: ControlLoop, parts_info: tuple[dict[str, Any], ...]) -> di
         "fault": loop.fault or (None if loop.sensor_lost is None else f"sensor lost: {loop.sensor_lost}"),
         "store_unwritable": loop.writer.unwritable,
         "pending_records": loop.writer.pending(),
+        "records_dropped": loop.writer.dropped,
+        "record_dropped_reason": loop.writer.dropped_reason,
         "tolerance_m": loop.settings.tolerance_m,
         "travel_limits_m": [loop.settings.min_position_m, loop.settings.max_position_m],
         "estimates": loop.estimates_json(),

@@ -6,9 +6,11 @@ the backlog never grows (skipped frames show as gaps in ``sequence``);
 recorded sources (files, folders) wait for it to be taken, so none is lost.
 A live source that fails is reopened (back-off up to ``max_backoff_s``) until
 closed; :meth:`FrameSource.read` raises :class:`CameraLost` while no frame
-comes. With ``size_px`` a frame of another size is not passed on:
-:meth:`FrameSource.read` raises :class:`CameraSizeError` (the pose sensor would place the
-plate origin wrongly).
+comes, naming the current failure (``error``, cleared when frames flow again: a
+source that then stops without one, a stalled relay, says "no frame"). With
+``size_px`` a frame of another size is not passed on: :meth:`FrameSource.read`
+raises :class:`CameraSizeError` (the pose sensor would place the plate origin
+wrongly).
 
 The sources: feeder/drivers/video_camera.py (OpenCV, GenICam, recordings) and
 feeder/drivers/http_camera.py (HTTP: MJPEG streams and still images).
@@ -68,8 +70,8 @@ class FrameSource(ABC):
         self._returned = -1
         self._ended = False
         self._closed = threading.Event()
-        self.error = ""
-        self._lost: type[CameraLost] = CameraLost
+        self.error = ""  # why no frame comes now ("" while frames flow: cleared when they resume)
+        self._lost: type[CameraLost] = CameraLost  # what read() raises meanwhile
         self._logged = ""  # the failure last logged at INFO (repeats go to DEBUG)
         self._thread = threading.Thread(target=self._run, name=f"camera-{name}", daemon=True)
 
@@ -136,12 +138,16 @@ class FrameSource(ABC):
                 if not self.live:
                     self._cond.wait_for(lambda: self._slot is None or self._closed.is_set())
                 self._slot = frame
+                # frames flow: an earlier failure is no reason for a later wait (a camera relay
+                # stopped 20 s after an outage was reported as that outage's "cannot open")
+                self.error, self._lost = "", CameraLost
                 self._cond.notify_all()
         return sequence, "", CameraLost
 
     def _fail(self, reason: str, lost: type[CameraLost] = CameraLost) -> None:
-        """Record why the source failed; logged once (INFO) until frames flow again, then at DEBUG
-        (a camera that stays down was retried, and logged, about twice a second)."""
+        """Record why the source failed (:attr:`error`, until frames flow again); logged once
+        (INFO) until frames flow again, then at DEBUG (a camera that stays down was retried, and
+        logged, about twice a second)."""
         with self._cond:
             self.error = reason
             self._lost = lost
