@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 
 from feeder.pose import Pose
-from feeder.pose_burst import AxisBurst, Finish
+from feeder.pose_burst import AxisBurst, Finish, carry_refusal
 from feeder.pose_planner import PosePlanner
 from feeder.pose_turns import USEFUL_ORBIT
 
@@ -292,7 +292,13 @@ def next_pair_burst(
             "to each other: fine steps cannot put both within the tolerance",
         )
     axis, n = ("x", best[0]) if best[0] else ("y", best[1])
-    return AxisBurst(axis, 1 if n > 0 else -1, abs(n), fine)
+    direction = 1 if n > 0 else -1
+    cut, by = planner.travel_cut(poses, axis, direction, fine, abs(n))  # like every burst
+    if cut < 1:
+        moving = f"moving parts {ia + 1} and {ib + 1} further in {'+' if direction > 0 else '−'}{axis}"
+        k = ia if by is None else by
+        return Finish("unreachable", carry_refusal(planner.travel, moving, k, poses[k]))
+    return AxisBurst(axis, direction, cut, fine)
 
 
 def _orbit_burst(

@@ -8,10 +8,12 @@ outside the dead zone, moving there if needed), then translate to the target
 (the turn's orbit is corrected by the translations; translations never turn).
 The θ bursts and the stations: :mod:`feeder.pose_turns`.
 Every burst aims short with a pessimistic (mean + 2σ) step, like the 1-D
-policy, and is cut where its pessimistic path would take a part out of the
-travel, or one already outside it further out (:meth:`~feeder.travel.Travel.keeps`); a θ
-burst also where it would bring two parts' footprints within
-:data:`~feeder.pose_turns.CLEARANCE_M` (x and y bursts move every part alike).
+policy, and is cut where its path with the largest plausible step
+(:meth:`~feeder.pose_gain.GainFilter.bound`: at least the seed's upper end until two bursts
+agree) would take a part out of the travel, or one already outside it further out
+(:meth:`~feeder.travel.Travel.keeps`); a θ burst also where its pessimistic path would bring two
+parts' footprints within :data:`~feeder.pose_turns.CLEARANCE_M` (x and y bursts move every part
+alike).
 Two parts: see :mod:`feeder.pose_pair`.
 """
 
@@ -34,7 +36,8 @@ PROBE_FRACTION = 1 / 8
 """Until an x or y step has been learned (a fresh state, a new device), its bursts aim at most
 this fraction of the way: a real device up to 8× the physics' seed (the stack's gain, the
 contact; a k× step carries a whole-way burst k − 1 times the way past the target, out of the
-travel and the camera's view) reaches the target at most; one learned burst lifts it."""
+travel and the camera's view) reaches the target at most; two alike bursts lift it
+(:data:`~feeder.pose_gain.CONFIRM_BURSTS`: one may have read another motion)."""
 
 
 @dataclass
@@ -179,10 +182,12 @@ class PosePlanner:
         return out
 
     def learn(self, burst: AxisBurst, before: list[Pose], after: list[Pose]) -> None:
-        """Fold in what ``burst`` did to every part."""
+        """Fold in what ``burst`` did to every part (readings of one burst: alike, they confirm
+        nothing, :data:`~feeder.pose_gain.CONFIRM_BURSTS`)."""
+        token = object()
         for b, a in zip(before, after, strict=True):
             unwrapped = (a[0], a[1], b[2] + self.turns.angle_difference(a[2], b[2]))
-            self.model.learn(burst.axis, burst.direction, burst.mode, burst.steps, b, unwrapped)
+            self.model.learn(burst.axis, burst.direction, burst.mode, burst.steps, b, unwrapped, token)
 
     def estimates_json(self) -> dict[str, object]:
         return {"gains": self.model.estimates_json(), "station_radius_m": self.turns.station_radius_m}
@@ -286,18 +291,31 @@ class PosePlanner:
                 continue
             if not self.model.learned(axis, direction, mode):
                 steps = min(steps, max(1, math.floor(PROBE_FRACTION * distance / step)))
-            cut, by = self._within_travel(poses, axis, direction, high, min(steps, MAX_BURST_STEPS))
+            cut, by = self.travel_cut(poses, axis, direction, mode, min(steps, MAX_BURST_STEPS))
             if cut >= 1:
                 return AxisBurst(axis, direction, cut, mode), None
             if steps >= 1:
                 stop = by
         return None, stop
 
+    def travel_cut(
+        self, poses: list[Pose], axis: str, direction: int, mode: str, steps: int
+    ) -> tuple[int, int | None]:
+        """``steps`` of an x or y burst cut so that every part's end stays within the travel (one
+        outside it goes no further out: :meth:`Travel.keeps`) with the largest step the burst
+        plausibly makes (:meth:`~feeder.pose_response.ResponseModel.step_bound_m`, at least the
+        aim's mean + 2σ), with the part (index) that cut it, if one did.  (Coarse x and y run at
+        ~0.5 mm per camera frame: the daemon's watch cannot stop a part the plan sends out.)"""
+        step, std = self.model.step_m(axis, direction, mode)
+        high = max(step + 2 * std, self.model.step_bound_m(axis, direction, mode))
+        return self._within_travel(poses, axis, direction, high, steps)
+
     def _within_travel(
         self, poses: list[Pose], axis: str, direction: int, high: float, steps: int
     ) -> tuple[int, int | None]:
-        """``steps`` cut so that every part's pessimistic end stays within the travel (one outside
-        it goes no further out: :meth:`Travel.keeps`), with the part (index) that cut it, if one did."""
+        """``steps`` cut so that every part's end after steps of ``high`` (m) stays within the
+        travel (one outside it goes no further out: :meth:`Travel.keeps`), with the part (index)
+        that cut it, if one did."""
         k = 0 if axis == "x" else 1
         lo, hi = self.travel.x_m if axis == "x" else self.travel.y_m
         by = None

@@ -14,12 +14,14 @@ and β (cached, :func:`seed_response`).  Online, each seed is multiplied by a
 learned gain: one per (x|y, direction, mode); for θ one per radius bin, per
 (direction, mode) and per quantity (orbit, turn), estimated by a Kalman filter
 whose prior correlates neighbouring bins (so one burst at 1.6 mm also informs
-1.4 mm and 1.8 mm, less so 3 mm).
+1.4 mm and 1.8 mm, less so 3 mm; :mod:`feeder.pose_gain`).  A burst narrows a gain's spread
+only when it is alike the burst before it (:data:`~feeder.pose_gain.CONFIRM_BURSTS`), and the
+travel cuts take the largest gain one burst plausibly shows
+(:meth:`~feeder.pose_gain.GainFilter.bound`).
 """
 
 from __future__ import annotations
 
-import bisect
 import logging
 import math
 from collections.abc import Sequence
@@ -33,6 +35,7 @@ from feeder.errors import InputError
 from feeder.plant.planar import PlanarPart, simulate
 from feeder.plant.plate_motion import PlanarMotion, sawtooth
 from feeder.plate_axes import AXES
+from feeder.pose_gain import MODEL_STD, SEED_STD, GainFilter, bracket
 
 log = logging.getLogger(__name__)
 
@@ -43,23 +46,6 @@ ANCHOR_MODES = ("anchor", "anchor-fine")
 :func:`feeder.daemon.plane.anchor_modes`): parts near O stay put while the others orbit, so the
 pair strategy (:mod:`feeder.pose_pair`) orbits with these alone; θ's coarse and fine still turn
 single parts.  A model without them orbits with coarse and fine too (:meth:`ResponseModel.orbit_modes`)."""
-SEED_STD = 0.3
-"""Prior relative uncertainty of every seed (1σ): the plant model within 30 %."""
-BIN_CORRELATION_M = 0.5e-3
-"""Correlation length of the θ gains over the radius (m)."""
-MODEL_STD = 0.03
-"""Relative scatter a single burst adds beyond the sensor (pose-dependence the table misses)."""
-GATE_SIGMAS = 5.0
-"""A burst whose effect lies further than this many σ from the prediction is not learned from
-(σ² = the predicted effect's variance, at least the seed's :data:`SEED_STD`, plus the
-measurement's): a reading of another burst's motion (frames lagging behind on a loaded
-machine: a 2-step fine θ burst once "orbited" a part 0.24 rad and set gains of 228), not a
-change of the plant.  The seed's floor keeps a confident filter open to real drift (up to
-~1.5× the seed per burst).  Two bursts in a row beyond it whose ratios to the seed agree
-within :data:`AGREE` are the plant, not a misreading: the prior is reopened around that ratio
-(a real device's response may lie several times off the physics' seed)."""
-AGREE = 0.25
-"""Relative agreement of two gated bursts' ratios to the seed (same sign) that makes them real."""
 
 
 @dataclass(frozen=True)
@@ -90,13 +76,6 @@ class AxisMode:
         return sawtooth(s, self.frequency_hz, self.flyback_s, self.flyback_shape, steps)
 
 
-def _bracket(grid: Sequence[float], r: float) -> tuple[int, float]:
-    """The cell ``i`` of a sorted grid (≥ 2 points) that holds ``r`` (the first or last cell
-    beyond the ends) and ``r``'s place in it, 0–1, clipped."""
-    i = min(max(bisect.bisect_left(grid, r) - 1, 0), len(grid) - 2)
-    return i, min(max((r - grid[i]) / (grid[i + 1] - grid[i]), 0.0), 1.0)
-
-
 @dataclass(frozen=True)
 class TurnTable:
     """θ seed per step on a grid: radii (n,) m from O, betas (k,) rad over one symmetry period.
@@ -115,7 +94,7 @@ class TurnTable:
     def at(self, r_m: float, beta_rad: float) -> tuple[float, float, float]:
         """(orbit, radial, turn) per +θ step, bilinear in r and periodic in β; beyond the grid's
         ends, the end radius' values."""
-        i, u = _bracket(self.radii_m, r_m)
+        i, u = bracket(self.radii_m, r_m)
         k = len(self.betas_rad)
         if k == 1:
             j0 = j1 = 0
@@ -166,70 +145,6 @@ def turn_table(part: PlanarPart, mode: AxisMode, radii_m: tuple[float, ...], bet
     return TurnTable(radii_m, beta_grid, orbit, radial, turn, period)
 
 
-class GainFilter:
-    """Kalman filter of seed gains g at bin radii (one bin for x/y): prediction = g(r)·seed.
-
-    Prior g = 1 ± SEED_STD, correlated between bins as exp(−|Δr|/BIN_CORRELATION_M).
-    A measurement ``measured = g(r)·predicted`` (g(r) linear between bins) with
-    variance ``noise_var`` updates all bins through that correlation.
-    """
-
-    def __init__(self, centres_m: Sequence[float]) -> None:
-        self.centres_m = tuple(float(c) for c in centres_m)
-        centres = np.array(self.centres_m)
-        self.gain = np.ones(centres.size)
-        gap = np.abs(centres[:, None] - centres[None, :])
-        self._correlation = np.exp(-gap / BIN_CORRELATION_M)
-        self.covariance = SEED_STD**2 * self._correlation
-        self.updates = 0
-        self._refused: float | None = None  # the last burst's ratio to the seed, if it was gated
-
-    def weights(self, r_m: float) -> np.ndarray:
-        w = np.zeros(len(self.centres_m))
-        if len(w) == 1:
-            w[0] = 1.0
-            return w
-        i, u = _bracket(self.centres_m, r_m)
-        w[i], w[i + 1] = 1 - u, u
-        return w
-
-    def at(self, r_m: float = 0.0) -> tuple[float, float]:
-        """(gain, its std) at radius r: :meth:`weights` has two non-zeros, so in scalars (the
-        pose planner asks ~150 times per burst it plans)."""
-        g, c = self.gain, self.covariance
-        if len(g) == 1:
-            return float(g[0]), math.sqrt(max(float(c[0, 0]), 0.0))
-        i, u = _bracket(self.centres_m, r_m)
-        t = 1 - u
-        variance = t * t * c[i, i] + t * u * (c[i, i + 1] + c[i + 1, i]) + u * u * c[i + 1, i + 1]
-        return float(t * g[i] + u * g[i + 1]), math.sqrt(max(float(variance), 0.0))
-
-    def update(self, r_m: float, predicted: float, measured: float, noise_var: float) -> bool:
-        """Fold in ``measured`` = g(r)·``predicted`` (variance ``noise_var``); False (nothing
-        changed) when it lies beyond :data:`GATE_SIGMAS` of the prediction, unless the burst
-        before it was as far off, alike (:data:`AGREE`): then the prior is reopened around it."""
-        h = self.weights(r_m) * predicted
-        spread = float(h @ self.covariance @ h)
-        s = spread + noise_var
-        if s <= 0:
-            return False
-        innovation = measured - float(h @ self.gain)
-        if innovation**2 > GATE_SIGMAS**2 * (max(spread, (SEED_STD * predicted) ** 2) + noise_var):
-            earlier, self._refused = self._refused, measured / predicted if predicted else None
-            if earlier is None or self._refused is None or not _agree(earlier, self._refused):
-                return False
-            # a second burst as far off, alike: the plant differs from the seed by that ratio
-            self.covariance = (SEED_STD * self._refused) ** 2 * self._correlation
-            s = float(h @ self.covariance @ h) + noise_var
-        self._refused = None
-        k = self.covariance @ h / s
-        self.gain = self.gain + k * innovation
-        self.covariance = self.covariance - np.outer(k, h @ self.covariance)
-        self.covariance = 0.5 * (self.covariance + self.covariance.T)
-        self.updates += 1
-        return True
-
-
 @dataclass(frozen=True)
 class TurnStep:
     """Predicted effect of one θ step on a part: orbit about O (rad), radial drift (m), turn (rad), stds."""
@@ -260,6 +175,7 @@ class ResponseModel:
         self.sensor_noise_m = sensor_noise_m
         self.sensor_noise_rad = sensor_noise_rad
         self._gains: dict[str, GainFilter] = {}
+        self._radial_reach: dict[str, float] = {}
         for (axis, mode), _ in self.translation.items():
             for d in (+1, -1):
                 self._gains[_key(axis, d, mode)] = GainFilter([0.0])
@@ -288,8 +204,10 @@ class ResponseModel:
         return [m for m in ANCHOR_MODES if m in self.turn] or self.modes("theta")
 
     def learned(self, axis: str, direction: int, mode: str) -> bool:
-        """Whether an x or y step along ``direction`` has been learned from a burst (or restored)."""
-        return self._gains[_key(axis, direction, mode)].updates > 0
+        """Whether an x or y step along ``direction`` has been confirmed by
+        :data:`~feeder.pose_gain.CONFIRM_BURSTS` alike bursts (or restored so); one burst alone
+        may have read another motion."""
+        return self._gains[_key(axis, direction, mode)].confirmed
 
     def step_m(self, axis: str, direction: int, mode: str) -> tuple[float, float]:
         """(step, std) of one x or y step, m, along ``direction``."""
@@ -297,20 +215,46 @@ class ResponseModel:
         seed = self.translation[(axis, mode)]
         return gain * seed, std * seed
 
-    def turn_step(self, direction: int, mode: str, x_m: float, y_m: float, psi_rad: float) -> TurnStep:
-        """One θ step of the part at (x, y, ψ), in ``direction`` (mirror image of +θ for −1)."""
+    def radial_reach_m(self, mode: str) -> float:
+        """The largest radial drift (m) of one θ step of ``mode`` anywhere in its table (not learned)."""
+        reach = self._radial_reach.get(mode)
+        if reach is None:
+            reach = self._radial_reach[mode] = float(np.max(np.abs(self.turn[mode].radial_m)))
+        return reach
+
+    def step_bound_m(self, axis: str, direction: int, mode: str) -> float:
+        """The longest x or y step (m) along ``direction`` one burst plausibly makes: the seed times
+        the gain's :meth:`~feeder.pose_gain.GainFilter.bound` (what the travel cuts take)."""
+        return self._gains[_key(axis, direction, mode)].bound() * self.translation[(axis, mode)]
+
+    def turn_step(
+        self, direction: int, mode: str, x_m: float, y_m: float, psi_rad: float, bound: bool = False
+    ) -> TurnStep:
+        """One θ step of the part at (x, y, ψ), in ``direction`` (mirror image of +θ for −1);
+        ``bound``: the largest plausible (orbit and turn at their gains'
+        :meth:`~feeder.pose_gain.GainFilter.bound`, the radial drift, not learned, the seed's
+        upper end), with the learned stds."""
+        mean, largest = self._turn_steps(direction, mode, x_m, y_m, psi_rad, bound)
+        return largest if largest is not None else mean
+
+    def _turn_steps(
+        self, direction: int, mode: str, x_m: float, y_m: float, psi_rad: float, bound: bool
+    ) -> tuple[TurnStep, TurnStep | None]:
+        """:meth:`turn_step`, and with ``bound`` its bound, from one look-up of the table and gains."""
         r = math.hypot(x_m, y_m)
         beta = psi_rad - math.atan2(y_m, x_m)
         orbit, radial, turn = self.turn[mode].at(r, direction * beta)
-        g_turn, s_turn = self._gains[_key("theta", direction, mode, "turn")].at(r)
-        g_orbit, s_orbit = self._gains[_key("theta", direction, mode, "orbit")].at(r)
-        return TurnStep(
-            direction * g_orbit * orbit,
-            radial,
-            direction * g_turn * turn,
-            abs(s_turn * turn),
-            abs(s_orbit * orbit),
-        )
+        turn_gains = self._gains[_key("theta", direction, mode, "turn")]
+        orbit_gains = self._gains[_key("theta", direction, mode, "orbit")]
+        g_turn, s_turn = turn_gains.at(r)
+        g_orbit, s_orbit = orbit_gains.at(r)
+        stds = abs(s_turn * turn), abs(s_orbit * orbit)
+        mean = TurnStep(direction * g_orbit * orbit, radial, direction * g_turn * turn, *stds)
+        if not bound:
+            return mean, None
+        b_turn, b_orbit = turn_gains.widened(g_turn, s_turn, r), orbit_gains.widened(g_orbit, s_orbit, r)
+        high = 1 + 2 * SEED_STD
+        return mean, TurnStep(direction * b_orbit * orbit, radial * high, direction * b_turn * turn, *stds)
 
     def predict(
         self,
@@ -320,18 +264,31 @@ class ResponseModel:
         steps: int,
         pose: tuple[float, float, float],
         scale: float = 1.0,
+        bound: bool = False,
     ) -> tuple[float, float, float]:
-        """Pose after ``steps`` steps (θ: stepped through the table; ``scale`` multiplies every step)."""
+        """Pose after ``steps`` steps (θ: stepped through the table; ``scale`` multiplies every step).
+        ``bound``: each step the larger of that and the largest plausible step
+        (:meth:`step_bound_m`, :meth:`turn_step`'s ``bound``), what the travel cuts take."""
         x, y, psi = pose
         if axis != "theta":
             step, _ = self.step_m(axis, direction, mode)
-            d = direction * steps * step * scale
+            step *= scale
+            if bound:
+                step = max(step, self.step_bound_m(axis, direction, mode))
+            d = direction * steps * step
             return (x + d, y, psi) if axis == "x" else (x, y + d, psi)
         for _ in range(steps):
-            s = self.turn_step(direction, mode, x, y, psi)
+            if bound:
+                mean, largest = self._turn_steps(direction, mode, x, y, psi, True)
+                assert largest is not None
+                s = _larger(mean, largest, scale)
+                scale_step = 1.0
+            else:
+                s = self.turn_step(direction, mode, x, y, psi)
+                scale_step = scale
             r, phi = math.hypot(x, y), math.atan2(y, x)
-            r, phi = r + s.radial_m * scale, phi + s.orbit_rad * scale
-            x, y, psi = r * math.cos(phi), r * math.sin(phi), psi + s.turn_rad * scale
+            r, phi = r + s.radial_m * scale_step, phi + s.orbit_rad * scale_step
+            x, y, psi = r * math.cos(phi), r * math.sin(phi), psi + s.turn_rad * scale_step
         return x, y, psi
 
     def learn(
@@ -342,8 +299,10 @@ class ResponseModel:
         steps: int,
         before: tuple[float, float, float],
         after: tuple[float, float, float],
+        burst: object = None,
     ) -> None:
-        """Fold in what a burst of ``steps`` did to one part (plate frame poses before and after)."""
+        """Fold in what a burst of ``steps`` did to one part (plate frame poses before and after);
+        ``burst``: the same for every part of one burst (:meth:`~feeder.pose_gain.GainFilter.update`)."""
         if steps <= 0:
             return
         if axis != "theta":
@@ -351,7 +310,7 @@ class ResponseModel:
             moved = direction * (after[0] - before[0] if axis == "x" else after[1] - before[1])
             predicted = steps * seed
             noise = 2 * self.sensor_noise_m**2 + (MODEL_STD * predicted) ** 2
-            if not self._gains[_key(axis, direction, mode)].update(0.0, predicted, moved, noise):
+            if not self._gains[_key(axis, direction, mode)].update(0.0, predicted, moved, noise, burst):
                 _not_learned(_key(axis, direction, mode), predicted, moved)
             return
         table = self.turn[mode]
@@ -371,12 +330,14 @@ class ResponseModel:
         )
         angle_noise = 2 * self.sensor_noise_rad**2
         key = _key("theta", direction, mode, "turn")
-        if not self._gains[key].update(r_mid, turn_seed, turned, angle_noise + (MODEL_STD * turn_seed) ** 2):
+        if not self._gains[key].update(
+            r_mid, turn_seed, turned, angle_noise + (MODEL_STD * turn_seed) ** 2, burst
+        ):
             _not_learned(key, turn_seed, turned)
         if r_mid > 0:
             orbit_noise = 2 * (self.sensor_noise_m / r_mid) ** 2 + (MODEL_STD * orbit_seed) ** 2
             key = _key("theta", direction, mode, "orbit")
-            if not self._gains[key].update(r_mid, orbit_seed, orbited, orbit_noise):
+            if not self._gains[key].update(r_mid, orbit_seed, orbited, orbit_noise, burst):
                 _not_learned(key, orbit_seed, orbited)
 
     def restore(self, estimates: dict[str, Any]) -> int:
@@ -394,6 +355,7 @@ class ResponseModel:
             correlation = f.covariance / SEED_STD**2
             f.gain, f.covariance = gain, correlation * np.outer(std, std)
             f.updates = int(saved.get("bursts", 0))
+            f.restore_state(saved)
             taken += 1
         return taken
 
@@ -406,13 +368,24 @@ class ResponseModel:
                 "gain": f.gain.tolist(),
                 "gain_std": np.sqrt(np.clip(np.diag(f.covariance), 0, None)).tolist(),
                 "bursts": f.updates,
+                **f.state_json(),
             }
         return out
 
 
-def _agree(a: float, b: float) -> bool:
-    """Two ratios of the same sign within :data:`AGREE` of the larger."""
-    return a * b > 0 and abs(a - b) <= AGREE * max(abs(a), abs(b))
+def _larger(step: TurnStep, bound: TurnStep, scale: float) -> TurnStep:
+    """Per quantity, the larger of ``step`` × ``scale`` and ``bound`` (signed like the larger)."""
+
+    def larger(a: float, b: float) -> float:
+        return a * scale if abs(a * scale) >= abs(b) else b
+
+    return TurnStep(
+        larger(step.orbit_rad, bound.orbit_rad),
+        larger(step.radial_m, bound.radial_m),
+        larger(step.turn_rad, bound.turn_rad),
+        step.turn_std_rad,
+        step.orbit_std_rad,
+    )
 
 
 def _not_learned(key: str, predicted: float, measured: float) -> None:

@@ -9,10 +9,11 @@ outside the dead zone, which the pose planner's x and y bursts bring it to
 (:mod:`feeder.pose_planner`).  A turn steps θ's coarse and fine modes; a pair's
 orbit its anchoring ones when the model has them
 (:meth:`~feeder.pose_response.ResponseModel.orbit_modes`).  Every θ burst aims
-short with a pessimistic (mean + 2σ) step and is cut where its pessimistic path
-would take a part out of the travel, or one already outside it further out
-(:meth:`~feeder.travel.Travel.keeps`), or bring two parts' footprints within
-:data:`CLEARANCE_M`.  Lengths in m, angles in rad (modulo the part's symmetry).
+short with a pessimistic (mean + 2σ) step and is cut where a part's path with its largest
+plausible step (:meth:`~feeder.pose_gain.GainFilter.bound` at the part's own radius) would
+take it out of the travel, or one already outside it further out
+(:meth:`~feeder.travel.Travel.keeps`), or its pessimistic path would bring two parts' footprints
+within :data:`CLEARANCE_M`.  Lengths in m, angles in rad (modulo the part's symmetry).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from feeder.footprint import gap_m
 from feeder.plant.planar import PlanarPart
 from feeder.pose import Pose
 from feeder.pose_burst import MAX_BURST_STEPS, AxisBurst, Finish, carry_refusal
+from feeder.pose_gain import SEED_STD
 from feeder.pose_response import ResponseModel
 from feeder.travel import Travel
 from feeder.vision.model import angle_difference
@@ -182,18 +184,30 @@ class TurnPlanner:
         scale: float,
         anchored: tuple[int, ...],
     ) -> tuple[int, tuple[int, int] | None, int | None]:
-        """``steps`` cut where some part's pessimistic orbit leaves the travel (one outside it: goes
-        further out, :meth:`Travel.keeps`), an anchored part moves, or two parts' footprints come
-        within :data:`CLEARANCE_M` (closer than they are, when they already are); with the two
-        parts (indices) whose clearance cut it, and the part whose travel cut it, if any."""
+        """``steps`` cut where some part's orbit with its largest plausible step (at least the
+        pessimistic one; ``predict``'s ``bound``, each part at its own radius) leaves the travel
+        (one outside it: goes further out, :meth:`Travel.keeps`), an anchored part moves, or two
+        parts' footprints come within :data:`CLEARANCE_M` on their pessimistic paths (closer than
+        they are, when they already are); with the two parts (indices) whose clearance cut it,
+        and the part whose travel cut it, if any.  (Until 2026-11-29 the travel took the moving
+        part's relative spread for every part: one whose radius no burst had informed orbited
+        with the learned part's few per cent.)"""
         if steps < 1:
             return steps, None, None
         floors = self._gap_floors(poses)
         states = list(poses)
+        far = list(poses)
+        # a θ step orbits a part about O: one whose radius cannot reach the travel's edge nearest
+        # O over the burst (radial drift at its largest) stays within it, however far it orbits
+        inner = min(-self.travel.x_m[0], self.travel.x_m[1], -self.travel.y_m[0], self.travel.y_m[1])
+        drift = steps * max(scale, 1 + 2 * SEED_STD) * self.model.radial_reach_m(mode)
+        watched = [math.hypot(p[0], p[1]) + drift >= inner for p in poses]
         for n in range(1, steps + 1):
             for k, p in enumerate(states):
                 nxt = self.model.predict("theta", direction, mode, 1, p, scale)
-                if not self.travel.keeps(poses[k], nxt):
+                if watched[k]:
+                    far[k] = self.model.predict("theta", direction, mode, 1, far[k], scale, bound=True)
+                if not (self.travel.keeps(poses[k], nxt) and self.travel.keeps(poses[k], far[k])):
                     return n - 1, None, k
                 if k in anchored and (
                     math.hypot(nxt[0] - poses[k][0], nxt[1] - poses[k][1]) > 0.2 * self.tolerance_m

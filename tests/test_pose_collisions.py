@@ -16,8 +16,9 @@ from feeder.plant.planar import PlanarPart
 from feeder.plant.stick_slip import Friction
 from feeder.pose import Pose
 from feeder.pose_burst import AxisBurst, Finish
+from feeder.pose_gain import SEED_STD
 from feeder.pose_planner import PosePlanner
-from feeder.pose_response import SEED_STD, ResponseModel, TurnTable
+from feeder.pose_response import ResponseModel, TurnTable
 from feeder.pose_turns import CLEARANCE_M
 from feeder.travel import Travel
 

@@ -14,9 +14,10 @@ from feeder.plant.plate_motion import Segment
 from feeder.plant.stick_slip import Friction
 from feeder.pose import Pose, pose_error
 from feeder.pose_burst import AxisBurst, Finish
+from feeder.pose_gain import GainFilter
 from feeder.pose_pair import _anchor, _length_leg, _length_orbit, anchor_radius_m
 from feeder.pose_planner import PROBE_FRACTION, PosePlanner
-from feeder.pose_response import ANCHOR_MODES, AxisMode, GainFilter, ResponseModel, TurnTable, seed_response
+from feeder.pose_response import ANCHOR_MODES, AxisMode, ResponseModel, TurnTable, seed_response
 from feeder.travel import Travel
 
 F_HZ, FLYBACK_S = 100.0, 3.5e-4
