@@ -126,8 +126,7 @@ def test_cli_fit_says_plainly_when_no_w_reaches_the_target(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     plot = tmp_path / "fit.png"
-    assert main(["adhesion", "fit", "--ratio", "0.3", "--plot", str(plot), "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
-    assert out["adhesion_work_j_m2"] is None and "no w" in out["explanation"]
-    assert out["ratio_range"][0] == pytest.approx(0.5, abs=1e-3) and "tau_pa" not in out
-    assert plot.stat().st_size > 1000
+    assert main(["adhesion", "fit", "--ratio", "0.3", "--plot", str(plot), "--json"]) == 1  # refused
+    captured = capsys.readouterr()
+    assert captured.out == "" and "refused: no w" in captured.err and "spans 0.500" in captured.err
+    assert not plot.exists()

@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
 from feeder.cli.arguments import (
-    ADHESION_WORK_HELP,
     add_part_arguments,
     adhesion_work,
     float_in,
@@ -18,12 +18,13 @@ from feeder.cli.arguments import (
     positive_float,
 )
 from feeder.cli.output import print_json
-from feeder.contact.adhesion_fit import RATIO_BAND, AdhesionFit, fit_adhesion_work
+from feeder.contact.adhesion_fit import RATIO_BAND, AdhesionFit, check_ratios, default_band, fit_adhesion_work
 from feeder.contact.adhesion_sphere import DEFAULT_RANGE_M, MODELS, SphereContact
 from feeder.contact.tau_pair import fitted_tau
 from feeder.errors import InputError
 from feeder.files import save_figure
 from feeder.paper import GROOVED_FRICTION_RATIO
+from feeder.surface.parameters import ADHESION_WORK_HELP
 
 CURVE_POINTS = 200
 
@@ -90,15 +91,17 @@ def register(sub: Any) -> None:
         "--ratio",
         type=positive_float,
         default=GROOVED_FRICTION_RATIO,
-        help=f"target grooved/flat ratio (default the measured {GROOVED_FRICTION_RATIO})",
+        help=f"target grooved/flat ratio, in (0, 1] (default the measured {GROOVED_FRICTION_RATIO}); "
+        "one the model does not reach is refused (exit 1)",
     )
     f.add_argument(
         "--ratio-band",
         type=positive_float,
         nargs=2,
-        default=RATIO_BAND,
         metavar=("LO", "HI"),
-        help=f"ratio band mapped to a w band (default {RATIO_BAND[0]} {RATIO_BAND[1]})",
+        help=f"ratio band mapped to a w band, LO < HI in (0, 1] around --ratio (default the "
+        f"measured {RATIO_BAND[0]} {RATIO_BAND[1]}; ± {(RATIO_BAND[1] - RATIO_BAND[0]) / 2:g} around "
+        "another --ratio)",
     )
     f.add_argument("--plot", type=output_path, metavar="PNG", help="ratio against w")
     f.add_argument("--json", action="store_true", help="print one JSON object")
@@ -201,12 +204,20 @@ def _plot(sphere: SphereContact, model: str, load: Any, radius: Any, approach: A
 def run_fit(args: argparse.Namespace) -> int:
     if args.plot is not None and (args.plot.is_dir() or not args.plot.parent.is_dir()):
         raise InputError("--plot", f"cannot write {args.plot}: a directory, or its directory does not exist")
+    band = default_band(args.ratio) if args.ratio_band is None else (args.ratio_band[0], args.ratio_band[1])
+    try:
+        check_ratios(args.ratio, band)
+    except InputError as err:
+        raise InputError("--ratio" if err.field == "target" else "--ratio-band", err.message) from None
     part, _, surface = part_from(args)
-    fit = fit_adhesion_work(surface, part, args.ratio, tuple(args.ratio_band))
+    fit = fit_adhesion_work(surface, part, args.ratio, band)
+    if fit.adhesion_work_j_m2 is None:  # a ratio the model cannot give: refused, nothing written
+        print(f"feeder adhesion: refused: {fit.explanation}", file=sys.stderr)
+        return 1
     report: dict[str, Any] = {
         "part": part.label,
         "target_ratio": fit.target_ratio,
-        "ratio_band": list(args.ratio_band),
+        "ratio_band": list(band),
         "adhesion_work_j_m2": fit.adhesion_work_j_m2,
         "ratio_slope_per_j_m2": fit.ratio_slope_per_j_m2,
         "adhesion_work_band_j_m2": fit.adhesion_work_band_j_m2,
@@ -214,9 +225,8 @@ def run_fit(args: argparse.Namespace) -> int:
         "curve": {"adhesion_work_j_m2": fit.curve_w_j_m2, "ratio": fit.curve_ratio},
         "explanation": fit.explanation,
     }
-    if fit.adhesion_work_j_m2 is not None:
-        pair = fitted_tau(dataclasses.replace(surface, adhesion_work_j_m2=fit.adhesion_work_j_m2))
-        report.update(tau_pa=pair.tau_pa, tau_band_pa=pair.tau_band_pa)
+    pair = fitted_tau(dataclasses.replace(surface, adhesion_work_j_m2=fit.adhesion_work_j_m2))
+    report.update(tau_pa=pair.tau_pa, tau_band_pa=pair.tau_band_pa)
     if args.plot is not None:
         _plot_fit(fit, args.plot)
         report["plot"] = str(args.plot)
@@ -226,9 +236,8 @@ def run_fit(args: argparse.Namespace) -> int:
     print(fit.explanation)
     if fit.adhesion_work_band_j_m2 is not None:
         lo, hi = fit.adhesion_work_band_j_m2
-        print(f"  ratio band {args.ratio_band[0]}–{args.ratio_band[1]} → w {lo:.4g}–{hi:.4g} J/m²")
-    if "tau_pa" in report:
-        print(f"  τ fitted with that w: {report['tau_pa']:.4g} ± {report['tau_band_pa']:.3g} Pa")
+        print(f"  ratio band {band[0]:g}–{band[1]:g} → w {lo:.4g}–{hi:.4g} J/m²")
+    print(f"  τ fitted with that w: {report['tau_pa']:.4g} ± {report['tau_band_pa']:.3g} Pa")
     return 0
 
 

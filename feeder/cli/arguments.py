@@ -9,11 +9,12 @@ from __future__ import annotations
 import argparse
 import math
 import re
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from decimal import Decimal, DecimalException
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from feeder.errors import InputError, shown
 from feeder.parts import (
@@ -24,6 +25,7 @@ from feeder.parts import (
     Part,
     Support,
 )
+from feeder.surface.parameters import ADHESION_WORK_HELP, ADHESION_WORK_RANGE_J_M2, adhesion_work_problem
 
 if TYPE_CHECKING:
     from feeder.materials import Material
@@ -56,15 +58,11 @@ def float_in(low: float, high: float) -> Callable[[str], float]:
     return parse
 
 
-ADHESION_WORK_RANGE_J_M2 = (1e-6, 10.0)
-ADHESION_WORK_HELP = "0 or 1e-06–10"
-
-
 def adhesion_work(text: str) -> float:
-    """argparse type: a work of adhesion in J/m², 0 or 1 µJ/m²–10 J/m²."""
+    """argparse type: a work of adhesion in J/m², 0 or 1 µJ/m²–10 J/m² (``ADHESION_WORK_RANGE_J_M2``)."""
     value = float_in(0.0, ADHESION_WORK_RANGE_J_M2[1])(text)
-    if 0 < value < ADHESION_WORK_RANGE_J_M2[0]:
-        raise argparse.ArgumentTypeError(f"must be 0 or {ADHESION_WORK_HELP} J/m², got {text[:40]!r}")
+    if adhesion_work_problem(value) is not None:
+        raise argparse.ArgumentTypeError(f"must be {ADHESION_WORK_HELP} J/m², got {text[:40]!r}")
     return value
 
 
@@ -154,6 +152,7 @@ def input_path(text: str) -> Path:
 
 
 _LENGTH_UNITS_M = {"": 1.0, "m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "μm": 1e-6, "nm": 1e-9}
+_PRESSURE_UNITS_PA = {"": 1.0, "Pa": 1.0, "kPa": 1e3, "MPa": 1e6, "GPa": 1e9}
 _ANGLE_UNITS_RAD = {"": 1.0, "rad": 1.0, "deg": math.pi / 180, "°": math.pi / 180}
 _QUANTITY_RE = re.compile(r"^\s*([-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?)\s*([^\d\s.+-]*)\s*$")
 
@@ -197,6 +196,58 @@ def length_in(low_m: float, high_m: float) -> Callable[[str], float]:
         return value
 
     return parse
+
+
+def pressure_pa(text: str) -> float:
+    """argparse type: a pressure or stress with a unit (``22GPa``, ``300kPa``) or in pascals → Pa."""
+    return _quantity(text, _PRESSURE_UNITS_PA, "pressure", "22GPa")
+
+
+def positive_pressure_pa(text: str) -> float:
+    """argparse type: a positive pressure (see :func:`pressure_pa`) → Pa."""
+    value = pressure_pa(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive number of pascals (or 22GPa), got {text!r}")
+    return value
+
+
+MIN_SOLID_TAU_PA = 1e3
+"""A shear strength below 1 kPa is no solid contact's (the paper's τ is 22.18 GPa; with adhesion
+fitted, GPa too): a given ``--tau`` below it is almost certainly in the wrong unit."""
+
+
+class _ShearStrengthAction(argparse.Action):
+    """Store ``--tau``; below :data:`MIN_SOLID_TAU_PA` the command, once it has run, prints a warning
+    on stderr, or its bad-input error (one line, exit 2) says it at its end."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: str | Sequence[Any] | None,
+        option_string: str | None = None,
+    ) -> None:
+        setattr(namespace, self.dest, values)
+        handler = getattr(namespace, "handler", None)
+        if handler is None or getattr(handler, "warns_of_low_tau", False):
+            return
+        prog, dest = parser.prog, self.dest
+
+        def run(args: argparse.Namespace) -> int:
+            tau = getattr(args, dest, None)
+            if tau is None or tau >= MIN_SOLID_TAU_PA:
+                return int(handler(args))
+            slip = f"--tau {tau:g} Pa is below {MIN_SOLID_TAU_PA:g} Pa, no solid contact's shear strength"
+            try:
+                code = int(handler(args))
+            except InputError as err:  # the error stays one line: the hint goes at its end
+                raise InputError(err.field, f"{err.message} (note: {slip}: a unit slip?)") from None
+            print(f"{prog}: warning: {slip} (the paper's τ is 22.18 GPa): a unit slip? give a unit, "
+                  "e.g. --tau 22GPa", file=sys.stderr)  # fmt: skip
+            return code
+
+        run.warns_of_low_tau = True  # type: ignore[attr-defined]
+        namespace.handler = run
 
 
 def angle_rad(text: str) -> float:
@@ -249,8 +300,10 @@ def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
 
     p.add_argument(
         "--tau",
-        type=positive_float,
-        help=f"interfacial shear strength in Pa, > 0 (default: the paper's, {DEFAULT_TAU_PA:g} "
+        type=positive_pressure_pa,
+        action=_ShearStrengthAction,
+        help=f"interfacial shear strength, > 0, in Pa or with a unit (Pa, kPa, MPa, GPa: 22GPa); "
+        f"below 1 kPa warns of a unit slip (default: the paper's, {DEFAULT_TAU_PA:g} Pa "
         "at w = 0, fitted again with the surface's w when it has one)",
     )
     p.add_argument(
@@ -262,8 +315,9 @@ def add_tau_arguments(p: argparse.ArgumentParser, *, band: bool = True) -> None:
     if band:
         p.add_argument(
             "--tau-band",
-            type=float,
-            help=f"± band of τ in Pa (default {DEFAULT_TAU_BAND_PA / DEFAULT_TAU_PA:.3g}·τ)",
+            type=pressure_pa,
+            help=f"± band of τ in Pa or with a unit like --tau (default "
+            f"{DEFAULT_TAU_BAND_PA / DEFAULT_TAU_PA:.3g}·τ)",
         )
 
 

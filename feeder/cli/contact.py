@@ -143,7 +143,7 @@ def _print_result(r: ContactResult) -> None:
             f"  A_r of placements {r.real_area_band_m2[0]:.5g} – {r.real_area_band_m2[1]:.5g} m²"
             f" (68 %, mean {r.real_area_sampled_mean_m2:.5g})"
         )
-    print(f"  τ                 {r.tau_pa / 1e9:.4g} ± {r.tau_band_pa / 1e9:.3g} GPa ({r.tau_source})")
+    print(f"  τ                 {r.tau_pa / 1e9:.4g} ± {r.tau_band_pa / 1e9:.3g} GPa, {r.tau_source}")
     print(f"  plasticity index  {r.plasticity_index:.3g}")
     if r.summit_tabor is not None:
         print(

@@ -200,6 +200,8 @@ def run(args: argparse.Namespace) -> int:
         poses = np.tile(np.asarray(args.pose, dtype=float), (steps.size, 1))
         poses[:, 0 if args.axis == "x" else 1] += np.cumsum(steps)
     out.update(extra)
+    if args.ideal:  # always present: null when the flyback has no closed form (half-cosine, theta)
+        out.setdefault("closed_form_step_m", None)
     transient, settled = _transient(args, steps, notes)
     steady = steps[transient:]
     out.update(
@@ -248,8 +250,8 @@ def run(args: argparse.Namespace) -> int:
             f"  net    {out['net_displacement_m'] * 1e6:.4f} µm, slipping "
             f"{100 * slip_fraction:.2f} % of the time"
         )
-        if "closed_form_step_m" in out:
-            closed = out["closed_form_step_m"]
+        closed = out.get("closed_form_step_m")
+        if closed is not None:
             print(f"  closed form {closed * 1e6:.6f} µm" if math.isfinite(closed) else
                   "  closed form n/a (flyback longer than the rise: the part need not re-stick)")  # fmt: skip
         for warning in out["warnings"]:

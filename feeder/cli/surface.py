@@ -14,7 +14,7 @@ from feeder.cli.arguments import float_in, input_path, output_path
 from feeder.cli.output import print_json
 from feeder.errors import InputError
 from feeder.files import save_figure
-from feeder.surface.parameters import SurfaceParameters, implausible
+from feeder.surface.parameters import YOUNGS_MODULUS_RANGE_PA, SurfaceParameters, implausible
 from feeder.surface.reading import LENGTH_UNITS_M, PLAIN_SUFFIXES, HeightMap, read_height_map
 from feeder.surface.statistics import (
     SurfaceStatistics,
@@ -62,9 +62,9 @@ def register(sub: Any) -> None:
     )
     p.add_argument(
         "--youngs-modulus",
-        type=float_in(1e3, 1e13),
+        type=float_in(*YOUNGS_MODULUS_RANGE_PA),
         default=169e9,
-        help="Young's modulus of both bodies in Pa, 1 kPa–10 TPa (default silicon, 169e9)",
+        help="Young's modulus of both bodies in Pa, 1 MPa–10 TPa (default silicon, 169e9)",
     )
     p.add_argument(
         "--poisson", type=float_in(-1.0, 0.5), default=0.28, help="Poisson ratio, −1–0.5 (default 0.28)"

@@ -173,18 +173,21 @@ def run(args: argparse.Namespace) -> int:
 
 def _show(args: argparse.Namespace, waveform: Waveform, amplifier: AmplifierLimits) -> int:
     stack = file_stack(args.file)
-    if waveform.flyback_shape == "current-limited":
+    slope = amplifier.max_slope_v_per_s(stack.capacitance_f)
+    fly_slope = None  # the command's steepest flyback slope: ΔV/t_f, or π·ΔV/(2 t_f) for half-cosine
+    if waveform.command_flyback_s:
+        peak = math.pi / 2 if waveform.flyback_shape == "half-cosine" else 1.0
+        fly_slope = peak * waveform.amplitude_vpp / waveform.command_flyback_s
+    # what the amplifier makes: a command it cannot follow (an instant drop, or a flyback steeper
+    # than min(slew, I/C)) flies back along the current-limited ramp, as the plant simulates it
+    limited = fly_slope is None or fly_slope > slope
+    if limited:
         flyback, fraction = amplifier.current_limited_flyback(
             waveform.amplitude_vpp, waveform.frequency_hz, stack.capacitance_f
         )
         flyback_s, swing = float(flyback), float(fraction) * waveform.amplitude_vpp
     else:
         flyback_s, swing = waveform.command_flyback_s, waveform.amplitude_vpp
-    slope = amplifier.max_slope_v_per_s(stack.capacitance_f)
-    fly_slope = None  # the command's steepest flyback slope: ΔV/t_f, or π·ΔV/(2 t_f) for half-cosine
-    if waveform.command_flyback_s:
-        peak = math.pi / 2 if waveform.flyback_shape == "half-cosine" else 1.0
-        fly_slope = peak * waveform.amplitude_vpp / waveform.command_flyback_s
     info = {
         "file": str(args.file),
         "shape": waveform.shape,
@@ -200,6 +203,9 @@ def _show(args: argparse.Namespace, waveform: Waveform, amplifier: AmplifierLimi
         "stroke_m": swing * stack.gain_m_per_v,
         "amplifier_max_slope_v_per_s": slope,
         "command_flyback_peak_slope_v_per_s": fly_slope,
+        "flyback_current_limited": limited,
+        "command_flyback_s": waveform.command_flyback_s,
+        "command_stroke_m": waveform.amplitude_vpp * stack.gain_m_per_v,
     }
     warnings = []
     if fly_slope is not None and fly_slope > slope:

@@ -41,6 +41,16 @@ MAX_SUMMIT_RADIUS_M = 1.0
 heights) dominate the mean (integer-valued noise gave 36.5 km, and a breakaway of 2.3e7 g)."""
 MAX_SUMMIT_DENSITY_PER_M2 = 1e20
 """More than one summit per (0.1 nm)² is denser than the atoms: a unit slip."""
+YOUNGS_MODULUS_RANGE_PA = (1e6, 1e13)
+"""Young's moduli of solids in contact: from soft elastomers (≈ 1 MPa) to ten times diamond's
+(1.05 TPa). The library (docs/materials.md) spans 3 GPa (PMMA) to 345 GPa (sapphire), three
+decades inside; a bare ``169`` (GPa meant, 169 Pa read) is far below and refused."""
+ADHESION_WORK_RANGE_J_M2 = (1e-6, 10.0)
+"""A work of adhesion w is 0 (the paper's model) or 1 µJ/m²–10 J/m²: solids in air give
+0.01–0.1 J/m², clean ones in vacuum a few J/m² (twice the surface energy); ``--adhesion-work``
+and a surface file's ``adhesion_work_j_m2`` share this range."""
+ADHESION_WORK_HELP = f"0 or {ADHESION_WORK_RANGE_J_M2[0]:g}–{ADHESION_WORK_RANGE_J_M2[1]:g}"
+"""The range of w as the options' help and errors say it (J/m²)."""
 
 
 @dataclass(frozen=True)
@@ -177,6 +187,14 @@ _MATERIAL_KEYS = (
 )
 
 
+def adhesion_work_problem(value: float) -> str | None:
+    """Why ``value`` (J/m²) is no work of adhesion (:data:`ADHESION_WORK_RANGE_J_M2`), else None."""
+    low, high = ADHESION_WORK_RANGE_J_M2
+    if value == 0 or low <= value <= high:  # NaN fails both
+        return None
+    return f"must be {ADHESION_WORK_HELP} J/m², got {value!r}"
+
+
 def load_surface(path: Path) -> SurfaceParameters:
     """Read a surface TOML file; every problem is an :class:`InputError` naming file and field."""
     data = read_toml(path)
@@ -203,16 +221,21 @@ def load_surface(path: Path) -> SurfaceParameters:
     problem = implausible(parameters)
     if problem is not None:
         key, message = problem
-        raise InputError(f"{path}: [surface].{key}", message)
+        where = "material" if key in _MATERIAL_KEYS else "surface"
+        raise InputError(f"{path}: [{where}].{key}", message)
     return parameters
 
 
 def implausible(surface: SurfaceParameters) -> tuple[str, str] | None:
-    """The first physically impossible summit statistic of ``surface`` as (field, why), else None.
+    """The first physically impossible summit statistic or material constant of ``surface`` as
+    (field, why), else None.
 
     Positive and finite is not enough: heights read in the wrong unit (metres for nm) give
     σ ≈ 1 m and R ≈ 1e-17 m, which the contact model turns into a separation of 1e10 nm.
-    Bounds: σ, |μ|, z_max ≤ 1 mm; 1 pm ≤ R ≤ 1 m; η ≤ 1e20 m⁻² (one summit per (0.1 nm)²).
+    Bounds: σ, |μ|, z_max ≤ 1 mm; 1 pm ≤ R ≤ 1 m; η ≤ 1e20 m⁻² (one summit per (0.1 nm)²);
+    Young's moduli 1 MPa–10 TPa (:data:`YOUNGS_MODULUS_RANGE_PA`; a modulus in GPa read as Pa
+    made the part "too heavy for the surface"); w 0 or 1 µJ/m²–10 J/m²
+    (:data:`ADHESION_WORK_RANGE_J_M2`; 1e3 J/m² gave a negative load capacity).
     """
     hint = ": not a surface's summit statistics (heights in the wrong unit?)"
     heights = [("sigma_m", surface.sigma_m), ("mean_summit_height_m", surface.mean_summit_height_m)]
@@ -231,4 +254,13 @@ def implausible(surface: SurfaceParameters) -> tuple[str, str] | None:
     if surface.summit_density_per_m2 > MAX_SUMMIT_DENSITY_PER_M2:
         density = surface.summit_density_per_m2
         return "summit_density_per_m2", f"{density:.4g} m⁻² is above {MAX_SUMMIT_DENSITY_PER_M2:g} m⁻²{hint}"
+    low, high = YOUNGS_MODULUS_RANGE_PA
+    for key, modulus in (("youngs_modulus_pa", surface.youngs_modulus_pa),
+                         ("support_youngs_modulus_pa", surface.support_youngs_modulus_pa)):  # fmt: skip
+        if modulus is not None and not low <= modulus <= high:
+            return key, (f"{modulus:.4g} Pa is outside {low:g}–{high:g} Pa, no solid's Young's modulus "
+                         "(in pascals: silicon is 169e9)")  # fmt: skip
+    problem = adhesion_work_problem(surface.adhesion_work_j_m2)
+    if problem is not None:
+        return "adhesion_work_j_m2", problem
     return None
