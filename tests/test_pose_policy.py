@@ -9,6 +9,7 @@ given in part keep the rest of the pose, that a reached part is held, the result
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import pytest
@@ -106,17 +107,28 @@ class Plane:
         for _ in range(limit):
             self.now += DT
             self.sample()
-            for out in self.policy.tick(self.now):
-                if isinstance(out, Started):
-                    out.job.recorded = True
-                elif isinstance(out, Decide):  # the loop's worker: answered by the next tick
-                    self.policy.on_decision(self.policy.decide(out))
-                elif isinstance(out, Command):
-                    self.commands.append(out)
-                    self.play(out)
-                elif isinstance(out, Finished):
-                    return out
+            finished = tick(self.policy, self.now, self.commands, self.play)
+            if finished is not None:
+                return finished
         raise AssertionError("the job did not finish")
+
+
+def tick(
+    policy: Policy, now: float, commands: list[Command], play: Callable[[Command], None]
+) -> Finished | None:
+    """One tick of ``policy`` as the loop runs it: records taken at once, decisions answered,
+    commands kept in ``commands`` and played; the job's end, or None."""
+    for out in policy.tick(now):
+        if isinstance(out, Started):
+            out.job.recorded = True
+        elif isinstance(out, Decide):  # the loop's worker: answered by the next tick
+            policy.on_decision(policy.decide(out))
+        elif isinstance(out, Command):
+            commands.append(out)
+            play(out)
+        elif isinstance(out, Finished):
+            return out
+    return None
 
 
 def test_a_pose_move_steps_each_axis_and_reports_the_pose_errors() -> None:

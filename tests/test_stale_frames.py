@@ -14,9 +14,9 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
-from test_pose_policy import MODES, SETTINGS, STEP_M, StepPlanner
+from test_pose_policy import MODES, SETTINGS, STEP_M, StepPlanner, tick
 
-from feeder.daemon.jobs import Command, Completion, Decide, Finished, Job, LoopSettings, Started
+from feeder.daemon.jobs import Command, Completion, Finished, Job, LoopSettings
 from feeder.daemon.policy import Policy
 from feeder.daemon.pose_navigator import PoseNavigator
 from feeder.pose import Pose
@@ -84,16 +84,9 @@ class LaggingPlane:
                 self.confirming = None
             seen = self.truth(self.now - self.lag_s)
             self.policy.on_sample(seen[0], self.now, (seen,))
-            for out in self.policy.tick(self.now):
-                if isinstance(out, Started):
-                    out.job.recorded = True
-                elif isinstance(out, Decide):
-                    self.policy.on_decision(self.policy.decide(out))
-                elif isinstance(out, Command):
-                    self.commands.append(out)
-                    self.play(out)
-                elif isinstance(out, Finished):
-                    return out
+            finished = tick(self.policy, self.now, self.commands, self.play)
+            if finished is not None:
+                return finished
         raise AssertionError("the job did not finish")
 
     def steps_sent(self) -> list[int]:

@@ -178,12 +178,20 @@ def length_m(text: str) -> float:
     return _quantity(text, _LENGTH_UNITS_M, "length", "1.5um")
 
 
-def positive_length_m(text: str) -> float:
-    """argparse type: a positive length (see :func:`length_m`) → m."""
-    value = length_m(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive length, got {text!r}")
-    return value
+def _positive(parse: Callable[[str], float], what: str) -> Callable[[str], float]:
+    """argparse type: ``parse``'s value, refused unless positive (``what``: how it is named)."""
+
+    def positive(text: str) -> float:
+        value = parse(text)
+        if value <= 0:
+            raise argparse.ArgumentTypeError(f"must be a positive {what}, got {text!r}")
+        return value
+
+    return positive
+
+
+positive_length_m = _positive(length_m, "length")
+"""argparse type: a positive length (see :func:`length_m`) → m."""
 
 
 def length_in(low_m: float, high_m: float) -> Callable[[str], float]:
@@ -203,12 +211,8 @@ def pressure_pa(text: str) -> float:
     return _quantity(text, _PRESSURE_UNITS_PA, "pressure", "22GPa")
 
 
-def positive_pressure_pa(text: str) -> float:
-    """argparse type: a positive pressure (see :func:`pressure_pa`) → Pa."""
-    value = pressure_pa(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive number of pascals (or 22GPa), got {text!r}")
-    return value
+positive_pressure_pa = _positive(pressure_pa, "number of pascals (or 22GPa)")
+"""argparse type: a positive pressure (see :func:`pressure_pa`) → Pa."""
 
 
 MIN_SOLID_TAU_PA = 1e3
