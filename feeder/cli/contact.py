@@ -71,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     materials, notes = _materials(args, surface)
     if args.json:
         out = result.to_json()
+        out.update(_elastic_constants(surface))
         out.update(materials)
         out["warnings"] += notes
         print_json(out)
@@ -80,6 +81,12 @@ def run(args: argparse.Namespace) -> int:
         for note in notes:
             print(f"  warning: {note}")
     return 0
+
+
+def _elastic_constants(surface: SurfaceParameters) -> dict[str, float]:
+    """E* of the pair and the softer body's hardness H (the plasticity index's), from the surface
+    the model ran on: the --surface file or the embedded default, with --material's constants."""
+    return {"effective_modulus_pa": surface.effective_modulus_pa, "hardness_pa": surface.hardness_pa}
 
 
 def _materials(args: argparse.Namespace, surface: SurfaceParameters) -> tuple[dict[str, Any], list[str]]:
@@ -95,8 +102,7 @@ def _materials(args: argparse.Namespace, surface: SurfaceParameters) -> tuple[di
     out = {
         "part_material": a.name if part_material else None,
         "support_material": b.name,
-        "effective_modulus_pa": surface.effective_modulus_pa,
-        "hardness_pa": surface.hardness_pa,
+        **_elastic_constants(surface),
         "material_adhesion_work_j_m2": w,
         "material_adhesion_work_source": source,
     }
@@ -210,7 +216,8 @@ def _table(surface: SurfaceParameters, args: argparse.Namespace, placements: int
             f"statistics unreliable: {', '.join(few)}",
         )
     if as_json:
-        print_json({"rows": rows, "tau_pa": tau, "tau_band_pa": tau_band, "warnings": warnings})
+        print_json({"rows": rows, "tau_pa": tau, "tau_band_pa": tau_band, **_elastic_constants(surface),
+                    "warnings": warnings})  # fmt: skip
         return 0
     summits = "Maugis–Dugdale" if surface.adhesion_work_j_m2 else "Hertz"
     print(

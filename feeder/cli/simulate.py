@@ -23,7 +23,7 @@ from feeder.cli.arguments import (
     positive_float,
 )
 from feeder.cli.output import print_json
-from feeder.cli.simulate_models import ideal, plant, pose_map, theta, theta_plant
+from feeder.cli.simulate_models import ideal, plant, pose_map, theta, theta_plant, unfollowed_flyback
 from feeder.cli.simulate_options import (
     FREQUENCY_RANGE_HZ,
     MAP_POINTS_RANGE,
@@ -182,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--plot", f"traces are for --axis x or y, not theta{from_file}; use --map for theta")
     part, support, surface = part_from(args)
     notes += prediction_warnings(args, prediction, part, support)
+    # the ideal plate follows the command's flyback; one the amplifier cannot follow is no plate's
+    flyback = unfollowed_flyback(args.waveform) if args.ideal and args.waveform is not None else None
     result = contact(part, support, surface, args.tau)
     friction = Friction(result.breakaway_accel_m_s2, args.kinetic_ratio)
     out: dict[str, Any] = {"part": part.label, "support": args.support,
@@ -217,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
             "steps_m": steps,
             "pose_start": list(args.pose),
             "poses": poses,
-            "warnings": [*notes, *result.warnings],
+            "warnings": [*notes, *result.warnings, *([flyback] if flyback else [])],
         }
     )
     if args.axis == "theta":

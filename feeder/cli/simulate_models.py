@@ -56,6 +56,36 @@ def _sawtooth_parameters(args: argparse.Namespace, stroke: float | None) -> tupl
     return stroke, args.frequency_hz, args.flyback_s, args.flyback_shape, args.direction
 
 
+def unfollowed_flyback(path: Path) -> str | None:
+    """A warning when the --waveform file's command flies back faster than its amplifier can follow
+    (into the file's stack), else None.
+
+    The ideal plate follows the command's flyback by design; the amplifier (``feeder waveform
+    show``, the plant) makes the current-limited flyback instead, over a smaller swing.
+    """
+    from feeder.design import fastest_flyback_s
+
+    amplifier, stack = file_amplifier(path), file_stack(path)
+    waveform = load_checked(path, amplifier)
+    command = waveform.command_flyback_s
+    if not command:  # current-limited: the ideal plate already takes the amplifier's flyback
+        return None
+    fastest = fastest_flyback_s(waveform.flyback_shape, waveform.amplitude_vpp, amplifier, stack)
+    if command >= fastest:
+        return None
+    t_f, fraction = amplifier.current_limited_flyback(
+        waveform.amplitude_vpp, waveform.frequency_hz, stack.capacitance_f
+    )
+    swing_v = float(fraction) * waveform.amplitude_vpp
+    return (
+        f"{path}: the amplifier cannot follow the command's {command * 1e6:.4g} µs {waveform.flyback_shape} "
+        f"flyback into the {stack.capacitance_f:g} F stack: it flies back in {float(t_f) * 1e6:.4g} µs, "
+        f"current-limited, over {swing_v:.4g} V of {waveform.amplitude_vpp:.4g} V (as `feeder waveform show` "
+        f"reports); the ideal plate follows the command's {command * 1e6:.4g} µs flyback, and `feeder "
+        "simulate` without --ideal gives what the plate does"
+    )
+
+
 def ideal(args: argparse.Namespace, friction: Friction) -> tuple[
         np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:  # fmt: skip
     """Ideal plate from --stroke-m/--frequency-hz/--flyback-s, or from --waveform (x or y axis)."""

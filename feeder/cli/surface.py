@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -104,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         if target is not None and (target.is_dir() or not target.parent.is_dir()):
             raise InputError(flag, f"cannot write {target}: a directory, or its directory does not exist")
     maps = [read_height_map(p, args.channel, args.pixel_size, args.height_unit) for p in args.scans]
+    ignored = _ignored_scale_options(args)
     unfiltered = [surface_statistics(m) for m in maps] if args.cutoff_wavelength else []
     if args.cutoff_wavelength:
         maps = [
@@ -144,10 +146,27 @@ def run(args: argparse.Namespace) -> int:
         report.update(_bem(maps[0], surface, args))
         report["warnings"] += report["bem_reading"]
     if args.json:
+        report["warnings"] += ignored
         print_json(report)
     else:
         _print_report(report)
+    for warning in ignored:  # after the report: a later error stays the only line on stderr
+        print(f"feeder surface: warning: {warning}", file=sys.stderr)
     return 0
+
+
+def _ignored_scale_options(args: argparse.Namespace) -> list[str]:
+    """A warning per --pixel-size / --height-unit given with an instrument file: its reader takes
+    the file's own scale (only plain .npy/.txt/.csv/.dat height maps read these options)."""
+    options = (("--pixel-size", args.pixel_size), ("--height-unit", args.height_unit))
+    given = [flag for flag, value in options if value is not None]
+    return [
+        f"{flag} is ignored for {scan}: the file states its own pixel size and height unit "
+        f"(the option is for plain {'/'.join(PLAIN_SUFFIXES)} height maps)"
+        for scan in args.scans
+        if scan.suffix.lower() not in PLAIN_SUFFIXES
+        for flag in given
+    ]
 
 
 def _refuse_implausible(surface: SurfaceParameters, scans: list[Path]) -> None:
