@@ -142,3 +142,16 @@ def test_the_range_is_the_one_simulate_stated() -> None:
         with pytest.raises(InputError, match=r"^f: "):
             part_pose(bad, "f")
     assert part_poses("0,0,0;0.1,0,1", "f") == ((0, 0, 0), (0.1, 0, 1))
+
+
+def test_plane_keeps_the_parts_a_one_axis_configuration_names(tmp_path: Path) -> None:
+    """`feeder daemon --config FILE --plane` with only ``[plate] parts``: the old code put the
+    embedded plane's one default part there instead (``--part 2`` then refused)."""
+    from feeder.daemon.config import PLANE_START_POSE, embedded_plane
+
+    named = tmp_path / "two.toml"
+    named.write_text('[plate]\nparts = "-0.9e-3,0.1e-3,0;0.9e-3,-0.1e-3,0.3"\n')
+    assert embedded_plane(load_config(named)).plate.parts == ((-0.9e-3, 0.1e-3, 0.0), (0.9e-3, -0.1e-3, 0.3))
+    unnamed = tmp_path / "none.toml"
+    unnamed.write_text("[plate]\nlever_arm_m = 1e-3\n")
+    assert embedded_plane(load_config(unnamed)).plate.parts == (PLANE_START_POSE,)

@@ -116,13 +116,15 @@ class PlateConfig:
     axis' ANC300 axis number or CANopen node id; lever_arm_m: radius about O at
     which the θ stack drives the plate (simulator); parts: the parts on the plate,
     as their start poses (m, m, rad; plate frame): the simulator places them there;
-    on hardware their number is how many the camera must locate.
+    on hardware their number is how many the camera must locate; parts_given: the
+    configuration names them (``--plane`` keeps them on a one-axis configuration).
     """
 
     axes: tuple[str, ...] = ("x",)
     axis_map: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_AXIS_MAP))
     lever_arm_m: float = 1e-3
     parts: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),)
+    parts_given: bool = False
 
     @property
     def planar(self) -> bool:
@@ -340,7 +342,7 @@ def embedded_plane(config: DaemonConfig) -> DaemonConfig:
         average_samples=PLANE_AVERAGE_FRAMES,
         burst_grace_s=PLANE_TICK_WATCHDOG_S,
     )
-    parts = config.plate.parts if config.plate.planar else (PLANE_START_POSE,)
+    parts = config.plate.parts if config.plate.planar or config.plate.parts_given else (PLANE_START_POSE,)
     plate = dataclasses.replace(config.plate, axes=AXES, parts=parts)
     amplifier = config.amplifier
     if amplifier.simulated:  # the simulated plant's rare slow tick (PLANE_TICK_WATCHDOG_S)

@@ -172,6 +172,7 @@ def _plate(table: dict[str, Any], where: str) -> PlateConfig:
             table, "lever_arm_m", where, PlateConfig.lever_arm_m, positive=True, section="plate."
         ),
         parts=parts,
+        parts_given="parts" in table,
     )
 
 
