@@ -324,8 +324,12 @@ up to a second (a 1 s grace ended a move "did not finish the burst in time" once
 simulated device's time waits for its world (``firmware_sim.firmware.WORLD_SHARE``), so a slow
 plant stretches a burst in wall time; a real amplifier's tick never waits for physics.  The
 simulated amplifier's link timeout is as long."""
-PLANE_HEARTBEAT_S = 0.5
-"""The simulated CANopen nodes' heartbeat in the plane (lost after 2.5 periods)."""
+PLANE_HEARTBEAT_S = 0.8
+"""The simulated CANopen nodes' heartbeat in the plane, lost after 2.5 periods
+(:data:`~feeder.drivers.canopen_link.HEARTBEAT_LOSS_PERIODS`): 2 s, as long as the tick watchdog
+grants the planar plant's slowest tick (:data:`PLANE_TICK_WATCHDOG_S`), which holds the simulator's
+heartbeat back too (at 0.5 s, a node was taken for lost after 1.47 s on a loaded machine, and a
+move ended ``fault``)."""
 
 
 def embedded_plane(config: DaemonConfig) -> DaemonConfig:
