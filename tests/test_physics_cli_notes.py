@@ -11,26 +11,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-
-from feeder.cli import main
-
-Capture = pytest.CaptureFixture[str]
+from test_physics_cli_inputs import HAND_FLYBACK_S, WAVEFORM, Capture, run
 
 AFM = Path(__file__).resolve().parents[1].parent / "shared" / "afm"
 needs_afm = pytest.mark.skipif(
     not AFM.is_dir() or importlib.util.find_spec("SurfaceTopography") is None,
     reason=f"real AFM files ({AFM}) or the afm extra not available",
 )
-
-
-def run(capsys: Capture, *argv: str) -> tuple[int | str | None, str, str]:
-    """``feeder ARGV`` in-process: (exit code, stdout, stderr); argparse's exit is caught."""
-    try:
-        code: int | str | None = main(list(argv))
-    except SystemExit as exit_:
-        code = exit_.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 # ---------------------------------------------------------------- surface: ignored scale options
@@ -125,19 +112,7 @@ def test_contact_table_json_reports_the_effective_modulus_and_hardness(capsys: C
 # ---------------------------------------------------------------- simulate --ideal: the flyback
 
 
-WAVEFORM = """[waveform]
-shape = "sawtooth"
-frequency_hz = 100.0
-amplitude_vpp = 200.0
-offset_v = 0.0
-flyback_shape = "{shape}"
-flyback_s = {flyback_s}
-direction = "forward"
-"""
-
-# the default amplifier into the default 1 µF stack: min(slew, I/C) = 5.5e5 V/s, so the output meets
-# the rising command after 200 V / (5.5e5 + 200·100) V/s = 350.9 µs, having swung 193.0 V
-HAND_FLYBACK_US = 1e6 * 200 / (5.5e5 + 200 * 100)
+HAND_FLYBACK_US = 1e6 * HAND_FLYBACK_S  # the amplifier's flyback (test_physics_cli_inputs)
 
 
 def _simulate(capsys: Capture, path: Path, *args: str) -> tuple[int | str | None, str, str]:
