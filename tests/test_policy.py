@@ -187,8 +187,10 @@ def test_a_command_the_amplifier_refused_leaves_the_output_unknown_and_it_is_gro
     rig.complete(rig.run_until_command("enable"))
     apply = rig.run_until_command("apply")
     rig.complete(apply, error="Value out of range: voltage = 137.17 not in [0, 100]")
-    rig.tick()
+    for _ in range(6):  # nothing played: held until the readings agree, no stop sent
+        rig.tick()
     assert rig.finished().result.status == "fault" and rig.policy.state == "idle"
+    assert [c.kind for c in rig.commands()] == ["enable", "apply"]
     ended = rig.now
     grounds = []
     while rig.now < ended + SETTINGS.idle_ground_s + 1.0:
@@ -374,11 +376,41 @@ def test_an_amplifier_refusal_ends_the_job_and_checks_the_output_next_time() -> 
     rig = Rig()
     _, step = to_first_burst(rig)
     rig.complete(step, error="Axis in wrong mode")
-    rig.tick()
+    stop = rig.run_until_command("stop")
+    rig.complete(stop, counter=0)
+    for _ in range(6):
+        rig.tick()
     assert rig.finished().result.status == "fault"
+    assert rig.finished().result.reason == "amplifier refused: Axis in wrong mode"
     assert rig.policy.state == "idle"
     start_move(rig, 0.0)
     assert rig.run_until_command("enable").kind == "enable"
+
+
+def test_a_burst_not_confirmed_in_time_is_stopped_and_the_move_ends_once_the_part_settled() -> None:
+    """The re-audit under heavy load: the burst's end was not confirmed within the grace, the
+    move ended ``fault`` at once with a pose the part was still leaving, and the daemon reported
+    idle while the part moved on (451 and 1627 µm more in two runs)."""
+    rig = Rig()
+    _, step = to_first_burst(rig, 900e-6)
+    rig.complete(step, counter=0)
+    confirm = rig.run_until_command("confirm_end")
+    rig.position_m = 200e-6
+    rig.complete(confirm, error="the amplifier did not finish the burst in time")
+    stop = rig.run_until_command("stop")
+    rig.complete(stop, counter=150)
+    assert rig.policy.state == "holding"
+    for k in range(50):  # the part still moves, past the settle time: no result yet
+        rig.position_m = 200e-6 + k * 10e-6
+        rig.tick()
+    assert not any(isinstance(o, Finished) for o in rig.outputs) and rig.policy.state == "holding"
+    rig.position_m = 700e-6
+    for _ in range(6):
+        rig.tick()
+    result = rig.finished().result
+    assert result.status == "fault" and "did not finish the burst in time" in result.reason
+    assert result.reached_m == pytest.approx(700e-6) and result.steps == 150
+    assert rig.policy.state == "idle"
 
 
 def test_an_amplifier_that_refuses_stop_is_a_lost_link() -> None:

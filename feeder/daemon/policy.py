@@ -22,10 +22,11 @@ States (:data:`STATES`):
   :class:`~feeder.daemon.jobs.Decide`, the loop runs :meth:`Policy.decide` on a thread
   of its own, and the answer comes back through :meth:`Policy.on_decision` (one
   answered after the job ended is dropped).
-- ``holding``: the job is over early (stop, sensor or limit): the output was
-  stopped and the part is watched until the sensor reads it settled (the
-  last readings, at least two, agree within the tolerance); only then is
-  the result, with the settled position and the steps actually played, final.
+- ``holding``: the job is over early (a stop, a limit, a command the amplifier
+  refused): the output was stopped and the part is watched until the sensor
+  reads it settled (the last readings, at least two, agree within the
+  tolerance); only then is the result, with the settled position and the
+  steps actually played, final.
 - ``fault``: the amplifier link or the sensor is lost; no job is accepted
   until the link is restored (:meth:`Policy.link_restored`, :meth:`Policy.sensor_restored`).
 
@@ -210,9 +211,11 @@ class Policy:
             else:
                 self._enabled = False  # the next job checks the output's state again
                 self._applied = {}
-                if self.job is not None:
-                    self._emit_stop()
-                    self._finish(self.job, "fault", f"amplifier refused: {done.error}", None)
+                if self.job is not None and self._finish_as is None:
+                    # a burst whose end was not confirmed may still play: stop it and end the
+                    # job once the part reads settled, as after a stop (not with a pose the
+                    # part is still leaving, the daemon idle while it moves)
+                    self._end_early("fault", f"amplifier refused: {done.error}", done.at_s)
             return
         burst = self._cycle.flying
         if kind == "ground":
