@@ -182,6 +182,7 @@ def test_the_camera_is_calibrated_from_the_page_and_stop_ends_it(
     (not stored) it shows the daemon's report: the embedded camera's 2.7 µm/px, not mirrored."""
     assert page.is_visible("#calibrate-camera")
     page.fill("#cam-volts", "20")
+    page.fill("#cam-increment", "0.1")  # holds the part too (docs/vision.md): half the ramps' time
     page.fill("#cam-frames", "2")
     page.uncheck("#cam-save")
     page.click("#calibrate-camera")

@@ -84,7 +84,9 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             assert client.request("status")["camera_calibration"]["source"] == "configuration"
 
             plot = base / "moves.png"
-            moves = ["--volts", "40", "--frames", "4", "--save-state", "--plot", str(plot), "--json"]
+            # 0.1 V increments hold the part too (docs/vision.md): half the default's time
+            moves = ["--volts", "40", "--increment", "0.1", "--frames", "4", "--save-state"]
+            moves += ["--plot", str(plot), "--json"]
             socket = ["--socket", str(config.socket_path)]
             code = main(["vision", "calibrate-moves", "--daemon", *socket, *moves])
             out = capsys.readouterr()
@@ -92,10 +94,10 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             report = json.loads(out.out)
             steps = [line for line in out.err.splitlines() if ": offset " in line]  # each shown once
             assert steps[:4] == [
-                "x: offset 0 → 40 V in 0.05 V steps",
-                "x: offset 40 → 0 V in 0.025 V steps",
-                "y: offset 0 → 40 V in 0.05 V steps",
-                "y: offset 40 → 0 V in 0.025 V steps",
+                "x: offset 0 → 40 V in 0.1 V steps",
+                "x: offset 40 → 0 V in 0.05 V steps",
+                "y: offset 0 → 40 V in 0.1 V steps",
+                "y: offset 40 → 0 V in 0.05 V steps",
             ] and [s.split(" in ")[0] for s in steps[4:]] == [
                 "theta: offset 0 → 40 V",
                 "theta: offset 40 → 0 V",

@@ -473,7 +473,7 @@ def test_calibrate_moves_on_the_simulator_measures_its_turned_mirrored_camera(
             "--volts",
             "40",
             "--increment",
-            "0.05",
+            "0.1",
             "--frames",
             "4",
             "--sim-arg=--camera-mirrored",
@@ -497,7 +497,7 @@ def test_calibrate_moves_on_the_simulator_measures_its_turned_mirrored_camera(
     assert report["turn_from"] == "stack gain" and 16 < report["origin_uncertainty_px"] < 25
     assert math.hypot(report["origin_x_px"] - 1023.5, report["origin_y_px"] - 1023.5) < 8
     assert report["returned_px"] < 0.1  # the parts came back to where they were
-    assert "x: offset 0 → 40 V in 0.05 V steps" in out.err
+    assert "x: offset 0 → 40 V in 0.1 V steps" in out.err
     store = Store(tmp_path / "feeder.sqlite")
     stored = store.camera_calibration()
     store.close()
