@@ -25,7 +25,7 @@ from feeder.daemon.jobs import (
     StepMode,
 )
 from feeder.daemon.line_navigator import COARSE, FINE
-from feeder.daemon.policy import Policy
+from feeder.daemon.policy import MAX_GROUND_CHECKS, Policy
 from feeder.daemon.sensor_latency import MAX_SETTLE_S
 from feeder.drivers.amplifier import DriveSettings
 
@@ -133,32 +133,104 @@ def test_a_move_goes_idle_moving_settling_and_back_to_idle_done() -> None:
     assert any(isinstance(o, SavePosition) for o in rig.outputs)
 
 
-def play_to_the_end(rig: Rig) -> None:
-    """Complete every command at once, each step moving the part by its mode's step, until the job ends."""
+def play_to_the_end(rig: Rig, grounded_shift_m: float = 0.0, enabled_shift_m: float = 0.0) -> None:
+    """Complete every command at once, each step moving the part by its mode's step, until the
+    job ends; a ground moves the part by ``grounded_shift_m``, an enable by ``enabled_shift_m``
+    (the plate's rest at a waveform's level, and a part stuck to it)."""
     while rig.policy.job is not None:
         for o in rig.tick():
             if isinstance(o, Command):
                 if o.kind == "step":
                     rig.position_m += o.steps * (3.0e-6 if rig.policy._applied.get("x") == COARSE else 0.8e-6)
+                rig.position_m += {"ground": grounded_shift_m, "enable": enabled_shift_m}.get(o.kind, 0.0)
                 rig.complete(o, counter=0)
         assert rig.now < 60
 
 
-def test_the_output_is_grounded_once_idle_and_the_next_move_enables_and_measures_again() -> None:
-    """A real ANC300 keeps its axes driven until told otherwise and has no host watchdog: a
-    daemon that then dies leaves them driven.  ``idle_ground_s`` after a move the policy grounds
-    every axis; a move within that time keeps the output as it is."""
+def stopped_move(rig: Rig) -> None:
+    """A move stopped during its first burst, ended once the part reads settled."""
+    _, step = to_first_burst(rig, 900e-6)
+    rig.complete(step, counter=0)
+    rig.policy.request_stop()
+    rig.complete(rig.run_until_command("stop"), counter=5)
+    while not any(isinstance(o, Finished) for o in rig.outputs):
+        rig.tick()
+    assert rig.finished().result.status == "stopped" and rig.policy.state == "idle"
+
+
+def test_a_done_move_ends_with_every_axis_grounded_and_the_next_enables_and_measures_again() -> None:
+    """The navigator's done is checked grounded: an axis at rest holds its waveform's level (an
+    ANC300 at the top of its table after backward steps), and the idle ground 2 s later turned
+    the plate by that stroke: a part near O reported done ended 0.54° off (the re-audit)."""
     rig = Rig()
     start_move(rig, 30e-6)
     play_to_the_end(rig)
-    assert rig.finished().result.status == "done"
-    ended, kinds = rig.now, [c.kind for c in rig.commands()]
-    start_move(rig, 0.0)  # within idle_ground_s: no ground, no enable
+    result = rig.finished().result
+    kinds = [c.kind for c in rig.commands()]
+    assert result.status == "done" and kinds[-1] == "ground" and kinds.count("ground") == 1
+    assert result.reached_m == pytest.approx(rig.position_m)
+    for _ in range(round(2 * SETTINGS.idle_ground_s / DT)):  # grounded already: no idle ground
+        assert not [o for o in rig.tick() if isinstance(o, Command)]
+    n = len(rig.commands())
+    start_move(rig, 0.0)
+    assert rig.policy.state == "moving"
+    rig.complete(rig.run_until_command("enable"))
+    assert rig.policy.state == "settling"  # leaving ground moved the plate's rest: measure again
     play_to_the_end(rig)
-    assert (
-        "ground" not in [c.kind for c in rig.commands()]
-        and "enable" not in [c.kind for c in rig.commands()][len(kinds) :]
-    )
+    assert rig.outputs[-1].result.status == "done"  # type: ignore[union-attr]
+    assert [c.kind for c in rig.commands()[n:]][:1] == ["enable"]
+
+
+def test_a_ground_that_moves_the_part_out_of_tolerance_steps_on_from_the_grounded_pose() -> None:
+    """The first ground leaves the part 2.4 µm short: the policy enables and steps at once from
+    that pose (measured once enabled, the pose would be the driven one, done again), and the
+    second check finds it within tolerance."""
+    rig = Rig()
+    start_move(rig, 30e-6)
+    shifts = iter([-2.4e-6])
+    while rig.policy.job is not None:
+        for o in rig.tick():
+            if isinstance(o, Command):
+                if o.kind == "step":
+                    rig.position_m += o.steps * (3.0e-6 if rig.policy._applied.get("x") == COARSE else 0.8e-6)
+                elif o.kind == "ground":
+                    rig.position_m += next(shifts, 0.0)
+                rig.complete(o, counter=0)
+        assert rig.now < 60
+    result = rig.finished().result
+    assert result.status == "done" and abs(result.reached_m - 30e-6) <= SETTINGS.tolerance_m  # type: ignore[operator]
+    assert result.reached_m == pytest.approx(rig.position_m)
+    kinds = [c.kind for c in rig.commands()]
+    first = kinds.index("ground")
+    assert kinds[first + 1 : first + 3] == ["enable", "step"] and kinds.count("ground") == 2
+    assert kinds[-1] == "ground"
+
+
+def test_a_part_the_ground_always_moves_out_of_tolerance_ends_unreachable_saying_why() -> None:
+    """A part stuck to a plate whose rest moves it 2.4 µm each way between driven and grounded
+    cannot be within tolerance both ways: bounded, it ends unreachable grounded."""
+    rig = Rig()
+    start_move(rig, 30e-6)
+    play_to_the_end(rig, grounded_shift_m=-2.4e-6, enabled_shift_m=2.4e-6)
+    result = rig.finished().result
+    assert result.status == "unreachable" and "not once they were grounded (2 tries" in result.reason
+    assert [c.kind for c in rig.commands()].count("ground") == MAX_GROUND_CHECKS
+    assert rig.policy.state == "idle"
+
+
+def test_the_output_is_grounded_once_idle_after_a_move_that_ended_driven() -> None:
+    """A real ANC300 keeps its axes driven until told otherwise and has no host watchdog: a
+    daemon that then dies leaves them driven.  ``idle_ground_s`` after a move that ended with
+    the output driven (stopped) the policy grounds every axis; a move within that time keeps
+    the output as it is."""
+    rig = Rig()
+    stopped_move(rig)
+    kinds = [c.kind for c in rig.commands()]
+    start_move(rig, rig.position_m)  # within idle_ground_s, at the target: no enable; done grounded
+    play_to_the_end(rig)
+    assert [c.kind for c in rig.commands()][len(kinds) :] == ["ground"]
+    rig = Rig()
+    stopped_move(rig)
     ended = rig.now
     while rig.now < ended + SETTINGS.idle_ground_s - 2 * DT:
         assert not rig.tick()
@@ -167,15 +239,6 @@ def test_the_output_is_grounded_once_idle_and_the_next_move_enables_and_measures
         grounds += [o for o in rig.tick() if isinstance(o, Command)]
     assert [c.kind for c in grounds] == ["ground"]  # once
     assert rig.policy.state == "idle"
-    rig.complete(grounds[0])
-    n = len(rig.commands())
-    start_move(rig, 30e-6)
-    assert rig.policy.state == "moving"
-    rig.complete(rig.run_until_command("enable"))
-    assert rig.policy.state == "settling"  # leaving ground moved the plate's rest: measure again
-    play_to_the_end(rig)
-    assert rig.outputs[-1].result.status == "done"  # type: ignore[union-attr]
-    assert [c.kind for c in rig.commands()[n:]][:1] == ["enable"]
 
 
 def test_a_command_the_amplifier_refused_leaves_the_output_unknown_and_it_is_grounded_when_idle() -> None:
@@ -203,8 +266,7 @@ def test_a_command_the_amplifier_refused_leaves_the_output_unknown_and_it_is_gro
 
 def test_a_move_submitted_while_the_idle_ground_is_in_flight_waits_for_it() -> None:
     rig = Rig()
-    start_move(rig, 30e-6)
-    play_to_the_end(rig)
+    stopped_move(rig)
     ground = rig.run_until_command("ground", limit=round(SETTINGS.idle_ground_s / DT) + 10)
     start_move(rig, 0.0)
     for _ in range(10):  # the ground is not answered yet: nothing else is sent

@@ -305,7 +305,7 @@ class ControlLoop:
 
     def estimates(self) -> dict[str, StepEstimate]:
         with self._lock:
-            return self.policy.estimates()
+            return self.policy.navigator.estimates()
 
     def release(self, part: int | None = None) -> list[int] | str:
         """Let held parts go (the navigator's :meth:`release`): the ids released, or why not."""
@@ -326,7 +326,7 @@ class ControlLoop:
     def estimates_json(self) -> dict[str, Any]:
         """Learned step and burst offset per ``mode/direction`` (m), for replies."""
         with self._lock:
-            return self.policy.estimates_json()
+            return self.policy.navigator.estimates_json()
 
     def timing(self) -> dict[str, float | int | str]:
         """Tick jitter p50/p99/max (s), ticks and overruns, the tick's scheduling policy; the

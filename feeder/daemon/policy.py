@@ -30,18 +30,18 @@ States (:data:`STATES`):
 - ``fault``: the amplifier link or the sensor is lost; no job is accepted
   until the link is restored (:meth:`Policy.link_restored`, :meth:`Policy.sensor_restored`).
 
-A move alternates *measure* and *burst*.  Leaving ground or changing an
-axis' waveform moves the plate's rest position, so the loop measures again
-after it (once per burst).  A move ends on request (``stopped``), on stall,
-on travel limits, on too many reversals, on a lost sensor or link
-(``fault``), or when the navigator says it is over (``done``,
-``unreachable``).
+A move alternates *measure* and *burst*.  Leaving ground or changing an axis' waveform
+moves the plate's rest position, so the loop measures again after it (once per burst).
+The navigator's ``done`` is checked grounded (an axis at rest holds its waveform's level;
+grounding it moves the plate by that stroke): ground, measure, and step on from there if
+out of tolerance (:data:`MAX_GROUND_CHECKS`).  A move ends on request (``stopped``), on
+stall, on travel limits, on too many reversals, on a lost sensor or link (``fault``), or
+when the navigator says it is over (``done``, ``unreachable``).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
 
 from feeder.daemon.burst_cycle import BurstCycle
 from feeder.daemon.jobs import (
@@ -69,15 +69,16 @@ from feeder.reading_noise import RestingNoise
 
 STATES = ("idle", "moving", "settling", "holding", "fault")
 
+MAX_GROUND_CHECKS = 2
+"""A move is done when its parts are within tolerance with every axis grounded; after this many
+grounds that found them out of it again, it ends ``unreachable``."""
+
 
 class Policy:
-    """The loop's state machine.  See the module docstring.
-
-    modes: the x axis' ``"coarse"``/``"fine"`` :class:`StepMode`; axis_modes: every
-    axis' modes (``"x"``, ``"y"``, ``"theta"``) when the loop drives more than x;
-    navigator: where to step (default: a :class:`LineNavigator` on ``modes``, restoring
-    ``estimates``).
-    """
+    """The loop's state machine (the module docstring).  modes: the x axis' ``"coarse"``/``"fine"``
+    :class:`StepMode`; axis_modes: every axis' modes (``"x"``, ``"y"``, ``"theta"``) when the loop
+    drives more than x; navigator: where to step (default: a :class:`LineNavigator` on ``modes``,
+    restoring ``estimates``)."""
 
     def __init__(
         self,
@@ -114,6 +115,7 @@ class Policy:
         self._idle_until = math.inf  # when the output is grounded if no job comes
         self._grounded = True  # every axis known grounded (the daemon grounds them at start)
         self._lent = False  # the output driven outside the policy (offset moves)
+        self._checking_ground = False  # grounded to check a done pose: measure without enabling
         self.resting_noise = RestingNoise()
         self._now = 0.0
         self._out: list[Output] = []
@@ -220,6 +222,8 @@ class Policy:
         burst = self._cycle.flying
         if kind == "ground":
             self._grounded = True
+            if self._checking_ground and self.job is not None and self._finish_as is None:
+                self._enter_settling(done.at_s)  # measure the pose the grounded axes leave
         if kind in ("enable", "apply"):
             if kind == "enable":
                 self._enabled = True
@@ -336,18 +340,19 @@ class Policy:
             self._enabled = False
             self._send(Command("ground"))
 
-    def _emit_stop(self) -> None:
-        """Stop the output now if anything may be playing (jumps any command in flight)."""
-        if self._cycle.flying is not None or self._pending is not None:
+    def _emit_stop(self) -> bool:
+        """Stop the output now if anything may be playing (jumps any command in flight); whether
+        a stop was sent."""
+        playing = self._cycle.flying is not None or self._pending is not None
+        if playing:
             self._out.append(self._cycle.stop_command())
+        return playing
 
     def _end_early(self, status: str, reason: str, now: float) -> None:
         """End the job with ``status`` once the output stopped and the part settled."""
         self._finish_as = (status, reason)
         self._deciding = self._decision = None
-        if self._cycle.flying is not None or self._pending is not None:
-            self._out.append(self._cycle.stop_command())  # holding starts when it is done
-        else:
+        if not self._emit_stop():  # else holding starts when the stop is done
             self._enter_holding(now)
 
     def _link_lost(self, message: str) -> None:
@@ -382,12 +387,8 @@ class Policy:
             self._out.append(SavePosition(reading[0][0], reading))
             self._finish(job, status, reason, reading)
         elif now >= self._hold_until:
-            self._finish(
-                job,
-                status,
-                f"{reason}; the part did not settle within {s.hold_timeout_s:g} s after the output stopped",
-                self.reading,
-            )
+            reason += f"; the part did not settle within {s.hold_timeout_s:g} s after the output stopped"
+            self._finish(job, status, reason, self.reading)
 
     def _follow_burst(self, now: float) -> None:
         if self.reading is not None and self.navigator.outside(self.reading) is not None:
@@ -400,7 +401,7 @@ class Policy:
     def _measure(self, job: Job, now: float) -> None:
         if not job.recorded:
             return  # the record comes first: a crash leaves a trace
-        if not self._enabled:
+        if not self._enabled and not self._checking_ground:
             self.state = "moving"
             self._grounded = False  # from the enable on, until a ground is acknowledged
             self._send(Command("enable"))
@@ -418,23 +419,25 @@ class Policy:
 
     def _decided(self, job: Job, decision: Decision) -> None:
         self._decision = None
-        answer, reading = decision.answer, decision.request.reading
-        if isinstance(answer, tuple) and answer[0] == "done":
-            self.navigator.reached(job, reading)
-        self._start_burst(job, reading, answer, decision.request.refined)
+        self._start_burst(job, decision.request.reading, decision.answer, decision.request.refined)
 
     def _start_burst(self, job: Job, reading: Reading, nxt: Burst | tuple[str, str], refined: bool) -> None:
         """Play ``nxt`` decided from ``reading`` (first loading its waveform), or finish as it says;
         ``refined``: the job's flag before the decision."""
         if isinstance(nxt, tuple):
-            self._finish(job, nxt[0], nxt[1], reading)
+            self._conclude(job, reading, *nxt)
             return
-        unmeasured_switch = False
+        # after the ground that checked a done pose: enable and step from that pose (measured
+        # again once enabled, the pose would be the one the driven axes give, done again)
+        unmeasured = unmeasured_switch = not self._enabled
+        if unmeasured:
+            self._checking_ground = self._grounded = False
+            self._send(Command("enable"))
         if self._applied.get(nxt.axis) != nxt.mode:
             # changing the amplitude moves the plate's rest position (and the part with it):
             # apply, then measure again before the burst -- once; should the decision then
             # change waveform again, step without re-measuring (and without learning)
-            unmeasured_switch = job.switched
+            unmeasured_switch = job.switched or unmeasured
             if job.target_m is None and job.target_pose is None:
                 job.planned.appendleft(nxt)
             job.refined = refined
@@ -456,11 +459,30 @@ class Policy:
         self._send(step)
         self._out.append(Progress(job))
 
+    def _conclude(self, job: Job, reading: Reading, status: str, reason: str) -> None:
+        """Finish ``job`` as the navigator or the cycle says.  A done pose is the one the grounded
+        axes leave (an axis at rest holds its waveform's level, an ANC300 the top of its table
+        after backward steps, and grounding it moves the plate and a part stuck to it): ground
+        and measure again first."""
+        if status == "done" and (job.target_m is not None or job.target_pose is not None):
+            if self._grounded:
+                self.navigator.reached(job, reading)
+            elif job.ground_checks < MAX_GROUND_CHECKS:
+                job.ground_checks += 1
+                self._checking_ground, self._enabled, self.state = True, False, "settling"
+                self._send(Command("ground"))
+                return
+            else:
+                status = "unreachable"
+                reason = (f"within tolerance while the axes were driven, not once they were grounded "
+                          f"({job.ground_checks} tries: their rest level moves the part)")  # fmt: skip
+        self._finish(job, status, reason, reading)
+
     def _finish(self, job: Job, status: str, reason: str, reached: Reading | None) -> None:
         now = self._now
         reached = reached if reached is not None else self.reading
         pose = None if reached is None else part_pose(job, reached)
-        result = job.ended(status, reason, pose, now, self.estimates_json(),
+        result = job.ended(status, reason, pose, now, self.navigator.estimates_json(),
                            getattr(self.navigator, "symmetry_rad", 0.0))  # fmt: skip
         self.job = None
         self._cycle.clear()
@@ -468,16 +490,10 @@ class Policy:
         self._deciding = self._decision = None
         self._finish_as = None
         self._stop_reason = None
+        self._checking_ground = False
         self.last_result = result
         if self.fault is None and self.sensor_lost is None:
             self.state = "idle"
             # enabled, or unknown (a refused command may have left any axis in stp): ground
             self._idle_until = now + self.settings.idle_ground_s if not self._grounded else math.inf
         self._out.append(Finished(job, result))
-
-    def estimates(self) -> dict[str, StepEstimate]:
-        return self.navigator.estimates()
-
-    def estimates_json(self) -> dict[str, Any]:
-        """What the navigator learned, for replies."""
-        return self.navigator.estimates_json()
