@@ -47,6 +47,9 @@ class _Job:
     notes: list[str] = field(default_factory=list)
     direction: int = 0
     """The last burst's direction (+1/−1; 0 before the first)."""
+    trips: set[int] = field(default_factory=set)
+    """Parts (indices) on their way to a turning station for a turn they needed: they go on and
+    turn there even when a reading puts the angle within the tolerance (:meth:`PosePlanner.part_burst`)."""
 
 
 class PosePlanner:
@@ -196,15 +199,40 @@ class PosePlanner:
     def part_burst(
         self, poses: list[Pose], i: int, target: Pose, anchored: tuple[int, ...] = ()
     ) -> AxisBurst | Finish | None:
-        """Next burst for part ``i`` alone (None: within tolerance); ``anchored`` parts must not turn."""
+        """Next burst for part ``i`` alone (None: within tolerance); ``anchored`` parts must not turn.
+
+        A part sent towards a turning station goes on until it turns there, even when a reading on
+        the way puts its angle within the tolerance: the angle read after a translation differs
+        by ~0.01–0.02° (the burst, the readings), so a part 0.093° off at O (0.09° tolerance) went
+        ~20 x steps out, read within the tolerance, came back, read 0.093° again, and so on until
+        the reversals ended the move "oscillating" (2 of 4 runs of a −10° turn at O).  The trip
+        ends with its turn (a θ burst, aimed at the whole error), or where no θ burst improves
+        the angle.
+        """
         pose = poses[i]
         distance = math.hypot(pose[0] - target[0], pose[1] - target[1])
         turn = self.turns.angle_error(pose, target)
-        if abs(turn) > self.tolerance_rad:
-            return self.turn_burst(poses, i, turn, target[:2], anchored)
+        trips = self._job.trips if self._job is not None else set()
+        if abs(turn) > self.tolerance_rad or (i in trips and turn != 0):
+            nxt = self.turn_burst(poses, i, turn, target[:2], anchored)
+            if abs(turn) > self.tolerance_rad or self._trip_goes_on(nxt, pose, turn):
+                if isinstance(nxt, AxisBurst) and nxt.axis != "theta":
+                    trips.add(i)
+                else:
+                    trips.discard(i)
+                return nxt
+        trips.discard(i)  # within the tolerance, turned as well as θ can here: the trip is over
         if distance > self.tolerance_m:
             return self.translate_burst(poses, i, (target[0], target[1]), exact=True)
         return None
+
+    def _trip_goes_on(self, nxt: AxisBurst | Finish, pose: Pose, turn: float) -> bool:
+        """On a trip, the angle within the tolerance: whether ``nxt`` (:meth:`turn_burst`'s answer)
+        still serves the turn: a θ burst, or a translation on towards the station from where the
+        part does not turn (where it does and no θ burst improves the angle, the turn is done)."""
+        if not isinstance(nxt, AxisBurst):
+            return False
+        return nxt.axis == "theta" or not self.turns.turns_here(pose, 1 if turn > 0 else -1)
 
     def turn_burst(
         self,
