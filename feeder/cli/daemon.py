@@ -124,8 +124,7 @@ def run(args: argparse.Namespace) -> int:
         config = config.with_transport(args.transport)
     if args.plane or (args.config is None and not args.line):
         config = embedded_plane(config)
-    if args.state_dir:
-        config = dataclasses.replace(config, state_dir=args.state_dir)
+    config = config.with_state_dir(args.state_dir)
     if args.socket:
         config = dataclasses.replace(config, socket_path=args.socket)
     config = config.with_simulator_args(args.sim_arg)

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import os
 import re
 import sqlite3
@@ -77,10 +76,7 @@ def state_database(args: argparse.Namespace) -> Path:
     """The database the daemon started with the same ``--config`` and ``--state-dir`` uses."""
     from feeder.daemon.config_file import load_config
 
-    config = load_config(args.config)
-    if args.state_dir is not None:
-        config = dataclasses.replace(config, state_dir=args.state_dir)
-    return config.database_path
+    return load_config(args.config).with_state_dir(args.state_dir).database_path
 
 
 # -- backup ---------------------------------------------------------------------------------

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import math
 import signal
 import sys
@@ -130,9 +129,7 @@ def run_calibrate_moves(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     if args.config is None:
         config = embedded_plane(config)
-    if args.state_dir is not None:
-        config = dataclasses.replace(config, state_dir=args.state_dir)
-    config = config.with_simulator_args(args.sim_arg)
+    config = config.with_state_dir(args.state_dir).with_simulator_args(args.sim_arg)
     if not {"x", "y"} <= set(config.plate.axes):
         raise InputError("plate.axes", "the plate moves need the x and y axes")
     gain = args.stack_gain or config.stack_gain_m_per_v

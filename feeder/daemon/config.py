@@ -293,6 +293,10 @@ class DaemonConfig:
             amp = dataclasses.replace(amp, model=model, limits=AMPLIFIER_MODELS[model])
         return dataclasses.replace(self, amplifier=amp)
 
+    def with_state_dir(self, state_dir: Path | None) -> DaemonConfig:
+        """The same configuration keeping its state in ``state_dir`` (``--state-dir``; None: as it is)."""
+        return self if state_dir is None else dataclasses.replace(self, state_dir=state_dir)
+
     def with_simulator_args(self, extra: Sequence[str]) -> DaemonConfig:
         """The same configuration, the embedded firmware_sim given ``extra`` arguments too."""
         return dataclasses.replace(self, simulator_args=(*self.simulator_args, *extra))
