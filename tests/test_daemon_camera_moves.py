@@ -26,6 +26,11 @@ pytest.importorskip("cv2", reason="the camera needs OpenCV (the vision extra)")
 pytestmark = pytest.mark.timeout(300)
 
 
+def sigint_default() -> None:
+    """In the child before it runs: SIGINT at its default action, as at a terminal."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_it(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -46,7 +51,11 @@ def test_the_daemon_measures_a_turned_mirrored_camera_stores_it_and_moves_with_i
             # Ctrl-C of the command stops the daemon's moves, as it ends its own
             command = [sys.executable, "-m", "feeder", "vision", "calibrate-moves", "--daemon"]
             options = ["--socket", str(config.socket_path), "--volts", "40", "--frames", "2", "--save-state"]
-            cli = subprocess.Popen([*command, *options], stderr=subprocess.PIPE, text=True)
+            # Ctrl-C at a terminal: SIGINT at its default (a test run started in the background of
+            # a non-interactive shell ignores it, and its children inherit that)
+            cli = subprocess.Popen(
+                [*command, *options], stderr=subprocess.PIPE, text=True, preexec_fn=sigint_default
+            )
             deadline = time.monotonic() + 20.0
             while not client.request("status")["camera_moves_progress"] and time.monotonic() < deadline:
                 time.sleep(0.05)  # the first frames, then x ramps up (1.6 s)
