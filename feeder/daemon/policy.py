@@ -11,9 +11,9 @@ and θ; the policy only measures, steps, stops and records.
 
 States (:data:`STATES`):
 
-- ``idle``: no job; ``idle_ground_s`` after the last move ended every axis is grounded
-  (a :class:`~feeder.daemon.jobs.Command` ``ground``): a real ANC300 keeps its axes
-  driven until told otherwise, whatever becomes of the host.
+- ``idle``: no job; a done move left every axis grounded, and ``idle_ground_s`` after any
+  other end every axis is grounded (a :class:`~feeder.daemon.jobs.Command` ``ground``): a
+  real ANC300 keeps its axes driven until told otherwise, whatever becomes of the host.
 - ``moving``: a job is preparing the output or a burst is playing.
 - ``settling``: the burst is over; wait until the part may be measured
   (:mod:`feeder.daemon.burst_cycle`: ``settle_s`` or the sensor's latency as seen,
