@@ -115,10 +115,11 @@ class PoseNavigator:
         return targets
 
     def outside(self, reading: Reading) -> str | None:
-        """Why the running move must stop: a part left the travel, or one outside it where the move
-        started went further out than the settle band (the readings' noise); None.  A part
-        outside the travel at the start may stay there, as a move that brings it back or leaves
-        it be does (it blocked every move until 2026-11-27); one the start lacks must be within."""
+        """Why the running move must stop: a part went further outside the travel than where the
+        move started it, by more than the settle band (the readings' noise, and the plate's rest
+        moving on an enable); None.  A part outside the travel at the start may stay there, as a
+        move that brings it back or leaves it be does (it blocked every move until 2026-11-27);
+        one the start lacks must be within."""
         for i, now in enumerate(reading):
             start = self._start[i] if i < len(self._start) else None
             if start is None and self.travel.contains(now[0], now[1]):
