@@ -31,6 +31,11 @@ MAX_PENDING_LOGINS = 4
 """Console connections still at the password prompt; a new one evicts the one with the most
 failed tries (a guesser), else the longest-waiting one not having a password checked, and is
 refused only if every one is having its first password checked."""
+TYPING_GRACE_S = 1.0
+"""The one connection at the prompt not having a password checked is not replaced for this long
+after it got the prompt: it is an operator about to type while every other place checks a
+guesser's tries (a loaded server reads the line late: such an operator was evicted between the
+prompt and the password).  Among several idle ones (a flood) the longest-waiting goes at once."""
 LOGIN_TIMEOUT_S = 5.0
 """A connection at the password prompt that sends no password line for this long is closed."""
 HANGUP_POLL_S = 0.005
@@ -66,15 +71,18 @@ class _Connection:
             self.sock.shutdown(socket.SHUT_RDWR)  # its thread's recv() returns b""
 
 
-def _victim(pending: list[_Connection]) -> _Connection | None:
-    """The connection at the password prompt a newcomer replaces: the one with the most failed
-    tries (guessers, who keep every place busy with their queued tries, must not keep the
-    operator out; nor may they, reconnecting, replace an operator about to type), else the
-    longest-waiting one with no password being checked, else none."""
+def _victim(pending: list[_Connection], now: float) -> _Connection | None:
+    """The connection at the password prompt a newcomer replaces at ``now`` (monotonic s): the
+    one with the most failed tries (guessers, who keep every place busy with their queued tries,
+    must not keep the operator out; nor may they, reconnecting, replace an operator about to
+    type, :data:`TYPING_GRACE_S`), else the longest-waiting one with no password being checked,
+    else none."""
     failing = [c for c in pending if c.session.failed_logins > 0]
     if failing:
         return max(failing, key=lambda c: (c.session.failed_logins, -c.waiting_since))
     idle = [c for c in pending if not c.checking]
+    if len(idle) == 1 and now - idle[0].waiting_since < TYPING_GRACE_S:
+        return None
     return min(idle, key=lambda c: c.waiting_since) if idle else None
 
 
@@ -137,7 +145,7 @@ class TcpConsoleServer:
     def _admit(self, conn: _Connection, group: list[_Connection], cap: int, evict: bool) -> bool:
         with self._lock:
             if len(group) >= cap:
-                victim = _victim(group) if evict else None
+                victim = _victim(group, time.monotonic()) if evict else None
                 if victim is None:
                     return False
                 group.remove(victim)

@@ -20,6 +20,8 @@ import time
 import traceback
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -36,8 +38,10 @@ from firmware_sim.transports import (
     LOGIN_TIMEOUT_S,
     MAX_PENDING_LOGINS,
     MAX_SENSOR_CLIENTS,
+    TYPING_GRACE_S,
     LineBroadcastServer,
     TcpConsoleServer,
+    _victim,
 )
 
 pytestmark = pytest.mark.timeout(120)
@@ -602,3 +606,24 @@ def test_guessers_holding_every_place_at_the_prompt_do_not_lock_the_operator_out
     # behind at most the queued tries of the guessers (1 s apart at most), not shut out
     assert time.monotonic() - begun < (MAX_PENDING_LOGINS + 1) * MAX_LOGIN_INTERVAL_S + 1.0
     assert refused <= 2, refused
+
+
+def test_the_one_place_not_checking_a_guess_is_kept_for_an_operator_about_to_type() -> None:
+    """The guessers' test failed once in a loaded fresh-clone run: every other place was checking
+    a guesser's queued tries, the operator had the prompt but the server had not read the
+    password yet, and a reconnecting guesser replaced the operator (longest-waiting idle) — its
+    connection closed with the password on the wire.  Several idle ones (a flood) still make room."""
+
+    def at_prompt(since: float, checking: bool = False, failed: int = 0) -> Any:
+        return SimpleNamespace(
+            waiting_since=since, checking=checking, session=SimpleNamespace(failed_logins=failed)
+        )
+
+    guessers = [at_prompt(0.0, checking=True) for _ in range(MAX_PENDING_LOGINS - 1)]
+    operator = at_prompt(10.0)
+    assert _victim([*guessers, operator], 10.0 + 0.2 * TYPING_GRACE_S) is None  # refused: reconnect
+    assert _victim([*guessers, operator], 10.0 + TYPING_GRACE_S) is operator  # idle that long: a squatter
+    flood = [at_prompt(10.0 + 0.01 * k) for k in range(MAX_PENDING_LOGINS)]
+    assert _victim(flood, 10.05) is flood[0]
+    failing = at_prompt(0.0, checking=True, failed=2)
+    assert _victim([*guessers[1:], failing, operator], 10.1) is failing
