@@ -66,6 +66,12 @@ class _Connection:
         self.waiting_since = time.monotonic()  # at the prompt since (connect or last try)
         self.checking = False  # a password line is being evaluated
 
+    def typing(self) -> bool:
+        """Input waits unread (a password its thread has not read yet; or the peer hung up)."""
+        with contextlib.suppress(OSError, ValueError):
+            return bool(select.select([self.sock], [], [], 0)[0])
+        return False
+
     def evict(self) -> None:
         with contextlib.suppress(OSError):
             self.sock.shutdown(socket.SHUT_RDWR)  # its thread's recv() returns b""
@@ -75,12 +81,12 @@ def _victim(pending: list[_Connection], now: float) -> _Connection | None:
     """The connection at the password prompt a newcomer replaces at ``now`` (monotonic s): the
     one with the most failed tries (guessers, who keep every place busy with their queued tries,
     must not keep the operator out; nor may they, reconnecting, replace an operator about to
-    type, :data:`TYPING_GRACE_S`), else the longest-waiting one with no password being checked,
-    else none."""
+    type, :data:`TYPING_GRACE_S`), else the longest-waiting one with no password being checked
+    or waiting unread (:meth:`_Connection.typing`), else none."""
     failing = [c for c in pending if c.session.failed_logins > 0]
     if failing:
         return max(failing, key=lambda c: (c.session.failed_logins, -c.waiting_since))
-    idle = [c for c in pending if not c.checking]
+    idle = [c for c in pending if not c.checking and not c.typing()]
     if len(idle) == 1 and now - idle[0].waiting_since < TYPING_GRACE_S:
         return None
     return min(idle, key=lambda c: c.waiting_since) if idle else None

@@ -614,9 +614,12 @@ def test_the_one_place_not_checking_a_guess_is_kept_for_an_operator_about_to_typ
     password yet, and a reconnecting guesser replaced the operator (longest-waiting idle) — its
     connection closed with the password on the wire.  Several idle ones (a flood) still make room."""
 
-    def at_prompt(since: float, checking: bool = False, failed: int = 0) -> Any:
+    def at_prompt(since: float, checking: bool = False, failed: int = 0, typed: bool = False) -> Any:
         return SimpleNamespace(
-            waiting_since=since, checking=checking, session=SimpleNamespace(failed_logins=failed)
+            typing=lambda: typed,
+            waiting_since=since,
+            checking=checking,
+            session=SimpleNamespace(failed_logins=failed),
         )
 
     guessers = [at_prompt(0.0, checking=True) for _ in range(MAX_PENDING_LOGINS - 1)]
@@ -625,5 +628,7 @@ def test_the_one_place_not_checking_a_guess_is_kept_for_an_operator_about_to_typ
     assert _victim([*guessers, operator], 10.0 + TYPING_GRACE_S) is operator  # idle that long: a squatter
     flood = [at_prompt(10.0 + 0.01 * k) for k in range(MAX_PENDING_LOGINS)]
     assert _victim(flood, 10.05) is flood[0]
+    typed = at_prompt(9.0, typed=True)  # its password sent, not yet read by its thread: no squatter
+    assert _victim([*guessers[1:], typed, operator], 12.0) is operator
     failing = at_prompt(0.0, checking=True, failed=2)
     assert _victim([*guessers[1:], failing, operator], 10.1) is failing
