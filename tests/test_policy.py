@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 
 import pytest
@@ -133,16 +134,18 @@ def test_a_move_goes_idle_moving_settling_and_back_to_idle_done() -> None:
     assert any(isinstance(o, SavePosition) for o in rig.outputs)
 
 
-def play_to_the_end(rig: Rig, grounded_shift_m: float = 0.0, enabled_shift_m: float = 0.0) -> None:
+def play_to_the_end(rig: Rig, grounded: Iterable[float] = (), enabled: Iterable[float] = ()) -> None:
     """Complete every command at once, each step moving the part by its mode's step, until the
-    job ends; a ground moves the part by ``grounded_shift_m``, an enable by ``enabled_shift_m``
-    (the plate's rest at a waveform's level, and a part stuck to it)."""
+    job ends; the grounds move the part by ``grounded`` in turn, the enables by ``enabled`` (m;
+    0 once they run out: the plate's rest at a waveform's level, and a part stuck to it)."""
+    shifts = {"ground": iter(grounded), "enable": iter(enabled)}
     while rig.policy.job is not None:
         for o in rig.tick():
             if isinstance(o, Command):
                 if o.kind == "step":
                     rig.position_m += o.steps * (3.0e-6 if rig.policy._applied.get("x") == COARSE else 0.8e-6)
-                rig.position_m += {"ground": grounded_shift_m, "enable": enabled_shift_m}.get(o.kind, 0.0)
+                elif o.kind in shifts:
+                    rig.position_m += next(shifts[o.kind], 0.0)
                 rig.complete(o, counter=0)
         assert rig.now < 60
 
@@ -187,16 +190,7 @@ def test_a_ground_that_moves_the_part_out_of_tolerance_steps_on_from_the_grounde
     second check finds it within tolerance."""
     rig = Rig()
     start_move(rig, 30e-6)
-    shifts = iter([-2.4e-6])
-    while rig.policy.job is not None:
-        for o in rig.tick():
-            if isinstance(o, Command):
-                if o.kind == "step":
-                    rig.position_m += o.steps * (3.0e-6 if rig.policy._applied.get("x") == COARSE else 0.8e-6)
-                elif o.kind == "ground":
-                    rig.position_m += next(shifts, 0.0)
-                rig.complete(o, counter=0)
-        assert rig.now < 60
+    play_to_the_end(rig, grounded=[-2.4e-6])
     result = rig.finished().result
     assert result.status == "done" and abs(result.reached_m - 30e-6) <= SETTINGS.tolerance_m  # type: ignore[operator]
     assert result.reached_m == pytest.approx(rig.position_m)
@@ -211,7 +205,7 @@ def test_a_part_the_ground_always_moves_out_of_tolerance_ends_unreachable_saying
     cannot be within tolerance both ways: bounded, it ends unreachable grounded."""
     rig = Rig()
     start_move(rig, 30e-6)
-    play_to_the_end(rig, grounded_shift_m=-2.4e-6, enabled_shift_m=2.4e-6)
+    play_to_the_end(rig, grounded=itertools.repeat(-2.4e-6), enabled=itertools.repeat(2.4e-6))
     result = rig.finished().result
     assert result.status == "unreachable" and "not once they were grounded (2 tries" in result.reason
     assert [c.kind for c in rig.commands()].count("ground") == MAX_GROUND_CHECKS
