@@ -109,12 +109,13 @@ class BurstCycle:
                     self.settle_until = burst.ended_s + self._settle_s()
 
     def start(
-        self, job: Job, nxt: Burst, reading: Reading, unmeasured_switch: bool
+        self, job: Job, nxt: Burst, reading: Reading, unmeasured_switch: bool, grounded: bool = False
     ) -> Command | tuple[str, str]:
         """Count ``nxt``, decided from ``reading``, into ``job`` and follow it: the command that
-        plays it, or (status, reason) when it reverses once too often."""
+        plays it, or (status, reason) when it reverses once too often.  ``grounded``: decided
+        from a grounded pose (a done pose checked), so a reversal is the ground's, not one to count."""
         previous = job.last_directions.get(nxt.axis)  # a reversal is per axis: x+ then y− is none
-        if previous is not None and nxt.direction != previous:
+        if previous is not None and nxt.direction != previous and not grounded:
             job.reversals += 1
             if job.reversals > self.settings.max_reversals * len(self.navigator.axes):
                 return ("oscillating", f"{job.reversals} direction reversals without reaching the tolerance")

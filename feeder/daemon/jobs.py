@@ -272,7 +272,7 @@ class Job:
         self.reversals = 0
         self.refined = False
         self.switched = False
-        self.ground_checks = 0  # grounds to check a done pose (Policy._grounded_done)
+        self.ground_checks = 0  # grounds to check a done pose (Policy._conclude)
         self.last_directions: dict[str, str] = {}  # axis → direction of its last burst in this job
         self.trace: list[tuple[float, float]] = []
         self.pose_trace: list[tuple[float, Pose]] = []

@@ -69,9 +69,9 @@ from feeder.reading_noise import RestingNoise
 
 STATES = ("idle", "moving", "settling", "holding", "fault")
 
-MAX_GROUND_CHECKS = 2
+MAX_GROUND_CHECKS = 4
 """A move is done when its parts are within tolerance with every axis grounded; after this many
-grounds that found them out of it again, it ends ``unreachable``."""
+grounds that found them out of it again, it ends ``unreachable`` (docs/daemon.md: 2 were too few)."""
 
 
 class Policy:
@@ -449,7 +449,7 @@ class Policy:
             if job.target_m is None and job.target_pose is None:
                 job.planned.popleft()
         job.switched = False
-        step = self._cycle.start(job, nxt, reading, unmeasured_switch)
+        step = self._cycle.start(job, nxt, reading, unmeasured_switch, grounded=unmeasured)
         if isinstance(step, tuple):
             self._finish(job, *step, reading)
             return
