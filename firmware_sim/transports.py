@@ -82,11 +82,13 @@ def _victim(pending: list[_Connection], now: float) -> _Connection | None:
     one with the most failed tries (guessers, who keep every place busy with their queued tries,
     must not keep the operator out; nor may they, reconnecting, replace an operator about to
     type, :data:`TYPING_GRACE_S`), else the longest-waiting one with no password being checked
-    or waiting unread (:meth:`_Connection.typing`), else none."""
-    failing = [c for c in pending if c.session.failed_logins > 0]
+    or waiting unread (:meth:`_Connection.typing`), else none.  One whose session logged in (its
+    thread not yet at moving it to the sessions) is none of these."""
+    at_prompt = [c for c in pending if not c.session.logged_in]  # one logged in is not moved yet
+    failing = [c for c in at_prompt if c.session.failed_logins > 0]
     if failing:
         return max(failing, key=lambda c: (c.session.failed_logins, -c.waiting_since))
-    idle = [c for c in pending if not c.checking and not c.typing()]
+    idle = [c for c in at_prompt if not c.checking and not c.typing()]
     if len(idle) == 1 and now - idle[0].waiting_since < TYPING_GRACE_S:
         return None
     return min(idle, key=lambda c: c.waiting_since) if idle else None
