@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 from test_pose_policy import Plane
@@ -116,21 +117,47 @@ def test_the_reached_angle_is_reported_on_the_targets_branch(seen: float) -> Non
     assert out["error_rad"] == pytest.approx(abs(out["pose"][2] - 0.3), abs=1e-12)
 
 
+class _NoEstimates:
+    """What :meth:`MoveRecords.finish` reads of the control loop, with nothing learned."""
+
+    def estimates_json(self) -> dict[str, object]:
+        return {}
+
+
+LOOP: Any = _NoEstimates()
+
+
 def test_a_pose_move_is_logged_with_its_part_target_and_reached_pose(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    class Loop:
-        def estimates_json(self) -> dict[str, object]:
-            return {}
-
     records = MoveRecords(Store(tmp_path / "s.sqlite"), "key", pose_control=True)
     job = Job("move", pose_target={"x_m": 1e-3}, part=2)
     with caplog.at_level("INFO", logger="feeder.daemon.move_records"):
-        records.finish(job, result(angle_free=True), Loop())  # type: ignore[arg-type]
+        records.finish(job, result(angle_free=True), LOOP)
     assert caplog.messages[-1] == (
         "move of part 2 done: every part within tolerance (target (0.001, 0.0005) m, any angle, "
         "reached (0.001, 0.0005) m, 0.3 rad, error 0 m / ? rad, 10 steps in 2 bursts)"
     )
+    assert caplog.records[-1].levelname == "INFO"
+
+
+@pytest.mark.parametrize(
+    ("status", "level"), [("stopped", "INFO"), ("fault", "WARNING"), ("limit", "WARNING")]
+)
+def test_a_move_that_did_not_end_as_asked_is_a_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, status: str, level: str
+) -> None:
+    """A refused command ended the move ``fault`` with only an INFO line: an operator watching
+    warnings (or a journal filtered so) never saw "amplifier refused"."""
+
+    records = MoveRecords(Store(tmp_path / "s.sqlite"), "key", pose_control=True)
+    reason = "amplifier refused: Axis in wrong mode" if status == "fault" else status
+    with caplog.at_level("INFO", logger="feeder.daemon.move_records"):
+        records.finish(
+            Job("move", pose_target={"x_m": 1e-3}, part=2), result(status=status, reason=reason), LOOP
+        )
+    assert caplog.records[-1].levelname == level
+    assert f"move of part 2 {status}: {reason} (" in caplog.messages[-1]
 
 
 def test_the_history_keeps_any_angle_as_null_and_the_reached_angle_on_the_targets_branch(

@@ -113,16 +113,21 @@ class MoveRecords:
             save()
 
     def finish(self, job: Job, result: JobResult, loop: ControlLoop) -> None:
-        """The learned steps, and the move's end (status, reason, where it ended)."""
+        """The learned steps, and the move's end (status, reason, where it ended): logged as INFO
+        when it ended as asked (done, stopped), else as a WARNING (a refused command, a lost link,
+        a limit: the operator's to read)."""
+        level = logging.INFO if result.status in ("done", "stopped") else logging.WARNING
         if result.target_pose is not None:
             out = result.as_dict()
-            log.info(
+            log.log(
+                level,
                 "%s of part %d %s: %s (target %s, reached %s, error %s m / %s rad, %d steps in %d bursts)",
                 job.kind, result.part, result.status, result.reason, _pose(out["target_pose"]),
                 _pose(out["pose"]), _g(result.error_m), _g(result.error_rad), result.steps, result.bursts,
             )  # fmt: skip
         else:
-            log.info(
+            log.log(
+                level,
                 "%s %s: %s (target %s m, reached %s m, %d steps in %d bursts)",
                 job.kind, result.status, result.reason, result.target_m, result.reached_m, result.steps,
                 result.bursts,
