@@ -238,6 +238,8 @@ def run_move(args: argparse.Namespace) -> int:
         )
     if (args.target_m is None) == (args.by_m is None):
         raise InputError("TARGET_M", "give TARGET_M, --by DELTA_M, or a pose (--x, --y, --angle)")
+    if args.part != 1:  # TARGET_M and --by move part 1: part 1 moved when part 2 was asked for
+        raise InputError("--part", "TARGET_M and --by move part 1 along x; move another with --x/--y/--angle")
     if args.by_m is not None:
         return _job(args, "move", lambda c, wait: c.move_by(args.by_m, queue=args.queue, wait=wait))
     return _job(args, "move", lambda c, wait: c.move_to(args.target_m, queue=args.queue, wait=wait))
