@@ -146,6 +146,23 @@ def test_calibrate_cli_from_rendered_images(tmp_path: Path, capsys: pytest.Captu
     )
 
 
+def test_calibrate_refuses_to_write_over_its_own_images(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The CLI audit: ``--out x0.png`` replaced the before-image of ``--x-move`` with the
+    calibration's JSON (exit 0): the move's images are plain text to argparse, and the check
+    saw only path-typed arguments."""
+    renderer = FrameRenderer(CameraModel().with_noise(0.02), seed=4)
+    images = [_write(tmp_path / f"{n}.png", renderer, x, y) for n, x, y in
+              (("x0", -50e-6, 0), ("x1", 50e-6, 0), ("y0", 0, -40e-6), ("y1", 0, 40e-6))]  # fmt: skip
+    before = Path(images[0]).read_bytes()
+    argv = ["vision", "calibrate", "--x-move", "100um", *images[:2], "--y-move", "80um", *images[2:]]
+    assert main([*argv, "--out", images[0]]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--out" in err and "read by this command" in err
+    assert Path(images[0]).read_bytes() == before
+
+
 def test_locate_cli_json_units_plot_and_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     renderer = FrameRenderer(CameraModel(part_level=0.1).with_noise(0.02), seed=5)
     path = tmp_path / "frame.png"

@@ -122,20 +122,34 @@ def refuse_overwriting_inputs(parser: argparse.ArgumentParser, args: argparse.Na
     outputs: list[tuple[str, Path]] = []
     inputs: list[Path] = []
     for action in actions:
-        value = getattr(args, action.dest, None)
-        values = value if isinstance(value, list) else [value]
-        paths = [Path(v) for v in values if isinstance(v, Path)]
+        values = _flat(getattr(args, action.dest, None))
         if action.type is output_path:
             name = action.option_strings[0] if action.option_strings else action.dest
-            outputs += [(name, p) for p in paths]
-        else:
-            inputs += [p for p in paths if p.is_file()]
+            outputs += [(name, v) for v in values if isinstance(v, Path)]
+        else:  # a file named in plain text too: `calibrate --x-move D BEFORE AFTER`, `grab VIDEO`
+            inputs += [Path(v) for v in values if isinstance(v, (Path, str)) and _names_a_file(v)]
     for i, (option, out) in enumerate(outputs):
         target = out.resolve()
         if any(target == p.resolve() for p in inputs):
             raise InputError(option, f"{out} is also read by this command: it would be overwritten")
         if any(target == other.resolve() for _, other in outputs[:i]):
             raise InputError(option, f"{out} is also another output of this command")
+
+
+def _flat(value: object) -> list[object]:
+    """An option's value as a flat list (``nargs`` with ``append`` gives lists of lists)."""
+    if isinstance(value, list):
+        return [item for each in value for item in _flat(each)]
+    return [value]
+
+
+def _names_a_file(value: str | Path) -> bool:
+    """``value`` is the path of a regular file (not when no path could be so named: too long,
+    a NUL byte)."""
+    try:
+        return Path(value).is_file()
+    except (OSError, ValueError):
+        return False
 
 
 def input_path(text: str) -> Path:
