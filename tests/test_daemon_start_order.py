@@ -89,6 +89,18 @@ def test_a_state_dir_that_cannot_hold_the_log_is_one_line_and_exit_2(short_dir: 
     assert str(not_a_dir) in done.stderr and "cannot hold the log" in done.stderr
 
 
+@pytest.mark.parametrize("below", ["", "sub"])
+def test_a_state_lock_in_a_file_is_an_input_error_naming_it(short_dir: Path, below: str) -> None:
+    """`vision calibrate-moves --state-dir FILE` (the CLI audit) was a FileExistsError traceback,
+    `FILE/sub` a NotADirectoryError one: the state lock made the directory unguarded."""
+    not_a_dir = short_dir / "state"
+    not_a_dir.write_text("a file")
+    with pytest.raises(InputError, match="cannot hold the state") as refused:
+        lock_state(not_a_dir / below / "feeder.sqlite")
+    assert refused.value.field == str(not_a_dir / below).rstrip("/")
+    assert not_a_dir.read_text() == "a file"
+
+
 def _state_file(path: Path, script: str) -> Path:
     conn = sqlite3.connect(path)
     conn.executescript(script)

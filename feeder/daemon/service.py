@@ -93,11 +93,15 @@ class DaemonSetup:
 def lock_state(database_path: Path) -> IO[bytes]:
     """An exclusive lock beside the database (released when the process dies, even by SIGKILL).
 
-    Raises :class:`InputError` when another daemon holds it.
+    Raises :class:`InputError` when another daemon holds it, or the directory cannot be made or
+    written (a file of that name, no permission).
     """
-    database_path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
     lock_path = database_path.with_name(database_path.name + ".lock")
-    handle = os.fdopen(os.open(lock_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600), "ab")
+    try:
+        database_path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        handle = os.fdopen(os.open(lock_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600), "ab")
+    except OSError as err:  # FileExistsError, NotADirectoryError, PermissionError, ...
+        raise InputError(str(database_path.parent), f"cannot hold the state: {err.strerror}") from None
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
