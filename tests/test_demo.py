@@ -67,3 +67,12 @@ def test_demo_refuses_a_plot_path_that_is_not_png(tmp_path: Path) -> None:
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "--plot" in done.stderr
     assert not (tmp_path / "demo.svg").exists()
+
+
+def test_demo_refuses_a_plot_in_a_folder_that_does_not_exist(tmp_path: Path) -> None:
+    """The CLI audit: `--plot /nonexist/x.png` made /nonexist (exit 0); `vision locate --plot`
+    refused the same.  Only the default's folder (out/) is made."""
+    done = feeder("demo", "--plot", str(tmp_path / "typo" / "demo.png"), cwd=tmp_path)
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and "--plot" in done.stderr and "no such directory" in done.stderr
+    assert not (tmp_path / "typo").exists()

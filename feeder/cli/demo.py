@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from feeder.cli import demo_plane
+from feeder.cli.arguments import output_path
 from feeder.cli.daemon import launch
 from feeder.cli.demo_plane import wait_until_idle
 from feeder.cli.output import print_json
@@ -30,6 +31,8 @@ from feeder.errors import InputError
 from feeder.files import save_figure
 from feeder.parts import Part
 
+DEFAULT_PLOT = Path("out/demo.png")
+"""Where the demo draws its plot unless told (relative to the working directory)."""
 DEFAULT_TARGETS_M = (300e-6, 120e-6, 480e-6, -150e-6, -140e-6, 0.0, 250e-6, 247.5e-6)
 MOVE_TIMEOUT_S = 20.0
 RECOVERY_TIMEOUT_S = 10.0
@@ -46,9 +49,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--plot",
-        type=Path,
-        default=Path("out/demo.png"),
-        help="PNG of the path and the targets (default %(default)s)",
+        type=output_path,
+        help=f"PNG of the path and the targets (default {DEFAULT_PLOT}, its folder made if missing)",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON summary")
     parser.set_defaults(handler=run)
@@ -86,6 +88,9 @@ def _move(client: Client, target: float, quiet: bool) -> tuple[dict[str, Any], l
 
 def run(args: argparse.Namespace) -> int:
     part = Part.parse(args.part)
+    if args.plot is None:  # only the default's folder is made: a mistyped one is refused
+        DEFAULT_PLOT.parent.mkdir(exist_ok=True)
+        args.plot = DEFAULT_PLOT
     if args.plot.suffix.lower() != ".png":
         raise InputError("--plot", f"expected a .png path, got {str(args.plot)!r}")
     if not args.line:
@@ -233,5 +238,4 @@ def _plot(path: Path, traces: list[list[list[float]]], targets: list[float], tol
     ax.legend(loc="best")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
     save_figure(fig, path, dpi=110)

@@ -210,5 +210,4 @@ def _plot(path: Path, moves: list[dict[str, Any]], part: Part) -> None:
     ax.legend(loc="best", fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
     save_figure(fig, path, dpi=110)
