@@ -163,6 +163,31 @@ def test_calibrate_refuses_to_write_over_its_own_images(
     assert Path(images[0]).read_bytes() == before
 
 
+def test_a_calibration_without_turns_locates_about_the_image_centre(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The CLI audit: `vision calibrate --x-move … --y-move … --out camera.json` (exit 0), then
+    `vision locate --calibration camera.json` refused the file ("no 'origin_x_px'") although
+    docs/vision.md says locate reads it.  Without θ turns O is the image centre, as the daemon's."""
+    renderer = FrameRenderer(CameraModel().with_noise(0.02), seed=4)
+    images = [_write(tmp_path / f"{n}.png", renderer, x, y) for n, x, y in
+              (("x0", -50e-6, 0), ("x1", 50e-6, 0), ("y0", 0, -40e-6), ("y1", 0, 40e-6))]  # fmt: skip
+    out = tmp_path / "camera.json"
+    argv = ["vision", "calibrate", "--x-move", "100um", *images[:2], "--y-move", "80um", *images[2:]]
+    assert main([*argv, "--out", str(out), "--json"]) == 0
+    assert json.loads(out.read_text()).get("origin_x_px") is None
+    capsys.readouterr()
+    check = _write(tmp_path / "check.png", renderer, 30e-6, 20e-6, 0.2)
+    assert main(["vision", "locate", check, "--calibration", str(out), "--part", "300x300x50", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    centre = (CameraModel().width_px - 1) / 2, (CameraModel().height_px - 1) / 2
+    assert report["origin_px"] == list(centre) and "image centre" in report["note"]
+    about_centre = CameraCalibration(TRUE.pixel_size_m, TRUE.rotation_rad, TRUE.mirrored, *centre)
+    expected = about_centre.to_plate(*TRUE.to_image(30e-6, 20e-6))
+    (part,) = report["parts"]
+    assert (part["plate_x_m"], part["plate_y_m"]) == pytest.approx(expected, abs=0.5e-6)
+
+
 def test_locate_cli_json_units_plot_and_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     renderer = FrameRenderer(CameraModel(part_level=0.1).with_noise(0.02), seed=5)
     path = tmp_path / "frame.png"

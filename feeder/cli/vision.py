@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -133,24 +134,27 @@ def _template(args: argparse.Namespace) -> PartTemplate | None:
     return PartTemplate(part.length_m / args.pixel_size, part.width_m / args.pixel_size, args.disc, args.mark)
 
 
-def _load_calibration(path: Path) -> CameraCalibration:
+def _load_calibration(path: Path) -> tuple[CameraCalibration, bool]:
+    """The calibration in ``path`` (JSON of `feeder vision calibrate`), and whether it gives the
+    θ centre O (a calibration without ``--theta-move`` does not: its origin is null)."""
     try:
         data = json.loads(read_text(path))
-        return CameraCalibration(
+        origin = data.get("origin_x_px"), data.get("origin_y_px")
+        calibration = CameraCalibration(
             float(data["pixel_size_m"]),
             float(data["rotation_rad"]),
             bool(data["mirrored"]),
-            float(data["origin_x_px"]),
-            float(data["origin_y_px"]),
+            *(0.0 if v is None else float(v) for v in origin),
         )
     except FileNotFoundError:
         raise InputError(str(path), "no such file") from None
     except KeyError as err:
         raise InputError(
-            str(path), f"no {err} (the θ centre needs `feeder vision calibrate --theta-move`)"
+            str(path), f"no {err}: not a calibration JSON of `feeder vision calibrate`"
         ) from None
-    except (OSError, ValueError, TypeError) as err:
+    except (OSError, ValueError, TypeError, AttributeError) as err:
         raise InputError(str(path), f"not a calibration JSON of `feeder vision calibrate`: {err}") from None
+    return calibration, None not in origin
 
 
 def _part_json(
@@ -184,11 +188,16 @@ def run_locate(args: argparse.Namespace) -> int:
     from feeder.vision.locate import locate
 
     check_target(args.plot, "--plot")
-    calibration = _load_calibration(args.calibration) if args.calibration else None
+    calibration, origin = _load_calibration(args.calibration) if args.calibration else (None, False)
     if args.pixel_size is None and calibration is not None:
         args.pixel_size = calibration.pixel_size_m
     template = _template(args)
     image = _read_image(args.image)
+    if calibration is not None and not origin:  # no θ turns measured O: the image centre, as the daemon
+        height, width = image.shape[:2]
+        calibration = dataclasses.replace(
+            calibration, origin_x_px=(width - 1) / 2, origin_y_px=(height - 1) / 2
+        )
     try:
         result = locate(image, template, args.polarity)
     except ValueError as err:
@@ -204,6 +213,10 @@ def run_locate(args: argparse.Namespace) -> int:
         "convention": "origin at the centre of the top-left pixel, x right, y down; angle of the part's "
         "first dimension from +x towards +y, modulo symmetry_rad",
     }
+    if calibration is not None:
+        report["origin_px"] = [calibration.origin_x_px, calibration.origin_y_px]
+        if not origin:
+            report["note"] = "plate coordinates about the image centre: the calibration has no θ turns"
     if args.plot is not None:
         _plot(image, result, args.plot)
         report["plot"] = str(args.plot)
@@ -213,6 +226,8 @@ def run_locate(args: argparse.Namespace) -> int:
     print(
         f"{args.image}: {result.width}×{result.height}, {len(result.parts)} part(s), {result.polarity} parts"
     )
+    if "note" in report:
+        print(f"  ({report['note']})")
     for i, p in enumerate(result.parts, 1):
         print(
             f"  {i}: x {p.x_px:.3f} px  y {p.y_px:.3f} px  angle {math.degrees(p.angle_rad):.3f}°  "
