@@ -130,11 +130,18 @@ class RectangleFit:
     blur_px: float
 
 
+MIN_PROFILES = 5
+"""Profiles across a side at least, closer than ``spacing`` on a short side (an 80 µm part at
+2.7 µm/px has 30 px sides: 8 px apart, a side had one profile and the part was refused)."""
+MIN_REACH_PX = 2.0
+"""A side whose corners leave less than ± this to profile gets one profile (refused: too few)."""
+
+
 def _profile_plan(half_extent: float, margin: float, spacing: float) -> np.ndarray:
     reach = half_extent - margin
-    if reach <= spacing:
+    if reach < MIN_REACH_PX:
         return np.zeros(1)
-    count = int(2 * reach / spacing) + 1
+    count = max(MIN_PROFILES, int(2 * reach / spacing) + 1)
     return np.linspace(-reach, reach, count)
 
 
