@@ -163,6 +163,45 @@ def test_a_turn_goes_on_unless_it_carries_a_part_further_out_of_the_travel(
             )
 
 
+@pytest.mark.parametrize("short_m", [0.95e-6, 1.2e-6, 1.9e-6])
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_target_on_the_travels_edge_keeps_a_fine_step_to_take(
+    tmp_path: Path, short_m: float, direction: int
+) -> None:
+    """The re-audit: targets exactly at ±2.4 mm ended `unreachable` ("fine steps cannot bring
+    part 1 within 9e-07 m …") in 9 of 16 moves, 0.93–1.91 µm short: the cut kept the fine
+    step's bound (1.6× the seed, 2.2 µm) within the edge.  The step's bound may now pass the
+    edge by the bound less the tolerance; its mean end lies within the tolerance of the target."""
+    config = daemon_world("serial", ((0.0, 0.0, 0.2),), tmp_path)
+    planner = daemon_planner(config, plan_theta_modes(config, DEFAULT_SURFACE, static_accel(config)))
+    edge = planner.travel.x_m[1] if direction > 0 else planner.travel.x_m[0]
+    burst = planner.next_burst([(edge - direction * short_m, 0.0, 0.2)], {1: (edge, 0.0, 0.2)})
+    assert isinstance(burst, AxisBurst), burst
+    assert (burst.axis, burst.direction, burst.mode, burst.steps) == ("x", direction, "fine", 1)
+    step, _ = planner.model.step_m("x", direction, "fine")
+    assert abs(short_m - step) <= planner.tolerance_m  # the mean end: within the tolerance
+    assert step - short_m < config.loop.settle_band_m  # and no further out than the watch allows
+
+
+def test_a_part_within_the_tolerance_the_planner_cannot_bring_closer_is_done() -> None:
+    """The planner aims within 0.9 of the tolerance (DONE_MARGIN): the re-audit's parts 0.90 and
+    0.96 µm from a target on the edge (tolerance 1 µm), no fine step bringing them closer,
+    ended `unreachable` though within the tolerance asked for."""
+
+    class Stuck:
+        def next_burst(self, poses: list[Pose], targets: dict[int, Pose]) -> Finish:
+            return Finish("unreachable", "fine steps cannot bring part 1 closer")
+
+    navigator = PoseNavigator(Stuck(), SETTINGS, math.pi / 2)  # type: ignore[arg-type]
+    job = Job("move", pose_target={"x_m": 1e-3})
+    job.target_pose = (1e-3, 0.0, 0.1)
+    tol_m, tol_rad = SETTINGS.tolerance_m, SETTINGS.tolerance_rad
+    status, reason = navigator.next_burst(job, ((1e-3 + 0.95 * tol_m, 0.0, 0.1 + 0.9 * tol_rad),))
+    assert status == "done" and "closer is out of reach: fine steps cannot" in reason
+    for off in ((1e-3 + 1.05 * tol_m, 0.0, 0.1), (1e-3, 0.0, 0.1 + 1.1 * tol_rad)):
+        assert navigator.next_burst(job, (off,)) == ("unreachable", "fine steps cannot bring part 1 closer")
+
+
 # -- N7: a θ jog at O --------------------------------------------------------------------
 
 
