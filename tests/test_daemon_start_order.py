@@ -4,9 +4,11 @@ state and restarts): nothing of its hardware, socket or database."""
 from __future__ import annotations
 
 import dataclasses
+import socket
 import sqlite3
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -87,6 +89,25 @@ def test_a_state_dir_that_cannot_hold_the_log_is_one_line_and_exit_2(short_dir: 
     assert done.returncode == 2, done.stderr
     assert "Traceback" not in done.stderr and done.stderr.count("\n") == 1
     assert str(not_a_dir) in done.stderr and "cannot hold the log" in done.stderr
+
+
+def test_a_taken_http_port_is_refused_before_anything_starts_or_is_written(short_dir: Path) -> None:
+    """The CLI audit: `feeder daemon --http 127.0.0.1:PORT` on a taken port exited 2 only after
+    ~27 s (the simulator started, the planner planned), leaving a fresh state database and token."""
+    state = short_dir / "state"
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        begun = time.monotonic()
+        done = subprocess.run(
+            [sys.executable, "-m", "feeder", "daemon", "--line", "--http", f"127.0.0.1:{port}",
+             "--state-dir", str(state), "--socket", str(short_dir / "s.sock")],
+            cwd=ROOT, capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and f"--http: cannot listen on 127.0.0.1:{port}" in done.stderr
+    assert not state.exists() and time.monotonic() - begun < 10.0
 
 
 @pytest.mark.parametrize("below", ["", "sub"])

@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import logging
 import signal
+import socket
 import sys
 import threading
 import time
@@ -23,6 +24,7 @@ from feeder.daemon.state_files import StoreError, check_state_file, move_aside
 from feeder.drivers.amplifier import AmplifierError
 from feeder.drivers.sensor import CameraError, SensorLost
 from feeder.errors import InputError
+from feeder.web.listener import listen
 
 if TYPE_CHECKING:
     from feeder.daemon.runner import RunningDaemon
@@ -133,6 +135,9 @@ def run(args: argparse.Namespace) -> int:
             config, http=(config.http or HttpConfig()).listening_on(args.http, "--http")
         )
     hardware_sensor(config, str(args.config or "config"))  # refused before anything is written
+    # a taken port too: it was found after the simulator had started and planned (~27 s), a
+    # fresh state database and token left behind
+    listener = None if config.http is None else listen(config.http.host, config.http.port)
     setup_logging(args.log_level, config.state_dir / "daemon.log")
     if args.reset_state:
         from feeder.daemon.service import lock_state  # the daemon's own modules load with it below
@@ -159,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
     if running is None:  # stopped while waiting for the hardware
         return 0
     try:
-        console = start_console(config, running)
+        console = start_console(config, running, listener)
     except InputError:
         running.stop()
         raise
@@ -229,7 +234,9 @@ def launch_when_reachable(config: DaemonConfig, wait_s: float, stop: threading.E
             delay = min(2 * delay, WAIT_MAX_S)
 
 
-def start_console(config: DaemonConfig, running: RunningDaemon) -> ConsoleServer | None:
+def start_console(
+    config: DaemonConfig, running: RunningDaemon, listener: socket.socket | None = None
+) -> ConsoleServer | None:
     """The browser console when configured (``--http`` or ``[http]``), else None; shows the
     frames the daemon locates parts in, or else the embedded simulator's camera when it serves
     one (``--sim-arg=--camera-http=0``): never a second decode of the daemon's own stream
@@ -250,4 +257,5 @@ def start_console(config: DaemonConfig, running: RunningDaemon) -> ConsoleServer
         config.http,
         config.state_dir,
         None if camera_http is None else camera_http + "/video.mjpg",
+        listener,
     )

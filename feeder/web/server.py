@@ -31,6 +31,7 @@ from feeder.daemon.quiet_window import quiet_event_loop
 from feeder.errors import InputError
 from feeder.web.app import Handler, console_app
 from feeder.web.camera import CameraFeed, camera_feed
+from feeder.web.listener import LISTEN_BACKLOG, listen
 from feeder.web.security import new_token
 
 log = logging.getLogger(__name__)
@@ -45,8 +46,6 @@ REQUEST_TIMEOUT_S = 5.0
 """How long a connection has to send a whole request (line, headers and body), from its
 connection or the end of its last response (uvicorn has no such limit: an idle connection,
 or one sending a header byte every 2 s, stayed open)."""
-LISTEN_BACKLOG = 128
-"""Connections the kernel holds before accept, and the most the event loop accepts at once."""
 
 
 def connection_cap() -> int:
@@ -126,22 +125,20 @@ class GuardedH11Protocol(H11Protocol):
 class ConsoleServer:
     """uvicorn serving :func:`console_app` on its own thread; :meth:`stop` ends it.
 
-    Binds ``settings.host:settings.port`` at construction (port 0: any free one), so
-    a taken port is an :class:`InputError` before anything is served.
+    Serves ``listener`` (:func:`~feeder.web.listener.listen`, which ``feeder daemon`` calls
+    before it starts anything), or binds ``settings.host:settings.port`` at construction
+    (port 0: any free one): a taken port is an :class:`InputError` before anything is served.
     """
 
     def __init__(
-        self, daemon: Handler, settings: HttpConfig, token: str, camera: CameraFeed | None = None
+        self,
+        daemon: Handler,
+        settings: HttpConfig,
+        token: str,
+        camera: CameraFeed | None = None,
+        listener: socket.socket | None = None,
     ) -> None:
-        family = socket.AF_INET6 if ":" in settings.host else socket.AF_INET
-        self._socket = socket.socket(family, socket.SOCK_STREAM)
-        try:
-            self._socket.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self._socket.bind((settings.host, settings.port))
-            self._socket.listen(LISTEN_BACKLOG)
-        except OSError as err:
-            self._socket.close()
-            raise InputError("--http", f"cannot listen on {settings.host}:{settings.port}: {err}") from None
+        self._socket = listener if listener is not None else listen(settings.host, settings.port)
         self.host = settings.host
         self.port = int(self._socket.getsockname()[1])
         self.token = token
@@ -195,13 +192,18 @@ class ConsoleServer:
 
 
 def start_console(
-    daemon: Handler, settings: HttpConfig, state_dir: Path, camera: str | None = None
+    daemon: Handler,
+    settings: HttpConfig,
+    state_dir: Path,
+    camera: str | None = None,
+    listener: socket.socket | None = None,
 ) -> ConsoleServer:
-    """A new token in ``state_dir``, and the console serving with it; ``camera``: the live
-    view's camera spec when the configuration names none (see :func:`camera_feed`)."""
+    """A new token in ``state_dir``, and the console serving with it (on ``listener`` when bound
+    already); ``camera``: the live view's camera spec when the configuration names none (see
+    :func:`camera_feed`)."""
     feed = camera_feed(settings.camera or camera, daemon)
     try:
-        server = ConsoleServer(daemon, settings, new_token(state_dir), feed)
+        server = ConsoleServer(daemon, settings, new_token(state_dir), feed, listener)
     except InputError:
         if feed is not None:
             feed.close()
