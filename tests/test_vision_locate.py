@@ -186,3 +186,19 @@ def test_the_smallest_part_in_a_wide_field_is_located(camera: CameraModel) -> No
         assert abs(angle_difference(part.angle_rad, angle, math.pi / 2)) <= math.radians(
             1.5
         )  # rms 0.3°, 0.5°
+
+
+def test_a_part_far_smaller_than_the_template_is_listed_as_refused() -> None:
+    """The CLI audit: `vision locate --pixel-size 1um` on a frame at 2.7 µm/px gave no part and
+    no refusal (a blob under a quarter of the part's area was skipped unsaid); at 2 µm/px the
+    size mismatch was listed.  Noise stays unlisted."""
+    camera = CameraModel(width_px=1024, height_px=1024).with_noise(0.02)
+    side = 300 / 2.7
+    frame = FrameRenderer(camera, seed=2).render([PartInImage(400.0, 500.0, 0.2, side, side)])
+    result = locate(frame, PartTemplate(300, 300))  # the part's size at 1 µm/px
+    assert not result.parts
+    (refused,) = result.rejected
+    assert (refused.x_px, refused.y_px) == pytest.approx((400.0, 500.0), abs=3.0)
+    assert refused.reason.startswith("too small for the part: ") and "the part 90000 px²" in refused.reason
+    empty = FrameRenderer(camera, seed=2).render([])
+    assert locate(empty, PartTemplate(300, 300)).rejected == ()

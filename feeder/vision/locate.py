@@ -94,12 +94,18 @@ def locate(image: np.ndarray, template: PartTemplate | None = None, polarity: st
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     contrast = abs(cv2.mean(shrunk, mask)[0] - cv2.mean(shrunk, cv2.bitwise_not(mask))[0])
     sy, sx = h / small.shape[0], w / small.shape[1]
-    min_area = 0.25 * _template_area(template) / (sx * sy) if template else max(16.0, 1e-4 * small.size)
+    noise_area = max(16.0, 1e-4 * small.size)  # a blob smaller is noise or dust: never listed
+    min_area = 0.25 * _template_area(template) / (sx * sy) if template else noise_area
     parts: list[Detection] = []
     rejected: list[Rejection] = []
     for contour in contours:
         area = cv2.contourArea(contour)
         if area < min_area:
+            if template is not None and area >= noise_area:  # a wrong pixel size shows here
+                (cx, cy), _, _ = cv2.minAreaRect(contour)
+                rejected.append(Rejection((cx + 0.5) * sx - 0.5, (cy + 0.5) * sy - 0.5,
+                                          f"too small for the part: {area * sx * sy:.0f} px², "
+                                          f"the part {_template_area(template):.0f} px²"))  # fmt: skip
             continue
         result = _one_blob(gray, contour, area, (sx, sy), contrast, template)
         if isinstance(result, Detection):
