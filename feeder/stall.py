@@ -48,6 +48,14 @@ def watch() -> None:
             _thread.start()
 
 
+def why_late(late_s: float, cpu_s: float) -> str:
+    """Why a thread woke ``late_s`` (s) late, the process having used ``cpu_s`` (s) of CPU
+    (``time.process_time()``, every thread) meanwhile: busy itself, or stopped or starved."""
+    if cpu_s >= 0.5 * late_s:
+        return f"this process kept the interpreter busy ({cpu_s:.2f} s of CPU: start-up, a long computation?)"
+    return "the process stood still or got no CPU (SIGSTOP, a suspended machine, swapping, a loaded host?)"
+
+
 def stalled_since(start_s: float) -> float:
     """How long (s) the process stood still after ``start_s`` (``time.monotonic()``), as far as
     the monitor saw (0 before :func:`watch`): the stalls it recorded, and one it has not woken

@@ -109,3 +109,11 @@ def test_a_canopen_node_is_not_declared_lost_for_the_hosts_own_standstill() -> N
         node.close()
         stop.set()
         ticker.join(timeout=2.0)
+
+
+def test_a_late_tick_is_blamed_on_this_process_only_when_it_used_the_cpu_meanwhile() -> None:
+    """The CLI audit saw "the process stood still (SIGSTOP, …)" at a `feeder daemon` start on a
+    loaded host: a cause the message could not know.  The CPU the process used while the tick
+    was due tells a process busy itself (its own threads) from one stopped or starved."""
+    assert stall.why_late(0.3, 0.28).startswith("this process kept the interpreter busy (0.28 s of CPU")
+    assert stall.why_late(2.5, 0.01).startswith("the process stood still or got no CPU (SIGSTOP")

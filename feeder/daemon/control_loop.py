@@ -369,13 +369,14 @@ class ControlLoop:
         while not self._shutdown.is_set():
             self.quiet.due(deadline)
             delay = deadline - self._clock()
+            cpu = time.process_time()
             if delay > 0:
                 time.sleep(delay)
             woke = self._clock()
             self.lateness.append(woke - deadline)
             if woke - deadline > stall.GAP_S:
-                log.warning("the control loop ran %.2f s late: the process stood still (SIGSTOP, a "
-                            "suspended machine, swapping?)", woke - deadline)  # fmt: skip
+                log.warning("the control loop ran %.2f s late: %s", woke - deadline,
+                            stall.why_late(woke - deadline, time.process_time() - cpu))  # fmt: skip
             self._tick_guarded(woke)
             self.quiet.served()
             self.collector.collect_due()  # in the slack the tick leaves, not before a deadline
