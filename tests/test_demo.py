@@ -76,3 +76,11 @@ def test_demo_refuses_a_plot_in_a_folder_that_does_not_exist(tmp_path: Path) -> 
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "--plot" in done.stderr and "no such directory" in done.stderr
     assert not (tmp_path / "typo").exists()
+
+
+def test_demo_refuses_a_default_plot_folder_it_cannot_make(tmp_path: Path) -> None:
+    """`out` a file in the working directory: one line naming --plot, not a FileExistsError."""
+    (tmp_path / "out").write_text("a file")
+    done = feeder("demo", "--line", cwd=tmp_path)
+    assert done.returncode == 2
+    assert done.stderr == "feeder demo: error: --plot: cannot make out/: File exists\n"

@@ -89,7 +89,10 @@ def _move(client: Client, target: float, quiet: bool) -> tuple[dict[str, Any], l
 def run(args: argparse.Namespace) -> int:
     part = Part.parse(args.part)
     if args.plot is None:  # only the default's folder is made: a mistyped one is refused
-        DEFAULT_PLOT.parent.mkdir(exist_ok=True)
+        try:
+            DEFAULT_PLOT.parent.mkdir(exist_ok=True)
+        except OSError as err:  # a file of that name, no permission
+            raise InputError("--plot", f"cannot make {DEFAULT_PLOT.parent}/: {err.strerror}") from None
         args.plot = DEFAULT_PLOT
     if args.plot.suffix.lower() != ".png":
         raise InputError("--plot", f"expected a .png path, got {str(args.plot)!r}")
