@@ -9,6 +9,7 @@ the machine's load.  No real time is slept.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterable, Iterator
 from types import SimpleNamespace
 
@@ -79,7 +80,9 @@ def run_ticks(world: FakeWorld, monkeypatch: pytest.MonkeyPatch) -> Iterator[Run
         loops.append(loop)
         with monkeypatch.context() as patch:
             # the loop's module alone sees the scripted sleep; other threads keep time.sleep
-            fake_time = SimpleNamespace(sleep=scripted.sleep, monotonic=scripted.clock)
+            fake_time = SimpleNamespace(
+                sleep=scripted.sleep, monotonic=scripted.clock, process_time=time.process_time
+            )
             patch.setattr(control_loop, "time", fake_time)
             with pytest.raises(ScriptEnd):
                 loop._tick_until_shutdown()
