@@ -124,17 +124,30 @@ def _threshold(small: np.ndarray, polarity: str) -> tuple[float, str]:
     """The level between the support and the parts, and the parts' polarity (``auto``: the side
     with more pixels far from the support's median).  Half-way from the support's median to the
     median of those far pixels: Otsu's threshold assumes two classes of some size, and an 80 µm
-    part at 2.7 µm/px (0.02 % of a 2048² field) left it in the support's vignetting."""
-    values = small.ravel()
-    support = float(np.median(values))
-    spread = max(1.0, 1.4826 * float(np.median(np.abs(values - support))))
-    bright, dark = values > support + OUTLIER_SPREADS * spread, values < support - OUTLIER_SPREADS * spread
+    part at 2.7 µm/px (0.02 % of a 2048² field) left it in the support's vignetting.  From the
+    256-level histogram (~1 ms a 1024² frame; ``np.median`` of the pixels took ~30 ms)."""
+    counts = np.bincount(small.ravel(), minlength=256).astype(np.int64)
+    levels = np.arange(counts.size, dtype=np.float64)
+    support = _median(levels, counts)
+    deviations = np.abs(levels - support)
+    order = np.argsort(deviations, kind="stable")
+    spread = max(1.0, 1.4826 * _median(deviations[order], counts[order]))
+    bright, dark = levels > support + OUTLIER_SPREADS * spread, levels < support - OUTLIER_SPREADS * spread
     if polarity == "auto":
-        polarity = "bright" if np.count_nonzero(bright) >= np.count_nonzero(dark) else "dark"
-    far = values[bright if polarity == "bright" else dark]
-    if far.size == 0:  # no part: a threshold nothing passes
+        polarity = "bright" if counts[bright].sum() >= counts[dark].sum() else "dark"
+    far = bright if polarity == "bright" else dark
+    if not counts[far].any():  # no part: a threshold nothing passes
         return (255.0 if polarity == "bright" else 0.0), polarity
-    return (support + float(np.median(far))) / 2, polarity
+    return (support + _median(levels[far], counts[far])) / 2, polarity
+
+
+def _median(values: np.ndarray, counts: np.ndarray) -> float:
+    """The median of ``values`` (ascending) each taken ``counts`` times, as ``np.median`` of them
+    all gives it (the mean of the two middle ones for an even number)."""
+    ranks = np.cumsum(counts)
+    total = int(ranks[-1])
+    low, high = np.searchsorted(ranks, [(total - 1) // 2, total // 2], side="right")
+    return float(values[low] + values[high]) / 2
 
 
 def _template_area(template: PartTemplate) -> float:
