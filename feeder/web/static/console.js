@@ -28,6 +28,7 @@ let drag = null;
 let trajectory = [];        // [t_s, x_m, y_m, psi_rad] of the current or last move
 let lastState = null;
 let cameraProgress = null;  // the camera calibration's step last shown
+let cameraAnswered = false; // this page has its calibration's answer: statuses still moving are older
 
 // -- API ---------------------------------------------------------------------------------
 async function api(method, path, body) {
@@ -192,21 +193,27 @@ $("calibrate-camera").addEventListener("click", async () => {
   $("camera-result").textContent = "";
   $("calibrate-camera").disabled = true;
   try {
-    const answer = await api("POST", "/api/calibrate_camera", request);
-    if (answer && answer.ok) {
-      say("camera calibrated");
-      $("camera-result").innerHTML = cameraReport(answer.calibration).map((l) => `<div>${escapeHtml(l)}</div>`).join("");
-    }
+    showCameraAnswer(await api("POST", "/api/calibrate_camera", request));
   } finally {
     $("calibrate-camera").disabled = false;
   }
 });
 
+function showCameraAnswer(answer) {  // this page's calibration ended: its report, or api's error
+  cameraAnswered = true;
+  if (answer && answer.ok) {
+    say("camera calibrated");
+    $("camera-result").innerHTML = cameraReport(answer.calibration).map((l) => `<div>${escapeHtml(l)}</div>`).join("");
+  }
+}
+
 function showCameraProgress() {
-  // each new step once: a status taken before the calibration's answer must not overwrite it;
-  // its end clears a step still shown (another page's calibration)
+  // each new step once; its end clears a step still shown (another page's calibration). The
+  // answer comes over HTTP, the statuses over the WebSocket: one taken before the answer may
+  // arrive after it, and must not bring a step (and then "ended") back over the answer.
   const progress = (status.camera_moves && status.camera_moves_progress) || null;
-  if (progress === cameraProgress) return;
+  if (!status.camera_moves) cameraAnswered = false;
+  if (progress === cameraProgress || cameraAnswered) { cameraProgress = progress; return; }
   if (progress) say(`calibrating the camera: ${progress} (STOP ends it)`);
   else if ($("message").textContent.startsWith("calibrating the camera:")) say("the camera calibration ended");
   cameraProgress = progress;
