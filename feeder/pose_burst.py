@@ -23,6 +23,9 @@ class AxisBurst:
     direction: int
     steps: int
     mode: str
+    path: bool = False
+    """A leg of a planned path (a pair's way to an anchor and back, A kept at an anchor that
+    moves as B orbits): its reversals are the path's, not the loop's oscillation."""
 
 
 @dataclass(frozen=True)

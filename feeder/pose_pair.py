@@ -24,6 +24,7 @@ as it is.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from feeder.pose import Pose
 from feeder.pose_burst import AxisBurst, Finish, carry_refusal
@@ -35,6 +36,12 @@ ANCHOR_SLACK = 0.2
 mode; :meth:`~feeder.pose_turns.TurnPlanner.theta_burst` cuts a burst there) ..."""
 ANCHOR_STEPS = 10
 """... of at least this many steps, each as large as twice the seed (the prior's pessimistic step)."""
+PAST = 2.0
+"""A backward orbit aims this many tolerances (at B) past its end, so that the pair's last θ burst
+is forward.  After backward steps θ's output rests at the top of its waveform, and grounding it
+(done is checked grounded, docs/daemon.md) turns the plate about O with both parts stuck to it:
+that turns d, which no translation corrects (a CANopen pair 1.1 mm apart read 2.3–4.3 µm off
+after every ground).  After forward steps it rests at 0 V, where the ground leaves it."""
 LEG_REACH = 0.5
 """A length leg holds A this fraction of the dead zone's radius from O (drift aside), leaving the
 rest as margin for B's radial drift: the distance between the parts changes by up to
@@ -172,6 +179,20 @@ def _angle(start: tuple[float, float], end: tuple[float, float]) -> float:
     return math.remainder(math.atan2(end[1], end[0]) - math.atan2(start[1], start[0]), 2 * math.pi)
 
 
+def _path(burst: AxisBurst | Finish) -> AxisBurst | Finish:
+    """A translation of both parts to an anchor or back to their targets, marked as a leg of the
+    pair's path: A is moved again each time B's radius misses (once or twice per orbit, 2–6 µm,
+    either way), and a pair's way out and back, x and y alternating, spent the daemon's
+    reversals (a CANopen pair ended "oscillating" after 13, on its way)."""
+    return replace(burst, path=True) if isinstance(burst, AxisBurst) else burst
+
+
+def _ending_forward(phi: float, radius_m: float, tolerance_m: float) -> float:
+    """The orbit (rad) to ask for B at ``radius_m`` from O to end ``phi`` away: forward as it is,
+    backward :data:`PAST` tolerances further (the forward orbit back ends the pair's θ)."""
+    return phi if phi >= 0 else phi - PAST * tolerance_m / max(radius_m, 1e-9)
+
+
 def _drift(planner: PosePlanner, pose: Pose, phi: float) -> float:
     """Radial drift (m) of a part orbiting by ``phi`` about O with the coarse orbit mode: drift
     per step × steps."""
@@ -261,7 +282,7 @@ def next_pair_burst(
             # line): the move ends with why, both parts first put back about their targets
             # (they ended 140–470 µm off, at the anchor, where the orbit had failed)
             if math.hypot(goal[0] - a[0], goal[1] - a[1]) > tol:
-                back = planner.translate_burst(poses, ia, goal, exact=True)
+                back = _path(planner.translate_burst(poses, ia, goal, exact=True))
                 if isinstance(back, AxisBurst):
                     return back
             return orbit
@@ -270,7 +291,7 @@ def next_pair_burst(
         # put each within it (a pair 0.9 mm apart ended 260 µm off both targets, at the anchor)
     # both move alike now: the fine-step offset (up to 3 per axis) that leaves the larger error smallest
     if math.hypot(goal[0] - a[0], goal[1] - a[1]) > 3 * tol:
-        return planner.translate_burst(poses, ia, goal, exact=True)
+        return _path(planner.translate_burst(poses, ia, goal, exact=True))
     fine = planner.model.modes("x")[-1]
 
     def shift(axis: str, n: int) -> float:
@@ -319,6 +340,7 @@ def _orbit_burst(
     r_anchor = anchor_radius_m(planner)
     miss = math.hypot(*end) - math.hypot(b[0], b[1])  # how far B's radius is off the end's
     if math.hypot(a[0], a[1]) <= r_anchor and abs(miss) <= min(0.5 * tol, 0.5 * math.hypot(*rel)):
+        phi = _ending_forward(phi, math.hypot(b[0], b[1]), tol)
         burst = planner.turns.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")
         if burst is not None:
             return burst
@@ -344,6 +366,8 @@ def _orbit_burst(
         "step fits that there, or the orbit leaves the travel",
     )
     shift = (anchor[0] - a[0], anchor[1] - a[1])
+    if not leg:  # a length leg's orbit is not the last: the plan's turns it back
+        phi = _ending_forward(phi, math.hypot(anchor[0] + b[0] - a[0], anchor[1] + b[1] - a[1]), tol)
     if math.hypot(*shift) > 0.5 * tol:
         # B's orbit from where it will be is checked before A goes there (both carried along):
         # a pair 0.9 mm apart went to the anchor, found B in the dead zone and ended 260 µm off
@@ -351,7 +375,7 @@ def _orbit_burst(
         ahead = planner.turns.theta_burst(there, ib, phi, anchored=(ia,), quantity="orbit")
         if not isinstance(ahead, AxisBurst):
             return ahead or stuck
-        move = planner.translate_burst(poses, ia, anchor, exact=True)
+        move = _path(planner.translate_burst(poses, ia, anchor, exact=True))
         if not isinstance(move, Finish):  # else A is as close to the anchor as fine steps get it
             return move
     burst = planner.turns.theta_burst(poses, ib, phi, anchored=(ia,), quantity="orbit")

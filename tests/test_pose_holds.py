@@ -9,14 +9,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_pose_policy import Plane
+from test_pose_policy import SETTINGS, Plane
 
 from feeder.cli.control import _print_result
-from feeder.daemon.jobs import Job, JobResult
+from feeder.daemon.jobs import Burst, Job, JobResult
 from feeder.daemon.move_records import MoveRecords
 from feeder.daemon.pose_navigator import PoseNavigator
 from feeder.daemon.replies import MoveResult
+from feeder.daemon.step_estimator import BACKWARD, FORWARD
 from feeder.daemon.store import Store
+from feeder.pose import Pose
+from feeder.pose_burst import AxisBurst, Finish
 
 
 def navigator_of(plane: Plane) -> PoseNavigator:
@@ -83,6 +86,56 @@ def test_a_move_of_a_held_part_that_does_not_end_done_leaves_it_unheld() -> None
     assert plane.policy.submit(job, plane.now) is None
     assert 1 not in navigator_of(plane).held  # its old target no longer holds it
     plane.policy.request_stop("operator")
+
+
+class _PlacedPair:
+    """A planner that finds its parts placed, on a drive whose θ has the anchoring orbit modes."""
+
+    class model:  # the planner's response model, as the navigator reads it
+        @staticmethod
+        def orbit_modes() -> list[str]:
+            return ["anchor", "anchor-fine"]
+
+    def __init__(self) -> None:
+        self.learned: list[AxisBurst] = []
+
+    def check(self, targets: dict[int, Pose], poses: list[Pose]) -> str | None:
+        return None
+
+    def next_burst(self, poses: list[Pose], targets: dict[int, Pose]) -> Finish:
+        return Finish("done", "every part within tolerance")
+
+    def learn(self, burst: AxisBurst, before: list[Pose], after: list[Pose]) -> None:
+        self.learned.append(burst)
+
+
+def test_parts_placed_together_are_done_only_with_theta_resting_at_zero_volts() -> None:
+    """After backward θ steps the output rests at the top of its table; the done check's ground
+    then turns the plate about O and the pair with it (a CANopen pair read 2.3–4.3 µm off after
+    each of 4 grounds).  So a placed pair first gets one forward step of θ's finest orbit mode,
+    not learned from (the plate's turn to 0 V is most of what it does), unless θ's last burst
+    went forward; a single part is done at once (its own turn corrects the ground's)."""
+    planner = _PlacedPair()
+    navigator = PoseNavigator(planner, SETTINGS, math.pi / 2)  # type: ignore[arg-type]
+    reading = ((0.0, 0.0, 0.0), (1.0e-3, 0.0, 0.0))
+    navigator.held[1] = reading[0]
+    job = Job("move", pose_target={"x_m": 1.0e-3}, part=2)
+    assert navigator.prepare(job, reading) is None
+    zeroing = Burst("anchor-fine", FORWARD, 1, "theta")
+    assert navigator.next_burst(job, reading) == zeroing  # unknown since the start: not 0 V
+    navigator.learn(zeroing, True, reading, reading)
+    assert planner.learned == []
+    assert navigator.next_burst(job, reading) == ("done", "every part within tolerance")
+    orbit = Burst("anchor", BACKWARD, 40, "theta")
+    navigator.learn(orbit, True, reading, reading)
+    assert planner.learned == [AxisBurst("theta", -1, 40, "anchor")]
+    translated = Burst("fine", FORWARD, 2, "x")  # x's rest leaves θ's as it is
+    navigator.learn(translated, True, reading, reading)
+    assert navigator.next_burst(job, reading) == zeroing
+    navigator.release(1)
+    single = Job("move", pose_target={"x_m": 1.0e-3}, part=2)
+    assert navigator.prepare(single, reading) is None
+    assert navigator.next_burst(single, reading) == ("done", "every part within tolerance")
 
 
 def result(**changes: object) -> JobResult:

@@ -78,6 +78,32 @@ class World:
         return [(float(p[0]), float(p[1]), float(p[2])) for p in self.solver.poses()]
 
 
+class RestingWorld(World):
+    """The plate rests where each axis' last burst leaves it, as an ANC300's output does: at 0 V
+    after forward steps, at the top of its table (the plate a stroke on) after backward ones;
+    grounding takes every axis to 0 V and the next burst's enable back to its level.  The
+    parts, stuck to the plate, go along; they are seen in the lab's (the camera's) frame."""
+
+    def __init__(self, poses: list[tuple[float, float, float]], modes: tuple[AxisMode, ...]) -> None:
+        super().__init__(poses, modes=modes)
+        self.driven = {"x": 0.0, "y": 0.0, "theta": 0.0}  # the plate's pose at each axis' level
+        self.grounded = True
+
+    def burst(self, b: AxisBurst) -> None:
+        mode = next(m for m in self.modes if m.axis == b.axis and m.mode == b.mode)
+        self.driven[b.axis] = 0.0 if b.direction > 0 else mode.stroke
+        self.grounded = False
+        super().burst(b)
+
+    def ground(self) -> None:
+        self.grounded = True
+
+    def poses(self) -> list[tuple[float, float, float]]:
+        x, y, theta = (0.0, 0.0, 0.0) if self.grounded else tuple(self.driven.values())
+        c, s = math.cos(theta), math.sin(theta)
+        return [(c * p[0] - s * p[1] + x, s * p[0] + c * p[1] + y, p[2] + theta) for p in super().poses()]
+
+
 def run(planner: PosePlanner, world: World, targets: dict[int, tuple[float, float, float]]) -> Finish:
     for _ in range(200):
         before = world.poses()
@@ -299,12 +325,13 @@ def test_a_pair_whose_orbit_cannot_run_is_translated_when_that_will_do(model_see
 def test_a_pair_whose_orbit_fails_at_the_anchor_ends_back_about_its_targets(
     model_seed: ResponseModel,
 ) -> None:
-    """Parts 0.9 mm apart to be 5 µm further apart: A went ~0.13 mm to the length leg's anchor,
+    """Parts 0.9 mm apart to be 10 µm further apart: A went ~0.13 mm to the length leg's anchor,
     where B's orbit (the test modes' dead zone) proved impossible, and the move ended there,
     134 and 140 µm off the targets (on the CAN plane 140–470 µm).  Now both are translated
-    back about their targets before the move ends "unreachable" with the reason."""
+    back about their targets before the move ends "unreachable" with the reason.  (5 µm further
+    apart is placed since backward orbits aim past their end, :data:`~feeder.pose_pair.PAST`.)"""
     planner = PosePlanner(fresh(), TRAVEL, PART, TOL_M, TOL_RAD)
-    targets = {1: (0.0, 0.0, 0.0), 2: (0.9e-3 + 5e-6, 0.0, math.nan)}
+    targets = {1: (0.0, 0.0, 0.0), 2: (0.9e-3 + 10e-6, 0.0, math.nan)}
     world = World([(0.0, 0.0, 0.0), (0.9e-3, 0.0, 0.0)])
     verdict = run(planner, world, targets)
     assert verdict.status == "unreachable" and "cannot orbit" in verdict.reason
@@ -393,6 +420,29 @@ def test_with_both_theta_families_a_part_turns_among_others_and_a_pair_orbits_an
     place(planner, world, targets)
     orbits = [b for b in world.bursts if b.axis == "theta"]
     assert orbits and {b.mode for b in orbits} <= set(ANCHOR_MODES)
+
+
+@pytest.mark.parametrize("side", [1, -1])
+def test_a_pair_ends_on_a_forward_orbit_so_that_grounding_theta_leaves_it_placed(
+    model_seed: ResponseModel, side: int
+) -> None:
+    """After backward θ steps the plate rests turned by the stroke; the done check grounds it
+    (docs/daemon.md), turning both parts about O, which no translation undoes.  A CANopen pair
+    1.1 mm apart whose orbit ran backward read 2.3–4.3 µm off after each of its 4 grounds and
+    ended "unreachable" (5 of 5 runs).  A backward orbit now aims past its end, so the pair's
+    last θ burst is forward and the ground leaves the pair where it was placed, on either side."""
+    planner = PosePlanner(seed_response(PART, BOTH, RADII), TRAVEL, PART, TOL_M, TOL_RAD)
+    world = RestingWorld([(0.0, 0.0, 0.0), (1.5e-3, 0.0, 0.0)], BOTH)
+    targets = {1: (0.2e-3, -side * 0.3e-3, 0.0), 2: (0.4e-3, side * 1.5e-3, math.nan)}
+    assert planner.check(targets, world.poses()) is None
+    verdict = run(planner, world, targets)
+    assert verdict.status == "done", verdict
+    orbits = [b for b in world.bursts if b.axis == "theta"]
+    assert orbits[0].direction == side and orbits[-1].direction == 1
+    world.ground()
+    for pid, target in targets.items():
+        pose = world.poses()[pid - 1]
+        assert math.hypot(pose[0] - target[0], pose[1] - target[1]) <= TOL_M, (pid, pose, target)
 
 
 def test_learned_gains_survive_a_restart_and_mismatched_ones_are_left_at_the_seed() -> None:

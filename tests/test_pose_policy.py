@@ -242,15 +242,16 @@ def test_a_one_axis_move_on_the_plane_is_a_move_of_part_ones_x() -> None:
 class ScriptedPlanner(StepPlanner):
     """Bursts from a script, then done (a planner's decisions, whatever the poses)."""
 
-    def __init__(self, script: list[tuple[str, int]]) -> None:
+    def __init__(self, script: list[tuple[str, int]], path: bool = False) -> None:
         super().__init__()
         self.script = list(script)
+        self.path = path
 
     def next_burst(self, poses: list[Pose], targets: dict[int, Pose]) -> AxisBurst | Finish:
         if not self.script:
             return Finish("done", "every part within tolerance")
         axis, direction = self.script.pop(0)
-        return AxisBurst(axis, direction, 1, FINE)
+        return AxisBurst(axis, direction, 1, FINE, self.path)
 
 
 def test_reversals_are_counted_per_axis() -> None:
@@ -263,3 +264,11 @@ def test_reversals_are_counted_per_axis() -> None:
     back_and_forth = [("x", 1), ("x", -1)] * (limit + 1)
     result = Plane(planner=ScriptedPlanner(back_and_forth)).run(Job("move", pose_target={"x_m": 0.0})).result
     assert result.status == "oscillating" and result.reason.startswith(f"{limit + 1} direction reversals")
+    # a planned path's legs (a pair's A kept at its moving anchor, 2-6 µm either way) are not
+    # counted: a CANopen pair ended "oscillating" on its way; max_bursts bounds them
+    path = Plane(planner=ScriptedPlanner(back_and_forth, path=True))
+    assert path.run(Job("move", pose_target={"x_m": 0.0})).result.status == "done"
+    endless = [("x", 1), ("x", -1)] * SETTINGS.max_bursts * 3
+    endless_path = Plane(planner=ScriptedPlanner(endless, path=True))
+    result = endless_path.run(Job("move", pose_target={"x_m": 0.0})).result
+    assert result.status == "unreachable" and result.bursts == SETTINGS.max_bursts * 3, result

@@ -113,9 +113,10 @@ class BurstCycle:
     ) -> Command | tuple[str, str]:
         """Count ``nxt``, decided from ``reading``, into ``job`` and follow it: the command that
         plays it, or (status, reason) when it reverses once too often.  ``grounded``: decided
-        from a grounded pose (a done pose checked), so a reversal is the ground's, not one to count."""
+        from a grounded pose (a done pose checked), so a reversal is the ground's, not one to
+        count; nor is a leg of a planned path's (``nxt.path``: ``max_bursts`` bounds those)."""
         previous = job.last_directions.get(nxt.axis)  # a reversal is per axis: x+ then y− is none
-        if previous is not None and nxt.direction != previous and not grounded:
+        if previous is not None and nxt.direction != previous and not (grounded or nxt.path):
             job.reversals += 1
             if job.reversals > self.settings.max_reversals * len(self.navigator.axes):
                 return ("oscillating", f"{job.reversals} direction reversals without reaching the tolerance")

@@ -79,12 +79,15 @@ class LoopSettings:
 
 @dataclass(frozen=True)
 class Burst:
-    """One burst of a job: ``steps`` > 0 in ``direction`` with ``axis``' waveform ``mode``."""
+    """One burst of a job: ``steps`` > 0 in ``direction`` with ``axis``' waveform ``mode``;
+    ``path``: a leg of a planned path, whose reversal is not counted
+    (:attr:`~feeder.pose_burst.AxisBurst.path`)."""
 
     mode: str
     direction: str
     steps: int
     axis: str = "x"
+    path: bool = False
 
 
 # -- commands to the executor, and what it reports back --------------------------------

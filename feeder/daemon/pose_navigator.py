@@ -54,6 +54,8 @@ class PoseNavigator:
             (settings.min_position_m, settings.max_position_m), (settings.min_y_m, settings.max_y_m)
         )
         self._start: Reading = ()  # the parts where the running move started (every plane job is prepared)
+        self._theta_rests_at_zero = False  # θ's last burst since the start went forward (:meth:`next_burst`)
+        self._zeroing = False  # the last burst decided is the one step that takes θ to 0 V
 
     # -- the job's target --------------------------------------------------------------
 
@@ -148,6 +150,10 @@ class PoseNavigator:
 
     def learn(self, burst: Burst, learnable: bool, before: Reading, after: Reading) -> bool:
         """Teach the planner what the burst did; True when no part moved beyond the noise."""
+        if burst.axis == "theta":
+            # the step to 0 V is not learned from: the plate's turn to 0 V is most of what it did
+            learnable = learnable and not self._zeroing
+            self._theta_rests_at_zero, self._zeroing = burst.direction == FORWARD, False
         if learnable:
             self.planner.learn(_axis_burst(burst), list(before), list(after))
         noise_m = max(3 * self.settings.sensor_noise_m, 0.1 * self.settings.tolerance_m)
@@ -164,15 +170,37 @@ class PoseNavigator:
     def next_burst(self, job: Job, reading: Reading) -> Burst | tuple[str, str]:
         assert job.target_pose is not None
         targets = self._targets(job, job.target_pose)
+        self._zeroing = False
         nxt = self.planner.next_burst(list(reading), targets)
         log.debug("at %s for %s: %s", reading, job.target_pose, nxt)
         if isinstance(nxt, Finish):
             if nxt.status == "unreachable" and self._within_tolerance(reading, targets):
                 # the planner aims within DONE_MARGIN of the tolerance: a part the re-audit left
                 # 0.90-0.96 µm from a target on the travel's edge (tolerance 1 µm) ended unreachable
-                return ("done", f"every part within tolerance (closer is out of reach: {nxt.reason})")
+                nxt = Finish("done", f"every part within tolerance (closer is out of reach: {nxt.reason})")
+            if nxt.status == "done" and len(targets) > 1 and not self._theta_rests_at_zero:
+                settle = self._theta_to_zero()
+                if settle is not None:
+                    return settle
             return (nxt.status, nxt.reason)
-        return Burst(nxt.mode, FORWARD if nxt.direction > 0 else BACKWARD, nxt.steps, nxt.axis)
+        return Burst(nxt.mode, FORWARD if nxt.direction > 0 else BACKWARD, nxt.steps, nxt.axis, nxt.path)
+
+    def _theta_to_zero(self) -> Burst | None:
+        """One forward step of θ's finest orbit mode, which leaves its output at 0 V, where the
+        done check's ground leaves the plate (None: θ has no orbit mode).  Parts placed together
+        are done only with θ there: after backward steps the output rests at the top of its
+        table, and grounding it turns the plate about O with every part stuck to it, which turns
+        the pair and which no translation undoes (a CANopen pair 1.1 mm apart read 2.3–4.3 µm off
+        after each of its 4 grounds).  Once at 0 V the planner corrects that turn with forward
+        orbits.  The pair planner's backward orbits aim past their end
+        (:data:`~feeder.pose_pair.PAST`), so this step is rarely needed: a θ unknown since the
+        start (a former daemon's) counts as not at 0 V."""
+        modes = self.planner.model.orbit_modes()
+        if not modes:
+            return None
+        log.info("the parts are placed with θ resting after backward steps: one forward step first")
+        self._zeroing = True
+        return Burst(modes[-1], FORWARD, 1, "theta")
 
     def _within_tolerance(self, reading: Reading, targets: dict[int, Pose]) -> bool:
         """Every part with a target (or a held pose) is within the move's tolerance of it."""
