@@ -110,6 +110,24 @@ def test_a_taken_http_port_is_refused_before_anything_starts_or_is_written(short
     assert not state.exists() and time.monotonic() - begun < 10.0
 
 
+@pytest.mark.parametrize("socket_at", ["file", "file/s.sock", "long"])
+def test_a_socket_path_that_cannot_be_bound_is_refused_before_anything_is_written(
+    short_dir: Path, socket_at: str
+) -> None:
+    """The CLI audit: `--socket` naming a file, or a path over the 107 bytes a Unix socket
+    allows, was refused only after the state directory and its daemon.log had been made."""
+    state = short_dir / "state"
+    (short_dir / "file").write_text("a file")
+    path = str(short_dir / ("x" * 110) / "s.sock") if socket_at == "long" else str(short_dir / socket_at)
+    done = subprocess.run(
+        [sys.executable, "-m", "feeder", "daemon", "--line", "--state-dir", str(state), "--socket", path],
+        cwd=ROOT, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr and done.stderr.count("\n") == 1 and path in done.stderr
+    assert not state.exists() and (short_dir / "file").read_text() == "a file"
+
+
 @pytest.mark.parametrize("below", ["", "sub"])
 def test_a_state_lock_in_a_file_is_an_input_error_naming_it(short_dir: Path, below: str) -> None:
     """`vision calibrate-moves --state-dir FILE` (the CLI audit) was a FileExistsError traceback,

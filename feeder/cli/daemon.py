@@ -20,6 +20,7 @@ from feeder.daemon.config import TRANSPORTS, DaemonConfig, HttpConfig, embedded_
 from feeder.daemon.config_file import load_config
 from feeder.daemon.launcher import LaunchError
 from feeder.daemon.links import hardware_sensor, spawn_simulator
+from feeder.daemon.socket_server import check_socket_path
 from feeder.daemon.state_files import StoreError, check_state_file, move_aside
 from feeder.drivers.amplifier import AmplifierError
 from feeder.drivers.sensor import CameraError, SensorLost
@@ -135,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
             config, http=(config.http or HttpConfig()).listening_on(args.http, "--http")
         )
     hardware_sensor(config, str(args.config or "config"))  # refused before anything is written
+    check_socket_path(config.socket_path)  # a file or a too long path left daemon.log behind
     # a taken port too: it was found after the simulator had started and planned (~27 s), a
     # fresh state database and token left behind
     listener = None if config.http is None else listen(config.http.host, config.http.port)

@@ -86,6 +86,22 @@ def prepare_socket_dir(socket_path: Path) -> None:
         )
 
 
+def check_socket_path(socket_path: Path) -> None:
+    """:class:`InputError` naming ``socket_path`` when no socket can be bound there, whatever
+    runs: too long for a Unix socket, a file that is no socket, below a file.  Writes nothing
+    (the daemon's start checks it before its state directory and log exist)."""
+    field = str(socket_path)
+    if len(os.fsencode(socket_path)) >= 108:
+        raise InputError(field, "socket path is longer than the 107 bytes Unix sockets allow")
+    for above in socket_path.parents:
+        if os.path.lexists(above):
+            if not above.is_dir():
+                raise InputError(field, f"{above} is not a directory")
+            break
+    if os.path.lexists(socket_path) and not stat.S_ISSOCK(socket_path.lstat().st_mode):
+        raise InputError(field, "exists and is not a socket; refusing to replace it")
+
+
 def bind_socket(socket_path: Path) -> socket.socket:
     """A listening Unix socket at ``socket_path``, mode 0600.
 
@@ -93,14 +109,11 @@ def bind_socket(socket_path: Path) -> socket.socket:
     any path owned by another user is refused with :class:`InputError`.
     """
     field = str(socket_path)
-    if len(os.fsencode(socket_path)) >= 108:
-        raise InputError(field, "socket path is longer than the 107 bytes Unix sockets allow")
+    check_socket_path(socket_path)
     try:
         prepare_socket_dir(socket_path)
         if os.path.lexists(socket_path):
-            info = check_owned_by_me(socket_path, "socket")
-            if not stat.S_ISSOCK(info.st_mode):
-                raise InputError(field, "exists and is not a socket; refusing to replace it")
+            check_owned_by_me(socket_path, "socket")
             probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
             try:
                 probe.connect(str(socket_path))
