@@ -119,7 +119,9 @@ def each_axis_moves_only_its_own_plate_axis(axes: Axes, camera: PositionSensor) 
 def stop_on_all_axes(axes: Axes, camera: PositionSensor) -> None:
     before = settled(camera)
     axes["x"].step(100_000)  # one axis: its slips simulate ~3x faster than planar ones
-    camera.read(30.0)
+    deadline = time.monotonic() + 30.0  # stopped once the camera sees it run: a frame taken
+    while abs(camera.read(30.0).poses[0][0] - before[0]) <= STILL:  # before its first step
+        assert time.monotonic() < deadline, "x did not run"  # let the stop beat it (CI, loaded)
     axes.stop()
     stopped = settled(camera)
     assert not any(amplifier.status().moving for amplifier in axes.values())
