@@ -196,10 +196,8 @@ class PosePlanner:
         return {"gains": self.model.estimates_json(), "station_radius_m": self.turns.station_radius_m}
 
     # --- one part ----------------------------------------------------------
-    def part_burst(
-        self, poses: list[Pose], i: int, target: Pose, anchored: tuple[int, ...] = ()
-    ) -> AxisBurst | Finish | None:
-        """Next burst for part ``i`` alone (None: within tolerance); ``anchored`` parts must not turn.
+    def part_burst(self, poses: list[Pose], i: int, target: Pose) -> AxisBurst | Finish | None:
+        """Next burst for part ``i`` alone (None: within tolerance).
 
         A part sent towards a turning station goes on until it turns there, even when a reading on
         the way puts its angle within the tolerance: the angle read after a translation differs
@@ -214,7 +212,7 @@ class PosePlanner:
         turn = self.turns.angle_error(pose, target)
         trips = self._job.trips if self._job is not None else set()
         if abs(turn) > self.tolerance_rad or (i in trips and turn != 0):
-            nxt = self.turn_burst(poses, i, turn, target[:2], anchored)
+            nxt = self.turn_burst(poses, i, turn, target[:2])
             if abs(turn) > self.tolerance_rad or self._trip_goes_on(nxt, pose, turn):
                 if isinstance(nxt, AxisBurst) and nxt.axis != "theta":
                     trips.add(i)
@@ -240,7 +238,6 @@ class PosePlanner:
         i: int,
         turn: float,
         then_xy: tuple[float, float],
-        anchored: tuple[int, ...] = (),
     ) -> AxisBurst | Finish:
         """Turn part ``i`` by ``turn`` rad: here if it can, else move to a station first."""
         pose = poses[i]
@@ -249,7 +246,7 @@ class PosePlanner:
             return Finish("unreachable", "no θ mode turns the part anywhere within the travel")
         blocked = None  # why turning here cannot go on (a neighbour): a station may have room
         if self.turns.turns_here(pose, 1 if turn > 0 else -1):
-            burst = self.turns.theta_burst(poses, i, turn, anchored)
+            burst = self.turns.theta_burst(poses, i, turn)
             if isinstance(burst, AxisBurst):
                 return burst
             blocked = burst

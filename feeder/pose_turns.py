@@ -77,11 +77,18 @@ class TurnPlanner:
         return self.station_radius_m
 
     def theta_burst(
-        self, poses: list[Pose], i: int, amount: float, anchored: tuple[int, ...] = (), quantity: str = "turn"
+        self,
+        poses: list[Pose],
+        i: int,
+        amount: float,
+        anchored: tuple[int, ...] = (),
+        quantity: str = "turn",
+        anchored_angles: bool = True,
     ) -> AxisBurst | Finish | None:
         """A θ burst that turns (or orbits, ``quantity`` "orbit") part ``i`` by up to ``amount`` rad:
         a turn with θ's turning modes, an orbit with those that hold parts near O
-        (:meth:`~feeder.pose_response.ResponseModel.orbit_modes`).
+        (:meth:`~feeder.pose_response.ResponseModel.orbit_modes`).  ``anchored`` parts stay put
+        (and keep their angle unless ``anchored_angles`` is False: held at any angle).
 
         None: no mode moves it by a useful amount here, or not even one step fits the travel;
         Finish ("unreachable"): every useful mode's first step would bring two parts within
@@ -116,7 +123,9 @@ class TurnPlanner:
                 continue
             scale = 1 + 2 * std / step
             steps = self._theta_count(pose, direction, mode, need, scale, mode != fine, quantity)
-            steps, crowded, left = self._theta_within(poses, direction, mode, steps, scale, anchored)
+            steps, crowded, left = self._theta_within(
+                poses, direction, mode, steps, scale, anchored, anchored_angles
+            )
             if steps >= 1:
                 return AxisBurst("theta", direction, steps, mode)
             blocked = blocked or crowded
@@ -183,6 +192,7 @@ class TurnPlanner:
         steps: int,
         scale: float,
         anchored: tuple[int, ...],
+        anchored_angles: bool = True,
     ) -> tuple[int, tuple[int, int] | None, int | None]:
         """``steps`` cut where some part's orbit with its largest plausible step (at least the
         pessimistic one; ``predict``'s ``bound``, each part at its own radius) leaves the travel
@@ -211,7 +221,7 @@ class TurnPlanner:
                     return n - 1, None, k
                 if k in anchored and (
                     math.hypot(nxt[0] - poses[k][0], nxt[1] - poses[k][1]) > 0.2 * self.tolerance_m
-                    or abs(nxt[2] - poses[k][2]) > 0.2 * self.tolerance_rad
+                    or (anchored_angles and abs(nxt[2] - poses[k][2]) > 0.2 * self.tolerance_rad)
                 ):
                     return n - 1, None, None
                 states[k] = nxt

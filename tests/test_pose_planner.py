@@ -15,7 +15,7 @@ from feeder.plant.stick_slip import Friction
 from feeder.pose import Pose, pose_error
 from feeder.pose_burst import AxisBurst, Finish
 from feeder.pose_gain import GainFilter
-from feeder.pose_pair import _anchor, _length_leg, _length_orbit, anchor_radius_m
+from feeder.pose_pair import _anchor, _length_leg, _length_orbit, anchor_radius_m, next_pair_burst
 from feeder.pose_planner import PROBE_FRACTION, PosePlanner
 from feeder.pose_response import ANCHOR_MODES, AxisMode, ResponseModel, TurnTable, seed_response
 from feeder.travel import Travel
@@ -443,6 +443,48 @@ def test_a_pair_ends_on_a_forward_orbit_so_that_grounding_theta_leaves_it_placed
     for pid, target in targets.items():
         pose = world.poses()[pid - 1]
         assert math.hypot(pose[0] - target[0], pose[1] - target[1]) <= TOL_M, (pid, pose, target)
+
+
+DEAD_ZONE_TURN_RAD = 30e-6
+
+
+class TurningDeadZone(ResponseModel):
+    """The seed, but a θ step also turns a part in the dead zone (by 6.5 µrad in the CAN plane's
+    learned response at 0.42 mm from O, the plant's ringing; the seed's turn there is ~0)."""
+
+    def predict(
+        self,
+        axis: str,
+        direction: int,
+        mode: str,
+        steps: int,
+        pose: tuple[float, float, float],
+        scale: float = 1.0,
+        bound: bool = False,
+    ) -> tuple[float, float, float]:
+        x, y, psi = super().predict(axis, direction, mode, steps, pose, scale, bound)
+        if axis == "theta" and math.hypot(pose[0], pose[1]) < 0.5e-3:
+            psi += direction * steps * DEAD_ZONE_TURN_RAD
+        return x, y, psi
+
+
+def test_a_pair_whose_anchor_is_held_at_any_angle_orbits_in_bursts_its_turn_does_not_cut() -> None:
+    """A's turn cut each orbit burst at 0.2 × the angle tolerance (0.02°) even when A was held at
+    any angle; every burst then costs A's re-anchoring (on the CAN plane 117–131 bursts, 160–170 s
+    for a pair).  Held at an angle, A's turn still cuts them."""
+    seed = seed_response(PART, BOTH, RADII)
+    planner = PosePlanner(TurningDeadZone(seed.translation, seed.turn), TRAVEL, PART, TOL_M, TOL_RAD)
+    poses = [(0.45e-3, 0.0, 0.0), (-1.2e-3, 0.3e-3, 0.0)]
+    c, s = math.cos(-0.3), math.sin(-0.3)  # B 0.3 rad on, backward, as far from O: from where A is
+    end = (c * poses[1][0] - s * poses[1][1], s * poses[1][0] + c * poses[1][1])
+    bursts = {}
+    for angle in (math.nan, 0.0):
+        targets = {1: (0.45e-3, 0.0, angle), 2: (*end, math.nan)}
+        bursts[angle == 0.0] = next_pair_burst(planner, poses, targets)
+    free, held = bursts[False], bursts[True]
+    assert isinstance(free, AxisBurst) and isinstance(held, AxisBurst)
+    assert free.axis == held.axis == "theta" and free.direction == held.direction == -1
+    assert held.steps <= 0.2 * TOL_RAD / DEAD_ZONE_TURN_RAD < free.steps
 
 
 def test_learned_gains_survive_a_restart_and_mismatched_ones_are_left_at_the_seed() -> None:
