@@ -16,7 +16,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from feeder.daemon.config import DaemonConfig, default_socket_path, default_state_dir
+from feeder.daemon.config import (
+    SIM_TICK_WATCHDOG_S,
+    DaemonConfig,
+    default_socket_path,
+    default_state_dir,
+    embedded_plane,
+)
 from feeder.daemon.config_file import SECTIONS, load_config
 from feeder.daemon.links import open_links, simulator_args
 from feeder.errors import InputError
@@ -132,6 +138,12 @@ def test_simulator_gets_our_part_and_amplifier_rating(tmp_path: Path) -> None:
     assert args[-2:] == ["--seed", "9"]
     assert "--can" not in args
     assert "--can" in simulator_args(load_config(path).with_transport("can"))
+    # the embedded line's tick watchdog is relaxed as the plane's: a loaded CI machine stalled
+    # the simulator's process > 0.25 s and `feeder demo --line` ended a move "Axis in wrong mode"
+    for world in (load_config(path), embedded_plane(load_config(path))):
+        sim = simulator_args(world)
+        assert sim.count("--watchdog-s") == 1
+        assert float(sim[sim.index("--watchdog-s") + 1]) == SIM_TICK_WATCHDOG_S
 
 
 @pytest.mark.parametrize(

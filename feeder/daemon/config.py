@@ -319,8 +319,11 @@ PLANE_AVERAGE_FRAMES = 1
 """Frames averaged per measurement (15 frames/s; one frame's noise is ~0.015 µm as measured at
 rest (``status`` ``sensor_noise_seen_m``) and ~0.01°, far below the default tolerances); two
 must agree all the same (:data:`~feeder.daemon.burst_cycle.MIN_AGREEING`)."""
-PLANE_TICK_WATCHDOG_S = 2.0
-"""The simulated planar world's tick watchdog and the loop's grace for a burst's end: the
+SIM_TICK_WATCHDOG_S = 2.0
+"""The embedded simulator's tick watchdog (line and plane; firmware_sim's own default is 0.25 s)
+and, in the plane, the loop's grace for a burst's end.  A loaded machine deschedules the
+simulator's process, which is no stalled firmware: at 0.25 s a CI run's `feeder demo --line`
+ended a move `fault` ("stepu: Axis in wrong mode", the watchdog having grounded the axis).  The
 planar plant runs in the firmware's tick (its slowest 1 ms tick: ~1 ms for one axis, 5.3 ms
 over 50 random drives of up to three axes; seconds before the near-miss fix), and a machine
 loaded by a browser starting, the camera's encoding and decoding and the daemon delays it by
@@ -331,7 +334,7 @@ simulated amplifier's link timeout is as long."""
 PLANE_HEARTBEAT_S = 0.8
 """The simulated CANopen nodes' heartbeat in the plane, lost after 2.5 periods
 (:data:`~feeder.drivers.canopen_link.HEARTBEAT_LOSS_PERIODS`): 2 s, as long as the tick watchdog
-grants the planar plant's slowest tick (:data:`PLANE_TICK_WATCHDOG_S`), which holds the simulator's
+grants the planar plant's slowest tick (:data:`SIM_TICK_WATCHDOG_S`), which holds the simulator's
 heartbeat back too (at 0.5 s, a node was taken for lost after 1.47 s on a loaded machine, and a
 move ended ``fault``)."""
 
@@ -348,14 +351,14 @@ def embedded_plane(config: DaemonConfig) -> DaemonConfig:
         max_y_m=PLANE_TRAVEL_M,
         settle_s=PLANE_SETTLE_S,
         average_samples=PLANE_AVERAGE_FRAMES,
-        burst_grace_s=PLANE_TICK_WATCHDOG_S,
+        burst_grace_s=SIM_TICK_WATCHDOG_S,
     )
     parts = config.plate.parts if config.plate.planar or config.plate.parts_given else (PLANE_START_POSE,)
     plate = dataclasses.replace(config.plate, axes=AXES, parts=parts)
     amplifier = config.amplifier
-    if amplifier.simulated:  # the simulated plant's rare slow tick (PLANE_TICK_WATCHDOG_S)
+    if amplifier.simulated:  # the simulated plant's rare slow tick (SIM_TICK_WATCHDOG_S)
         can = {"heartbeat_s": PLANE_HEARTBEAT_S, **amplifier.can}
-        amplifier = dataclasses.replace(amplifier, timeout_s=PLANE_TICK_WATCHDOG_S, can=can)
+        amplifier = dataclasses.replace(amplifier, timeout_s=SIM_TICK_WATCHDOG_S, can=can)
     return dataclasses.replace(config, loop=loop, plate=plate, amplifier=amplifier)
 
 

@@ -17,7 +17,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from feeder.daemon.config import PLANE_TICK_WATCHDOG_S, DaemonConfig, uses_camera
+from feeder.daemon.config import SIM_TICK_WATCHDOG_S, DaemonConfig, uses_camera
 from feeder.daemon.launcher import Simulator
 from feeder.drivers.amplifier import Amplifier
 from feeder.drivers.anc300 import Anc300Amplifier
@@ -212,6 +212,9 @@ def simulator_args(config: DaemonConfig) -> list[str]:
             "--stack-output-resistance-ohm",
             repr(stack.output_resistance_ohm),
         ]
+    # a loaded machine stalls the simulator's process, not a firmware: its tick watchdog is
+    # relaxed (SIM_TICK_WATCHDOG_S); the planar plant's slips also share the firmware's tick
+    args += ["--watchdog-s", repr(SIM_TICK_WATCHDOG_S)]
     if not config.plate.planar:  # the line's position stream; the plane's camera sees the parts
         args += ["--sensor", "tcp:127.0.0.1:0"]
     if config.amplifier.transport == "can":
@@ -222,10 +225,6 @@ def simulator_args(config: DaemonConfig) -> list[str]:
     if plate.planar:
         parts = ";".join(",".join(repr(v) for v in pose) for pose in plate.parts)
         args += [
-            # the planar plant's slips share the firmware's tick: a slow one on a loaded
-            # machine must not trip the tick watchdog meant for a stalled firmware (0.25 s)
-            "--watchdog-s",
-            repr(PLANE_TICK_WATCHDOG_S),
             "--plant",
             "planar",
             f"--parts={parts}",
