@@ -217,7 +217,9 @@ def test_the_camera_is_calibrated_from_the_page_and_stop_ends_it(
     )
     lines = page.inner_text("#camera-result").splitlines()
     assert float(lines[0].split(" µm/px")[0]) == pytest.approx(2.7, rel=0.05) and "mirrored" not in lines[0]
-    assert lines[2] == "not stored"
+    # not stored (save unchecked); the 20 V moves are 0.5 px, so a return of 0.04 px may be judged
+    # a slip, as once on a loaded CI machine ("not stored: the parts slipped")
+    assert lines[2] in ("not stored", "not stored: the parts slipped")
     assert daemon.request("status")["camera_calibration"]["source"] == "configuration"
     page.wait_for_function("document.getElementById('state').className === 'idle'", timeout=5_000)
     time.sleep(0.2)  # a status taken before the answer arrived does not bring the last step back

@@ -264,7 +264,7 @@ function onStatus() {
     if (lastState !== state) trajectory = [];
     if (part) trajectory.push([statusTime, ...part.pose]);
   } else if (lastState === "moving" || lastState === "calibrating") {
-    loadHistory();
+    loadHistory(true);
     drawTrajectory();
   }
   if (trajectory.length % 5 === 1) drawTrajectory();
@@ -433,14 +433,23 @@ function plot(canvas, series, xLabel) {
   }
 }
 
-async function loadHistory() {
-  const answer = await api("GET", "/api/history?limit=50");
-  if (!answer || !answer.ok) return;
-  // the recorded error: along x on one axis (signed), the centre's distance from the target in the plane
-  const moves = answer.moves.filter((m) => m.error_m !== null && m.error_m !== undefined);
-  const points = moves.map((m) => [m.id, m.error_m * UM]);
-  window.consoleStats.history = points;
-  plot($("history"), [{ points, color: "#1565c0", dots: true }], "move id");
+const newest = (points) => points.reduce((top, p) => Math.max(top, p[0]), -Infinity);
+
+async function loadHistory(aMoveEnded = false) {
+  // a move that just ended: its record is finished by the daemon's writer thread, which a loaded
+  // machine may leave behind the status saying idle; ask again (10 × 0.5 s) until it is there
+  const shown = newest(window.consoleStats.history || []);
+  for (let tries = 0; tries < (aMoveEnded ? 10 : 1); tries += 1) {
+    if (tries) await new Promise((done) => setTimeout(done, 500));
+    const answer = await api("GET", "/api/history?limit=50");
+    if (!answer || !answer.ok) return;
+    // the recorded error: along x on one axis (signed), the centre's distance from the target in the plane
+    const moves = answer.moves.filter((m) => m.error_m !== null && m.error_m !== undefined);
+    const points = moves.map((m) => [m.id, m.error_m * UM]);
+    window.consoleStats.history = points;
+    plot($("history"), [{ points, color: "#1565c0", dots: true }], "move id");
+    if (newest(points) > shown) return;
+  }
 }
 
 function drawTrajectory() {
