@@ -433,12 +433,10 @@ function plot(canvas, series, xLabel) {
   }
 }
 
-const newest = (points) => points.reduce((top, p) => Math.max(top, p[0]), -Infinity);
-
 async function loadHistory(aMoveEnded = false) {
   // a move that just ended: its record is finished by the daemon's writer thread, which a loaded
-  // machine may leave behind the status saying idle; ask again (10 × 0.5 s) until it is there
-  const shown = newest(window.consoleStats.history || []);
+  // machine may leave behind the status saying idle; ask again (10 × 0.5 s) while the newest
+  // record still reads "running"
   for (let tries = 0; tries < (aMoveEnded ? 10 : 1); tries += 1) {
     if (tries) await new Promise((done) => setTimeout(done, 500));
     const answer = await api("GET", "/api/history?limit=50");
@@ -448,7 +446,7 @@ async function loadHistory(aMoveEnded = false) {
     const points = moves.map((m) => [m.id, m.error_m * UM]);
     window.consoleStats.history = points;
     plot($("history"), [{ points, color: "#1565c0", dots: true }], "move id");
-    if (newest(points) > shown) return;
+    if (!answer.moves.length || answer.moves[0].status !== "running") return;
   }
 }
 
